@@ -2,4 +2,9 @@
 //! Eq. 11, the tick engine the controller evaluates every cycle, RBF models and CACLA-MTL.
 //! Everything here is pure computation: no I/O, no iceoryx2.
 
+pub mod activation;
+pub mod cacla;
+pub mod engine;
 pub mod promp;
+pub mod rbf;
+pub mod skill;

@@ -288,7 +288,10 @@ impl Primitive {
             .map(|d| fit_validated(&basis, d, config.ridge))
             .collect();
         let n = weights.len() as f64;
-        let mean = weights.iter().fold(DVector::zeros(basis.len() * dofs), |a, w| a + w) / n;
+        let mean = weights
+            .iter()
+            .fold(DVector::zeros(basis.len() * dofs), |a, w| a + w)
+            / n;
         let mut cov = DMatrix::zeros(mean.len(), mean.len());
         for w in &weights {
             let d = w - &mean;
@@ -522,7 +525,11 @@ mod tests {
                 let slope = 1.0 + 0.1 * i as f64;
                 let values = DMatrix::from_fn(n, 2, |r, c| {
                     let z = times[r] / dur;
-                    if c == 0 { slope * z } else { 0.5 - 0.05 * i as f64 * z }
+                    if c == 0 {
+                        slope * z
+                    } else {
+                        0.5 - 0.05 * i as f64 * z
+                    }
                 });
                 Demonstration::new(times, values)
             })
@@ -537,13 +544,20 @@ mod tests {
             assert!((s - 1.0).abs() < 1e-14);
         }
         assert!(Basis::new(1, None).is_err());
-        assert_eq!(Basis::new(5, Some(-1.0)), Err(PrimitiveError::BadWidth(-1.0)));
+        assert_eq!(
+            Basis::new(5, Some(-1.0)),
+            Err(PrimitiveError::BadWidth(-1.0))
+        );
     }
 
     #[test]
     fn trains_from_demos_of_different_lengths() {
-        let p = Primitive::train(Basis::new(10, None).unwrap(), &line_demos(), &TrainConfig::default())
-            .unwrap();
+        let p = Primitive::train(
+            Basis::new(10, None).unwrap(),
+            &line_demos(),
+            &TrainConfig::default(),
+        )
+        .unwrap();
         let m = p.marginal(0.5);
         // mean slope 1.25 at z = .5 → 0.625; offset DoF 0.5 − 0.125·0.5.
         assert!((m.mean[0] - 0.625).abs() < 1e-3, "{}", m.mean[0]);
@@ -553,9 +567,12 @@ mod tests {
 
     #[test]
     fn conditioning_passes_through_the_point_with_zero_noise() {
-        let mut p =
-            Primitive::train(Basis::new(10, None).unwrap(), &line_demos(), &TrainConfig::default())
-                .unwrap();
+        let mut p = Primitive::train(
+            Basis::new(10, None).unwrap(),
+            &line_demos(),
+            &TrainConfig::default(),
+        )
+        .unwrap();
         p.condition(&ViaPoint::exact(0.3, &[0.9, 0.1])).unwrap();
         p.condition(&ViaPoint::exact(0.8, &[0.2, 0.6])).unwrap();
         for (z, y) in [(0.3, [0.9, 0.1]), (0.8, [0.2, 0.6])] {
@@ -567,17 +584,24 @@ mod tests {
 
     #[test]
     fn temporal_scaling_runs_the_same_weights_over_another_duration() {
-        let p = Primitive::train(Basis::new(10, None).unwrap(), &line_demos(), &TrainConfig::default())
-            .unwrap();
+        let p = Primitive::train(
+            Basis::new(10, None).unwrap(),
+            &line_demos(),
+            &TrainConfig::default(),
+        )
+        .unwrap();
         assert_eq!(p.marginal_at(1.0, 4.0), p.marginal(0.25));
         assert_eq!(p.marginal_at(3.0, 12.0), p.marginal(0.25));
     }
 
     #[test]
     fn bad_input_is_refused_and_changes_nothing() {
-        let mut p =
-            Primitive::train(Basis::new(10, None).unwrap(), &line_demos(), &TrainConfig::default())
-                .unwrap();
+        let mut p = Primitive::train(
+            Basis::new(10, None).unwrap(),
+            &line_demos(),
+            &TrainConfig::default(),
+        )
+        .unwrap();
         let before = p.clone();
         let bad = [
             ViaPoint::exact(0.5, &[f64::NAN, 0.0]),
@@ -596,8 +620,12 @@ mod tests {
 
         let mut demos = line_demos();
         demos[2].values[(3, 1)] = f64::NAN;
-        let err = Primitive::train(Basis::new(10, None).unwrap(), &demos, &TrainConfig::default())
-            .unwrap_err();
+        let err = Primitive::train(
+            Basis::new(10, None).unwrap(),
+            &demos,
+            &TrainConfig::default(),
+        )
+        .unwrap_err();
         assert!(err.to_string().contains("demonstration 2"), "{err}");
         assert_eq!(
             Primitive::train(Basis::new(10, None).unwrap(), &[], &TrainConfig::default()),
@@ -608,7 +636,8 @@ mod tests {
     #[test]
     fn zero_variance_dof_with_zero_noise_is_singular_not_nan() {
         let basis = Basis::new(4, None).unwrap();
-        let p0 = Primitive::from_weights(basis, 1, DVector::zeros(4), DMatrix::zeros(4, 4)).unwrap();
+        let p0 =
+            Primitive::from_weights(basis, 1, DVector::zeros(4), DMatrix::zeros(4, 4)).unwrap();
         let mut p = p0.clone();
         assert_eq!(
             p.condition(&ViaPoint::exact(0.5, &[1.0])),

@@ -8,12 +8,19 @@ use softarm_daemon::promp::{Basis, Demonstration, Primitive, TrainConfig, ViaPoi
 const TOL: f64 = 1e-9;
 
 fn reference() -> Value {
-    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/promp_movement_primitives.json");
+    let path = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/tests/data/promp_movement_primitives.json"
+    );
     serde_json::from_str(&std::fs::read_to_string(path).expect("reference file")).unwrap()
 }
 
 fn vector(v: &Value) -> Vec<f64> {
-    v.as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect()
+    v.as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x.as_f64().unwrap())
+        .collect()
 }
 
 fn matrix(v: &Value) -> Vec<Vec<f64>> {
@@ -26,7 +33,10 @@ fn assert_close(what: &str, got: &[f64], want: &[f64]) {
     let scale = want.iter().fold(0.0f64, |m, v| m.max(v.abs())).max(1e-300);
     for (i, (g, w)) in got.iter().zip(want).enumerate() {
         let err = (g - w).abs() / w.abs().max(scale * 1e-3).max(1e-12);
-        assert!(err <= TOL, "{what}[{i}]: got {g:e}, want {w:e} (rel {err:e})");
+        assert!(
+            err <= TOL,
+            "{what}[{i}]: got {g:e}, want {w:e} (rel {err:e})"
+        );
     }
 }
 
@@ -58,7 +68,9 @@ fn demos(reference: &Value) -> Vec<Demonstration> {
 }
 
 fn trajectory(m: &DMatrix<f64>) -> Vec<f64> {
-    (0..m.nrows()).flat_map(|r| [m[(r, 0)], m[(r, 1)]]).collect()
+    (0..m.nrows())
+        .flat_map(|r| [m[(r, 0)], m[(r, 1)]])
+        .collect()
 }
 
 #[test]
@@ -67,7 +79,10 @@ fn agrees_with_movement_primitives() {
     let phases = vector(&r["T"]);
     let basis = Basis::new(10, None).unwrap();
 
-    let phi: Vec<f64> = phases.iter().flat_map(|&z| basis.evaluate(z).data.as_vec().clone()).collect();
+    let phi: Vec<f64> = phases
+        .iter()
+        .flat_map(|&z| basis.evaluate(z).data.as_vec().clone())
+        .collect();
     assert_close("phi_1d", &phi, &matrix(&r["phi_1d"]).concat());
 
     let demos = demos(&r);
@@ -81,20 +96,37 @@ fn agrees_with_movement_primitives() {
         regularisation: 0.0,
     };
     let p = Primitive::train(basis, &demos, &config).unwrap();
-    assert_close("ls_mu_w", p.weight_mean().as_slice(), &vector(&r["ls_mu_w"]));
+    assert_close(
+        "ls_mu_w",
+        p.weight_mean().as_slice(),
+        &vector(&r["ls_mu_w"]),
+    );
     let sigma: Vec<f64> = (0..20)
         .flat_map(|row| (0..20).map(move |c| (row, c)))
         .map(|(row, c)| p.weight_cov()[(row, c)])
         .collect();
     assert_close("ls_sigma_w", &sigma, &matrix(&r["ls_sigma_w"]).concat());
 
-    assert_close("ls_mean_traj", &trajectory(&p.mean_trajectory(&phases)), &matrix(&r["ls_mean_traj"]).concat());
-    assert_close("ls_var_traj", &trajectory(&p.variance_trajectory(&phases)), &matrix(&r["ls_var_traj"]).concat());
+    assert_close(
+        "ls_mean_traj",
+        &trajectory(&p.mean_trajectory(&phases)),
+        &matrix(&r["ls_mean_traj"]).concat(),
+    );
+    assert_close(
+        "ls_var_traj",
+        &trajectory(&p.variance_trajectory(&phases)),
+        &matrix(&r["ls_var_traj"]).concat(),
+    );
 
     let mut c = p.clone();
     let t_star = r["ls_cond_t_star"].as_f64().unwrap();
-    c.condition(&ViaPoint::exact(t_star, &vector(&r["ls_cond_y_star"]))).unwrap();
-    assert_close("ls_cond_mu_w", c.weight_mean().as_slice(), &vector(&r["ls_cond_mu_w"]));
+    c.condition(&ViaPoint::exact(t_star, &vector(&r["ls_cond_y_star"])))
+        .unwrap();
+    assert_close(
+        "ls_cond_mu_w",
+        c.weight_mean().as_slice(),
+        &vector(&r["ls_cond_mu_w"]),
+    );
     assert_close(
         "ls_cond_mean_traj",
         &trajectory(&c.mean_trajectory(&phases)),
@@ -108,5 +140,9 @@ fn agrees_with_movement_primitives() {
 
     // Conditioning on y* = the stored point reproduces it.
     let m = c.marginal(t_star);
-    assert_close("conditioned mean at t*", m.mean.as_slice(), &vector(&r["ls_cond_y_star"]));
+    assert_close(
+        "conditioned mean at t*",
+        m.mean.as_slice(),
+        &vector(&r["ls_cond_y_star"]),
+    );
 }
