@@ -1,8 +1,19 @@
 //! `softarm`: one command for every process and client of the stack.
 
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::Arc;
+use std::sync::atomic::AtomicBool;
+use std::time::Duration;
+
 use clap::{Parser, Subcommand};
+use softarm_clients::{estop, stats, status, submit, train};
+use softarm_daemon::config::Config;
+use softarm_ipc::Namespace;
 
 mod bench;
+mod demo;
+mod up;
 
 /// Task-driven skill learning for a two-module soft continuum arm: ProMPs blended by the paper's
 /// Eq. 11, conditioning points learned online by CACLA-MTL.
@@ -13,23 +24,254 @@ struct Cli {
     command: Command,
 }
 
+/// Which stack: the config file, and optionally another namespace than the config's.
+#[derive(clap::Args, Clone)]
+struct Stack {
+    /// The config file (default: the embedded simulation config, paths relative to here).
+    #[arg(long, global = true)]
+    config: Option<PathBuf>,
+    /// The iceoryx2 namespace (default: the config's, softarm/<robot-id>).
+    #[arg(long, global = true)]
+    namespace: Option<String>,
+}
+
+impl Stack {
+    fn load(&self) -> Result<Config, String> {
+        let mut c = match &self.config {
+            Some(p) => Config::load(p).map_err(|e| e.to_string())?,
+            None => Config::default_sim(PathBuf::from(".")),
+        };
+        if let Some(ns) = &self.namespace {
+            Namespace::new(ns)?;
+            c.robot.namespace = Some(ns.clone());
+        }
+        Ok(c)
+    }
+
+    fn namespace(&self) -> Result<Namespace, String> {
+        Namespace::new(&self.load()?.namespace())
+    }
+
+    /// The arguments that start a child on the same stack.
+    fn args(&self) -> Vec<String> {
+        let mut v = Vec::new();
+        if let Some(c) = &self.config {
+            v.extend(["--config".into(), c.display().to_string()]);
+        }
+        if let Some(n) = &self.namespace {
+            v.extend(["--namespace".into(), n.clone()]);
+        }
+        v
+    }
+}
+
 #[derive(Subcommand)]
 enum Command {
-    /// Time the controller's hot paths on this machine: one Eq. 11 tick, re-conditioning a
-    /// group, a CACLA-MTL update; prints min / p50 / p99 / p99.9 / max.
+    /// The showcase: the simulated stack, trained if needed, learning a way-point set.
+    Demo(demo::Args),
+    /// Controller, learner and the configured drivers as children, in the foreground.
+    Up(Stack),
+    /// The fixed-rate controller process.
+    Controller(Stack),
+    /// The CACLA-MTL learner process.
+    Learner(Stack),
+    /// The simulated plant (driver process).
+    Sim(Stack),
+    /// Demonstrations through the running stack, then ProMPs, forward model, pre-training.
+    Train {
+        #[command(flatten)]
+        stack: Stack,
+        /// Seeds the demonstration sequences.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+    },
+    /// Submits a way-point set; exit 0 accepted, 2 rejected, 1 no controller.
+    Submit {
+        /// Way-point file (TOML: duration_s, [[point]] t_s, position_m).
+        waypoints: PathBuf,
+        #[arg(long, default_value_t = 1)]
+        executions: u32,
+        /// Follow the set's stats until its executions are done.
+        #[arg(long)]
+        wait: bool,
+        #[command(flatten)]
+        stack: Stack,
+    },
+    /// The error at each conditioning point per execution.
+    Stats {
+        /// Keep printing new executions.
+        #[arg(long)]
+        follow: bool,
+        /// One JSON object per execution and line.
+        #[arg(long)]
+        json: bool,
+        #[command(flatten)]
+        stack: Stack,
+    },
+    /// Which processes are alive, the controller's state, tick timing, data ages.
+    Status {
+        #[arg(long)]
+        json: bool,
+        #[command(flatten)]
+        stack: Stack,
+    },
+    /// Engages the e-stop (latched), or releases it with --reset.
+    Estop {
+        #[arg(long)]
+        reset: bool,
+        #[command(flatten)]
+        stack: Stack,
+    },
+    /// Checks configuration files.
+    Config {
+        #[command(subcommand)]
+        command: ConfigCommand,
+    },
+    /// Times the controller's hot paths on this machine (min / p50 / p99 / p99.9 / max).
     Bench(bench::Args),
 }
 
-fn main() -> std::process::ExitCode {
-    let cli = Cli::parse();
-    let result = match cli.command {
-        Command::Bench(args) => bench::run(&args),
-    };
-    match result {
-        Ok(()) => std::process::ExitCode::SUCCESS,
+#[derive(Subcommand)]
+enum ConfigCommand {
+    /// Checks a config file; prints the first error with its key and line.
+    Check { file: PathBuf },
+    /// Prints the embedded default config.
+    Default,
+}
+
+fn init_logging() {
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+        .with_target(false)
+        .try_init();
+}
+
+/// SIGINT and SIGTERM set the returned flag; processes finish their loop and clean up.
+fn stop_flag() -> Result<Arc<AtomicBool>, String> {
+    let flag = Arc::new(AtomicBool::new(false));
+    for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        signal_hook::flag::register(sig, flag.clone()).map_err(|e| format!("signal handler: {e}"))?;
+    }
+    Ok(flag)
+}
+
+fn run(cli: Cli) -> Result<ExitCode, String> {
+    match cli.command {
+        Command::Demo(args) => demo::run(&args, &*stop_flag()?)?,
+        Command::Up(stack) => {
+            let config = stack.load()?;
+            up::run(stack.args(), &config.robot.drivers, &*stop_flag()?)?
+        }
+        Command::Controller(stack) => softarm_daemon::controller::run(&stack.load()?, &*stop_flag()?)?,
+        Command::Learner(stack) => softarm_daemon::learner::run(&stack.load()?, &*stop_flag()?)?,
+        Command::Sim(stack) => {
+            let c = stack.load()?;
+            softarm_hal_drivers::sim::run(&c.sim, &c.arm, Namespace::new(&c.namespace())?, &*stop_flag()?)?
+        }
+        Command::Train { stack, seed } => {
+            let config = stack.load()?;
+            let r = train::train(&config, &stack.namespace()?, seed)?;
+            println!(
+                "trained model {} in {}: {} demonstrations ({} samples, {:.1} s); forward model held-out \
+                 error {:.2} mm mean, {:.2} mm max; pre-training {:.1} s, {} updates",
+                r.model_id,
+                config.model_dir().display(),
+                r.demos,
+                r.samples,
+                r.demonstrate_s,
+                r.forward_error_m.0 * 1e3,
+                r.forward_error_m.1 * 1e3,
+                r.pretrain_s,
+                r.pretrain_updates
+            );
+        }
+        Command::Submit {
+            waypoints,
+            executions,
+            wait,
+            stack,
+        } => {
+            let config = stack.load()?;
+            let set = match submit::prepare(&config, &waypoints, executions) {
+                Ok(s) => s,
+                Err(reason) => {
+                    println!("rejected: {reason}");
+                    return Ok(ExitCode::from(2));
+                }
+            };
+            let ns = stack.namespace()?;
+            let follower = if wait { Some(stats::Stats::open(&ns)?) } else { None };
+            let outcome = submit::submit(&ns, set, Duration::from_secs(10));
+            match &outcome {
+                submit::Outcome::Accepted { set_id } => println!("accepted: set {set_id}"),
+                submit::Outcome::Rejected { reason } => println!("rejected: {reason}"),
+                submit::Outcome::Unreachable { message } => eprintln!("softarm: {message}"),
+            }
+            if let (Some(f), submit::Outcome::Accepted { set_id }) = (follower, &outcome) {
+                println!("{}", stats::table_header(set.count as usize));
+                let mut done = 0;
+                let limit = Duration::from_secs_f64(set.duration_s + config.controller.rest_s + 30.0);
+                while done < executions {
+                    let s = f.next(limit).ok_or("no stats arrived: is the stack still running?")?;
+                    if s.set_id == *set_id {
+                        println!("{}", stats::table_row(&s));
+                        done += 1;
+                    }
+                }
+            }
+            return Ok(ExitCode::from(outcome.exit_code()));
+        }
+        Command::Stats { follow, json, stack } => {
+            let f = stats::Stats::open(&stack.namespace()?)?;
+            let mut header = None;
+            let wait = if follow { Duration::from_secs(3600 * 24 * 365) } else { Duration::from_millis(500) };
+            while let Some(s) = f.next(wait) {
+                if json {
+                    println!("{}", stats::json_line(&s));
+                } else {
+                    if header != Some(s.count) {
+                        println!("{}", stats::table_header(s.count as usize));
+                        header = Some(s.count);
+                    }
+                    println!("{}", stats::table_row(&s));
+                }
+            }
+        }
+        Command::Status { json, stack } => {
+            let r = status::status(&stack.namespace()?, Duration::from_secs(1))?;
+            if json {
+                println!("{}", status::json(&r));
+            } else {
+                print!("{}", status::text(&r));
+            }
+        }
+        Command::Estop { reset, stack } => {
+            let n = estop::send(&stack.namespace()?, !reset)?;
+            println!("e-stop {} ({n} receivers)", if reset { "released" } else { "engaged" });
+        }
+        Command::Config { command } => match command {
+            ConfigCommand::Check { file } => {
+                let c = Config::load(&file).map_err(|e| e.to_string())?;
+                println!("{}: ok (namespace {})", file.display(), c.namespace());
+            }
+            ConfigCommand::Default => print!("{}", softarm_daemon::config::DEFAULT),
+        },
+        Command::Bench(args) => bench::run(&args)?,
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn main() -> ExitCode {
+    init_logging();
+    match run(Cli::parse()) {
+        Ok(code) => code,
         Err(e) => {
             eprintln!("softarm: {e}");
-            std::process::ExitCode::FAILURE
+            ExitCode::FAILURE
         }
     }
 }

@@ -1,1 +1,32 @@
+//! softarm's user-facing clients of a running stack: `submit`, `stats`, `status`, `estop` and
+//! `train`. Each is a short-lived iceoryx2 node in the stack's namespace.
 
+pub mod estop;
+pub mod stats;
+pub mod status;
+pub mod submit;
+pub mod train;
+
+use std::time::{Duration, Instant};
+
+/// Polls `f` every millisecond until it yields or `timeout` passes.
+pub(crate) fn poll<T>(timeout: Duration, mut f: impl FnMut() -> Option<T>) -> Option<T> {
+    let start = Instant::now();
+    loop {
+        if let Some(v) = f() {
+            return Some(v);
+        }
+        if start.elapsed() >= timeout {
+            return None;
+        }
+        std::thread::sleep(Duration::from_millis(1));
+    }
+}
+
+/// The message for a stack that does not answer.
+pub(crate) fn unreachable(namespace: &str, what: &str) -> String {
+    format!(
+        "no controller answered {what} in namespace {namespace:?}: is `softarm up` running there \
+         (same --config or --namespace)?"
+    )
+}

@@ -352,6 +352,8 @@ pub struct PretrainConfig {
     /// Visits of each target at most per epoch.
     pub visits_per_epoch: usize,
     pub max_epochs: u64,
+    /// Wall-clock budget (s) for whoever runs the pre-training (`softarm train`).
+    pub budget_s: f64,
 }
 
 impl Default for PretrainConfig {
@@ -361,6 +363,7 @@ impl Default for PretrainConfig {
             threshold_m: 0.005,
             visits_per_epoch: 100,
             max_epochs: u64::MAX,
+            budget_s: 30.0,
         }
     }
 }

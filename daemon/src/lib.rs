@@ -1,6 +1,8 @@
 //! softarm's controller and learner math: ProMPs, the activations and blend of the paper's
 //! Eq. 11, the tick engine the controller evaluates every cycle, RBF models and CACLA-MTL.
-//! Everything here is pure computation: no I/O, no iceoryx2.
+//! The math modules (promp, activation, engine, rbf, cacla, skill) are pure computation: no
+//! I/O, no iceoryx2. The processes (controller, learner) and the files (config, bundle,
+//! waypoints) build on them.
 
 pub mod activation;
 pub mod cacla;
@@ -8,3 +10,8 @@ pub mod engine;
 pub mod promp;
 pub mod rbf;
 pub mod skill;
+pub mod bundle;
+pub mod config;
+pub mod controller;
+pub mod learner;
+pub mod waypoints;

@@ -457,6 +457,27 @@ impl RbfNetwork {
     pub fn centres(&self) -> usize {
         self.centres.len()
     }
+
+    /// (centres, σ, output weights), for saving.
+    pub fn parts(&self) -> (&[[f64; 6]], f64, &[[f64; 3]]) {
+        (&self.centres, self.sigma, &self.weights)
+    }
+
+    /// A network from saved parts; the weights need one row per centre plus seven.
+    pub fn from_parts(centres: Vec<[f64; 6]>, sigma: f64, weights: Vec<[f64; 3]>) -> Result<Self, String> {
+        if centres.is_empty() || weights.len() != centres.len() + 7 {
+            return Err(format!(
+                "forward model: {} centres need {} weight rows, got {}",
+                centres.len(),
+                centres.len() + 7,
+                weights.len()
+            ));
+        }
+        if !(sigma.is_finite() && sigma > 0.0) {
+            return Err(format!("forward model: σ must be > 0, got {sigma}"));
+        }
+        Ok(Self { centres, sigma, weights })
+    }
 }
 
 impl ForwardModel for RbfNetwork {

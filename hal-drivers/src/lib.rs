@@ -3,3 +3,4 @@
 
 pub mod pcc;
 pub mod plant;
+pub mod sim;

@@ -139,6 +139,11 @@ impl Plant {
         self.time
     }
 
+    /// Where the actuators are (before actuation noise).
+    pub fn state(&self) -> [f64; ACTUATORS] {
+        self.state
+    }
+
     /// Advances by `dt` seconds with `command` applied, and measures.
     pub fn step(&mut self, command: &[f64; ACTUATORS], dt: f64) -> Measurement {
         let r = self.realism;

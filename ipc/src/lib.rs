@@ -1,1 +1,568 @@
+//! The contract every softarm process shares: payload types, service names and the one function
+//! per service that opens it with its settings. Every process builds its iceoryx2 node and ports
+//! from here, so types and service settings can never diverge (DESIGN §2).
+//!
+//! Payloads are `#[repr(C)]`, fixed size, heap-free, and each carries a sequence number and a
+//! CLOCK_MONOTONIC stamp in ns. Positions are metres in the tracker/base frame; actuation is
+//! normalised per actuator to [0, 1].
 
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::node::NodeView;
+use iceoryx2::prelude::*;
+
+pub use iceoryx2;
+
+/// Actuators of the arm.
+pub const ACTUATORS: usize = 6;
+/// At most this many way-points (conditioning points) in a set.
+pub const MAX_WAYPOINTS: usize = 16;
+/// Longest reason text in a reply.
+pub const MAX_REASON: usize = 200;
+
+pub mod clock;
+pub use clock::now_ns;
+
+/// What the controller is doing.
+#[repr(u32)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum ControllerState {
+    /// No way-point set: holds the last setpoint.
+    #[default]
+    Idle = 0,
+    /// Playing demonstration sequences (training).
+    Demonstrate = 1,
+    /// Planning a newly accepted way-point set.
+    Plan = 2,
+    /// Executing a way-point set.
+    Execute = 3,
+    /// Tracker data too old: setpoint frozen at the last safe value.
+    Hold = 4,
+    /// E-stop latched.
+    Stopped = 5,
+}
+
+impl ControllerState {
+    pub fn from_u32(v: u32) -> Option<Self> {
+        use ControllerState::*;
+        [Idle, Demonstrate, Plan, Execute, Hold, Stopped]
+            .into_iter()
+            .find(|s| *s as u32 == v)
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            ControllerState::Idle => "IDLE",
+            ControllerState::Demonstrate => "DEMONSTRATE",
+            ControllerState::Plan => "PLAN",
+            ControllerState::Execute => "EXECUTE",
+            ControllerState::Hold => "HOLD",
+            ControllerState::Stopped => "STOPPED",
+        }
+    }
+}
+
+/// One per controller tick: the actuation to apply.
+#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
+#[type_name("softarm::Setpoint")]
+#[repr(C)]
+pub struct Setpoint {
+    pub seq: u64,
+    pub stamp_ns: u64,
+    pub actuation: [f64; ACTUATORS],
+    /// `ControllerState` as u32.
+    pub state: u32,
+    /// While demonstrating: the demonstration's index and class, else u32::MAX.
+    pub demo: u32,
+    pub demo_class: u32,
+    pub execution: u32,
+}
+
+/// An end-effector position from the tracker (or the simulated plant).
+#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
+#[type_name("softarm::TrackerSample")]
+#[repr(C)]
+pub struct TrackerSample {
+    pub seq: u64,
+    pub stamp_ns: u64,
+    pub position: [f64; 3],
+}
+
+/// What the actuators actually reached, normalised.
+#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
+#[type_name("softarm::MotorState")]
+#[repr(C)]
+pub struct MotorState {
+    pub seq: u64,
+    pub stamp_ns: u64,
+    pub actuation: [f64; ACTUATORS],
+}
+
+/// Sent by the controller at each conditioning point (and, with `executed == 0`, to ask for the
+/// first estimates of a new set).
+#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
+#[type_name("softarm::ConditioningSample")]
+#[repr(C)]
+pub struct ConditioningSample {
+    pub seq: u64,
+    pub stamp_ns: u64,
+    pub set_id: u64,
+    pub execution: u32,
+    pub point: u32,
+    pub points: u32,
+    /// 1: `actuation` was executed and `reached` measured at the point; 0: a plan request.
+    pub executed: u32,
+    pub actuation: [f64; ACTUATORS],
+    pub desired: [f64; 3],
+    pub reached: [f64; 3],
+    /// The point whose estimate the controller wants next, and where it is.
+    pub next_point: u32,
+    /// The execution (1-based) that will use that estimate.
+    pub next_execution: u32,
+    pub next_desired: [f64; 3],
+}
+
+/// The learner's actuation for a conditioning point: the controller conditions group `point`
+/// on it.
+#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
+#[type_name("softarm::ActuationEstimate")]
+#[repr(C)]
+pub struct ActuationEstimate {
+    pub seq: u64,
+    pub stamp_ns: u64,
+    pub set_id: u64,
+    pub point: u32,
+    pub _pad: u32,
+    pub actuation: [f64; ACTUATORS],
+}
+
+/// A way-point set to execute (request of `waypoints`).
+#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
+#[type_name("softarm::WaypointSet")]
+#[repr(C)]
+pub struct WaypointSet {
+    pub seq: u64,
+    pub stamp_ns: u64,
+    pub duration_s: f64,
+    pub executions: u32,
+    pub count: u32,
+    pub times_s: [f64; MAX_WAYPOINTS],
+    pub positions_m: [[f64; 3]; MAX_WAYPOINTS],
+}
+
+/// Answer to a `WaypointSet`.
+#[derive(Debug, Clone, Copy, ZeroCopySend)]
+#[type_name("softarm::WaypointReply")]
+#[repr(C)]
+pub struct WaypointReply {
+    pub seq: u64,
+    pub stamp_ns: u64,
+    /// The set's id when accepted, 0 when rejected.
+    pub set_id: u64,
+    pub accepted: u32,
+    pub reason_len: u32,
+    pub reason: [u8; MAX_REASON],
+}
+
+impl WaypointReply {
+    pub fn accepted(seq: u64, set_id: u64) -> Self {
+        Self {
+            seq,
+            stamp_ns: now_ns(),
+            set_id,
+            accepted: 1,
+            reason_len: 0,
+            reason: [0; MAX_REASON],
+        }
+    }
+
+    /// A rejection; the reason is cut at a character boundary to fit.
+    pub fn rejected(seq: u64, reason: &str) -> Self {
+        let mut end = reason.len().min(MAX_REASON);
+        while !reason.is_char_boundary(end) {
+            end -= 1;
+        }
+        let mut r = [0; MAX_REASON];
+        r[..end].copy_from_slice(&reason.as_bytes()[..end]);
+        Self {
+            seq,
+            stamp_ns: now_ns(),
+            set_id: 0,
+            accepted: 0,
+            reason_len: end as u32,
+            reason: r,
+        }
+    }
+
+    pub fn reason(&self) -> &str {
+        let n = (self.reason_len as usize).min(MAX_REASON);
+        std::str::from_utf8(&self.reason[..n]).unwrap_or("(reason not UTF-8)")
+    }
+}
+
+/// Asks the controller to play the demonstration sequences (request of `demonstrate`).
+#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
+#[type_name("softarm::DemonstrateRequest")]
+#[repr(C)]
+pub struct DemonstrateRequest {
+    pub seq: u64,
+    pub stamp_ns: u64,
+    pub seed: u64,
+}
+
+/// Answer to a `DemonstrateRequest`.
+#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
+#[type_name("softarm::DemonstrateReply")]
+#[repr(C)]
+pub struct DemonstrateReply {
+    pub seq: u64,
+    pub stamp_ns: u64,
+    pub accepted: u32,
+    /// Demonstrations that will be played.
+    pub demos: u32,
+    /// How long they take in all (s).
+    pub duration_s: f64,
+}
+
+/// One per finished execution.
+#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
+#[type_name("softarm::ExecutionStats")]
+#[repr(C)]
+pub struct ExecutionStats {
+    pub seq: u64,
+    pub stamp_ns: u64,
+    pub set_id: u64,
+    /// 1-based within the set.
+    pub execution: u32,
+    pub executions: u32,
+    pub count: u32,
+    pub _pad: u32,
+    /// Eq. 9: ‖P_cond[n] − p_reached[n]‖ (m).
+    pub errors_m: [f64; MAX_WAYPOINTS],
+    pub mean_m: f64,
+    pub max_m: f64,
+}
+
+impl ExecutionStats {
+    pub fn errors(&self) -> &[f64] {
+        &self.errors_m[..(self.count as usize).min(MAX_WAYPOINTS)]
+    }
+}
+
+/// Min / p50 / p99 / p99.9 / max of the tick wake-up latency (ns).
+#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
+#[type_name("softarm::Latency")]
+#[repr(C)]
+pub struct Latency {
+    pub min_ns: u64,
+    pub p50_ns: u64,
+    pub p99_ns: u64,
+    pub p999_ns: u64,
+    pub max_ns: u64,
+    pub samples: u64,
+}
+
+/// The controller's state, ~10 Hz.
+#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
+#[type_name("softarm::ControllerStatus")]
+#[repr(C)]
+pub struct ControllerStatus {
+    pub seq: u64,
+    pub stamp_ns: u64,
+    pub state: u32,
+    pub execution: u32,
+    pub set_id: u64,
+    pub rate_hz: f64,
+    pub ticks: u64,
+    pub overruns: u64,
+    pub latency: Latency,
+    /// Age of the newest tracker / motor sample when last checked (ns); u64::MAX if none yet.
+    pub tracker_age_ns: u64,
+    pub motor_age_ns: u64,
+    /// Whether the controller has a trained model loaded.
+    pub model_loaded: u32,
+    pub _pad: u32,
+}
+
+/// Latched e-stop state.
+#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
+#[type_name("softarm::EstopState")]
+#[repr(C)]
+pub struct EstopState {
+    pub seq: u64,
+    pub stamp_ns: u64,
+    /// 1 engaged, 0 released (an explicit reset).
+    pub engaged: u32,
+    pub _pad: u32,
+}
+
+/// The namespace every service name starts with: `softarm/<robot-id>` unless configured.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Namespace(String);
+
+impl Namespace {
+    /// A namespace; slashes separate levels, and only [A-Za-z0-9_./-] are allowed.
+    pub fn new(name: &str) -> Result<Self, String> {
+        let ok = !name.is_empty()
+            && name.len() <= 100
+            && name
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || "_-./".contains(c))
+            && !name.starts_with('/')
+            && !name.ends_with('/');
+        if ok {
+            Ok(Self(name.to_string()))
+        } else {
+            Err(format!(
+                "namespace {name:?} is not valid: use 1 to 100 of A-Z a-z 0-9 _ - . /, \
+                 not starting or ending with /"
+            ))
+        }
+    }
+
+    pub fn for_robot(robot_id: &str) -> Result<Self, String> {
+        Self::new(&format!("softarm/{robot_id}"))
+    }
+
+    pub fn as_str(&self) -> &str {
+        &self.0
+    }
+
+    fn service(&self, name: &str) -> Result<ServiceName, Error> {
+        let full = format!("{}/{name}", self.0);
+        ServiceName::new(&full).map_err(|e| Error(format!("service name {full:?}: {e:?}")))
+    }
+}
+
+/// Anything iceoryx2 refused, with what was being done.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Error(pub String);
+
+impl std::fmt::Display for Error {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for Error {}
+
+fn err<E: std::fmt::Debug>(what: String) -> impl FnOnce(E) -> Error {
+    move |e| Error(format!("{what}: {e:?}"))
+}
+
+pub type Node = iceoryx2::node::Node<ipc::Service>;
+pub type PubSub<T> =
+    iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, T, ()>;
+pub type ReqRes<Q, R> =
+    iceoryx2::service::port_factory::request_response::PortFactory<ipc::Service, Q, (), R, ()>;
+pub type Pub<T> = Publisher<ipc::Service, T, ()>;
+pub type Sub<T> = Subscriber<ipc::Service, T, ()>;
+
+/// A process's iceoryx2 node and the namespace its services live in. The node's name is
+/// `<namespace>/<role>`, so `softarm status` can tell which processes of which stack are alive.
+pub struct Contract {
+    pub node: Node,
+    pub namespace: Namespace,
+}
+
+/// Node names are limited; keep the tail of long ones.
+fn node_name(namespace: &Namespace, role: &str) -> String {
+    let full = format!("{}/{role}", namespace.as_str());
+    let n = full.len();
+    if n > 100 { full[n - 100..].to_string() } else { full }
+}
+
+impl Contract {
+    /// Creates this process's node. Signals are left to the process (signal-hook), not iceoryx2.
+    pub fn new(namespace: Namespace, role: &str) -> Result<Self, Error> {
+        // iceoryx2 warns on stderr that it runs on its built-in defaults, which is intended.
+        set_log_level(LogLevel::Error);
+        let name = node_name(&namespace, role);
+        let node_name =
+            NodeName::new(&name).map_err(|e| Error(format!("node name {name:?}: {e:?}")))?;
+        let node = NodeBuilder::new()
+            .name(&node_name)
+            .signal_handling_mode(SignalHandlingMode::Disabled)
+            .create::<ipc::Service>()
+            .map_err(err(format!("creating the iceoryx2 node {name:?}")))?;
+        Ok(Self { node, namespace })
+    }
+
+    fn pubsub<T: std::fmt::Debug + ZeroCopySend>(
+        &self,
+        name: &str,
+        history: usize,
+        buffer: usize,
+        publishers: usize,
+        subscribers: usize,
+    ) -> Result<PubSub<T>, Error> {
+        self.node
+            .service_builder(&self.namespace.service(name)?)
+            .publish_subscribe::<T>()
+            .history_size(history)
+            .subscriber_max_buffer_size(buffer.max(history).max(1))
+            .max_publishers(publishers)
+            .max_subscribers(subscribers)
+            .max_nodes(MAX_NODES)
+            .open_or_create()
+            .map_err(err(format!(
+                "opening service {}/{name}",
+                self.namespace.as_str()
+            )))
+    }
+
+    /// `setpoint`: one per controller tick; late subscribers get the newest.
+    pub fn setpoint(&self) -> Result<PubSub<Setpoint>, Error> {
+        self.pubsub("setpoint", 1, 4, 2, MAX_SUBSCRIBERS)
+    }
+
+    /// `tracker`: from sim or the tracker driver.
+    pub fn tracker(&self) -> Result<PubSub<TrackerSample>, Error> {
+        self.pubsub("tracker", 1, 8, 2, MAX_SUBSCRIBERS)
+    }
+
+    /// `motor_state`: from sim or the tendon driver.
+    pub fn motor_state(&self) -> Result<PubSub<MotorState>, Error> {
+        self.pubsub("motor_state", 1, 8, 2, MAX_SUBSCRIBERS)
+    }
+
+    /// `cp_sample`: controller → learner at each conditioning point; none may be lost.
+    pub fn cp_sample(&self) -> Result<PubSub<ConditioningSample>, Error> {
+        self.pubsub("cp_sample", 0, 64, 2, MAX_SUBSCRIBERS)
+    }
+
+    /// `estimate`: learner → controller.
+    pub fn estimate(&self) -> Result<PubSub<ActuationEstimate>, Error> {
+        self.pubsub("estimate", 0, 64, 2, MAX_SUBSCRIBERS)
+    }
+
+    /// `stats`: one per finished execution; the last 64 reach late subscribers.
+    pub fn stats(&self) -> Result<PubSub<ExecutionStats>, Error> {
+        self.pubsub("stats", STATS_HISTORY, STATS_HISTORY, 2, MAX_SUBSCRIBERS)
+    }
+
+    /// `status`: ~10 Hz; late subscribers get the newest.
+    pub fn status(&self) -> Result<PubSub<ControllerStatus>, Error> {
+        self.pubsub("status", 1, 4, 2, MAX_SUBSCRIBERS)
+    }
+
+    /// `estop`: latched; late subscribers get the current state.
+    pub fn estop(&self) -> Result<PubSub<EstopState>, Error> {
+        self.pubsub("estop", 1, 4, 4, MAX_SUBSCRIBERS)
+    }
+
+    /// `waypoints`: request/response, validated by the controller.
+    pub fn waypoints(&self) -> Result<ReqRes<WaypointSet, WaypointReply>, Error> {
+        self.reqres("waypoints")
+    }
+
+    /// `demonstrate`: request/response, asks the controller to play the demonstrations.
+    pub fn demonstrate(&self) -> Result<ReqRes<DemonstrateRequest, DemonstrateReply>, Error> {
+        self.reqres("demonstrate")
+    }
+
+    fn reqres<Q: std::fmt::Debug + ZeroCopySend, R: std::fmt::Debug + ZeroCopySend>(
+        &self,
+        name: &str,
+    ) -> Result<ReqRes<Q, R>, Error> {
+        self.node
+            .service_builder(&self.namespace.service(name)?)
+            .request_response::<Q, R>()
+            .max_clients(MAX_SUBSCRIBERS)
+            .max_servers(1)
+            .max_nodes(MAX_NODES)
+            .max_active_requests_per_client(2)
+            .max_response_buffer_size(2)
+            .open_or_create()
+            .map_err(err(format!(
+                "opening service {}/{name}",
+                self.namespace.as_str()
+            )))
+    }
+
+    pub fn publisher<T: std::fmt::Debug + ZeroCopySend>(
+        &self,
+        service: &PubSub<T>,
+    ) -> Result<Pub<T>, Error> {
+        service
+            .publisher_builder()
+            .create()
+            .map_err(err(format!("creating a publisher in {}", self.namespace.as_str())))
+    }
+
+    pub fn subscriber<T: std::fmt::Debug + ZeroCopySend>(
+        &self,
+        service: &PubSub<T>,
+    ) -> Result<Sub<T>, Error> {
+        service
+            .subscriber_builder()
+            .create()
+            .map_err(err(format!("creating a subscriber in {}", self.namespace.as_str())))
+    }
+
+    /// Roles of the live nodes of this namespace (e.g. `["controller", "learner", "sim"]`,
+    /// this process included); nodes of processes that died are cleaned up on the way.
+    pub fn alive_nodes(&self) -> Result<Vec<String>, Error> {
+        let prefix = format!("{}/", self.namespace.as_str());
+        let mut names = Vec::new();
+        let mut dead = false;
+        Node::list(self.node.config(), |state| {
+            match &state {
+                NodeState::Alive(view) => {
+                    if let Some(d) = view.details()
+                        && let Some(role) = d.name().to_string().strip_prefix(&prefix)
+                    {
+                        names.push(role.to_string());
+                    }
+                }
+                NodeState::Dead(_) => dead = true,
+                _ => {}
+            }
+            CallbackProgression::Continue
+        })
+        .map_err(err("listing iceoryx2 nodes".into()))?;
+        if dead {
+            self.node.try_cleanup_dead_nodes();
+        }
+        names.sort();
+        Ok(names)
+    }
+}
+
+/// Nodes that may share one service: the processes of a stack and a few clients.
+pub const MAX_NODES: usize = 16;
+/// Subscribers (or clients) per service.
+pub const MAX_SUBSCRIBERS: usize = 8;
+/// Executions whose stats reach a late subscriber.
+pub const STATS_HISTORY: usize = 64;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn namespaces_are_checked() {
+        assert!(Namespace::new("softarm/arm-1").is_ok());
+        assert!(Namespace::for_robot("lab.2").is_ok());
+        for bad in ["", "/x", "x/", "a b", "ä"] {
+            assert!(Namespace::new(bad).is_err(), "{bad:?}");
+        }
+    }
+
+    #[test]
+    fn reasons_fit_and_round_trip() {
+        let r = WaypointReply::rejected(1, "point 3: time 9 s is after the duration 8 s");
+        assert_eq!(r.reason(), "point 3: time 9 s is after the duration 8 s");
+        let long = "é".repeat(150);
+        let r = WaypointReply::rejected(1, &long);
+        assert!(r.reason().len() <= MAX_REASON && r.reason().chars().all(|c| c == 'é'));
+    }
+
+    #[test]
+    fn states_round_trip() {
+        for v in 0..6 {
+            assert_eq!(ControllerState::from_u32(v).unwrap() as u32, v);
+        }
+        assert_eq!(ControllerState::from_u32(6), None);
+    }
+}

@@ -1,0 +1,59 @@
+//! `softarm stats`: the error at each conditioning point per execution.
+
+use std::time::Duration;
+
+use softarm_ipc::{Contract, ExecutionStats, Namespace, Sub};
+
+/// One JSON object per execution: `execution`, `errors_mm`, `mean_mm`, `max_mm`, and the set.
+pub fn json_line(s: &ExecutionStats) -> String {
+    serde_json::json!({
+        "set_id": s.set_id,
+        "execution": s.execution,
+        "executions": s.executions,
+        "errors_mm": s.errors().iter().map(|e| round3(e * 1e3)).collect::<Vec<_>>(),
+        "mean_mm": round3(s.mean_m * 1e3),
+        "max_mm": round3(s.max_m * 1e3),
+    })
+    .to_string()
+}
+
+fn round3(v: f64) -> f64 {
+    (v * 1e3).round() / 1e3
+}
+
+/// The table header for `points` conditioning points.
+pub fn table_header(points: usize) -> String {
+    let mut h = format!("{:>5}", "exec");
+    for n in 1..=points {
+        h += &format!(" {:>7}", format!("CP{n} mm"));
+    }
+    h + &format!(" {:>8} {:>8}", "mean mm", "max mm")
+}
+
+pub fn table_row(s: &ExecutionStats) -> String {
+    let mut r = format!("{:>5}", s.execution);
+    for e in s.errors() {
+        r += &format!(" {:>7.2}", e * 1e3);
+    }
+    r + &format!(" {:>8.2} {:>8.2}", s.mean_m * 1e3, s.max_m * 1e3)
+}
+
+/// A subscription to `stats` (the last 64 executions arrive first).
+pub struct Stats {
+    _ipc: Contract,
+    sub: Sub<ExecutionStats>,
+}
+
+impl Stats {
+    pub fn open(namespace: &Namespace) -> Result<Self, String> {
+        let ipc = Contract::new(namespace.clone(), "stats").map_err(|e| e.to_string())?;
+        let service = ipc.stats().map_err(|e| e.to_string())?;
+        let sub = ipc.subscriber(&service).map_err(|e| e.to_string())?;
+        Ok(Self { _ipc: ipc, sub })
+    }
+
+    /// The next execution's stats, waiting up to `timeout`.
+    pub fn next(&self, timeout: Duration) -> Option<ExecutionStats> {
+        crate::poll(timeout, || self.sub.receive().ok().flatten().map(|s| *s))
+    }
+}

@@ -1,0 +1,66 @@
+//! `softarm submit WAYPOINTS.toml`: validates locally, submits, reports the controller's answer.
+
+use std::time::Duration;
+
+use softarm_daemon::config::Config;
+use softarm_daemon::waypoints::{WaypointFile, validate};
+use softarm_ipc::{Contract, Namespace, WaypointSet, now_ns};
+
+/// How a submission ended; the exit code of `softarm submit`.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Outcome {
+    Accepted { set_id: u64 },
+    Rejected { reason: String },
+    Unreachable { message: String },
+}
+
+impl Outcome {
+    pub fn exit_code(&self) -> u8 {
+        match self {
+            Outcome::Accepted { .. } => 0,
+            Outcome::Rejected { .. } => 2,
+            Outcome::Unreachable { .. } => 1,
+        }
+    }
+}
+
+/// Reads and checks a way-point file against the config's limits: a set that would be refused
+/// is refused here, before anything is sent.
+pub fn prepare(config: &Config, file: &std::path::Path, executions: u32) -> Result<WaypointSet, String> {
+    let f = WaypointFile::load(file)?;
+    let set = f.to_set(executions)?;
+    validate(&set, &config.waypoints, &config.activation)?;
+    Ok(set)
+}
+
+/// Sends a set and waits for the answer.
+pub fn submit(namespace: &Namespace, mut set: WaypointSet, timeout: Duration) -> Outcome {
+    let ipc = match Contract::new(namespace.clone(), "submit") {
+        Ok(c) => c,
+        Err(e) => return Outcome::Unreachable { message: e.to_string() },
+    };
+    let service = match ipc.waypoints() {
+        Ok(s) => s,
+        Err(e) => return Outcome::Unreachable { message: e.to_string() },
+    };
+    let client = match service.client_builder().create() {
+        Ok(c) => c,
+        Err(e) => return Outcome::Unreachable { message: format!("waypoints client: {e:?}") },
+    };
+    set.seq = now_ns();
+    set.stamp_ns = now_ns();
+    let pending = match client.send_copy(set) {
+        Ok(p) => p,
+        Err(e) => return Outcome::Unreachable { message: format!("sending the set: {e:?}") },
+    };
+    let reply = crate::poll(timeout, || pending.receive().ok().flatten().map(|r| *r));
+    match reply {
+        Some(r) if r.accepted == 1 => Outcome::Accepted { set_id: r.set_id },
+        Some(r) => Outcome::Rejected {
+            reason: r.reason().to_string(),
+        },
+        None => Outcome::Unreachable {
+            message: crate::unreachable(namespace.as_str(), "the way-point set"),
+        },
+    }
+}

@@ -1,0 +1,91 @@
+//! Fixed-rate loops on absolute deadlines: `next += period; clock_nanosleep(TIMER_ABSTIME)`.
+//! Relative sleeps drift by the loop's own run time; these do not. Overruns are counted and the
+//! missed cycles skipped, never caught up in a burst.
+
+use nix::sys::time::TimeSpec;
+use nix::time::{ClockId, ClockNanosleepFlags, clock_nanosleep};
+
+/// Nanoseconds on CLOCK_MONOTONIC: the stamp of every sample.
+pub fn now_ns() -> u64 {
+    let ts = nix::time::clock_gettime(ClockId::CLOCK_MONOTONIC).expect("CLOCK_MONOTONIC exists");
+    ts.tv_sec() as u64 * 1_000_000_000 + ts.tv_nsec() as u64
+}
+
+/// What one wait observed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Wake {
+    /// How late the thread woke after its deadline (ns).
+    pub latency_ns: u64,
+    /// Whole cycles that were skipped because the deadline had long passed.
+    pub missed: u64,
+}
+
+pub struct Ticker {
+    period_ns: u64,
+    next_ns: u64,
+    overruns: u64,
+}
+
+impl Ticker {
+    /// A ticker whose first deadline is one period from now.
+    pub fn new(rate_hz: f64) -> Self {
+        let period_ns = (1e9 / rate_hz).round().max(1.0) as u64;
+        Self {
+            period_ns,
+            next_ns: now_ns(),
+            overruns: 0,
+        }
+    }
+
+    pub fn period_ns(&self) -> u64 {
+        self.period_ns
+    }
+
+    /// Cycles skipped so far.
+    pub fn overruns(&self) -> u64 {
+        self.overruns
+    }
+
+    /// Sleeps until the next deadline. Allocates nothing; the only syscalls are the sleep and
+    /// the clock read.
+    pub fn wait(&mut self) -> Wake {
+        self.next_ns += self.period_ns;
+        let ts = TimeSpec::new(
+            (self.next_ns / 1_000_000_000) as _,
+            (self.next_ns % 1_000_000_000) as _,
+        );
+        // EINTR: a signal arrived; the deadline is absolute, so just sleep again.
+        while let Err(nix::errno::Errno::EINTR) =
+            clock_nanosleep(ClockId::CLOCK_MONOTONIC, ClockNanosleepFlags::TIMER_ABSTIME, &ts)
+        {}
+        let now = now_ns();
+        let latency_ns = now.saturating_sub(self.next_ns);
+        let missed = latency_ns / self.period_ns;
+        if missed > 0 {
+            self.next_ns += missed * self.period_ns;
+            self.overruns += missed;
+        }
+        Wake { latency_ns, missed }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn deadlines_are_absolute_and_overruns_skip() {
+        let mut t = Ticker::new(1000.0);
+        let start = now_ns();
+        for _ in 0..50 {
+            t.wait();
+        }
+        let elapsed = now_ns() - start;
+        // 50 periods of 1 ms, never fewer (absolute deadlines cannot run early).
+        assert!(elapsed >= 49_000_000, "{elapsed}");
+        std::thread::sleep(std::time::Duration::from_millis(10));
+        let w = t.wait();
+        assert!(w.missed >= 8, "{w:?}");
+        assert_eq!(t.overruns(), w.missed);
+    }
+}

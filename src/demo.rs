@@ -1,0 +1,198 @@
+//! `softarm demo`: the one-command showcase. Brings the simulated stack up in a namespace of its
+//! own, trains if no bundle exists, submits the demo way-point set, prints the error at every
+//! conditioning point per execution, and stops everything.
+
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use softarm_clients::{stats, status, submit, train};
+use softarm_daemon::config::{Config, DEFAULT};
+use softarm_daemon::waypoints::WaypointFile;
+use softarm_ipc::{ExecutionStats, Namespace};
+
+use crate::up::Supervisor;
+
+/// The demo's way-point set: five conditioning points inside the demonstrated subspace.
+pub const WAYPOINTS: &str = include_str!("../config/waypoints/demo.toml");
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Executions of the way-point set.
+    #[arg(long, default_value_t = 20)]
+    executions: u32,
+    /// Seeds the demonstrations, the plant and the learner.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// One JSON object per execution on stdout (as `softarm stats --json`), nothing else.
+    #[arg(long)]
+    json: bool,
+    /// Where the trained model is kept between runs (default: the user's cache folder).
+    #[arg(long)]
+    model_dir: Option<PathBuf>,
+}
+
+fn cache_dir() -> PathBuf {
+    if let Some(d) = std::env::var_os("XDG_CACHE_HOME") {
+        return PathBuf::from(d).join("softarm");
+    }
+    if let Some(h) = std::env::var_os("HOME") {
+        return PathBuf::from(h).join(".cache/softarm");
+    }
+    std::env::temp_dir().join("softarm-cache")
+}
+
+fn say(json: bool, line: &str) {
+    if !json {
+        eprintln!("{line}");
+    }
+}
+
+pub fn run(args: &Args, stop: &AtomicBool) -> Result<(), String> {
+    if args.executions == 0 {
+        return Err("--executions must be at least 1".into());
+    }
+    let started = Instant::now();
+    let pid = std::process::id();
+    let namespace = format!("softarm/demo-{pid}");
+    let run_dir = std::env::temp_dir().join(format!("softarm-demo-{pid}"));
+    let model_dir = args
+        .model_dir
+        .clone()
+        .unwrap_or_else(|| cache_dir().join(format!("demo-model-seed{}", args.seed)));
+    std::fs::create_dir_all(&run_dir).map_err(|e| format!("{}: {e}", run_dir.display()))?;
+    let _cleanup = RemoveOnDrop(run_dir.clone());
+
+    // The embedded default, in this demo's own namespace, with its own state and seeds.
+    let mut doc: toml::Table = toml::from_str(DEFAULT).expect("the embedded config parses");
+    let set = |doc: &mut toml::Table, section: &str, key: &str, v: toml::Value| {
+        let mut t = doc;
+        for part in section.split('.') {
+            t = t
+                .entry(part)
+                .or_insert_with(|| toml::Value::Table(Default::default()))
+                .as_table_mut()
+                .expect("a section");
+        }
+        t.insert(key.into(), v);
+    };
+    set(&mut doc, "robot", "namespace", namespace.clone().into());
+    set(&mut doc, "model", "dir", model_dir.display().to_string().into());
+    set(&mut doc, "state", "dir", run_dir.join("state").display().to_string().into());
+    set(&mut doc, "learner", "seed", (args.seed as i64).into());
+    set(&mut doc, "sim.realism", "seed", (args.seed as i64).into());
+    let text = toml::to_string(&doc).expect("serialises");
+    let config_path = run_dir.join("softarm.toml");
+    std::fs::write(&config_path, &text).map_err(|e| format!("{}: {e}", config_path.display()))?;
+    let config = Config::load(&config_path).map_err(|e| e.to_string())?;
+    let ns = Namespace::new(&namespace)?;
+
+    let level = std::env::var("RUST_LOG").unwrap_or_else(|_| "warn".into());
+    let mut sup = Supervisor::new(
+        vec!["--config".into(), config_path.display().to_string()],
+        vec![("RUST_LOG".into(), level)],
+    )?;
+    for role in ["sim", "controller", "learner"] {
+        sup.add(role)?;
+    }
+    say(args.json, &format!("softarm demo: stack up in namespace {namespace}"));
+
+    let wait_for = |what: &str, limit: Duration, sup: &mut Supervisor, ok: &dyn Fn(&status::Report) -> bool| {
+        let start = Instant::now();
+        loop {
+            if stop.load(Ordering::Relaxed) {
+                return Err("interrupted".to_string());
+            }
+            sup.poll();
+            if let Ok(r) = status::status(&ns, Duration::from_millis(200))
+                && ok(&r)
+            {
+                return Ok(());
+            }
+            if start.elapsed() > limit {
+                return Err(format!("{what} did not happen within {} s", limit.as_secs()));
+            }
+        }
+    };
+    wait_for("the controller coming up", Duration::from_secs(20), &mut sup, &|r| {
+        r.controller.is_some_and(|s| s.state == softarm_ipc::ControllerState::Idle as u32)
+    })?;
+
+    if !model_dir.join("model.toml").exists() {
+        say(args.json, &format!("softarm demo: no model in {}: training (demonstrations, ProMPs, forward model, CACLA-MTL pre-training)", model_dir.display()));
+        let t = Instant::now();
+        let r = train::train(&config, &ns, args.seed)?;
+        say(
+            args.json,
+            &format!(
+                "softarm demo: trained in {:.1} s: {} demonstrations ({} samples, {:.1} s), forward model {:.2} mm mean held-out error, pre-training {:.1} s ({} updates)",
+                t.elapsed().as_secs_f64(),
+                r.demos,
+                r.samples,
+                r.demonstrate_s,
+                r.forward_error_m.0 * 1e3,
+                r.pretrain_s,
+                r.pretrain_updates
+            ),
+        );
+    }
+    wait_for("loading the model", Duration::from_secs(20), &mut sup, &|r| {
+        r.controller.is_some_and(|s| s.model_loaded == 1) && r.alive.iter().any(|n| n == "learner")
+    })?;
+
+    let file = WaypointFile::parse(WAYPOINTS).map_err(|e| format!("demo way-points: {e}"))?;
+    let waypoints = file.to_set(args.executions)?;
+    // Subscribe before submitting: no execution's stats can be missed.
+    let follower = stats::Stats::open(&ns)?;
+    let set_id = match submit::submit(&ns, waypoints, Duration::from_secs(10)) {
+        submit::Outcome::Accepted { set_id } => set_id,
+        submit::Outcome::Rejected { reason } => return Err(format!("the demo set was rejected: {reason}")),
+        submit::Outcome::Unreachable { message } => return Err(message),
+    };
+    say(args.json, &format!("softarm demo: {} executions of {} conditioning points ({} s each)", args.executions, file.point.len(), file.duration_s));
+    say(args.json, &stats::table_header(file.point.len()));
+
+    let per_execution = Duration::from_secs_f64(file.duration_s + config.controller.rest_s + 10.0);
+    let mut rows: Vec<ExecutionStats> = Vec::new();
+    while rows.len() < args.executions as usize {
+        if stop.load(Ordering::Relaxed) {
+            return Err("interrupted".into());
+        }
+        sup.poll();
+        let Some(s) = follower.next(per_execution) else {
+            return Err(format!("no stats for execution {} within {} s", rows.len() + 1, per_execution.as_secs()));
+        };
+        if s.set_id != set_id {
+            continue;
+        }
+        if args.json {
+            println!("{}", stats::json_line(&s));
+        } else {
+            println!("{}", stats::table_row(&s));
+        }
+        rows.push(s);
+    }
+    sup.stop(Duration::from_secs(5));
+
+    let first = rows.first().expect("at least one execution");
+    let last = rows.last().expect("at least one execution");
+    say(
+        args.json,
+        &format!(
+            "softarm demo: mean error at the conditioning points {:.2} mm (execution 1) -> {:.2} mm (execution {}); {:.0} s in all",
+            first.mean_m * 1e3,
+            last.mean_m * 1e3,
+            last.execution,
+            started.elapsed().as_secs_f64()
+        ),
+    );
+    Ok(())
+}
+
+struct RemoveOnDrop(PathBuf);
+
+impl Drop for RemoveOnDrop {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
