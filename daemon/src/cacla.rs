@@ -38,8 +38,10 @@ pub struct LearnerConfig {
     pub critic_spacing_m: f64,
     /// Actor lattice spacing over p_desired (m); the paper: 15 mm.
     pub actor_spacing_m: f64,
-    /// Gaussian σ of every lattice function, in cells.
-    pub rbf_width: f64,
+    /// Gaussian σ of the critic's lattice functions, in cells.
+    pub critic_width: f64,
+    /// Gaussian σ of the actor's lattice functions, in cells.
+    pub actor_width: f64,
     /// Centres evaluated per axis (2: the two bracketing the input, 3: the nearest and its
     /// neighbours).
     pub critic_span: usize,
@@ -63,7 +65,8 @@ impl Default for LearnerConfig {
             sigma_slope_per_m: 100.0,
             critic_spacing_m: 0.03,
             actor_spacing_m: 0.015,
-            rbf_width: 0.5,
+            critic_width: 0.5,
+            actor_width: 0.5,
             critic_span: 2,
             actor_span: 3,
             // pcc.md: the reachable box of the suggested arm, with a margin.
@@ -94,7 +97,8 @@ impl LearnerConfig {
             ("sigma_slope_per_m", self.sigma_slope_per_m),
             ("critic_spacing_m", self.critic_spacing_m),
             ("actor_spacing_m", self.actor_spacing_m),
-            ("rbf_width", self.rbf_width),
+            ("critic_width", self.critic_width),
+            ("actor_width", self.actor_width),
         ];
         for (k, v) in positive {
             if !(v.is_finite() && v > 0.0) {
@@ -110,7 +114,7 @@ impl LearnerConfig {
             &lo,
             &hi,
             &[self.actor_spacing_m; 3],
-            self.rbf_width,
+            self.actor_width,
             self.actor_span,
         )?;
         let lo6 = [lo[0], lo[1], lo[2], lo[0], lo[1], lo[2]];
@@ -119,7 +123,7 @@ impl LearnerConfig {
             &lo6,
             &hi6,
             &[self.critic_spacing_m; 6],
-            self.rbf_width,
+            self.critic_width,
             self.critic_span,
         )?;
         Ok((actor, critic))
@@ -294,10 +298,9 @@ impl Learner {
             self.actor
                 .lattice()
                 .features(target, &mut self.actor_features);
-            let mean = self.actor.value(&self.actor_features);
-            let step: [f64; 6] = std::array::from_fn(|i| action[i] - mean[i]);
+            // Ac(p_desired) moves the fraction α_Ac of the way toward the executed action.
             self.actor
-                .update(&self.actor_features, self.config.alpha_actor, &step);
+                .move_toward(&self.actor_features, self.config.alpha_actor, action);
         }
         Visit {
             error,
@@ -312,9 +315,8 @@ impl Learner {
         for _ in 0..passes {
             for (p, a) in positions.iter().zip(actuations) {
                 self.actor.lattice().features(p, &mut self.actor_features);
-                let mean = self.actor.value(&self.actor_features);
-                let step: [f64; 6] = std::array::from_fn(|i| a[i] - mean[i]);
-                self.actor.update(&self.actor_features, 0.5, &step);
+                // A running average of the demonstrated actuations near p.
+                self.actor.move_toward(&self.actor_features, 0.2, a);
             }
         }
     }

@@ -291,6 +291,18 @@ impl<const OUT: usize> LinearRbf<OUT> {
         }
     }
 
+    /// Moves f(x) the given fraction of the way toward `target` (normalised LMS: the gradient
+    /// step divided by Σφ², so the fraction is exact at x whatever the lattice's width).
+    pub fn move_toward(&mut self, features: &Features, fraction: f64, target: &[f64; OUT]) {
+        let here = self.value(features);
+        let energy: f64 = features.iter().map(|(_, phi)| phi * phi).sum();
+        if energy <= 0.0 {
+            return;
+        }
+        let step: [f64; OUT] = std::array::from_fn(|o| target[o] - here[o]);
+        self.update(features, fraction / energy, &step);
+    }
+
     /// Weights as a sorted list, for saving.
     pub fn to_entries(&self) -> Vec<(u64, [f64; OUT])> {
         let mut v: Vec<_> = self.weights.iter().map(|(k, w)| (*k, *w)).collect();
@@ -586,6 +598,11 @@ mod tests {
             }
         }
         assert!(worst < 0.02, "{worst}");
+        let mut moved = net.clone();
+        lat.features(&[0.33, 0.71], &mut f);
+        let before = moved.value(&f)[0];
+        moved.move_toward(&f, 0.25, &[before + 1.0]);
+        assert!((moved.value(&f)[0] - (before + 0.25)).abs() < 1e-12);
         let back = LinearRbf::from_entries(lat.clone(), [0.0], &net.to_entries()).unwrap();
         assert_eq!(back, net);
         assert!(LinearRbf::from_entries(lat, [0.0], &[(u64::MAX, [0.0])]).is_err());
