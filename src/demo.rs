@@ -77,8 +77,18 @@ pub fn run(args: &Args, stop: &AtomicBool) -> Result<(), String> {
         t.insert(key.into(), v);
     };
     set(&mut doc, "robot", "namespace", namespace.clone().into());
-    set(&mut doc, "model", "dir", model_dir.display().to_string().into());
-    set(&mut doc, "state", "dir", run_dir.join("state").display().to_string().into());
+    set(
+        &mut doc,
+        "model",
+        "dir",
+        model_dir.display().to_string().into(),
+    );
+    set(
+        &mut doc,
+        "state",
+        "dir",
+        run_dir.join("state").display().to_string().into(),
+    );
     set(&mut doc, "learner", "seed", (args.seed as i64).into());
     set(&mut doc, "sim.realism", "seed", (args.seed as i64).into());
     let text = toml::to_string(&doc).expect("serialises");
@@ -95,9 +105,15 @@ pub fn run(args: &Args, stop: &AtomicBool) -> Result<(), String> {
     for role in ["sim", "controller", "learner"] {
         sup.add(role)?;
     }
-    say(args.json, &format!("softarm demo: stack up in namespace {namespace}"));
+    say(
+        args.json,
+        &format!("softarm demo: stack up in namespace {namespace}"),
+    );
 
-    let wait_for = |what: &str, limit: Duration, sup: &mut Supervisor, ok: &dyn Fn(&status::Report) -> bool| {
+    let wait_for = |what: &str,
+                    limit: Duration,
+                    sup: &mut Supervisor,
+                    ok: &dyn Fn(&status::Report) -> bool| {
         let start = Instant::now();
         loop {
             if stop.load(Ordering::Relaxed) {
@@ -110,16 +126,31 @@ pub fn run(args: &Args, stop: &AtomicBool) -> Result<(), String> {
                 return Ok(());
             }
             if start.elapsed() > limit {
-                return Err(format!("{what} did not happen within {} s", limit.as_secs()));
+                return Err(format!(
+                    "{what} did not happen within {} s",
+                    limit.as_secs()
+                ));
             }
         }
     };
-    wait_for("the controller coming up", Duration::from_secs(20), &mut sup, &|r| {
-        r.controller.is_some_and(|s| s.state == softarm_ipc::ControllerState::Idle as u32)
-    })?;
+    wait_for(
+        "the controller coming up",
+        Duration::from_secs(20),
+        &mut sup,
+        &|r| {
+            r.controller
+                .is_some_and(|s| s.state == softarm_ipc::ControllerState::Idle as u32)
+        },
+    )?;
 
     if !model_dir.join("model.toml").exists() {
-        say(args.json, &format!("softarm demo: no model in {}: training (demonstrations, ProMPs, forward model, CACLA-MTL pre-training)", model_dir.display()));
+        say(
+            args.json,
+            &format!(
+                "softarm demo: no model in {}: training (demonstrations, ProMPs, forward model, CACLA-MTL pre-training)",
+                model_dir.display()
+            ),
+        );
         let t = Instant::now();
         let r = train::train(&config, &ns, args.seed)?;
         say(
@@ -136,9 +167,15 @@ pub fn run(args: &Args, stop: &AtomicBool) -> Result<(), String> {
             ),
         );
     }
-    wait_for("loading the model", Duration::from_secs(20), &mut sup, &|r| {
-        r.controller.is_some_and(|s| s.model_loaded == 1) && r.alive.iter().any(|n| n == "learner")
-    })?;
+    wait_for(
+        "loading the model",
+        Duration::from_secs(20),
+        &mut sup,
+        &|r| {
+            r.controller.is_some_and(|s| s.model_loaded == 1)
+                && r.alive.iter().any(|n| n == "learner")
+        },
+    )?;
 
     let file = WaypointFile::parse(WAYPOINTS).map_err(|e| format!("demo way-points: {e}"))?;
     let waypoints = file.to_set(args.executions)?;
@@ -146,10 +183,20 @@ pub fn run(args: &Args, stop: &AtomicBool) -> Result<(), String> {
     let follower = stats::Stats::open(&ns)?;
     let set_id = match submit::submit(&ns, waypoints, Duration::from_secs(10)) {
         submit::Outcome::Accepted { set_id } => set_id,
-        submit::Outcome::Rejected { reason } => return Err(format!("the demo set was rejected: {reason}")),
+        submit::Outcome::Rejected { reason } => {
+            return Err(format!("the demo set was rejected: {reason}"));
+        }
         submit::Outcome::Unreachable { message } => return Err(message),
     };
-    say(args.json, &format!("softarm demo: {} executions of {} conditioning points ({} s each)", args.executions, file.point.len(), file.duration_s));
+    say(
+        args.json,
+        &format!(
+            "softarm demo: {} executions of {} conditioning points ({} s each)",
+            args.executions,
+            file.point.len(),
+            file.duration_s
+        ),
+    );
     say(args.json, &stats::table_header(file.point.len()));
 
     let per_execution = Duration::from_secs_f64(file.duration_s + config.controller.rest_s + 10.0);
@@ -160,7 +207,11 @@ pub fn run(args: &Args, stop: &AtomicBool) -> Result<(), String> {
         }
         sup.poll();
         let Some(s) = follower.next(per_execution) else {
-            return Err(format!("no stats for execution {} within {} s", rows.len() + 1, per_execution.as_secs()));
+            return Err(format!(
+                "no stats for execution {} within {} s",
+                rows.len() + 1,
+                per_execution.as_secs()
+            ));
         };
         if s.set_id != set_id {
             continue;

@@ -139,9 +139,9 @@ enum ConfigCommand {
     Default,
 }
 
-fn init_logging() {
+fn init_logging(default: &str) {
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default));
     let _ = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
@@ -154,7 +154,8 @@ fn init_logging() {
 fn stop_flag() -> Result<Arc<AtomicBool>, String> {
     let flag = Arc::new(AtomicBool::new(false));
     for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
-        signal_hook::flag::register(sig, flag.clone()).map_err(|e| format!("signal handler: {e}"))?;
+        signal_hook::flag::register(sig, flag.clone())
+            .map_err(|e| format!("signal handler: {e}"))?;
     }
     Ok(flag)
 }
@@ -166,11 +167,18 @@ fn run(cli: Cli) -> Result<ExitCode, String> {
             let config = stack.load()?;
             up::run(stack.args(), &config.robot.drivers, &*stop_flag()?)?
         }
-        Command::Controller(stack) => softarm_daemon::controller::run(&stack.load()?, &*stop_flag()?)?,
+        Command::Controller(stack) => {
+            softarm_daemon::controller::run(&stack.load()?, &*stop_flag()?)?
+        }
         Command::Learner(stack) => softarm_daemon::learner::run(&stack.load()?, &*stop_flag()?)?,
         Command::Sim(stack) => {
             let c = stack.load()?;
-            softarm_hal_drivers::sim::run(&c.sim, &c.arm, Namespace::new(&c.namespace())?, &*stop_flag()?)?
+            softarm_hal_drivers::sim::run(
+                &c.sim,
+                &c.arm,
+                Namespace::new(&c.namespace())?,
+                &*stop_flag()?,
+            )?
         }
         Command::Train { stack, seed } => {
             let config = stack.load()?;
@@ -204,7 +212,11 @@ fn run(cli: Cli) -> Result<ExitCode, String> {
                 }
             };
             let ns = stack.namespace()?;
-            let follower = if wait { Some(stats::Stats::open(&ns)?) } else { None };
+            let follower = if wait {
+                Some(stats::Stats::open(&ns)?)
+            } else {
+                None
+            };
             let outcome = submit::submit(&ns, set, Duration::from_secs(10));
             match &outcome {
                 submit::Outcome::Accepted { set_id } => println!("accepted: set {set_id}"),
@@ -214,9 +226,12 @@ fn run(cli: Cli) -> Result<ExitCode, String> {
             if let (Some(f), submit::Outcome::Accepted { set_id }) = (follower, &outcome) {
                 println!("{}", stats::table_header(set.count as usize));
                 let mut done = 0;
-                let limit = Duration::from_secs_f64(set.duration_s + config.controller.rest_s + 30.0);
+                let limit =
+                    Duration::from_secs_f64(set.duration_s + config.controller.rest_s + 30.0);
                 while done < executions {
-                    let s = f.next(limit).ok_or("no stats arrived: is the stack still running?")?;
+                    let s = f
+                        .next(limit)
+                        .ok_or("no stats arrived: is the stack still running?")?;
                     if s.set_id == *set_id {
                         println!("{}", stats::table_row(&s));
                         done += 1;
@@ -225,10 +240,18 @@ fn run(cli: Cli) -> Result<ExitCode, String> {
             }
             return Ok(ExitCode::from(outcome.exit_code()));
         }
-        Command::Stats { follow, json, stack } => {
+        Command::Stats {
+            follow,
+            json,
+            stack,
+        } => {
             let f = stats::Stats::open(&stack.namespace()?)?;
             let mut header = None;
-            let wait = if follow { Duration::from_secs(3600 * 24 * 365) } else { Duration::from_millis(500) };
+            let wait = if follow {
+                Duration::from_secs(3600 * 24 * 365)
+            } else {
+                Duration::from_millis(500)
+            };
             while let Some(s) = f.next(wait) {
                 if json {
                     println!("{}", stats::json_line(&s));
@@ -251,7 +274,10 @@ fn run(cli: Cli) -> Result<ExitCode, String> {
         }
         Command::Estop { reset, stack } => {
             let n = estop::send(&stack.namespace()?, !reset)?;
-            println!("e-stop {} ({n} receivers)", if reset { "released" } else { "engaged" });
+            println!(
+                "e-stop {} ({n} receivers)",
+                if reset { "released" } else { "engaged" }
+            );
         }
         Command::Config { command } => match command {
             ConfigCommand::Check { file } => {
@@ -266,8 +292,14 @@ fn run(cli: Cli) -> Result<ExitCode, String> {
 }
 
 fn main() -> ExitCode {
-    init_logging();
-    match run(Cli::parse()) {
+    let cli = Cli::parse();
+    // The demo's own output is its table; its processes' logs only when something is wrong.
+    init_logging(if matches!(cli.command, Command::Demo(_)) {
+        "warn"
+    } else {
+        "info"
+    });
+    match run(cli) {
         Ok(code) => code,
         Err(e) => {
             eprintln!("softarm: {e}");

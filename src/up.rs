@@ -30,7 +30,8 @@ pub struct Supervisor {
 
 impl Supervisor {
     pub fn new(common: Vec<String>, env: Vec<(String, String)>) -> Result<Self, String> {
-        let exe = std::env::current_exe().map_err(|e| format!("cannot find my own executable: {e}"))?;
+        let exe =
+            std::env::current_exe().map_err(|e| format!("cannot find my own executable: {e}"))?;
         Ok(Self {
             exe,
             common,
@@ -55,11 +56,16 @@ impl Supervisor {
 
     fn spawn(&self, p: &mut Process) -> Result<(), String> {
         let mut cmd = Command::new(&self.exe);
-        cmd.arg(&p.role).args(&self.common).stdin(Stdio::null()).stderr(Stdio::piped());
+        cmd.arg(&p.role)
+            .args(&self.common)
+            .stdin(Stdio::null())
+            .stderr(Stdio::piped());
         for (k, v) in &self.env {
             cmd.env(k, v);
         }
-        let mut child = cmd.spawn().map_err(|e| format!("starting {}: {e}", p.role))?;
+        let mut child = cmd
+            .spawn()
+            .map_err(|e| format!("starting {}: {e}", p.role))?;
         // Each line a child logs goes to our stderr with its role in front.
         if let Some(err) = child.stderr.take() {
             let role = p.role.clone();
@@ -161,12 +167,20 @@ impl Drop for Supervisor {
 /// Runs controller, learner and the configured drivers until SIGINT or SIGTERM.
 pub fn run(common: Vec<String>, drivers: &[String], stop: &AtomicBool) -> Result<(), String> {
     let mut sup = Supervisor::new(common, Vec::new())?;
-    for role in drivers.iter().map(String::as_str).chain(["controller", "learner"]) {
+    for role in drivers
+        .iter()
+        .map(String::as_str)
+        .chain(["controller", "learner"])
+    {
         sup.add(role)?;
     }
     eprintln!(
         "softarm up: {} running; Ctrl-C stops them",
-        sup.pids().iter().map(|(r, p)| format!("{r} ({p})")).collect::<Vec<_>>().join(", ")
+        sup.pids()
+            .iter()
+            .map(|(r, p)| format!("{r} ({p})"))
+            .collect::<Vec<_>>()
+            .join(", ")
     );
     while !stop.load(Ordering::Relaxed) {
         std::thread::sleep(Duration::from_millis(50));

@@ -2,7 +2,7 @@
 
 use std::time::Duration;
 
-use softarm_ipc::{ControllerState, ControllerStatus, Contract, Namespace};
+use softarm_ipc::{Contract, ControllerState, ControllerStatus, Namespace};
 
 pub struct Report {
     /// The stack's processes with a live iceoryx2 node (this client excluded).
@@ -14,7 +14,9 @@ pub struct Report {
 /// `timeout` for it).
 pub fn status(namespace: &Namespace, timeout: Duration) -> Result<Report, String> {
     let ipc = Contract::new(namespace.clone(), "status").map_err(|e| e.to_string())?;
-    let sub = ipc.subscriber(&ipc.status().map_err(|e| e.to_string())?).map_err(|e| e.to_string())?;
+    let sub = ipc
+        .subscriber(&ipc.status().map_err(|e| e.to_string())?)
+        .map_err(|e| e.to_string())?;
     let mut newest = None;
     crate::poll(timeout, || {
         while let Ok(Some(s)) = sub.receive() {
@@ -52,7 +54,11 @@ fn us(ns: u64) -> String {
 pub fn text(r: &Report) -> String {
     let mut out = format!(
         "processes: {}\n",
-        if r.alive.is_empty() { "none".to_string() } else { r.alive.join(", ") }
+        if r.alive.is_empty() {
+            "none".to_string()
+        } else {
+            r.alive.join(", ")
+        }
     );
     match &r.controller {
         None => out += "controller: no status (not running?)\n",
@@ -63,9 +69,17 @@ pub fn text(r: &Report) -> String {
                 "controller: {state}{}, {} Hz, model {}\n\
                  tick wake-up latency µs: min {} p50 {} p99 {} p99.9 {} max {} ({} ticks, {} overruns)\n\
                  data age: tracker {}, motors {}\n",
-                if s.set_id != 0 { format!(" (set {}, execution {})", s.set_id, s.execution) } else { String::new() },
+                if s.set_id != 0 {
+                    format!(" (set {}, execution {})", s.set_id, s.execution)
+                } else {
+                    String::new()
+                },
                 s.rate_hz,
-                if s.model_loaded == 1 { "loaded" } else { "missing (run softarm train)" },
+                if s.model_loaded == 1 {
+                    "loaded"
+                } else {
+                    "missing (run softarm train)"
+                },
                 us(l.min_ns),
                 us(l.p50_ns),
                 us(l.p99_ns),

@@ -26,7 +26,11 @@ impl Outcome {
 
 /// Reads and checks a way-point file against the config's limits: a set that would be refused
 /// is refused here, before anything is sent.
-pub fn prepare(config: &Config, file: &std::path::Path, executions: u32) -> Result<WaypointSet, String> {
+pub fn prepare(
+    config: &Config,
+    file: &std::path::Path,
+    executions: u32,
+) -> Result<WaypointSet, String> {
     let f = WaypointFile::load(file)?;
     let set = f.to_set(executions)?;
     validate(&set, &config.waypoints, &config.activation)?;
@@ -37,21 +41,37 @@ pub fn prepare(config: &Config, file: &std::path::Path, executions: u32) -> Resu
 pub fn submit(namespace: &Namespace, mut set: WaypointSet, timeout: Duration) -> Outcome {
     let ipc = match Contract::new(namespace.clone(), "submit") {
         Ok(c) => c,
-        Err(e) => return Outcome::Unreachable { message: e.to_string() },
+        Err(e) => {
+            return Outcome::Unreachable {
+                message: e.to_string(),
+            };
+        }
     };
     let service = match ipc.waypoints() {
         Ok(s) => s,
-        Err(e) => return Outcome::Unreachable { message: e.to_string() },
+        Err(e) => {
+            return Outcome::Unreachable {
+                message: e.to_string(),
+            };
+        }
     };
     let client = match service.client_builder().create() {
         Ok(c) => c,
-        Err(e) => return Outcome::Unreachable { message: format!("waypoints client: {e:?}") },
+        Err(e) => {
+            return Outcome::Unreachable {
+                message: format!("waypoints client: {e:?}"),
+            };
+        }
     };
     set.seq = now_ns();
     set.stamp_ns = now_ns();
     let pending = match client.send_copy(set) {
         Ok(p) => p,
-        Err(e) => return Outcome::Unreachable { message: format!("sending the set: {e:?}") },
+        Err(e) => {
+            return Outcome::Unreachable {
+                message: format!("sending the set: {e:?}"),
+            };
+        }
     };
     let reply = crate::poll(timeout, || pending.receive().ok().flatten().map(|r| *r));
     match reply {

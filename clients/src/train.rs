@@ -70,12 +70,16 @@ fn record(namespace: &Namespace, seed: u64) -> Result<(Vec<Sample>, usize, f64),
             seed,
         })
         .map_err(|x| format!("sending the request: {x:?}"))?;
-    let reply = crate::poll(Duration::from_secs(5), || pending.receive().ok().flatten().map(|r| *r))
-        .ok_or_else(|| crate::unreachable(namespace.as_str(), "the demonstration request"))?;
+    let reply = crate::poll(Duration::from_secs(5), || {
+        pending.receive().ok().flatten().map(|r| *r)
+    })
+    .ok_or_else(|| crate::unreachable(namespace.as_str(), "the demonstration request"))?;
     if reply.accepted != 1 {
-        return Err("the controller refused to demonstrate: it is busy (executing, planning or in HOLD); \
+        return Err(
+            "the controller refused to demonstrate: it is busy (executing, planning or in HOLD); \
                     wait for it to be IDLE"
-            .into());
+                .into(),
+        );
     }
     let demos = reply.demos as usize;
     let expected = reply.duration_s;
@@ -124,7 +128,9 @@ fn record(namespace: &Namespace, seed: u64) -> Result<(Vec<Sample>, usize, f64),
                     .into());
             }
             if matches!(state, Some(ControllerState::Stopped)) {
-                return Err("the e-stop was engaged during the demonstrations; nothing was written".into());
+                return Err(
+                    "the e-stop was engaged during the demonstrations; nothing was written".into(),
+                );
             }
         }
         if start.elapsed() > deadline {
@@ -154,7 +160,10 @@ pub fn train(config: &Config, namespace: &Namespace, seed: u64) -> Result<TrainR
         let t0 = mine[0].stamp_ns;
         recordings.push(Recording {
             class: mine[0].class as usize,
-            times: mine.iter().map(|s| (s.stamp_ns - t0) as f64 * 1e-9).collect(),
+            times: mine
+                .iter()
+                .map(|s| (s.stamp_ns - t0) as f64 * 1e-9)
+                .collect(),
             actuation: mine.iter().map(|s| s.commanded).collect(),
             position: mine.iter().map(|s| s.position).collect(),
         });
@@ -167,8 +176,8 @@ pub fn train(config: &Config, namespace: &Namespace, seed: u64) -> Result<TrainR
             }
         }
     }
-    let (actuation, task) =
-        train_primitives(&recordings, config.model.basis_functions).map_err(|e| format!("training the primitives: {e}"))?;
+    let (actuation, task) = train_primitives(&recordings, config.model.basis_functions)
+        .map_err(|e| format!("training the primitives: {e}"))?;
 
     // D_fwd: what the actuators really did and where the end effector was.
     let acts: Vec<[f64; 6]> = samples.iter().map(|s| s.measured).collect();
@@ -181,14 +190,18 @@ pub fn train(config: &Config, namespace: &Namespace, seed: u64) -> Result<TrainR
         .step_by(5)
         .map(|i| {
             let y = held.position(&acts[i]);
-            (0..3).map(|d| (y[d] - positions[i][d]).powi(2)).sum::<f64>().sqrt()
+            (0..3)
+                .map(|d| (y[d] - positions[i][d]).powi(2))
+                .sum::<f64>()
+                .sqrt()
         })
         .collect();
     let forward_error_m = (
         errs.iter().sum::<f64>() / errs.len() as f64,
         errs.iter().cloned().fold(0.0, f64::max),
     );
-    let forward = RbfNetwork::fit(&acts, &positions, &config.forward_model).map_err(|e| e.to_string())?;
+    let forward =
+        RbfNetwork::fit(&acts, &positions, &config.forward_model).map_err(|e| e.to_string())?;
 
     let mut learner = Learner::new(config.learner)?;
     learner.imitate(&positions, &acts, 3);
@@ -210,7 +223,9 @@ pub fn train(config: &Config, namespace: &Namespace, seed: u64) -> Result<TrainR
         demo_duration_s: config.demonstrations.duration_s,
         id: String::new(),
     };
-    let model_id = model.write(&config.model_dir()).map_err(|e| e.to_string())?;
+    let model_id = model
+        .write(&config.model_dir())
+        .map_err(|e| e.to_string())?;
     Ok(TrainReport {
         demos,
         samples: samples.len(),

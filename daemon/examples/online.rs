@@ -32,13 +32,27 @@ fn main() {
     let z: Vec<f64> = t.iter().map(|t| t / file.duration_s).collect();
     let rate = config.controller.rate_hz;
     let q = classify(&model.task, &p, &z, 1e-6).unwrap();
-    let planner = Planner::<6>::new(model.actuation.clone(), &t, &q, Timeline::new(file.duration_s, rate).unwrap(), config.activation, 1e-6).unwrap();
+    let planner = Planner::<6>::new(
+        model.actuation.clone(),
+        &t,
+        &q,
+        Timeline::new(file.duration_s, rate).unwrap(),
+        config.activation,
+        1e-6,
+    )
+    .unwrap();
     let cond = planner.conditioning_ticks().to_vec();
     let initial: Vec<[f64; 6]> = (0..n).map(|i| learner.act(i, &p[i], false)).collect();
     let (mut engine, mut replanner) = planner.start(&initial).unwrap();
     let mut plant = Plant::new(config.arm, realism, [0.5; 6]).unwrap();
     let dt = 1.0 / rate;
-    let mut lim = Limiter::new([0.0; 6], [1.0; 6], config.controller.slew_per_s, rate, [0.5; 6]);
+    let mut lim = Limiter::new(
+        [0.0; 6],
+        [1.0; 6],
+        config.controller.slew_per_s,
+        rate,
+        [0.5; 6],
+    );
     let rest = (config.controller.rest_s * rate) as usize;
     let mut last = 0.0;
     let mut means = Vec::new();
@@ -67,9 +81,20 @@ fn main() {
         last = mean;
         means.push(mean);
         if e == 1 || e % 5 == 0 || std::env::var("ALL").is_ok() {
-            println!("{e:>3}: {} mean {:.2}", errs.iter().map(|x| format!("{:6.2}", x * 1e3)).collect::<String>(), mean * 1e3);
+            println!(
+                "{e:>3}: {} mean {:.2}",
+                errs.iter()
+                    .map(|x| format!("{:6.2}", x * 1e3))
+                    .collect::<String>(),
+                mean * 1e3
+            );
         }
     }
     let tail = &means[means.len().saturating_sub(5)..];
-    println!("first {:.2} mm, last {:.2} mm, mean of the last 5 {:.2} mm", means[0] * 1e3, last * 1e3, tail.iter().sum::<f64>() / tail.len() as f64 * 1e3);
+    println!(
+        "first {:.2} mm, last {:.2} mm, mean of the last 5 {:.2} mm",
+        means[0] * 1e3,
+        last * 1e3,
+        tail.iter().sum::<f64>() / tail.len() as f64 * 1e3
+    );
 }

@@ -98,11 +98,18 @@ impl Tensors {
     }
 
     /// An f64 tensor whose shape must equal `shape` (`None` entries match any length).
-    pub fn f64s(&self, name: &str, shape: &[Option<usize>]) -> Result<(Vec<usize>, Vec<f64>), String> {
+    pub fn f64s(
+        &self,
+        name: &str,
+        shape: &[Option<usize>],
+    ) -> Result<(Vec<usize>, Vec<f64>), String> {
         let (s, bytes) = self.get(name, Dtype::F64)?;
-        let fits = s.len() == shape.len() && s.iter().zip(shape).all(|(a, b)| b.is_none_or(|b| *a == b));
+        let fits =
+            s.len() == shape.len() && s.iter().zip(shape).all(|(a, b)| b.is_none_or(|b| *a == b));
         if !fits {
-            return Err(format!("tensor {name:?} has shape {s:?}, expected {shape:?}"));
+            return Err(format!(
+                "tensor {name:?} has shape {s:?}, expected {shape:?}"
+            ));
         }
         let v: Vec<f64> = bytes
             .chunks_exact(8)
@@ -117,7 +124,9 @@ impl Tensors {
     pub fn u64s(&self, name: &str) -> Result<Vec<u64>, String> {
         let (s, bytes) = self.get(name, Dtype::U64)?;
         if s.len() != 1 {
-            return Err(format!("tensor {name:?} has shape {s:?}, expected one axis"));
+            return Err(format!(
+                "tensor {name:?} has shape {s:?}, expected one axis"
+            ));
         }
         Ok(bytes
             .chunks_exact(8)
@@ -137,7 +146,12 @@ pub struct TensorsRef {
 }
 
 /// Writes `<dir>/<stem>.toml` (with `meta` and a `[tensors]` reference) and its tensors file.
-pub fn write<M: Serialize>(dir: &Path, stem: &str, meta: &M, tensors: &Tensors) -> Result<TensorsRef, BundleError> {
+pub fn write<M: Serialize>(
+    dir: &Path,
+    stem: &str,
+    meta: &M,
+    tensors: &Tensors,
+) -> Result<TensorsRef, BundleError> {
     let views: Vec<(String, TensorView<'_>)> = tensors
         .map
         .iter()
@@ -179,7 +193,10 @@ pub fn write<M: Serialize>(dir: &Path, stem: &str, meta: &M, tensors: &Tensors) 
     if let Ok(entries) = fs::read_dir(dir) {
         for e in entries.flatten() {
             let name = e.file_name().to_string_lossy().to_string();
-            if name.starts_with(&format!("{stem}-")) && name.ends_with(".safetensors") && name != file {
+            if name.starts_with(&format!("{stem}-"))
+                && name.ends_with(".safetensors")
+                && name != file
+            {
                 let _ = fs::remove_file(e.path());
             }
         }
@@ -218,7 +235,10 @@ pub fn read<M: for<'de> Deserialize<'de>>(
         .try_into()
         .map_err(|e: toml::de::Error| invalid(e.to_string()))?;
     if reference.file.contains('/') || reference.file.contains("..") {
-        return Err(invalid(format!("tensors file {:?} must be a plain file name", reference.file)));
+        return Err(invalid(format!(
+            "tensors file {:?} must be a plain file name",
+            reference.file
+        )));
     }
     let tpath = dir.join(&reference.file);
     let data = fs::read(&tpath).map_err(|e| BundleError::Invalid {
@@ -246,10 +266,13 @@ pub fn read<M: for<'de> Deserialize<'de>>(
     let st = SafeTensors::deserialize(&data).map_err(|e| bad_tensors(format!("{e:?}")))?;
     let mut tensors = Tensors::default();
     for name in st.names() {
-        let v = st.tensor(name).map_err(|e| bad_tensors(format!("{name}: {e:?}")))?;
-        tensors
-            .map
-            .insert(name.to_string(), (v.dtype(), v.shape().to_vec(), v.data().to_vec()));
+        let v = st
+            .tensor(name)
+            .map_err(|e| bad_tensors(format!("{name}: {e:?}")))?;
+        tensors.map.insert(
+            name.to_string(),
+            (v.dtype(), v.shape().to_vec(), v.data().to_vec()),
+        );
     }
     Ok((meta, tensors, reference))
 }
@@ -408,7 +431,8 @@ impl Model {
         if meta.primitives == 0 || meta.primitives > crate::activation::MAX_PRIMITIVES {
             return Err(invalid(format!("{} primitives", meta.primitives)));
         }
-        let basis = Basis::new(meta.basis_functions, Some(meta.basis_width)).map_err(|e| invalid(e.to_string()))?;
+        let basis = Basis::new(meta.basis_functions, Some(meta.basis_width))
+            .map_err(|e| invalid(e.to_string()))?;
         let build = || -> Result<Model, String> {
             let actuation = (0..meta.primitives)
                 .map(|j| get_primitive(&t, &format!("promp.actuation.{j}"), &basis, 6))
@@ -417,7 +441,10 @@ impl Model {
                 .map(|j| get_primitive(&t, &format!("promp.task.{j}"), &basis, 3))
                 .collect::<Result<Vec<_>, _>>()?;
             let (shape, c) = t.f64s("forward.centres", &[None, Some(6)])?;
-            let centres: Vec<[f64; 6]> = c.chunks_exact(6).map(|r| std::array::from_fn(|i| r[i])).collect();
+            let centres: Vec<[f64; 6]> = c
+                .chunks_exact(6)
+                .map(|r| std::array::from_fn(|i| r[i]))
+                .collect();
             let (_, w) = t.f64s("forward.weights", &[Some(shape[0] + 7), Some(3)])?;
             let weights: Vec<[f64; 3]> = w.chunks_exact(3).map(|r| [r[0], r[1], r[2]]).collect();
             let forward = RbfNetwork::from_parts(centres, meta.forward_sigma, weights)?;
@@ -447,7 +474,11 @@ struct CheckpointMeta {
 }
 
 /// Saves the learner's state as `<dir>/learner.toml` + tensors.
-pub fn write_checkpoint(dir: &Path, state: &LearnerState, model_id: &str) -> Result<(), BundleError> {
+pub fn write_checkpoint(
+    dir: &Path,
+    state: &LearnerState,
+    model_id: &str,
+) -> Result<(), BundleError> {
     let meta = CheckpointMeta {
         format: FORMAT,
         kind: "softarm-learner".into(),
@@ -467,7 +498,10 @@ pub fn read_checkpoint(dir: &Path) -> Result<(LearnerState, String), BundleError
         why,
     };
     if meta.format != FORMAT || meta.kind != "softarm-learner" {
-        return Err(invalid(format!("format {} of kind {:?}", meta.format, meta.kind)));
+        return Err(invalid(format!(
+            "format {} of kind {:?}",
+            meta.format, meta.kind
+        )));
     }
     meta.learner.validate().map_err(invalid)?;
     let state = get_learner(&t, meta.learner).map_err(invalid)?;
@@ -491,9 +525,26 @@ mod tests {
         let recs = demonstrations(&arm, &recipe, 3);
         let (actuation, task) = train_primitives(&recs, 8).unwrap();
         let (a, p) = forward_data(&recs);
-        let forward = RbfNetwork::fit(&a, &p, &NetworkConfig { centres: 40, ..Default::default() }).unwrap();
+        let forward = RbfNetwork::fit(
+            &a,
+            &p,
+            &NetworkConfig {
+                centres: 40,
+                ..Default::default()
+            },
+        )
+        .unwrap();
         let mut l = Learner::new(LearnerConfig::default()).unwrap();
-        pretrain(&mut l, &forward, &p, &PretrainConfig { max_epochs: 20, ..Default::default() }, |_| true);
+        pretrain(
+            &mut l,
+            &forward,
+            &p,
+            &PretrainConfig {
+                max_epochs: 20,
+                ..Default::default()
+            },
+            |_| true,
+        );
         l.observe(1, &p[0], &a[0], &p[1]);
         Model {
             actuation,
@@ -524,7 +575,16 @@ mod tests {
         assert_eq!(back.learner, m.learner);
         // Rewriting leaves one tensors file.
         m.write(&dir).unwrap();
-        let n = fs::read_dir(&dir).unwrap().filter(|e| e.as_ref().unwrap().file_name().to_string_lossy().ends_with(".safetensors")).count();
+        let n = fs::read_dir(&dir)
+            .unwrap()
+            .filter(|e| {
+                e.as_ref()
+                    .unwrap()
+                    .file_name()
+                    .to_string_lossy()
+                    .ends_with(".safetensors")
+            })
+            .count();
         assert_eq!(n, 1);
 
         write_checkpoint(&dir, &m.learner, &id).unwrap();
@@ -555,13 +615,27 @@ mod tests {
         fs::write(&tensors, &good).unwrap();
         let meta = dir.join("model.toml");
         let text = fs::read_to_string(&meta).unwrap();
-        fs::write(&meta, text.replace("basis_functions = 8", "basis_functions = 9")).unwrap();
+        fs::write(
+            &meta,
+            text.replace("basis_functions = 8", "basis_functions = 9"),
+        )
+        .unwrap();
         let e = Model::read(&dir).unwrap_err().to_string();
         assert!(e.contains("shape"), "{e}");
         fs::write(&meta, text.replace("format = 1", "format = 7")).unwrap();
-        assert!(Model::read(&dir).unwrap_err().to_string().contains("format 7"));
+        assert!(
+            Model::read(&dir)
+                .unwrap_err()
+                .to_string()
+                .contains("format 7")
+        );
         fs::write(&meta, text.replace("[learner]", "surprise = 1\n[learner]")).unwrap();
-        assert!(Model::read(&dir).unwrap_err().to_string().contains("surprise"));
+        assert!(
+            Model::read(&dir)
+                .unwrap_err()
+                .to_string()
+                .contains("surprise")
+        );
         fs::write(&meta, &text).unwrap();
         assert!(Model::read(&dir).is_ok());
 

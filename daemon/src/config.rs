@@ -132,7 +132,8 @@ impl Config {
 
     /// The embedded simulation default, with relative paths under `base_dir`.
     pub fn default_sim(base_dir: PathBuf) -> Self {
-        Self::parse(DEFAULT, "embedded default config", base_dir).expect("the embedded config is valid")
+        Self::parse(DEFAULT, "embedded default config", base_dir)
+            .expect("the embedded config is valid")
     }
 
     pub fn parse(text: &str, origin: &str, base_dir: PathBuf) -> Result<Self, ConfigError> {
@@ -168,7 +169,8 @@ impl Config {
 
     fn validate(&self) -> Result<(), (String, String)> {
         let key = |k: &str, m: String| Err((k.to_string(), m));
-        softarm_ipc::Namespace::new(&self.namespace()).map_err(|m| ("robot.namespace".to_string(), m))?;
+        softarm_ipc::Namespace::new(&self.namespace())
+            .map_err(|m| ("robot.namespace".to_string(), m))?;
         for d in &self.robot.drivers {
             if !["sim"].contains(&d.as_str()) {
                 return key(
@@ -179,7 +181,10 @@ impl Config {
         }
         let c = &self.controller;
         if !(c.rate_hz.is_finite() && (10.0..=1000.0).contains(&c.rate_hz)) {
-            return key("controller.rate_hz", format!("must be 10 to 1000 Hz, got {}", c.rate_hz));
+            return key(
+                "controller.rate_hz",
+                format!("must be 10 to 1000 Hz, got {}", c.rate_hz),
+            );
         }
         if !(c.tracker_timeout_ms.is_finite() && c.tracker_timeout_ms > 0.0) {
             return key("controller.tracker_timeout_ms", "must be > 0".into());
@@ -192,7 +197,10 @@ impl Config {
             if !(0.0..=1.0).contains(&lo) || !(0.0..=1.0).contains(&hi) || lo >= hi {
                 return key(
                     "controller.actuator_min",
-                    format!("actuator {}: limits [{lo}, {hi}] must satisfy 0 <= min < max <= 1", i + 1),
+                    format!(
+                        "actuator {}: limits [{lo}, {hi}] must satisfy 0 <= min < max <= 1",
+                        i + 1
+                    ),
                 );
             }
         }
@@ -206,31 +214,49 @@ impl Config {
             return key("controller.estimate_timeout_s", "must be > 0".into());
         }
         if !(0..=99).contains(&c.realtime_priority) {
-            return key("controller.realtime_priority", "must be 0 (off) to 99".into());
+            return key(
+                "controller.realtime_priority",
+                "must be 0 (off) to 99".into(),
+            );
         }
         let w = &self.waypoints;
         for d in 0..3 {
-            if !(w.workspace_min_m[d].is_finite() && w.workspace_max_m[d].is_finite() && w.workspace_min_m[d] < w.workspace_max_m[d]) {
-                return key("waypoints.workspace_min_m", format!("axis {d}: the box is empty"));
+            if !(w.workspace_min_m[d].is_finite()
+                && w.workspace_max_m[d].is_finite()
+                && w.workspace_min_m[d] < w.workspace_max_m[d])
+            {
+                return key(
+                    "waypoints.workspace_min_m",
+                    format!("axis {d}: the box is empty"),
+                );
             }
         }
-        if !(w.min_duration_s > 0.0 && w.min_duration_s <= w.max_duration_s && w.max_duration_s.is_finite()) {
-            return key("waypoints.min_duration_s", "need 0 < min_duration_s <= max_duration_s".into());
+        if !(w.min_duration_s > 0.0
+            && w.min_duration_s <= w.max_duration_s
+            && w.max_duration_s.is_finite())
+        {
+            return key(
+                "waypoints.min_duration_s",
+                "need 0 < min_duration_s <= max_duration_s".into(),
+            );
         }
         if w.max_executions == 0 {
             return key("waypoints.max_executions", "must be >= 1".into());
         }
-        crate::activation::Schedule::new(&[0.5], &[0], 1, 1.0, self.activation).map_err(|e| {
-            ("activation".to_string(), e.to_string())
-        })?;
+        crate::activation::Schedule::new(&[0.5], &[0], 1, 1.0, self.activation)
+            .map_err(|e| ("activation".to_string(), e.to_string()))?;
         if !(2..=40).contains(&self.model.basis_functions) {
             return key("model.basis_functions", "must be 2 to 40".into());
         }
-        self.demonstrations.validate().map_err(|m| ("demonstrations".to_string(), m))?;
+        self.demonstrations
+            .validate()
+            .map_err(|m| ("demonstrations".to_string(), m))?;
         if self.forward_model.centres == 0 {
             return key("forward_model.centres", "must be >= 1".into());
         }
-        self.learner.validate().map_err(|m| ("learner".to_string(), m))?;
+        self.learner
+            .validate()
+            .map_err(|m| ("learner".to_string(), m))?;
         if !(self.pretrain.budget_s.is_finite() && self.pretrain.budget_s >= 0.0) {
             return key("pretrain.budget_s", "must be >= 0".into());
         }
@@ -283,9 +309,17 @@ mod tests {
     fn errors_name_the_key_and_line() {
         let bad = DEFAULT.replace("rate_hz = 500.0", "rate_hz = 5000.0");
         let e = Config::parse(&bad, "c.toml", ".".into()).unwrap_err();
-        let line = DEFAULT.lines().position(|l| l.starts_with("rate_hz = 500.0")).unwrap() + 1;
+        let line = DEFAULT
+            .lines()
+            .position(|l| l.starts_with("rate_hz = 500.0"))
+            .unwrap()
+            + 1;
         assert_eq!(e.line, Some(line), "{e}");
-        assert!(e.to_string().starts_with(&format!("c.toml:{line}: controller.rate_hz")), "{e}");
+        assert!(
+            e.to_string()
+                .starts_with(&format!("c.toml:{line}: controller.rate_hz")),
+            "{e}"
+        );
 
         let unknown = DEFAULT.replace("[controller]\n", "[controller]\nrate = 3\n");
         let e = Config::parse(&unknown, "c.toml", ".".into()).unwrap_err();

@@ -12,8 +12,9 @@ use std::sync::mpsc::{Receiver, SyncSender, TryRecvError, sync_channel};
 use std::time::{Duration, Instant, SystemTime};
 
 use softarm_ipc::clock::Ticker;
+use softarm_ipc::iceoryx2::port::update_connections::UpdateConnections;
 use softarm_ipc::{
-    ConditioningSample, ControllerState, ControllerStatus, Contract, DemonstrateReply,
+    ConditioningSample, Contract, ControllerState, ControllerStatus, DemonstrateReply,
     ExecutionStats, Latency, MAX_WAYPOINTS, Namespace, Setpoint, WaypointReply, now_ns,
 };
 
@@ -34,7 +35,13 @@ pub struct Limiter {
 }
 
 impl Limiter {
-    pub fn new(min: [f64; 6], max: [f64; 6], slew_per_s: f64, rate_hz: f64, start: [f64; 6]) -> Self {
+    pub fn new(
+        min: [f64; 6],
+        max: [f64; 6],
+        slew_per_s: f64,
+        rate_hz: f64,
+        start: [f64; 6],
+    ) -> Self {
         let mut l = Self {
             min,
             max,
@@ -195,17 +202,108 @@ pub fn run(config: &Config, stop: &AtomicBool) -> Result<(), String> {
         let thread_stop = stop_flag.clone();
         let handle = std::thread::Builder::new()
             .name("controller-service".into())
-            .spawn(move || service_thread(&config, namespace, &shared, to_tick_tx, retired_rx, &thread_stop))
+            .spawn(move || {
+                service_thread(
+                    &config,
+                    namespace,
+                    &shared,
+                    to_tick_tx,
+                    retired_rx,
+                    &thread_stop,
+                )
+            })
             .map_err(|e| format!("starting the service thread: {e}"))?;
         (handle, stop_flag)
     };
     let watchdog = start_watchdog(shared.clone());
+    let (outbox, io) = start_io(config, namespace.clone(), service.1.clone())?;
 
-    let result = tick_thread(config, namespace, &shared, to_tick_rx, retired_tx, stop);
+    let result = tick_thread(
+        config, namespace, &shared, to_tick_rx, retired_tx, outbox, stop,
+    );
     service.1.store(true, Ordering::Relaxed);
-    let service_result = service.0.join().unwrap_or_else(|_| Err("the service thread panicked".into()));
+    let service_result = service
+        .0
+        .join()
+        .unwrap_or_else(|_| Err("the service thread panicked".into()));
+    let io_result = io
+        .join()
+        .unwrap_or_else(|_| Err("the io thread panicked".into()));
     drop(watchdog);
-    result.and(service_result)
+    result.and(service_result).and(io_result)
+}
+
+/// What the tick publishes. iceoryx2 0.10 allocates a reference count for every loaned sample,
+/// so the tick hands its samples to the io thread over a bounded lock-free channel instead of
+/// sending them itself; the io thread sends them a fraction of a period later.
+enum Outgoing {
+    Setpoint(Setpoint),
+    Sample(ConditioningSample),
+    Stats(ExecutionStats),
+    Status(ControllerStatus),
+}
+
+struct Outbox {
+    tx: SyncSender<Outgoing>,
+    /// The first tick deadline; the io thread runs at the same rate, `IO_OFFSET_NS` later.
+    epoch_ns: u64,
+}
+
+impl Outbox {
+    /// Never blocks; a full outbox (io thread stalled) drops the sample.
+    fn send(&self, m: Outgoing) {
+        let _ = self.tx.try_send(m);
+    }
+}
+
+/// How long after each tick deadline the io thread sends (ns): past the tick's wake-up and
+/// evaluation, well inside the period.
+const IO_OFFSET_NS: u64 = 250_000;
+
+fn start_io(
+    config: &Config,
+    namespace: Namespace,
+    stop: Arc<AtomicBool>,
+) -> Result<(Outbox, std::thread::JoinHandle<Result<(), String>>), String> {
+    let (tx, rx) = sync_channel::<Outgoing>(256);
+    let rate = config.controller.rate_hz;
+    let epoch_ns = now_ns() + 20_000_000;
+    let io_start = epoch_ns + IO_OFFSET_NS.min((5e8 / rate) as u64);
+    let handle = std::thread::Builder::new()
+        .name("controller-io".into())
+        .spawn(move || -> Result<(), String> {
+            let e = |e: softarm_ipc::Error| e.to_string();
+            let ipc = Contract::new(namespace, "controller.io").map_err(e)?;
+            let setpoints = ipc.publisher(&ipc.setpoint().map_err(e)?).map_err(e)?;
+            let samples = ipc.publisher(&ipc.cp_sample().map_err(e)?).map_err(e)?;
+            let stats = ipc.publisher(&ipc.stats().map_err(e)?).map_err(e)?;
+            let status = ipc.publisher(&ipc.status().map_err(e)?).map_err(e)?;
+            let mut ticker = Ticker::starting_at(rate, io_start);
+            while !stop.load(Ordering::Relaxed) {
+                ticker.wait();
+                while let Ok(m) = rx.try_recv() {
+                    match m {
+                        Outgoing::Setpoint(s) => {
+                            let _ = setpoints.send_copy(s);
+                        }
+                        Outgoing::Sample(s) => {
+                            let _ = samples.send_copy(s);
+                        }
+                        Outgoing::Stats(s) => {
+                            let _ = stats.send_copy(s);
+                        }
+                        Outgoing::Status(s) => {
+                            let _ = status.send_copy(s);
+                            // Late subscribers (`softarm stats`) get the history on an update.
+                            let _ = stats.update_connections();
+                        }
+                    }
+                }
+            }
+            Ok(())
+        })
+        .map_err(|e| format!("starting the io thread: {e}"))?;
+    Ok((Outbox { tx, epoch_ns }, handle))
 }
 
 fn setup_realtime(config: &Config) {
@@ -218,7 +316,9 @@ fn setup_realtime(config: &Config) {
     }
     if let Some(cpu) = c.cpu {
         let mut set = nix::sched::CpuSet::new();
-        if set.set(cpu).is_err() || nix::sched::sched_setaffinity(nix::unistd::Pid::from_raw(0), &set).is_err() {
+        if set.set(cpu).is_err()
+            || nix::sched::sched_setaffinity(nix::unistd::Pid::from_raw(0), &set).is_err()
+        {
             tracing::warn!("cannot pin the tick thread to CPU {cpu}; going on unpinned");
         }
     }
@@ -244,14 +344,11 @@ fn tick_thread(
     shared: &Shared,
     plans: Receiver<ToTick>,
     retired: SyncSender<Retired>,
+    outbox: Outbox,
     stop: &AtomicBool,
 ) -> Result<(), String> {
     let e = |e: softarm_ipc::Error| e.to_string();
     let ipc = Contract::new(namespace, "controller").map_err(e)?;
-    let setpoints = ipc.publisher(&ipc.setpoint().map_err(e)?).map_err(e)?;
-    let samples = ipc.publisher(&ipc.cp_sample().map_err(e)?).map_err(e)?;
-    let stats = ipc.publisher(&ipc.stats().map_err(e)?).map_err(e)?;
-    let status = ipc.publisher(&ipc.status().map_err(e)?).map_err(e)?;
     let tracker = ipc.subscriber(&ipc.tracker().map_err(e)?).map_err(e)?;
     let motors = ipc.subscriber(&ipc.motor_state().map_err(e)?).map_err(e)?;
     let estop = ipc.subscriber(&ipc.estop().map_err(e)?).map_err(e)?;
@@ -276,7 +373,7 @@ fn tick_thread(
     // (resume where the execution paused).
     let mut stopped_while_unsafe = false;
     let (mut seq, mut cp_seq, mut stats_seq, mut tick_count) = (0u64, 0u64, 0u64, 0u64);
-    let mut ticker = Ticker::new(rate);
+    let mut ticker = Ticker::starting_at(rate, outbox.epoch_ns);
     let mut notified = false;
     tracing::info!(rate_hz = rate, "controller running");
 
@@ -303,7 +400,8 @@ fn tick_thread(
                     }
                 }
                 _ => {
-                    if let Mode::Demonstrate { plan, .. } = std::mem::replace(&mut mode, Mode::Idle) {
+                    if let Mode::Demonstrate { plan, .. } = std::mem::replace(&mut mode, Mode::Idle)
+                    {
                         let _ = retired.try_send(Retired::Demo(plan));
                     }
                     mode = start_execution(p, rest_ticks);
@@ -329,7 +427,13 @@ fn tick_thread(
         if limiter.is_none()
             && let Some((m, _)) = measured
         {
-            limiter = Some(Limiter::new(c.actuator_min, c.actuator_max, c.slew_per_s, rate, m));
+            limiter = Some(Limiter::new(
+                c.actuator_min,
+                c.actuator_max,
+                c.slew_per_s,
+                rate,
+                m,
+            ));
         }
         let safe = !engaged && tracker_age <= timeout_ns && motor_age <= timeout_ns;
         let state = if engaged {
@@ -453,7 +557,7 @@ fn tick_thread(
             };
             let out = lim.apply(&target);
             seq += 1;
-            let _ = setpoints.send_copy(Setpoint {
+            outbox.send(Outgoing::Setpoint(Setpoint {
                 seq,
                 stamp_ns: now,
                 actuation: out,
@@ -461,13 +565,13 @@ fn tick_thread(
                 demo: demo_tag.0,
                 demo_class: demo_tag.1,
                 execution: execution_no,
-            });
+            }));
             if let Some(mut s) = sample {
                 s.actuation = out;
-                let _ = samples.send_copy(s);
+                outbox.send(Outgoing::Sample(s));
             }
             if let Some(s) = finished {
-                let _ = stats.send_copy(s);
+                outbox.send(Outgoing::Stats(s));
             }
         }
         was_safe = safe;
@@ -476,9 +580,9 @@ fn tick_thread(
         // Mode changes at boundaries: a finished demonstration run or way-point set.
         let done = match &mode {
             Mode::Demonstrate { plan, demo, .. } => *demo >= plan.sequences.len(),
-            Mode::Execute { plan, execution, k, .. } => {
-                *k == -rest_ticks && (*execution > plan.executions || queued.is_some())
-            }
+            Mode::Execute {
+                plan, execution, k, ..
+            } => *k == -rest_ticks && (*execution > plan.executions || queued.is_some()),
             Mode::Idle => false,
         };
         if done {
@@ -498,10 +602,12 @@ fn tick_thread(
 
         if tick_count % status_every == 0 {
             let (set_id, execution) = match &mode {
-                Mode::Execute { plan, execution, .. } => (plan.set_id, *execution),
+                Mode::Execute {
+                    plan, execution, ..
+                } => (plan.set_id, *execution),
                 _ => (0, 0),
             };
-            let _ = status.send_copy(ControllerStatus {
+            outbox.send(Outgoing::Status(ControllerStatus {
                 seq: tick_count,
                 stamp_ns: now,
                 state: state as u32,
@@ -515,7 +621,7 @@ fn tick_thread(
                 motor_age_ns: motor_age,
                 model_loaded: shared.model_loaded.load(Ordering::Relaxed) as u32,
                 _pad: 0,
-            });
+            }));
         }
         shared.heartbeat.store(tick_count, Ordering::Relaxed);
         if !notified {
@@ -523,7 +629,11 @@ fn tick_thread(
             let _ = sd_notify::notify(&[sd_notify::NotifyState::Ready]);
         }
     }
-    tracing::info!(overruns = ticker.overruns(), ticks = tick_count, "controller stopped");
+    tracing::info!(
+        overruns = ticker.overruns(),
+        ticks = tick_count,
+        "controller stopped"
+    );
     Ok(())
 }
 
@@ -593,7 +703,9 @@ impl ModelSlot {
             return;
         }
         self.checked = Instant::now();
-        let stamp = std::fs::metadata(self.dir.join("model.toml")).and_then(|m| m.modified()).ok();
+        let stamp = std::fs::metadata(self.dir.join("model.toml"))
+            .and_then(|m| m.modified())
+            .ok();
         if stamp.is_none() || stamp == self.stamp {
             return;
         }
@@ -619,8 +731,18 @@ fn service_thread(
 ) -> Result<(), String> {
     let e = |e: softarm_ipc::Error| e.to_string();
     let ipc = Contract::new(namespace, "controller.service").map_err(e)?;
-    let waypoints = ipc.waypoints().map_err(e)?.server_builder().create().map_err(|x| format!("waypoints server: {x:?}"))?;
-    let demonstrate = ipc.demonstrate().map_err(e)?.server_builder().create().map_err(|x| format!("demonstrate server: {x:?}"))?;
+    let waypoints = ipc
+        .waypoints()
+        .map_err(e)?
+        .server_builder()
+        .create()
+        .map_err(|x| format!("waypoints server: {x:?}"))?;
+    let demonstrate = ipc
+        .demonstrate()
+        .map_err(e)?
+        .server_builder()
+        .create()
+        .map_err(|x| format!("demonstrate server: {x:?}"))?;
     let requests = ipc.publisher(&ipc.cp_sample().map_err(e)?).map_err(e)?;
     let estimates = ipc.subscriber(&ipc.estimate().map_err(e)?).map_err(e)?;
 
@@ -655,8 +777,17 @@ fn service_thread(
                     let n = set.count as usize;
                     let mut desired = [[0.0; 3]; MAX_WAYPOINTS];
                     desired[..n].copy_from_slice(&set.positions_m[..n]);
-                    let z: Vec<f64> = set.times_s[..n].iter().map(|t| t / set.duration_s).collect();
-                    tracing::info!(set_id, points = n, executions = set.executions, ?q, "way-point set accepted");
+                    let z: Vec<f64> = set.times_s[..n]
+                        .iter()
+                        .map(|t| t / set.duration_s)
+                        .collect();
+                    tracing::info!(
+                        set_id,
+                        points = n,
+                        executions = set.executions,
+                        ?q,
+                        "way-point set accepted"
+                    );
                     for (point, p) in desired[..n].iter().enumerate() {
                         request_seq += 1;
                         let _ = requests.send_copy(ConditioningSample {
@@ -677,7 +808,8 @@ fn service_thread(
                     }
                     planning = Some(Planning {
                         set_id,
-                        deadline: Instant::now() + Duration::from_secs_f64(config.controller.estimate_timeout_s),
+                        deadline: Instant::now()
+                            + Duration::from_secs_f64(config.controller.estimate_timeout_s),
                         planner,
                         executions: set.executions,
                         desired,
@@ -700,10 +832,15 @@ fn service_thread(
             let recipe = &config.demonstrations;
             let reply = if idle && planning.is_none() && active.is_none() {
                 let sequences = recipe.sequences(r.seed);
-                let ticks_per_sample = (config.controller.rate_hz / recipe.sample_rate_hz).round().max(1.0) as usize;
+                let ticks_per_sample = (config.controller.rate_hz / recipe.sample_rate_hz)
+                    .round()
+                    .max(1.0) as usize;
                 let rest = config.controller.rest_s.max(0.5);
                 let n = sequences.len();
-                let plan = DemoPlan { sequences, ticks_per_sample };
+                let plan = DemoPlan {
+                    sequences,
+                    ticks_per_sample,
+                };
                 match to_tick.try_send(ToTick::Demonstrate(Box::new(plan))) {
                     Ok(()) => DemonstrateReply {
                         seq: r.seq,
@@ -712,11 +849,17 @@ fn service_thread(
                         demos: n as u32,
                         duration_s: n as f64 * (recipe.duration_s + rest),
                     },
-                    Err(_) => DemonstrateReply { seq: r.seq, ..Default::default() },
+                    Err(_) => DemonstrateReply {
+                        seq: r.seq,
+                        ..Default::default()
+                    },
                 }
             } else {
                 tracing::warn!("demonstrations refused: the controller is busy");
-                DemonstrateReply { seq: r.seq, ..Default::default() }
+                DemonstrateReply {
+                    seq: r.seq,
+                    ..Default::default()
+                }
             };
             let _ = req.send_copy(reply);
         }
@@ -728,19 +871,22 @@ fn service_thread(
                 if point < p.estimates.len() {
                     p.estimates[point] = Some(s.actuation);
                 }
-            } else if let Some((set_id, replanner)) = active.as_mut().filter(|a| a.0 == s.set_id) {
-                if let Err(err) = replanner.recondition(point, &s.actuation) {
-                    tracing::warn!(set_id = *set_id, point, "estimate not used: {err}");
-                }
+            } else if let Some((set_id, replanner)) = active.as_mut().filter(|a| a.0 == s.set_id)
+                && let Err(err) = replanner.recondition(point, &s.actuation)
+            {
+                tracing::warn!(set_id = *set_id, point, "estimate not used: {err}");
             }
         }
 
-        let ready = planning
-            .as_ref()
-            .is_some_and(|p| p.estimates.iter().all(Option::is_some) || Instant::now() >= p.deadline);
+        let ready = planning.as_ref().is_some_and(|p| {
+            p.estimates.iter().all(Option::is_some) || Instant::now() >= p.deadline
+        });
         if ready {
             let p = planning.take().expect("checked above");
-            let model = slot.model.as_ref().expect("a set is only admitted with a model");
+            let model = slot
+                .model
+                .as_ref()
+                .expect("a set is only admitted with a model");
             let q = p.planner.schedule().assignment().to_vec();
             let initial: Vec<[f64; 6]> = p
                 .estimates
@@ -755,7 +901,10 @@ fn service_thread(
                 })
                 .collect();
             if p.estimates.iter().any(Option::is_none) {
-                tracing::warn!(set_id = p.set_id, "no estimates from the learner in time: starting from the primitives' means");
+                tracing::warn!(
+                    set_id = p.set_id,
+                    "no estimates from the learner in time: starting from the primitives' means"
+                );
             }
             let points = initial.len();
             let mut cond_ticks = [0usize; MAX_WAYPOINTS];
@@ -804,15 +953,22 @@ fn admit(
     set: &softarm_ipc::WaypointSet,
 ) -> Result<(Planner<6>, Vec<usize>), String> {
     validate(set, &config.waypoints, &config.activation)?;
-    let model = slot
-        .model
-        .as_ref()
-        .ok_or_else(|| format!("no trained model in {}: run `softarm train` first", slot.dir.display()))?;
+    let model = slot.model.as_ref().ok_or_else(|| {
+        format!(
+            "no trained model in {}: run `softarm train` first",
+            slot.dir.display()
+        )
+    })?;
     let n = set.count as usize;
     let points = &set.positions_m[..n];
-    let z: Vec<f64> = set.times_s[..n].iter().map(|t| t / set.duration_s).collect();
-    let q = classify(&model.task, points, &z, config.controller.variance_floor).map_err(|e| e.to_string())?;
-    let timeline = Timeline::new(set.duration_s, config.controller.rate_hz).map_err(|e| e.to_string())?;
+    let z: Vec<f64> = set.times_s[..n]
+        .iter()
+        .map(|t| t / set.duration_s)
+        .collect();
+    let q = classify(&model.task, points, &z, config.controller.variance_floor)
+        .map_err(|e| e.to_string())?;
+    let timeline =
+        Timeline::new(set.duration_s, config.controller.rate_hz).map_err(|e| e.to_string())?;
     let planner = Planner::new(
         model.actuation.clone(),
         &set.times_s[..n],

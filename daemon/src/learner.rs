@@ -10,7 +10,7 @@ use std::time::{Duration, Instant, SystemTime};
 use softarm_ipc::{ActuationEstimate, Contract, Namespace, now_ns};
 
 use crate::bundle::{BundleError, Model, read_checkpoint, write_checkpoint};
-use crate::cacla::Learner;
+use crate::cacla::{Learner, LearnerConfig};
 use crate::config::Config;
 
 struct Loaded {
@@ -19,7 +19,9 @@ struct Loaded {
 }
 
 fn stamp(dir: &Path) -> Option<SystemTime> {
-    std::fs::metadata(dir.join("model.toml")).and_then(|m| m.modified()).ok()
+    std::fs::metadata(dir.join("model.toml"))
+        .and_then(|m| m.modified())
+        .ok()
 }
 
 /// The checkpoint if it descends from the bundle in `model_dir`, else the bundle's learner.
@@ -32,7 +34,9 @@ fn load(config: &Config) -> Result<Loaded, BundleError> {
             state
         }
         Ok(_) => {
-            tracing::info!("the checkpoint belongs to an older model: starting from the new bundle");
+            tracing::info!(
+                "the checkpoint belongs to an older model: starting from the new bundle"
+            );
             model.learner.clone()
         }
         Err(BundleError::Missing { .. }) => model.learner.clone(),
@@ -41,6 +45,8 @@ fn load(config: &Config) -> Result<Loaded, BundleError> {
             model.learner.clone()
         }
     };
+    let mut state = state;
+    state.config = runtime_config(state.config, config.learner);
     let learner = Learner::restore(&state).map_err(|why| BundleError::Invalid {
         path: model_dir.clone(),
         why,
@@ -49,6 +55,27 @@ fn load(config: &Config) -> Result<Loaded, BundleError> {
         learner,
         model_id: model.id,
     })
+}
+
+/// Rates, discount and exploration come from the config, so they can be tuned without
+/// retraining; the lattices (spacing, span, width, box) are the trained model's own.
+fn runtime_config(trained: LearnerConfig, configured: LearnerConfig) -> LearnerConfig {
+    let runtime = LearnerConfig {
+        alpha_critic: configured.alpha_critic,
+        alpha_actor: configured.alpha_actor,
+        gamma: configured.gamma,
+        sigma_max: configured.sigma_max,
+        sigma_mid_m: configured.sigma_mid_m,
+        sigma_slope_per_m: configured.sigma_slope_per_m,
+        seed: configured.seed,
+        ..trained
+    };
+    if runtime != configured {
+        tracing::warn!(
+            "the [learner] lattice settings differ from the trained model's; the model's are used              (run `softarm train` to apply the new ones)"
+        );
+    }
+    runtime
 }
 
 fn checkpoint(config: &Config, l: &Loaded) {
@@ -109,10 +136,15 @@ pub fn run(config: &Config, stop: &AtomicBool) -> Result<(), String> {
             let executed = s.executed == 1;
             if executed {
                 if s.reached.iter().all(|v| v.is_finite()) {
-                    let visit = l.learner.observe(s.point as usize, &s.desired, &s.actuation, &s.reached);
+                    let visit =
+                        l.learner
+                            .observe(s.point as usize, &s.desired, &s.actuation, &s.reached);
                     tracing::debug!(point = s.point, error_mm = visit.error * 1e3, td = ?visit.td_error, "visit");
                 } else {
-                    tracing::warn!(point = s.point, "no tracker position at the point: visit skipped");
+                    tracing::warn!(
+                        point = s.point,
+                        "no tracker position at the point: visit skipped"
+                    );
                 }
             }
             // The first execution of a set runs on the actor's means, without exploration.

@@ -5,13 +5,13 @@
 //! waypoints) build on them.
 
 pub mod activation;
+pub mod bundle;
 pub mod cacla;
+pub mod config;
+pub mod controller;
 pub mod engine;
+pub mod learner;
 pub mod promp;
 pub mod rbf;
 pub mod skill;
-pub mod bundle;
-pub mod config;
-pub mod controller;
-pub mod learner;
 pub mod waypoints;

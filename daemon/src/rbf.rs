@@ -476,7 +476,11 @@ impl RbfNetwork {
     }
 
     /// A network from saved parts; the weights need one row per centre plus seven.
-    pub fn from_parts(centres: Vec<[f64; 6]>, sigma: f64, weights: Vec<[f64; 3]>) -> Result<Self, String> {
+    pub fn from_parts(
+        centres: Vec<[f64; 6]>,
+        sigma: f64,
+        weights: Vec<[f64; 3]>,
+    ) -> Result<Self, String> {
         if centres.is_empty() || weights.len() != centres.len() + 7 {
             return Err(format!(
                 "forward model: {} centres need {} weight rows, got {}",
@@ -488,7 +492,11 @@ impl RbfNetwork {
         if !(sigma.is_finite() && sigma > 0.0) {
             return Err(format!("forward model: σ must be > 0, got {sigma}"));
         }
-        Ok(Self { centres, sigma, weights })
+        Ok(Self {
+            centres,
+            sigma,
+            weights,
+        })
     }
 }
 

@@ -91,7 +91,10 @@ pub fn validate(
         let t = set.times_s[i];
         let p = set.positions_m[i];
         if !t.is_finite() || p.iter().any(|v| !v.is_finite()) {
-            return Err(format!("point {}: time and position must be finite numbers", i + 1));
+            return Err(format!(
+                "point {}: time and position must be finite numbers",
+                i + 1
+            ));
         }
         if !(t > 0.0 && t <= d) {
             return Err(format!("point {}: time {t} s is outside (0, {d}] s", i + 1));
@@ -168,11 +171,18 @@ mod tests {
         check(&|s| s.times_s[1] = 0.5, "must increase strictly");
         check(&|s| s.times_s[1] = 1.2, "0.200 s apart");
         check(&|s| s.positions_m[0][2] = 0.3, "point 1: position");
-        check(&|s| s.positions_m[1][0] = f64::NAN, "point 2: time and position must be finite");
+        check(
+            &|s| s.positions_m[1][0] = f64::NAN,
+            "point 2: time and position must be finite",
+        );
         check(&|s| s.duration_s = 100.0, "duration 100 s");
         check(&|s| s.executions = 0, "0 executions");
         check(&|s| s.count = 0, "0 points");
-        assert!(WaypointFile::parse("duration_s = 1\nextra = 2").unwrap_err().contains("extra"));
+        assert!(
+            WaypointFile::parse("duration_s = 1\nextra = 2")
+                .unwrap_err()
+                .contains("extra")
+        );
         let e = WaypointFile::parse("duration_s = 1\n[[point]]\nt_s = 1\n").unwrap_err();
         assert!(e.contains("position_m"), "{e}");
     }

@@ -35,9 +35,16 @@ impl Default for SimConfig {
 impl SimConfig {
     pub fn validate(&self) -> Result<(), String> {
         if !(self.rate_hz.is_finite() && (1.0..=5000.0).contains(&self.rate_hz)) {
-            return Err(format!("sim.rate_hz must be 1 to 5000, got {}", self.rate_hz));
+            return Err(format!(
+                "sim.rate_hz must be 1 to 5000, got {}",
+                self.rate_hz
+            ));
         }
-        if self.initial_actuation.iter().any(|a| !(0.0..=1.0).contains(a)) {
+        if self
+            .initial_actuation
+            .iter()
+            .any(|a| !(0.0..=1.0).contains(a))
+        {
             return Err("sim.initial_actuation must be in [0, 1]".into());
         }
         self.realism.validate()

@@ -37,6 +37,17 @@ impl Ticker {
         }
     }
 
+    /// A ticker whose first deadline is `first_ns` (CLOCK_MONOTONIC), so two loops can run at
+    /// the same rate with a fixed phase between them.
+    pub fn starting_at(rate_hz: f64, first_ns: u64) -> Self {
+        let period_ns = (1e9 / rate_hz).round().max(1.0) as u64;
+        Self {
+            period_ns,
+            next_ns: first_ns.saturating_sub(period_ns),
+            overruns: 0,
+        }
+    }
+
     pub fn period_ns(&self) -> u64 {
         self.period_ns
     }
@@ -55,9 +66,11 @@ impl Ticker {
             (self.next_ns % 1_000_000_000) as _,
         );
         // EINTR: a signal arrived; the deadline is absolute, so just sleep again.
-        while let Err(nix::errno::Errno::EINTR) =
-            clock_nanosleep(ClockId::CLOCK_MONOTONIC, ClockNanosleepFlags::TIMER_ABSTIME, &ts)
-        {}
+        while let Err(nix::errno::Errno::EINTR) = clock_nanosleep(
+            ClockId::CLOCK_MONOTONIC,
+            ClockNanosleepFlags::TIMER_ABSTIME,
+            &ts,
+        ) {}
         let now = now_ns();
         let latency_ns = now.saturating_sub(self.next_ns);
         let missed = latency_ns / self.period_ns;

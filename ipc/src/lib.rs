@@ -6,9 +6,9 @@
 //! CLOCK_MONOTONIC stamp in ns. Positions are metres in the tracker/base frame; actuation is
 //! normalised per actuator to [0, 1].
 
+use iceoryx2::node::NodeView;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
-use iceoryx2::node::NodeView;
 use iceoryx2::prelude::*;
 
 pub use iceoryx2;
@@ -369,7 +369,11 @@ pub struct Contract {
 fn node_name(namespace: &Namespace, role: &str) -> String {
     let full = format!("{}/{role}", namespace.as_str());
     let n = full.len();
-    if n > 100 { full[n - 100..].to_string() } else { full }
+    if n > 100 {
+        full[n - 100..].to_string()
+    } else {
+        full
+    }
 }
 
 impl Contract {
@@ -484,20 +488,20 @@ impl Contract {
         &self,
         service: &PubSub<T>,
     ) -> Result<Pub<T>, Error> {
-        service
-            .publisher_builder()
-            .create()
-            .map_err(err(format!("creating a publisher in {}", self.namespace.as_str())))
+        service.publisher_builder().create().map_err(err(format!(
+            "creating a publisher in {}",
+            self.namespace.as_str()
+        )))
     }
 
     pub fn subscriber<T: std::fmt::Debug + ZeroCopySend>(
         &self,
         service: &PubSub<T>,
     ) -> Result<Sub<T>, Error> {
-        service
-            .subscriber_builder()
-            .create()
-            .map_err(err(format!("creating a subscriber in {}", self.namespace.as_str())))
+        service.subscriber_builder().create().map_err(err(format!(
+            "creating a subscriber in {}",
+            self.namespace.as_str()
+        )))
     }
 
     /// Roles of the live nodes of this namespace (e.g. `["controller", "learner", "sim"]`,

@@ -1,0 +1,244 @@
+//! End to end: the real `softarm` binary as separate processes over real iceoryx2 services, one
+//! namespace per test.
+
+mod common;
+
+use std::path::Path;
+use std::time::Duration;
+
+use common::{DEMO_WAYPOINTS, TestStack, alive, set_id};
+use nix::sys::signal::{Signal, kill};
+use nix::unistd::Pid;
+
+#[test]
+fn a_set_is_executed_and_stats_arrive_for_every_execution() {
+    let mut s = TestStack::new("execute", true);
+    s.up();
+    let (code, out, err) = s.submit(Path::new(DEMO_WAYPOINTS), 2);
+    assert_eq!(code, 0, "{out}{err}");
+    let id = set_id(&out);
+    let stats = s.wait_stats(id, 2, Duration::from_secs(60));
+    let executions: Vec<u64> = stats
+        .iter()
+        .map(|v| v["execution"].as_u64().unwrap())
+        .collect();
+    assert_eq!(executions, vec![1, 2]);
+    for v in &stats {
+        let errors = v["errors_mm"].as_array().unwrap();
+        assert_eq!(errors.len(), 5, "{v}");
+        let mean = v["mean_mm"].as_f64().unwrap();
+        let max = v["max_mm"].as_f64().unwrap();
+        assert!(mean.is_finite() && mean > 0.0 && mean < 100.0, "{v}");
+        assert!(
+            errors.iter().all(|e| e.as_f64().unwrap() <= max + 1e-9),
+            "{v}"
+        );
+    }
+    // The learner checkpointed after each execution.
+    assert!(s.dir.join("state/learner.toml").exists());
+    // Status names every process and reports tick timing.
+    let st = s.status();
+    for p in ["controller", "learner", "sim"] {
+        assert!(
+            st["alive"].as_array().unwrap().iter().any(|a| a == p),
+            "{st}"
+        );
+    }
+    assert!(
+        st["controller"]["latency_ns"]["p99"].as_u64().unwrap() > 0,
+        "{st}"
+    );
+}
+
+#[test]
+fn an_invalid_set_is_rejected_with_its_reason_and_the_running_one_goes_on() {
+    let mut s = TestStack::new("reject", true);
+    s.up();
+    let (code, out, err) = s.submit(Path::new(DEMO_WAYPOINTS), 3);
+    assert_eq!(code, 0, "{out}{err}");
+    let id = set_id(&out);
+
+    // Refused before it is sent.
+    let bad = s.dir.join("late.toml");
+    std::fs::write(&bad, "duration_s = 2.0\n[[point]]\nt_s = 1.0\nposition_m = [0.1, 0.0, -0.45]\n[[point]]\nt_s = 3.0\nposition_m = [0.0, 0.0, -0.5]\n").unwrap();
+    let (code, out, _) = s.submit(&bad, 1);
+    assert_eq!(code, 2, "{out}");
+    assert!(
+        out.contains("point 2: time 3 s is outside (0, 2] s"),
+        "{out}"
+    );
+
+    // Refused by the controller: this client's config allows a bigger workspace than the stack's.
+    let wide = s.dir.join("wide.toml");
+    let text = std::fs::read_to_string(&s.config).unwrap().replace(
+        "workspace_max_m = [0.45, 0.45, 0.05]",
+        "workspace_max_m = [0.45, 0.45, 0.5]",
+    );
+    std::fs::write(&wide, text).unwrap();
+    let far = s.dir.join("far.toml");
+    std::fs::write(
+        &far,
+        "duration_s = 2.0\n[[point]]\nt_s = 1.0\nposition_m = [0.0, 0.0, 0.3]\n",
+    )
+    .unwrap();
+    let out = std::process::Command::new(common::BIN)
+        .args([
+            "submit",
+            far.to_str().unwrap(),
+            "--config",
+            wide.to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(out.status.code(), Some(2), "{text}");
+    assert!(
+        text.contains("point 1: position") && text.contains("outside the workspace box"),
+        "{text}"
+    );
+
+    // The first set runs on, all three executions.
+    let stats = s.wait_stats(id, 3, Duration::from_secs(90));
+    let executions: Vec<u64> = stats
+        .iter()
+        .map(|v| v["execution"].as_u64().unwrap())
+        .collect();
+    assert_eq!(executions, vec![1, 2, 3]);
+}
+
+#[test]
+fn submit_without_a_stack_says_what_to_do() {
+    let s = TestStack::new("nostack", false);
+    let (code, out, err) = s.submit(Path::new(DEMO_WAYPOINTS), 1);
+    assert_eq!(code, 1, "{out}{err}");
+    assert!(
+        err.contains("softarm up") && err.contains(&s.namespace),
+        "{err}"
+    );
+}
+
+#[test]
+fn stopping_up_leaves_no_process_behind() {
+    let mut s = TestStack::new("stop", false);
+    s.up();
+    let children = s.children();
+    let roles: Vec<&str> = children.iter().map(|c| c.0.as_str()).collect();
+    assert_eq!(roles, vec!["controller", "learner", "sim"], "{children:?}");
+    let status = s.stop().unwrap();
+    assert!(status.success(), "{status:?}");
+    for (role, pid) in children {
+        assert!(!alive(pid), "{role} ({pid}) survived");
+    }
+}
+
+#[test]
+fn a_killed_process_is_noticed_and_restarted() {
+    let mut s = TestStack::new("restart", true);
+    s.up();
+    let (_, learner) = s.children().into_iter().find(|c| c.0 == "learner").unwrap();
+    kill(Pid::from_raw(learner), Signal::SIGKILL).unwrap();
+    // The dead node leaves the node list, and `up` brings a new learner.
+    s.wait_status("the new learner", Duration::from_secs(30), |st| {
+        st["alive"]
+            .as_array()
+            .is_some_and(|a| a.iter().any(|n| n == "learner"))
+    });
+    let (_, again) = s.children().into_iter().find(|c| c.0 == "learner").unwrap();
+    assert_ne!(again, learner);
+    assert!(s.logs().contains("learner exited"), "{}", s.logs());
+    // And the stack works.
+    let (code, out, err) = s.submit(Path::new(DEMO_WAYPOINTS), 1);
+    assert_eq!(code, 0, "{out}{err}");
+    s.wait_stats(set_id(&out), 1, Duration::from_secs(60));
+}
+
+#[test]
+fn stale_tracker_data_holds_and_estop_stops() {
+    let mut s = TestStack::new("safety", false);
+    s.up();
+    let (_, sim) = s.children().into_iter().find(|c| c.0 == "sim").unwrap();
+    // A frozen driver: no tracker data, so HOLD; it resumes when the data returns.
+    kill(Pid::from_raw(sim), Signal::SIGSTOP).unwrap();
+    s.wait_status("HOLD", Duration::from_secs(10), |st| {
+        st["controller"]["state"] == "HOLD"
+    });
+    kill(Pid::from_raw(sim), Signal::SIGCONT).unwrap();
+    s.wait_status("IDLE again", Duration::from_secs(10), |st| {
+        st["controller"]["state"] == "IDLE"
+    });
+
+    let out = s.run(&["estop"]);
+    assert!(out.status.success(), "{out:?}");
+    s.wait_status("STOPPED", Duration::from_secs(10), |st| {
+        st["controller"]["state"] == "STOPPED"
+    });
+    // Latched: still stopped a moment later, with no one holding the button.
+    std::thread::sleep(Duration::from_millis(500));
+    assert_eq!(s.status()["controller"]["state"], "STOPPED");
+    let out = s.run(&["estop", "--reset"]);
+    assert!(out.status.success(), "{out:?}");
+    s.wait_status("IDLE after reset", Duration::from_secs(10), |st| {
+        st["controller"]["state"] == "IDLE"
+    });
+}
+
+#[test]
+fn train_writes_a_bundle_through_the_running_stack() {
+    let mut s = TestStack::new("train", false);
+    s.up();
+    // Without a model the controller says what to do.
+    let (code, out, _) = s.submit(Path::new(DEMO_WAYPOINTS), 1);
+    assert_eq!(code, 2, "{out}");
+    assert!(out.contains("softarm train"), "{out}");
+
+    let out = s.run(&["train"]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{text}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        text.contains("trained model") && text.contains("9 demonstrations"),
+        "{text}"
+    );
+    assert!(s.dir.join("model/model.toml").exists());
+    s.wait_status("the model loaded", Duration::from_secs(10), |st| {
+        st["controller"]["model_loaded"] == true
+    });
+    let (code, out, err) = s.submit(Path::new(DEMO_WAYPOINTS), 1);
+    assert_eq!(code, 0, "{out}{err}");
+    s.wait_stats(set_id(&out), 1, Duration::from_secs(60));
+}
+
+#[test]
+fn config_check_names_the_key_and_line() {
+    let s = TestStack::new("config", false);
+    let text = std::fs::read_to_string(&s.config)
+        .unwrap()
+        .replace("rate_hz = 500.0", "rate_hz = 5000.0");
+    let bad = s.dir.join("bad.toml");
+    std::fs::write(&bad, &text).unwrap();
+    let out = std::process::Command::new(common::BIN)
+        .args(["config", "check"])
+        .arg(&bad)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    let line = text
+        .lines()
+        .position(|l| l.starts_with("rate_hz = 5000.0"))
+        .unwrap()
+        + 1;
+    assert_eq!(out.status.code(), Some(1));
+    assert!(
+        err.contains(&format!("bad.toml:{line}: controller.rate_hz")),
+        "{err}"
+    );
+    let out = std::process::Command::new(common::BIN)
+        .args(["config", "check"])
+        .arg(&s.config)
+        .output()
+        .unwrap();
+    assert!(out.status.success());
+}
