@@ -765,7 +765,8 @@ fn service_thread(
     let mut request_seq = 0u64;
 
     while !stop.load(Ordering::Relaxed) {
-        std::thread::sleep(Duration::from_millis(1));
+        // Not real-time: 2 ms is quick enough for users and the learner, and light on the CPU.
+        std::thread::sleep(Duration::from_millis(2));
         slot.refresh(shared);
 
         while let Ok(Some(req)) = waypoints.receive() {

@@ -100,7 +100,8 @@ pub fn run(config: &Config, stop: &AtomicBool) -> Result<(), String> {
     let mut set_id = 0u64;
     let mut seq = 0u64;
     while !stop.load(Ordering::Relaxed) {
-        std::thread::sleep(Duration::from_millis(1));
+        // Estimates are needed within the 100 ms before the next group's window: 2 ms is plenty.
+        std::thread::sleep(Duration::from_millis(2));
         // A new bundle (after `softarm train`) replaces what the learner had.
         if last_check.elapsed() >= Duration::from_millis(200) {
             last_check = Instant::now();
