@@ -750,7 +750,8 @@ fn service_thread(
         dir: config.model_dir(),
         model: None,
         stamp: None,
-        checked: Instant::now(),
+        // Due at once: the first refresh loads a bundle that is already there.
+        checked: Instant::now() - Duration::from_secs(1),
     };
     slot.refresh(shared);
     if slot.model.is_none() {
