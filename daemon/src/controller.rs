@@ -164,19 +164,154 @@ enum Retired {
 
 enum Mode {
     Idle,
-    Demonstrate {
-        plan: Box<DemoPlan>,
-        demo: usize,
-        /// Ticks into this demo; negative while resting before it.
-        k: i64,
-    },
-    Execute {
-        plan: Box<Plan>,
-        execution: u32,
-        k: i64,
-        next_point: usize,
-        errors: [f64; MAX_WAYPOINTS],
-    },
+    Demonstrate(Demonstration),
+    Execute(Execution),
+}
+
+/// Playing the demonstration sequences, each after a rest that slews to its start.
+struct Demonstration {
+    plan: Box<DemoPlan>,
+    demo: usize,
+    /// Ticks into this demo; negative while resting before it.
+    k: i64,
+}
+
+impl Demonstration {
+    /// The target of this tick, and (demo, class) while a demonstration is being recorded.
+    fn step(&mut self, rest_ticks: i64) -> ([f64; 6], Option<(u32, u32)>) {
+        let (class, seq) = &self.plan.sequences[self.demo];
+        let ticks_per_sample = self.plan.ticks_per_sample;
+        let out = if self.k < 0 {
+            (seq[0], None)
+        } else {
+            let target = sample_at(seq, self.k as usize, ticks_per_sample);
+            (target, Some((self.demo as u32, *class as u32)))
+        };
+        self.k += 1;
+        if self.k >= 0 && self.k as usize > (seq.len() - 1) * ticks_per_sample {
+            self.demo += 1;
+            self.k = -rest_ticks;
+        }
+        out
+    }
+
+    fn done(&self) -> bool {
+        self.demo >= self.plan.sequences.len()
+    }
+}
+
+/// Executing a way-point set: per execution a rest that slews to v(0), then Eq. 11 tick by tick.
+struct Execution {
+    plan: Box<Plan>,
+    /// 1-based.
+    execution: u32,
+    /// Ticks into the execution; negative while resting before it.
+    k: i64,
+    next_point: usize,
+    errors: [f64; MAX_WAYPOINTS],
+}
+
+/// What one tick of an execution produced.
+struct ExecutionTick {
+    target: [f64; 6],
+    /// At a conditioning point: the sample for the learner (the caller fills in the setpoint it
+    /// published, and the sequence number).
+    point: Option<ConditioningSample>,
+    /// At the end of an execution: its stats (sequence number by the caller).
+    finished: Option<ExecutionStats>,
+}
+
+impl Execution {
+    fn new(plan: Box<Plan>, rest_ticks: i64) -> Self {
+        Self {
+            plan,
+            execution: 1,
+            k: -rest_ticks,
+            next_point: 0,
+            errors: [0.0; MAX_WAYPOINTS],
+        }
+    }
+
+    /// Starts the current execution over (after an e-stop).
+    fn restart(&mut self, rest_ticks: i64) {
+        if self.k >= 0 {
+            self.k = -rest_ticks;
+            self.next_point = 0;
+        }
+    }
+
+    /// Whether the set is through (or another waits) at an execution boundary.
+    fn at_boundary(&self, rest_ticks: i64) -> bool {
+        self.k == -rest_ticks
+    }
+
+    fn step(&mut self, reached: Option<[f64; 3]>, rest_ticks: i64, now: u64) -> ExecutionTick {
+        let plan = &mut self.plan;
+        if self.k < 0 {
+            self.k += 1;
+            return ExecutionTick {
+                target: plan.engine.evaluate(0),
+                point: None,
+                finished: None,
+            };
+        }
+        let tick = self.k as usize;
+        let target = plan.engine.tick(tick);
+        let mut point = None;
+        if self.next_point < plan.points && tick == plan.cond_ticks[self.next_point] {
+            let n = self.next_point;
+            let reached = reached.unwrap_or([f64::NAN; 3]);
+            let desired = plan.desired[n];
+            self.errors[n] = distance(&desired, &reached);
+            // The estimate wanted next: the following point, or the first of the next execution.
+            let (next, next_execution) = if n + 1 < plan.points {
+                (n + 1, self.execution)
+            } else {
+                (0, self.execution + 1)
+            };
+            point = Some(ConditioningSample {
+                seq: 0,
+                stamp_ns: now,
+                set_id: plan.set_id,
+                execution: self.execution,
+                point: n as u32,
+                points: plan.points as u32,
+                executed: 1,
+                actuation: [0.0; 6],
+                desired,
+                reached,
+                next_point: next as u32,
+                next_execution,
+                next_desired: plan.desired[next],
+            });
+            self.next_point += 1;
+        }
+        self.k += 1;
+        let mut finished = None;
+        if self.k as usize >= plan.engine.timeline().ticks() {
+            let errs = &self.errors[..plan.points];
+            finished = Some(ExecutionStats {
+                seq: 0,
+                stamp_ns: now,
+                set_id: plan.set_id,
+                execution: self.execution,
+                executions: plan.executions,
+                count: plan.points as u32,
+                _pad: 0,
+                errors_m: self.errors,
+                mean_m: errs.iter().sum::<f64>() / errs.len() as f64,
+                max_m: errs.iter().cloned().fold(0.0, f64::max),
+            });
+            self.execution += 1;
+            self.k = -rest_ticks;
+            self.next_point = 0;
+        }
+        ExecutionTick {
+            target,
+            point,
+            finished,
+        }
+    }
 }
 
 /// What the service thread and the watchdog see of the tick thread.
@@ -394,26 +529,25 @@ fn tick_thread(
         }
         match plans.try_recv() {
             Ok(ToTick::Execute(p)) => match mode {
-                Mode::Execute { .. } => {
+                Mode::Execute(_) => {
                     if let Some(old) = queued.replace(p) {
                         let _ = retired.try_send(Retired::Plan(old));
                     }
                 }
                 _ => {
-                    if let Mode::Demonstrate { plan, .. } = std::mem::replace(&mut mode, Mode::Idle)
-                    {
-                        let _ = retired.try_send(Retired::Demo(plan));
+                    if let Mode::Demonstrate(d) = std::mem::replace(&mut mode, Mode::Idle) {
+                        let _ = retired.try_send(Retired::Demo(d.plan));
                     }
-                    mode = start_execution(p, rest_ticks);
+                    mode = Mode::Execute(Execution::new(p, rest_ticks));
                 }
             },
             Ok(ToTick::Demonstrate(d)) => {
                 if matches!(mode, Mode::Idle) {
-                    mode = Mode::Demonstrate {
+                    mode = Mode::Demonstrate(Demonstration {
                         plan: d,
                         demo: 0,
                         k: -demo_rest_ticks,
-                    };
+                    });
                 } else {
                     let _ = retired.try_send(Retired::Demo(d));
                 }
@@ -443,8 +577,8 @@ fn tick_thread(
         } else {
             match mode {
                 Mode::Idle => ControllerState::Idle,
-                Mode::Demonstrate { .. } => ControllerState::Demonstrate,
-                Mode::Execute { .. } => ControllerState::Execute,
+                Mode::Demonstrate(_) => ControllerState::Demonstrate,
+                Mode::Execute(_) => ControllerState::Execute,
             }
         };
         shared.state.store(state as u32, Ordering::Relaxed);
@@ -455,12 +589,10 @@ fn tick_thread(
                     lim.reset(m);
                 }
                 // After an e-stop the execution starts over from its rest phase.
-                if let Mode::Execute { k, next_point, .. } = &mut mode
-                    && *k >= 0
+                if let Mode::Execute(x) = &mut mode
                     && stopped_while_unsafe
                 {
-                    *k = -rest_ticks;
-                    *next_point = 0;
+                    x.restart(rest_ticks);
                 }
                 stopped_while_unsafe = false;
             }
@@ -468,91 +600,20 @@ fn tick_thread(
             let mut execution_no = 0;
             let mut sample: Option<ConditioningSample> = None;
             let mut finished: Option<ExecutionStats> = None;
-            let target = if !safe {
-                lim.last()
-            } else {
-                match &mut mode {
-                    Mode::Idle => lim.last(),
-                    Mode::Demonstrate { plan, demo, k } => {
-                        let (class, seq_) = &plan.sequences[*demo];
-                        let target = if *k < 0 {
-                            seq_[0]
-                        } else {
-                            demo_tag = (*demo as u32, *class as u32);
-                            sample_at(seq_, *k as usize, plan.ticks_per_sample)
-                        };
-                        *k += 1;
-                        if *k >= 0 && *k as usize > (seq_.len() - 1) * plan.ticks_per_sample {
-                            *demo += 1;
-                            *k = -demo_rest_ticks;
-                        }
-                        target
-                    }
-                    Mode::Execute {
-                        plan,
-                        execution,
-                        k,
-                        next_point,
-                        errors,
-                    } => {
-                        execution_no = *execution;
-                        if *k < 0 {
-                            *k += 1;
-                            plan.engine.evaluate(0)
-                        } else {
-                            let tick = *k as usize;
-                            let v = plan.engine.tick(tick);
-                            if *next_point < plan.points && tick == plan.cond_ticks[*next_point] {
-                                let n = *next_point;
-                                let reached = position.map_or([f64::NAN; 3], |p| p.0);
-                                let desired = plan.desired[n];
-                                errors[n] = distance(&desired, &reached);
-                                let (np, ne) = if n + 1 < plan.points {
-                                    (n + 1, *execution)
-                                } else {
-                                    (0, *execution + 1)
-                                };
-                                cp_seq += 1;
-                                sample = Some(ConditioningSample {
-                                    seq: cp_seq,
-                                    stamp_ns: now,
-                                    set_id: plan.set_id,
-                                    execution: *execution,
-                                    point: n as u32,
-                                    points: plan.points as u32,
-                                    executed: 1,
-                                    actuation: [0.0; 6], // the setpoint, filled below
-                                    desired,
-                                    reached,
-                                    next_point: np as u32,
-                                    next_execution: ne,
-                                    next_desired: plan.desired[np],
-                                });
-                                *next_point += 1;
-                            }
-                            *k += 1;
-                            if *k as usize >= plan.engine.timeline().ticks() {
-                                let errs = &errors[..plan.points];
-                                stats_seq += 1;
-                                finished = Some(ExecutionStats {
-                                    seq: stats_seq,
-                                    stamp_ns: now,
-                                    set_id: plan.set_id,
-                                    execution: *execution,
-                                    executions: plan.executions,
-                                    count: plan.points as u32,
-                                    _pad: 0,
-                                    errors_m: *errors,
-                                    mean_m: errs.iter().sum::<f64>() / errs.len() as f64,
-                                    max_m: errs.iter().cloned().fold(0.0, f64::max),
-                                });
-                                *execution += 1;
-                                *k = -rest_ticks;
-                                *next_point = 0;
-                            }
-                            v
-                        }
-                    }
+            let target = match &mut mode {
+                _ if !safe => lim.last(),
+                Mode::Idle => lim.last(),
+                Mode::Demonstrate(d) => {
+                    let (target, tag) = d.step(demo_rest_ticks);
+                    demo_tag = tag.unwrap_or((NO_DEMO, NO_DEMO));
+                    target
+                }
+                Mode::Execute(x) => {
+                    execution_no = x.execution;
+                    let t = x.step(position.map(|p| p.0), rest_ticks, now);
+                    sample = t.point;
+                    finished = t.finished;
+                    t.target
                 }
             };
             let out = lim.apply(&target);
@@ -567,10 +628,14 @@ fn tick_thread(
                 execution: execution_no,
             }));
             if let Some(mut s) = sample {
+                cp_seq += 1;
+                s.seq = cp_seq;
                 s.actuation = out;
                 outbox.send(Outgoing::Sample(s));
             }
-            if let Some(s) = finished {
+            if let Some(mut s) = finished {
+                stats_seq += 1;
+                s.seq = stats_seq;
                 outbox.send(Outgoing::Stats(s));
             }
         }
@@ -579,32 +644,30 @@ fn tick_thread(
 
         // Mode changes at boundaries: a finished demonstration run or way-point set.
         let done = match &mode {
-            Mode::Demonstrate { plan, demo, .. } => *demo >= plan.sequences.len(),
-            Mode::Execute {
-                plan, execution, k, ..
-            } => *k == -rest_ticks && (*execution > plan.executions || queued.is_some()),
+            Mode::Demonstrate(d) => d.done(),
+            Mode::Execute(x) => {
+                x.at_boundary(rest_ticks) && (x.execution > x.plan.executions || queued.is_some())
+            }
             Mode::Idle => false,
         };
         if done {
             match std::mem::replace(&mut mode, Mode::Idle) {
-                Mode::Demonstrate { plan, .. } => {
-                    let _ = retired.try_send(Retired::Demo(plan));
+                Mode::Demonstrate(d) => {
+                    let _ = retired.try_send(Retired::Demo(d.plan));
                 }
-                Mode::Execute { plan, .. } => {
-                    let _ = retired.try_send(Retired::Plan(plan));
+                Mode::Execute(x) => {
+                    let _ = retired.try_send(Retired::Plan(x.plan));
                 }
                 Mode::Idle => {}
             }
             if let Some(p) = queued.take() {
-                mode = start_execution(p, rest_ticks);
+                mode = Mode::Execute(Execution::new(p, rest_ticks));
             }
         }
 
         if tick_count % status_every == 0 {
             let (set_id, execution) = match &mode {
-                Mode::Execute {
-                    plan, execution, ..
-                } => (plan.set_id, *execution),
+                Mode::Execute(x) => (x.plan.set_id, x.execution),
                 _ => (0, 0),
             };
             outbox.send(Outgoing::Status(ControllerStatus {
@@ -635,16 +698,6 @@ fn tick_thread(
         "controller stopped"
     );
     Ok(())
-}
-
-fn start_execution(plan: Box<Plan>, rest_ticks: i64) -> Mode {
-    Mode::Execute {
-        plan,
-        execution: 1,
-        k: -rest_ticks,
-        next_point: 0,
-        errors: [0.0; MAX_WAYPOINTS],
-    }
 }
 
 /// The demonstration sequence at tick k, linearly interpolated between its samples.
