@@ -303,6 +303,11 @@ mod tests {
         let c = Config::default_sim(PathBuf::from("/tmp/x"));
         assert_eq!(c.namespace(), "softarm/sim");
         assert_eq!(c.model_dir(), PathBuf::from("/tmp/x/model"));
+        // The file spells out the structs' defaults (the learner's online rates excepted).
+        assert_eq!(c.sim, SimConfig::default());
+        assert_eq!(c.arm, ArmGeometry::default());
+        assert_eq!(c.activation, ActivationConfig::default());
+        assert_eq!(c.forward_model, NetworkConfig::default());
     }
 
     #[test]

@@ -33,15 +33,16 @@ pub struct Realism {
 }
 
 impl Default for Realism {
+    /// The simulation default of `config/softarm.toml`.
     fn default() -> Self {
         Self {
             seed: 1,
-            lag_s: 0.05,
+            lag_s: 0.02,
             rate_limit_per_s: 2.0,
-            backlash: 0.01,
-            actuation_noise: 0.002,
-            tracker_noise_m: 0.001,
-            drift_m: 0.0002,
+            backlash: 0.003,
+            actuation_noise: 0.001,
+            tracker_noise_m: 0.0005,
+            drift_m: 0.0001,
             drift_period_s: 600.0,
         }
     }
