@@ -66,8 +66,8 @@ impl Basis {
         Ok(Self { centres, width })
     }
 
-    /// h = −1 / (8 K² ln 0.7): neighbouring functions overlap at 0.7 of their peak... as the
-    /// reference library chooses it.
+    /// h = −1 / (8 K² ln 0.7), the width `movement_primitives` uses: two neighbouring
+    /// Gaussians cross at 0.7 of their peak.
     pub fn default_width(k: usize) -> f64 {
         -1.0 / (8.0 * (k * k) as f64 * 0.7f64.ln())
     }
