@@ -67,7 +67,7 @@ impl Basis {
     }
 
     /// h = −1 / (8 K² ln 0.7), the width `movement_primitives` uses: two neighbouring
-    /// Gaussians cross at 0.7 of their peak.
+    /// Gaussians (1/K apart; the centres are 1/(K − 1)) cross at 0.7 of their peak.
     pub fn default_width(k: usize) -> f64 {
         -1.0 / (8.0 * (k * k) as f64 * 0.7f64.ln())
     }
