@@ -47,19 +47,11 @@ pub fn submit(namespace: &Namespace, mut set: WaypointSet, timeout: Duration) ->
             };
         }
     };
-    let service = match ipc.waypoints() {
-        Ok(s) => s,
-        Err(e) => {
-            return Outcome::Unreachable {
-                message: e.to_string(),
-            };
-        }
-    };
-    let client = match service.client_builder().create() {
+    let client = match ipc.waypoints().and_then(|s| ipc.client(&s)) {
         Ok(c) => c,
         Err(e) => {
             return Outcome::Unreachable {
-                message: format!("waypoints client: {e:?}"),
+                message: e.to_string(),
             };
         }
     };

@@ -57,12 +57,7 @@ fn record(namespace: &Namespace, seed: u64) -> Result<(Vec<Sample>, usize, f64),
     let setpoints = ipc.subscriber(&ipc.setpoint().map_err(e)?).map_err(e)?;
     let motors = ipc.subscriber(&ipc.motor_state().map_err(e)?).map_err(e)?;
     let tracker = ipc.subscriber(&ipc.tracker().map_err(e)?).map_err(e)?;
-    let client = ipc
-        .demonstrate()
-        .map_err(e)?
-        .client_builder()
-        .create()
-        .map_err(|x| format!("demonstrate client: {x:?}"))?;
+    let client = ipc.client(&ipc.demonstrate().map_err(e)?).map_err(e)?;
     let pending = client
         .send_copy(DemonstrateRequest {
             seq: now_ns(),

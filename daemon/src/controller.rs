@@ -784,18 +784,8 @@ fn service_thread(
 ) -> Result<(), String> {
     let e = |e: softarm_ipc::Error| e.to_string();
     let ipc = Contract::new(namespace, "controller.service").map_err(e)?;
-    let waypoints = ipc
-        .waypoints()
-        .map_err(e)?
-        .server_builder()
-        .create()
-        .map_err(|x| format!("waypoints server: {x:?}"))?;
-    let demonstrate = ipc
-        .demonstrate()
-        .map_err(e)?
-        .server_builder()
-        .create()
-        .map_err(|x| format!("demonstrate server: {x:?}"))?;
+    let waypoints = ipc.server(&ipc.waypoints().map_err(e)?).map_err(e)?;
+    let demonstrate = ipc.server(&ipc.demonstrate().map_err(e)?).map_err(e)?;
     let requests = ipc.publisher(&ipc.cp_sample().map_err(e)?).map_err(e)?;
     let estimates = ipc.subscriber(&ipc.estimate().map_err(e)?).map_err(e)?;
 
@@ -826,16 +816,12 @@ fn service_thread(
         while let Ok(Some(req)) = waypoints.receive() {
             let set = *req.payload();
             let reply = match admit(config, &slot, &set) {
-                Ok((planner, q)) => {
+                Ok((planner, q, z)) => {
                     next_set_id += 1;
                     let set_id = next_set_id;
                     let n = set.count as usize;
                     let mut desired = [[0.0; 3]; MAX_WAYPOINTS];
                     desired[..n].copy_from_slice(&set.positions_m[..n]);
-                    let z: Vec<f64> = set.times_s[..n]
-                        .iter()
-                        .map(|t| t / set.duration_s)
-                        .collect();
                     tracing::info!(
                         set_id,
                         points = n,
@@ -1006,7 +992,7 @@ fn admit(
     config: &Config,
     slot: &ModelSlot,
     set: &softarm_ipc::WaypointSet,
-) -> Result<(Planner<6>, Vec<usize>), String> {
+) -> Result<(Planner<6>, Vec<usize>, Vec<f64>), String> {
     validate(set, &config.waypoints, &config.activation)?;
     let model = slot.model.as_ref().ok_or_else(|| {
         format!(
@@ -1033,7 +1019,7 @@ fn admit(
         config.controller.variance_floor,
     )
     .map_err(|e| e.to_string())?;
-    Ok((planner, q))
+    Ok((planner, q, z))
 }
 
 #[cfg(test)]

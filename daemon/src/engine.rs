@@ -155,14 +155,6 @@ impl<const D: usize> Table<D> {
     pub fn ticks(&self) -> usize {
         self.entries.len()
     }
-
-    /// The mean μ at a tick (for inspection; the tick uses the information form directly).
-    pub fn mean(&self, tick: usize) -> [f64; D] {
-        let e = &self.entries[tick];
-        let mut l = e.precision;
-        cholesky(&mut l).expect("a precision matrix is positive definite");
-        cholesky_solve(&l, e.shifted)
-    }
 }
 
 /// A re-conditioned table for one group, on its way to the tick.

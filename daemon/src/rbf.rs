@@ -100,11 +100,6 @@ impl Lattice {
         self.lower.len()
     }
 
-    /// Centres evaluated per input: span^dim.
-    pub fn neighbourhood(&self) -> usize {
-        self.span.pow(self.dim() as u32)
-    }
-
     /// Total number of lattice centres (mostly never stored).
     pub fn centres(&self) -> u64 {
         self.counts.iter().product()

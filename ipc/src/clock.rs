@@ -48,10 +48,6 @@ impl Ticker {
         }
     }
 
-    pub fn period_ns(&self) -> u64 {
-        self.period_ns
-    }
-
     /// Cycles skipped so far.
     pub fn overruns(&self) -> u64 {
         self.overruns

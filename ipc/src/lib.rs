@@ -357,6 +357,8 @@ pub type ReqRes<Q, R> =
     iceoryx2::service::port_factory::request_response::PortFactory<ipc::Service, Q, (), R, ()>;
 pub type Pub<T> = Publisher<ipc::Service, T, ()>;
 pub type Sub<T> = Subscriber<ipc::Service, T, ()>;
+pub type Server<Q, R> = iceoryx2::port::server::Server<ipc::Service, Q, (), R, ()>;
+pub type Client<Q, R> = iceoryx2::port::client::Client<ipc::Service, Q, (), R, ()>;
 
 /// A process's iceoryx2 node and the namespace its services live in. The node's name is
 /// `<namespace>/<role>`, so `softarm status` can tell which processes of which stack are alive.
@@ -500,6 +502,26 @@ impl Contract {
     ) -> Result<Sub<T>, Error> {
         service.subscriber_builder().create().map_err(err(format!(
             "creating a subscriber in {}",
+            self.namespace.as_str()
+        )))
+    }
+
+    pub fn server<Q: std::fmt::Debug + ZeroCopySend, R: std::fmt::Debug + ZeroCopySend>(
+        &self,
+        service: &ReqRes<Q, R>,
+    ) -> Result<Server<Q, R>, Error> {
+        service.server_builder().create().map_err(err(format!(
+            "creating a server in {}",
+            self.namespace.as_str()
+        )))
+    }
+
+    pub fn client<Q: std::fmt::Debug + ZeroCopySend, R: std::fmt::Debug + ZeroCopySend>(
+        &self,
+        service: &ReqRes<Q, R>,
+    ) -> Result<Client<Q, R>, Error> {
+        service.client_builder().create().map_err(err(format!(
+            "creating a client in {}",
             self.namespace.as_str()
         )))
     }
