@@ -2,11 +2,11 @@
 
 use std::time::Instant;
 
-use softarm_daemon::activation::ActivationConfig;
-use softarm_daemon::cacla::{Learner, LearnerConfig, PretrainConfig, pretrain};
-use softarm_daemon::engine::{Planner, Timeline};
-use softarm_daemon::skill::{self, DemoRecipe};
-use softarm_hal_drivers::pcc::ArmGeometry;
+use softarm_method::activation::ActivationConfig;
+use softarm_method::cacla::{Learner, LearnerConfig, PretrainConfig, pretrain};
+use softarm_method::engine::{Planner, Timeline};
+use softarm_method::skill::{self, DemoRecipe};
+use softarm_method::pcc::ArmGeometry;
 
 #[derive(clap::Args)]
 pub struct Args {

@@ -8,7 +8,7 @@ use std::time::Duration;
 
 use clap::{Parser, Subcommand};
 use softarm_clients::{estop, stats, status, submit, train};
-use softarm_daemon::config::Config;
+use softarm_model::config::Config;
 use softarm_ipc::Namespace;
 
 mod bench;
@@ -168,12 +168,12 @@ fn run(cli: Cli) -> Result<ExitCode, String> {
             up::run(stack.args(), &config.robot.drivers, &*stop_flag()?)?
         }
         Command::Controller(stack) => {
-            softarm_daemon::controller::run(&stack.load()?, &*stop_flag()?)?
+            softarm_controller::run(&stack.load()?, &*stop_flag()?)?
         }
-        Command::Learner(stack) => softarm_daemon::learner::run(&stack.load()?, &*stop_flag()?)?,
+        Command::Learner(stack) => softarm_learner::run(&stack.load()?, &*stop_flag()?)?,
         Command::Sim(stack) => {
             let c = stack.load()?;
-            softarm_hal_drivers::sim::run(
+            softarm_sim::run(
                 &c.sim,
                 &c.arm,
                 Namespace::new(&c.namespace())?,
@@ -284,7 +284,7 @@ fn run(cli: Cli) -> Result<ExitCode, String> {
                 let c = Config::load(&file).map_err(|e| e.to_string())?;
                 println!("{}: ok (namespace {})", file.display(), c.namespace());
             }
-            ConfigCommand::Default => print!("{}", softarm_daemon::config::DEFAULT),
+            ConfigCommand::Default => print!("{}", softarm_model::config::DEFAULT),
         },
         Command::Bench(args) => bench::run(&args)?,
     }

@@ -13,7 +13,7 @@ use std::time::Duration;
 
 use common::TestStack;
 use softarm_clients::{stats, submit};
-use softarm_daemon::config::Config;
+use softarm_model::config::Config;
 use softarm_ipc::Namespace;
 
 struct Counting;
@@ -63,7 +63,7 @@ fn the_controller_tick_allocates_nothing_once_running() {
         // service thread, and everything else in this test, is not.
         std::thread::spawn(move || {
             COUNTED.with(|c| c.set(true));
-            softarm_daemon::controller::run(&config, &stop)
+            softarm_controller::run(&config, &stop)
         })
     };
 

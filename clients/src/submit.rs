@@ -2,8 +2,8 @@
 
 use std::time::Duration;
 
-use softarm_daemon::config::Config;
-use softarm_daemon::waypoints::{WaypointFile, validate};
+use softarm_model::config::Config;
+use softarm_model::waypoints::{WaypointFile, validate};
 use softarm_ipc::{Contract, Namespace, WaypointSet, now_ns};
 
 /// How a submission ended; the exit code of `softarm submit`.

@@ -7,11 +7,12 @@ use std::io::IsTerminal;
 use std::time::{Duration, Instant};
 
 use indicatif::{ProgressBar, ProgressStyle};
-use softarm_daemon::bundle::Model;
-use softarm_daemon::cacla::{Learner, pretrain};
-use softarm_daemon::config::Config;
-use softarm_daemon::rbf::{ForwardModel, RbfNetwork};
-use softarm_daemon::skill::{Recording, train_primitives};
+use softarm_model::bundle::Model;
+use softarm_method::cacla::{Learner, pretrain};
+use softarm_model::config::Config;
+use softarm_method::forward::ForwardModel;
+use softarm_method::rbf::RbfNetwork;
+use softarm_method::skill::{Recording, train_primitives};
 use softarm_ipc::{Contract, ControllerState, DemonstrateRequest, Namespace, now_ns};
 
 /// What training measured.

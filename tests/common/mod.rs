@@ -6,12 +6,12 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
-use softarm_daemon::bundle::Model;
-use softarm_daemon::cacla::{Learner, PretrainConfig, pretrain};
-use softarm_daemon::config::DEFAULT;
-use softarm_daemon::rbf::{NetworkConfig, RbfNetwork};
-use softarm_daemon::skill::{DemoRecipe, demonstrations, forward_data, train_primitives};
-use softarm_hal_drivers::pcc::ArmGeometry;
+use softarm_model::bundle::Model;
+use softarm_method::cacla::{Learner, PretrainConfig, pretrain};
+use softarm_model::config::DEFAULT;
+use softarm_method::rbf::{NetworkConfig, RbfNetwork};
+use softarm_method::skill::{DemoRecipe, demonstrations, forward_data, train_primitives};
+use softarm_method::pcc::ArmGeometry;
 
 pub const BIN: &str = env!("CARGO_BIN_EXE_softarm");
 pub const DEMO_WAYPOINTS: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/config/waypoints/demo.toml");

@@ -1,0 +1,77 @@
+//! Criterion benches of the tick engine: one Eq. 11 tick, re-condition + ready, training, one
+//! conditioning. `cargo bench -p softarm-daemon --bench engine`. Percentiles of single ticks:
+//! `softarm bench`.
+
+#[path = "../tests/common/mod.rs"]
+mod common;
+
+use std::hint::black_box;
+
+use common::{D, demonstrations, primitives};
+use criterion::{Criterion, criterion_group, criterion_main};
+use softarm_method::activation::ActivationConfig;
+use softarm_method::engine::{Planner, Timeline};
+use softarm_method::promp::{Basis, Primitive, TrainConfig, ViaPoint};
+
+const T_COND: [f64; 5] = [1.0, 3.0, 5.0, 7.0, 9.0];
+const Q: [usize; 5] = [0, 1, 2, 1, 0];
+
+fn planner() -> Planner<D> {
+    Planner::new(
+        primitives(3, 15),
+        &T_COND,
+        &Q,
+        Timeline::new(10.0, 500.0).unwrap(),
+        ActivationConfig::default(),
+        1e-6,
+    )
+    .unwrap()
+}
+
+fn benches(c: &mut Criterion) {
+    let (mut engine, mut replanner) = planner().start(&[[0.5; D]; 5]).unwrap();
+    let ticks = engine.timeline().ticks();
+    let mut k = 0;
+    c.bench_function("tick (N=5 M=3 D=6 K=15)", |b| {
+        b.iter(|| {
+            k = (k + 1) % ticks;
+            black_box(engine.tick(black_box(k)))
+        })
+    });
+
+    // UpdatePrim for group 1 and the tick that takes it in (at T_cond[3], group 1 is inactive).
+    let k3 = engine.timeline().tick_of(T_COND[3]);
+    let mut x = 0.0;
+    c.bench_function("recondition + ready (10 s at 500 Hz)", |b| {
+        b.iter(|| {
+            x = (x + 0.01) % 0.3;
+            replanner.recondition(1, &[0.4 + x; D]).unwrap();
+            black_box(engine.tick(k3));
+        })
+    });
+
+    let demos: Vec<_> = (0..3).map(|class| demonstrations(class, 20)).collect();
+    c.bench_function("train M=3 primitives from 20 demos each", |b| {
+        b.iter(|| {
+            for d in &demos {
+                black_box(
+                    Primitive::train(Basis::new(15, None).unwrap(), d, &TrainConfig::default())
+                        .unwrap(),
+                );
+            }
+        })
+    });
+
+    let p = primitives(1, 15).remove(0);
+    let via = ViaPoint::exact(0.4, &[0.5; D]);
+    c.bench_function("condition one primitive (D=6 K=15)", |b| {
+        b.iter(|| {
+            let mut q = p.clone();
+            q.condition(black_box(&via)).unwrap();
+            black_box(q)
+        })
+    });
+}
+
+criterion_group!(engine, benches);
+criterion_main!(engine);

@@ -1,0 +1,501 @@
+//! CACLA-MTL, the paper's Alg. 1: one actor-critic shared by every conditioning point, which
+//! estimates the actuation that puts the end effector on each point and corrects it online.
+//! Pure math: no I/O, no clock (pre-training is given its budget as a closure).
+//!
+//! The critic V(p_desired, p_current) and the actor Ac(p_desired) → 6 actuations are linear
+//! in normalised RBF features on sparse lattices ([`crate::rbf`]). Per point n the learner keeps
+//! k_n, the last reached position and the last error. Three corrections to the printed paper
+//! (DESIGN §4) are marked `Correction` below.
+
+use rand::rngs::StdRng;
+use rand::{RngExt, SeedableRng};
+use rand_distr::{Distribution, StandardNormal};
+use serde::{Deserialize, Serialize};
+
+use crate::forward::ForwardModel;
+use crate::rbf::{Features, Lattice, LinearRbf, RbfError};
+
+/// Hyper-parameters; the `[learner]` section of the config. Defaults: DESIGN §4, but for h
+/// (`sigma_max`, see there).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LearnerConfig {
+    /// α_V
+    pub alpha_critic: f64,
+    /// α_Ac
+    pub alpha_actor: f64,
+    /// γ
+    pub gamma: f64,
+    /// h: the largest exploration σ (normalised actuation). DESIGN's starting value 0.15 is
+    /// unstable on the suggested arm: σ = 0.15 moves the end effector ~135 mm, so the next
+    /// σ(g) is h again and the error never falls (loop gain ≈ 0.9 m · h c / 4 ≈ 3.4). 0.03 keeps
+    /// that gain below 1.
+    pub sigma_max: f64,
+    /// b: the error (m) at which σ is h/2.
+    pub sigma_mid_m: f64,
+    /// c: steepness of σ(g) (1/m).
+    pub sigma_slope_per_m: f64,
+    /// Critic lattice spacing over (p_desired, p_current) (m); the paper: 30 mm.
+    pub critic_spacing_m: f64,
+    /// Actor lattice spacing over p_desired (m); the paper: 15 mm.
+    pub actor_spacing_m: f64,
+    /// Gaussian σ of the critic's lattice functions, in cells.
+    pub critic_width: f64,
+    /// Gaussian σ of the actor's lattice functions, in cells.
+    pub actor_width: f64,
+    /// Centres evaluated per axis (2: the two bracketing the input, 3: the nearest and its
+    /// neighbours).
+    pub critic_span: usize,
+    pub actor_span: usize,
+    /// The box the lattices span (m): the arm's reachable workspace.
+    pub workspace_min_m: [f64; 3],
+    pub workspace_max_m: [f64; 3],
+    /// The actuation an untrained actor proposes.
+    pub initial_actuation: f64,
+    pub seed: u64,
+}
+
+impl Default for LearnerConfig {
+    fn default() -> Self {
+        Self {
+            alpha_critic: 0.1,
+            alpha_actor: 0.2,
+            gamma: 0.5,
+            sigma_max: 0.03,
+            sigma_mid_m: 0.03,
+            sigma_slope_per_m: 100.0,
+            critic_spacing_m: 0.03,
+            actor_spacing_m: 0.015,
+            critic_width: 0.5,
+            actor_width: 0.5,
+            critic_span: 2,
+            actor_span: 3,
+            // pcc.md: the reachable box of the suggested arm, with a margin.
+            workspace_min_m: [-0.45, -0.45, -0.6],
+            workspace_max_m: [0.45, 0.45, 0.05],
+            initial_actuation: 0.5,
+            seed: 1,
+        }
+    }
+}
+
+impl LearnerConfig {
+    pub fn validate(&self) -> Result<(), String> {
+        let unit = [
+            ("alpha_critic", self.alpha_critic),
+            ("alpha_actor", self.alpha_actor),
+            ("gamma", self.gamma),
+            ("initial_actuation", self.initial_actuation),
+        ];
+        for (k, v) in unit {
+            if !(0.0..=1.0).contains(&v) {
+                return Err(format!("learner.{k} must be in [0, 1], got {v}"));
+            }
+        }
+        let positive = [
+            ("sigma_max", self.sigma_max),
+            ("sigma_mid_m", self.sigma_mid_m),
+            ("sigma_slope_per_m", self.sigma_slope_per_m),
+            ("critic_spacing_m", self.critic_spacing_m),
+            ("actor_spacing_m", self.actor_spacing_m),
+            ("critic_width", self.critic_width),
+            ("actor_width", self.actor_width),
+        ];
+        for (k, v) in positive {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(format!("learner.{k} must be finite and > 0, got {v}"));
+            }
+        }
+        Ok(())
+    }
+
+    fn lattices(&self) -> Result<(Lattice, Lattice), RbfError> {
+        let (lo, hi) = (self.workspace_min_m, self.workspace_max_m);
+        let actor = Lattice::new(
+            &lo,
+            &hi,
+            &[self.actor_spacing_m; 3],
+            self.actor_width,
+            self.actor_span,
+        )?;
+        let lo6 = [lo[0], lo[1], lo[2], lo[0], lo[1], lo[2]];
+        let hi6 = [hi[0], hi[1], hi[2], hi[0], hi[1], hi[2]];
+        let critic = Lattice::new(
+            &lo6,
+            &hi6,
+            &[self.critic_spacing_m; 6],
+            self.critic_width,
+            self.critic_span,
+        )?;
+        Ok((actor, critic))
+    }
+}
+
+/// What the learner remembers of one conditioning point.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Memory {
+    /// k_n: visits so far.
+    pub visits: u64,
+    pub target: [f64; 3],
+    /// Where the end effector was at the last visit.
+    pub position: [f64; 3],
+    /// g at the last visit (m).
+    pub error: f64,
+}
+
+/// The outcome of one visit.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Visit {
+    /// g = ‖p_desired − p_reached‖ (m).
+    pub error: f64,
+    /// δ, or `None` on a first visit.
+    pub td_error: Option<f64>,
+    pub actor_updated: bool,
+}
+
+/// Everything that makes a learner what it is; serialisable, restored exactly.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LearnerState {
+    pub config: LearnerConfig,
+    pub actor: Vec<(u64, [f64; 6])>,
+    pub critic: Vec<(u64, [f64; 1])>,
+    pub memory: Vec<Option<Memory>>,
+}
+
+pub struct Learner {
+    config: LearnerConfig,
+    actor: LinearRbf<6>,
+    critic: LinearRbf<1>,
+    memory: Vec<Option<Memory>>,
+    rng: StdRng,
+    actor_features: Features,
+    critic_features: Features,
+}
+
+fn distance(a: &[f64; 3], b: &[f64; 3]) -> f64 {
+    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+}
+
+fn critic_input(target: &[f64; 3], current: &[f64; 3]) -> [f64; 6] {
+    [
+        target[0], target[1], target[2], current[0], current[1], current[2],
+    ]
+}
+
+impl Learner {
+    pub fn new(config: LearnerConfig) -> Result<Self, String> {
+        config.validate()?;
+        let (actor, critic) = config.lattices().map_err(|e| e.to_string())?;
+        Ok(Self {
+            actor: LinearRbf::new(actor, [config.initial_actuation; 6]),
+            critic: LinearRbf::new(critic, [0.0]),
+            memory: Vec::new(),
+            rng: StdRng::seed_from_u64(config.seed),
+            actor_features: Features::default(),
+            critic_features: Features::default(),
+            config,
+        })
+    }
+
+    pub fn config(&self) -> &LearnerConfig {
+        &self.config
+    }
+
+    pub fn memory(&self, point: usize) -> Option<&Memory> {
+        self.memory.get(point).and_then(Option::as_ref)
+    }
+
+    /// Forgets every point's history (a new way-point set); the actor and critic stay.
+    pub fn forget_points(&mut self) {
+        self.memory.clear();
+    }
+
+    /// Centres with stored weights: (actor, critic).
+    pub fn stored_centres(&self) -> (usize, usize) {
+        (self.actor.stored(), self.critic.stored())
+    }
+
+    /// Correction (printed paper): σ(g) = h / (1 + exp(−c (g − b))). The printed sign of b
+    /// cannot shrink σ below h/2 as g → 0.
+    pub fn sigma(&self, error: f64) -> f64 {
+        let c = &self.config;
+        c.sigma_max / (1.0 + (-c.sigma_slope_per_m * (error - c.sigma_mid_m)).exp())
+    }
+
+    /// Ac(p_desired), clipped to [0, 1].
+    pub fn actor(&mut self, target: &[f64; 3]) -> [f64; 6] {
+        self.actor
+            .lattice()
+            .features(target, &mut self.actor_features);
+        self.actor
+            .value(&self.actor_features)
+            .map(|v| v.clamp(0.0, 1.0))
+    }
+
+    pub fn value(&mut self, target: &[f64; 3], current: &[f64; 3]) -> f64 {
+        self.critic
+            .lattice()
+            .features(&critic_input(target, current), &mut self.critic_features);
+        self.critic.value(&self.critic_features)[0]
+    }
+
+    /// The actuation to try at point `point`: a ~ N(Ac(p_desired), σ(g_prev)² I), clipped to
+    /// [0, 1]. Without exploration, or on a first visit (no g_prev yet), the actor's mean.
+    pub fn act(&mut self, point: usize, target: &[f64; 3], explore: bool) -> [f64; 6] {
+        let mean = self.actor(target);
+        let prev = self.memory(point).filter(|m| m.target == *target).copied();
+        match prev {
+            Some(m) if explore => {
+                let sigma = self.sigma(m.error);
+                mean.map(|v| {
+                    let n: f64 = StandardNormal.sample(&mut self.rng);
+                    (v + sigma * n).clamp(0.0, 1.0)
+                })
+            }
+            _ => mean,
+        }
+    }
+
+    /// One visit of Alg. 1: `action` was executed for `point` and the end effector reached
+    /// `reached`. r = g_prev − g; δ = r + γ V(p_d, p_reached) − V(p_d, p_prev); the critic
+    /// always moves by α_V δ; the actor moves toward `action` only if δ > 0.
+    pub fn observe(
+        &mut self,
+        point: usize,
+        target: &[f64; 3],
+        action: &[f64; 6],
+        reached: &[f64; 3],
+    ) -> Visit {
+        let error = distance(target, reached);
+        if self.memory.len() <= point {
+            self.memory.resize(point + 1, None);
+        }
+        let prev = self.memory[point].filter(|m| m.target == *target);
+        let visits = prev.map_or(0, |m| m.visits) + 1;
+        self.memory[point] = Some(Memory {
+            visits,
+            target: *target,
+            position: *reached,
+            error,
+        });
+        // Correction: no TD update on the first visit of a point, which has no previous state.
+        let Some(prev) = prev else {
+            return Visit {
+                error,
+                td_error: None,
+                actor_updated: false,
+            };
+        };
+        // Correction: both states come from this point's own history (the printed Eq. 6 mixes
+        // in another point's state).
+        let reward = prev.error - error;
+        let next_value = self.value(target, reached);
+        let prev_value = self.value(target, &prev.position); // leaves φ(s_prev) in the scratch
+        let td = reward + self.config.gamma * next_value - prev_value;
+        self.critic
+            .update(&self.critic_features, self.config.alpha_critic, &[td]);
+        let actor_updated = td > 0.0;
+        if actor_updated {
+            self.actor
+                .lattice()
+                .features(target, &mut self.actor_features);
+            // Ac(p_desired) moves the fraction α_Ac of the way toward the executed action.
+            self.actor
+                .move_toward(&self.actor_features, self.config.alpha_actor, action);
+        }
+        Visit {
+            error,
+            td_error: Some(td),
+            actor_updated,
+        }
+    }
+
+    /// Supervised warm start of the actor on demonstrated (position, actuation) pairs: the
+    /// demonstrations say which actuation reaches which position.
+    pub fn imitate(&mut self, positions: &[[f64; 3]], actuations: &[[f64; 6]], passes: usize) {
+        for _ in 0..passes {
+            for (p, a) in positions.iter().zip(actuations) {
+                self.actor.lattice().features(p, &mut self.actor_features);
+                // A running average of the demonstrated actuations near p.
+                self.actor.move_toward(&self.actor_features, 0.2, a);
+            }
+        }
+    }
+
+    pub fn state(&self) -> LearnerState {
+        LearnerState {
+            config: self.config,
+            actor: self.actor.to_entries(),
+            critic: self.critic.to_entries(),
+            memory: self.memory.clone(),
+        }
+    }
+
+    /// A learner from saved state. The exploration stream restarts from the config's seed.
+    pub fn restore(state: &LearnerState) -> Result<Self, String> {
+        let mut l = Self::new(state.config)?;
+        let (actor, critic) = state.config.lattices().map_err(|e| e.to_string())?;
+        l.actor = LinearRbf::from_entries(actor, [state.config.initial_actuation; 6], &state.actor)
+            .map_err(|e| format!("actor: {e}"))?;
+        l.critic = LinearRbf::from_entries(critic, [0.0], &state.critic)
+            .map_err(|e| format!("critic: {e}"))?;
+        l.memory = state.memory.clone();
+        Ok(l)
+    }
+}
+
+/// Offline pre-training: epochs of random targets inside the demonstrated subspace, each
+/// visited in turn (as the conditioning points of one execution are) until all are within the
+/// threshold or the cap.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PretrainConfig {
+    pub targets_per_epoch: usize,
+    pub threshold_m: f64,
+    /// Visits of each target at most per epoch.
+    pub visits_per_epoch: usize,
+    pub max_epochs: u64,
+    /// Wall-clock budget (s) for whoever runs the pre-training (`softarm train`).
+    pub budget_s: f64,
+}
+
+impl Default for PretrainConfig {
+    fn default() -> Self {
+        Self {
+            targets_per_epoch: 5,
+            threshold_m: 0.005,
+            visits_per_epoch: 100,
+            max_epochs: u64::MAX,
+            budget_s: 30.0,
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct PretrainReport {
+    pub epochs: u64,
+    pub converged_epochs: u64,
+    pub updates: u64,
+}
+
+/// Runs epochs against `model` until `max_epochs` or until `keep_going()` says stop (checked
+/// once per epoch: the caller's clock, not ours). Targets are drawn from `pool`.
+pub fn pretrain(
+    learner: &mut Learner,
+    model: &impl ForwardModel,
+    pool: &[[f64; 3]],
+    config: &PretrainConfig,
+    mut keep_going: impl FnMut(&PretrainReport) -> bool,
+) -> PretrainReport {
+    let mut report = PretrainReport::default();
+    if pool.is_empty() || config.targets_per_epoch == 0 {
+        return report;
+    }
+    let mut targets = vec![[0.0; 3]; config.targets_per_epoch];
+    while report.epochs < config.max_epochs && keep_going(&report) {
+        learner.forget_points();
+        for t in &mut targets {
+            *t = pool[learner.rng.random_range(0..pool.len())];
+        }
+        let mut converged = false;
+        for _ in 0..config.visits_per_epoch {
+            let mut worst = 0.0f64;
+            for (n, target) in targets.iter().enumerate() {
+                let a = learner.act(n, target, true);
+                let reached = model.position(&a);
+                let v = learner.observe(n, target, &a, &reached);
+                report.updates += v.td_error.is_some() as u64;
+                worst = worst.max(v.error);
+            }
+            if worst < config.threshold_m {
+                converged = true;
+                break;
+            }
+        }
+        report.epochs += 1;
+        report.converged_epochs += converged as u64;
+    }
+    learner.forget_points();
+    report
+}
+
+/// Errors (m) of the actor's mean on `targets`, executed on `plant`.
+pub fn evaluate(
+    learner: &mut Learner,
+    plant: &impl ForwardModel,
+    targets: &[[f64; 3]],
+) -> Vec<f64> {
+    targets
+        .iter()
+        .map(|t| distance(t, &plant.position(&learner.actor(t))))
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::pcc::ArmGeometry;
+
+    #[test]
+    fn sigma_shrinks_with_the_error() {
+        let l = Learner::new(LearnerConfig::default()).unwrap();
+        assert!((l.sigma(0.03) - 0.015).abs() < 1e-12);
+        assert!(l.sigma(0.0) < 0.002, "{}", l.sigma(0.0));
+        assert!(l.sigma(0.2) > 0.0299);
+    }
+
+    #[test]
+    fn first_visit_has_no_td_update_and_targets_reset_memory() {
+        let mut l = Learner::new(LearnerConfig::default()).unwrap();
+        let target = [0.1, 0.0, -0.45];
+        let a = l.act(0, &target, true);
+        assert!(
+            a.iter().all(|v| (v - 0.5).abs() < 1e-12),
+            "first visit: the untrained mean, no exploration"
+        );
+        let v = l.observe(0, &target, &a, &[0.0, 0.0, -0.5]);
+        assert_eq!(v.td_error, None);
+        assert_eq!(l.stored_centres(), (0, 0));
+        let v = l.observe(0, &target, &a, &[0.05, 0.0, -0.48]);
+        assert!(v.td_error.unwrap() > 0.0 && v.actor_updated);
+        assert_eq!(l.memory(0).unwrap().visits, 2);
+        // Another target at the same index starts over.
+        let v = l.observe(0, &[0.0, 0.1, -0.45], &a, &[0.0, 0.0, -0.5]);
+        assert_eq!(v.td_error, None);
+    }
+
+    #[test]
+    fn state_round_trips_exactly() {
+        let arm = ArmGeometry::default();
+        let mut l = Learner::new(LearnerConfig::default()).unwrap();
+        let pool = [[0.1, 0.05, -0.45], [-0.05, 0.1, -0.47]];
+        let cfg = PretrainConfig {
+            max_epochs: 5,
+            ..Default::default()
+        };
+        pretrain(&mut l, &arm, &pool, &cfg, |_| true);
+        l.observe(3, &pool[0], &[0.4; 6], &[0.1, 0.0, -0.5]);
+        let state = l.state();
+        let text = serde_json::to_string(&state).unwrap();
+        let back: LearnerState = serde_json::from_str(&text).unwrap();
+        assert_eq!(back, state);
+        let mut r = Learner::restore(&back).unwrap();
+        assert_eq!(r.state(), state);
+        for p in &pool {
+            assert_eq!(r.actor(p), l.actor(p));
+            assert_eq!(r.value(p, &[0.0, 0.0, -0.5]), l.value(p, &[0.0, 0.0, -0.5]));
+        }
+        let mut bad = state.clone();
+        bad.actor[0].1[2] = f64::NAN;
+        assert!(Learner::restore(&bad).err().unwrap().contains("actor"));
+    }
+
+    #[test]
+    fn bad_config_names_the_key() {
+        let c = LearnerConfig {
+            gamma: 1.5,
+            ..Default::default()
+        };
+        assert!(Learner::new(c).err().unwrap().contains("learner.gamma"));
+    }
+}

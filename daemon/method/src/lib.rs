@@ -1,0 +1,27 @@
+//! The method of "Task Driven Skill Learning in a Soft-Robotic Arm" (IROS 2021), pure math:
+//! no I/O, no clock, no iceoryx2 (Cargo enforces it: this crate depends on neither).
+//!
+//! - [`space`]: actuation and task space, named once.
+//! - [`promp`]: probabilistic movement primitives (train, condition, marginals).
+//! - [`activation`]: a_j(t) and b_i(t) of Eq. 11.
+//! - [`engine`]: Eq. 11 on the controller's tick grid ([`engine::Planner`] →
+//!   [`engine::TickEngine`] + [`engine::Replanner`]).
+//! - [`classify`]: ClassifyToPrimitives.
+//! - [`skill`]: demonstrations by the paper's III-B recipe and the primitives trained on them.
+//! - [`rbf`]: RBF lattices and the RBF forward-model network; [`forward::ForwardModel`].
+//! - [`cacla`]: CACLA-MTL (Alg. 1): [`cacla::Actor`], [`cacla::Critic`], pre-training.
+//! - [`pcc`]: piecewise-constant-curvature kinematics; [`plant`]: the simulated plant.
+
+pub mod activation;
+pub mod cacla;
+pub mod classify;
+pub mod engine;
+pub mod forward;
+pub mod pcc;
+pub mod plant;
+pub mod promp;
+pub mod rbf;
+pub mod skill;
+pub mod space;
+
+pub use space::{ACTUATORS, Actuation, MAX_WAYPOINTS, Position, Workspace, distance};

@@ -1,0 +1,349 @@
+//! Piecewise-constant-curvature kinematics of the two-module, six-actuator arm (DESIGN §5,
+//! conventions of `shared/reference/pcc.md`). Pure math.
+//!
+//! Module frame: z along the straight backbone; actuator i at β_i = ψ + (i − 1)·120°, radius d.
+//! A module bends towards φ by θ = κ·l, and actuator i has length l − θ d cos(β_i − φ).
+//! Everything is written in θ, never 1/κ, so a straight module (κ → 0) is exact.
+
+use nalgebra::{Matrix3, Vector3};
+use serde::{Deserialize, Serialize};
+
+pub use crate::space::ACTUATORS;
+
+/// Actuators per module and modules per arm.
+pub const ACTUATORS_PER_MODULE: usize = 3;
+pub const MODULES: usize = 2;
+const _: () = assert!(ACTUATORS == ACTUATORS_PER_MODULE * MODULES);
+
+/// How the arm is mounted.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Mount {
+    /// Base frame diag(1, −1, −1): the arm points down, −Z.
+    Hanging,
+    /// Base frame identity: the arm points up, +Z.
+    Standing,
+}
+
+/// The arm's geometry; the `[arm]` section of the config. Defaults: the suggested arm of
+/// DESIGN §5.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ArmGeometry {
+    /// Distance of each actuator from the backbone (m).
+    pub actuator_radius_m: f64,
+    /// Actuator length at normalised actuation 0 (m).
+    pub actuator_min_m: f64,
+    /// Actuator length at normalised actuation 1 (m).
+    pub actuator_max_m: f64,
+    /// ψ of each module: the angle of its actuator 1 (degrees).
+    pub module_rotation_deg: [f64; MODULES],
+    /// Rigid connector between the modules (m).
+    pub connector_m: f64,
+    /// Rigid tool after the second module (m).
+    pub tool_m: f64,
+    pub mount: Mount,
+}
+
+impl Default for ArmGeometry {
+    fn default() -> Self {
+        Self {
+            actuator_radius_m: 0.025,
+            actuator_min_m: 0.19,
+            actuator_max_m: 0.25,
+            module_rotation_deg: [0.0, 60.0],
+            connector_m: 0.03,
+            tool_m: 0.03,
+            mount: Mount::Hanging,
+        }
+    }
+}
+
+/// Arc parameters of one constant-curvature module.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Arc {
+    /// Backbone length l (m).
+    pub length: f64,
+    /// Bending angle θ = κ l (rad), ≥ 0.
+    pub theta: f64,
+    /// Bending-plane angle φ (rad): the module bends towards φ.
+    pub phi: f64,
+}
+
+impl Arc {
+    pub fn curvature(&self) -> f64 {
+        self.theta / self.length
+    }
+}
+
+/// A rigid transform: rotation and translation.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Pose {
+    pub rotation: Matrix3<f64>,
+    pub position: Vector3<f64>,
+}
+
+impl Pose {
+    pub fn identity() -> Self {
+        Self {
+            rotation: Matrix3::identity(),
+            position: Vector3::zeros(),
+        }
+    }
+
+    fn translation_z(z: f64) -> Self {
+        Self {
+            rotation: Matrix3::identity(),
+            position: Vector3::new(0.0, 0.0, z),
+        }
+    }
+
+    pub fn then(&self, next: &Pose) -> Pose {
+        Pose {
+            rotation: self.rotation * next.rotation,
+            position: self.position + self.rotation * next.position,
+        }
+    }
+}
+
+/// (1 − cos θ)/θ² and sin θ/θ, by series near 0 where the quotients lose precision.
+fn sinc_terms(theta: f64) -> (f64, f64) {
+    let t2 = theta * theta;
+    if theta.abs() < 1e-3 {
+        (
+            0.5 - t2 / 24.0 + t2 * t2 / 720.0,
+            1.0 - t2 / 6.0 + t2 * t2 / 120.0,
+        )
+    } else {
+        ((1.0 - theta.cos()) / t2, theta.sin() / theta)
+    }
+}
+
+impl ArmGeometry {
+    /// Checks the geometry; the error names the key.
+    pub fn validate(&self) -> Result<(), String> {
+        let positive = [
+            ("actuator_radius_m", self.actuator_radius_m),
+            ("actuator_min_m", self.actuator_min_m),
+            ("actuator_max_m", self.actuator_max_m),
+        ];
+        for (key, v) in positive {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(format!("arm.{key} must be a finite length > 0, got {v}"));
+            }
+        }
+        for (key, v) in [("connector_m", self.connector_m), ("tool_m", self.tool_m)] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(format!("arm.{key} must be a finite length >= 0, got {v}"));
+            }
+        }
+        if self.actuator_max_m <= self.actuator_min_m {
+            return Err(format!(
+                "arm.actuator_max_m ({}) must exceed arm.actuator_min_m ({})",
+                self.actuator_max_m, self.actuator_min_m
+            ));
+        }
+        if self.module_rotation_deg.iter().any(|v| !v.is_finite()) {
+            return Err("arm.module_rotation_deg must be finite".into());
+        }
+        Ok(())
+    }
+
+    /// Actuator length (m) of a normalised actuation.
+    pub fn length_of(&self, a: f64) -> f64 {
+        self.actuator_min_m + a * (self.actuator_max_m - self.actuator_min_m)
+    }
+
+    /// Normalised actuation of an actuator length (m).
+    pub fn actuation_of(&self, length: f64) -> f64 {
+        (length - self.actuator_min_m) / (self.actuator_max_m - self.actuator_min_m)
+    }
+
+    fn psi(&self, module: usize) -> f64 {
+        self.module_rotation_deg[module].to_radians()
+    }
+
+    /// Lengths (m) of a module's three actuators → its arc (closed-form inverse).
+    pub fn arc_of(&self, module: usize, l: [f64; 3]) -> Arc {
+        let d = self.actuator_radius_m;
+        let length = (l[0] + l[1] + l[2]) / 3.0;
+        let bx = (l[1] + l[2] - 2.0 * l[0]) / (3.0 * d);
+        let by = (l[2] - l[1]) / (3f64.sqrt() * d);
+        let theta = bx.hypot(by);
+        let phi = if theta == 0.0 {
+            0.0
+        } else {
+            by.atan2(bx) + self.psi(module)
+        };
+        Arc { length, theta, phi }
+    }
+
+    /// A module's arc → its three actuator lengths (m): l_i = l − θ d cos(β_i − φ).
+    pub fn lengths_of(&self, module: usize, arc: &Arc) -> [f64; 3] {
+        let d = self.actuator_radius_m;
+        let psi = self.psi(module);
+        std::array::from_fn(|i| {
+            let beta = psi + i as f64 * 2.0 * std::f64::consts::PI / 3.0;
+            arc.length - arc.theta * d * (beta - arc.phi).cos()
+        })
+    }
+
+    /// Base → tip of one module: R = Rz(φ) Ry(θ) Rz(−φ), p = l (cos φ f θ, sin φ f θ, g).
+    pub fn module_pose(arc: &Arc) -> Pose {
+        let (f, g) = sinc_terms(arc.theta);
+        let (sp, cp) = arc.phi.sin_cos();
+        let (st, ct) = arc.theta.sin_cos();
+        let rz = |s: f64, c: f64| Matrix3::new(c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0);
+        let ry = Matrix3::new(ct, 0.0, st, 0.0, 1.0, 0.0, -st, 0.0, ct);
+        Pose {
+            rotation: rz(sp, cp) * ry * rz(-sp, cp),
+            position: arc.length * Vector3::new(cp * f * arc.theta, sp * f * arc.theta, g),
+        }
+    }
+
+    fn base(&self) -> Pose {
+        match self.mount {
+            Mount::Hanging => Pose {
+                rotation: Matrix3::from_diagonal(&Vector3::new(1.0, -1.0, -1.0)),
+                position: Vector3::zeros(),
+            },
+            Mount::Standing => Pose::identity(),
+        }
+    }
+
+    /// Arcs of both modules for actuator lengths in metres.
+    pub fn arcs_of_lengths(&self, lengths: &[f64; ACTUATORS]) -> [Arc; MODULES] {
+        std::array::from_fn(|m| {
+            self.arc_of(m, [lengths[3 * m], lengths[3 * m + 1], lengths[3 * m + 2]])
+        })
+    }
+
+    /// End-effector pose for actuator lengths in metres:
+    /// T_EE = T_base · T_module1 · Trans_z(connector) · T_module2 · Trans_z(tool).
+    pub fn pose_of_lengths(&self, lengths: &[f64; ACTUATORS]) -> Pose {
+        let [m1, m2] = self.arcs_of_lengths(lengths);
+        self.base()
+            .then(&Self::module_pose(&m1))
+            .then(&Pose::translation_z(self.connector_m))
+            .then(&Self::module_pose(&m2))
+            .then(&Pose::translation_z(self.tool_m))
+    }
+
+    /// End-effector pose for a normalised actuation a ∈ [0, 1]^6.
+    pub fn pose(&self, a: &[f64; ACTUATORS]) -> Pose {
+        self.pose_of_lengths(&a.map(|x| self.length_of(x)))
+    }
+
+    /// End-effector position (m) for a normalised actuation: the forward model of the plant.
+    pub fn position(&self, a: &[f64; ACTUATORS]) -> [f64; 3] {
+        let p = self.pose(a).position;
+        [p.x, p.y, p.z]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::rngs::StdRng;
+    use rand::{RngExt, SeedableRng};
+
+    fn close(got: [f64; 3], want: [f64; 3], tol: f64) {
+        for d in 0..3 {
+            assert!((got[d] - want[d]).abs() <= tol, "{got:?} vs {want:?}");
+        }
+    }
+
+    /// Every value of `shared/reference/pcc.md` (independent NumPy implementation, given to
+    /// 1e-6 m there; agreement here is to the printed digits, 5e-7 m).
+    #[test]
+    fn agrees_with_the_reference_values() {
+        let arm = ArmGeometry::default();
+        let table = [
+            ([0.5; 6], [0.0, 0.0, -0.5]),
+            ([0.0; 6], [0.0, 0.0, -0.44]),
+            ([1.0; 6], [0.0, 0.0, -0.56]),
+            ([0.0, 1.0, 1.0, 0.5, 0.5, 0.5], [0.427828, 0.0, -0.135513]),
+            (
+                [0.2, 0.8, 0.5, 0.9, 0.1, 0.4],
+                [0.121233, 0.216720, -0.380126],
+            ),
+            (
+                [1.0, 0.0, 0.5, 0.0, 1.0, 0.5],
+                [-0.193725, -0.270876, -0.269483],
+            ),
+        ];
+        for (a, p) in table {
+            close(arm.position(&a), p, 5e-7);
+        }
+        let m = ArmGeometry::module_pose(&arm.arc_of(0, [0.20, 0.22, 0.22])).position;
+        close([m.x, m.y, m.z], [0.055553, 0.0, 0.203363], 5e-7);
+    }
+
+    /// The straight poses are exact to 1e-9 (and bit-for-bit continuous into tiny bends).
+    #[test]
+    fn straight_modules_are_exact() {
+        let arm = ArmGeometry::default();
+        close(arm.position(&[0.5; 6]), [0.0, 0.0, -0.5], 1e-12);
+        let tiny = arm.position(&[0.5, 0.5 + 1e-12, 0.5, 0.5, 0.5, 0.5]);
+        close(tiny, [0.0, 0.0, -0.5], 1e-9);
+        // Series and closed form agree where they hand over.
+        for theta in [0.999e-3, 1.001e-3] {
+            let (f, g) = sinc_terms(theta);
+            assert!((f - (1.0 - theta.cos()) / (theta * theta)).abs() < 1e-9);
+            assert!((g - theta.sin() / theta).abs() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn lengths_to_arc_to_lengths_round_trips() {
+        let arm = ArmGeometry::default();
+        let mut rng = StdRng::seed_from_u64(2);
+        for _ in 0..500 {
+            let l: [f64; 3] = std::array::from_fn(|_| arm.length_of(rng.random()));
+            for module in 0..2 {
+                let arc = arm.arc_of(module, l);
+                let back = arm.lengths_of(module, &arc);
+                for i in 0..3 {
+                    assert!(
+                        (back[i] - l[i]).abs() < 1e-12,
+                        "{l:?} -> {arc:?} -> {back:?}"
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn shortening_actuator_one_bends_towards_it() {
+        for (module, psi) in [(0usize, 0.0f64), (1, 60.0)] {
+            let arm = ArmGeometry::default();
+            let arc = arm.arc_of(module, [0.20, 0.22, 0.22]);
+            assert!(
+                (arc.phi - psi.to_radians()).abs() < 1e-12,
+                "bends towards actuator 1"
+            );
+            let p = ArmGeometry::module_pose(&arc).position;
+            let towards = Vector3::new(psi.to_radians().cos(), psi.to_radians().sin(), 0.0);
+            assert!(p.dot(&towards) > 0.05);
+        }
+    }
+
+    #[test]
+    fn bad_geometry_names_the_key() {
+        let arm = ArmGeometry {
+            actuator_max_m: 0.1,
+            ..Default::default()
+        };
+        assert!(arm.validate().unwrap_err().contains("arm.actuator_max_m"));
+        let arm = ArmGeometry {
+            actuator_radius_m: f64::NAN,
+            ..Default::default()
+        };
+        assert!(
+            arm.validate()
+                .unwrap_err()
+                .contains("arm.actuator_radius_m")
+        );
+        assert!(ArmGeometry::default().validate().is_ok());
+    }
+}

@@ -1,0 +1,641 @@
+//! Radial-basis-function approximators. Pure math.
+//!
+//! - [`Lattice`]: normalised Gaussian RBFs on a regular lattice over a box, any dimension,
+//!   evaluated on the `span` centres nearest to the input per axis only; [`LinearRbf`] keeps its
+//!   weights in a hash map, so a 6-D lattice over the whole workspace (10⁸ centres) costs memory
+//!   only where the input has been.
+//! - [`RbfNetwork`]: the forward model actuation(6) → position(3), Gaussian centres picked from
+//!   the data plus an affine part, output weights by ridge least squares.
+
+use std::collections::HashMap;
+use std::hash::{BuildHasherDefault, Hasher};
+
+use nalgebra::DMatrix;
+use serde::{Deserialize, Serialize};
+
+/// Largest lattice dimension.
+pub const MAX_DIM: usize = 8;
+/// Most centres evaluated per axis.
+pub const MAX_SPAN: usize = 9;
+
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum RbfError {
+    #[error("lattice: {0}")]
+    Lattice(String),
+    #[error("forward model: {0}")]
+    Network(String),
+}
+
+/// A regular lattice of Gaussian centres over a box.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Lattice {
+    lower: Vec<f64>,
+    spacing: Vec<f64>,
+    counts: Vec<u64>,
+    /// Standard deviation of each Gaussian, in cells.
+    width: f64,
+    /// Centres evaluated per axis: the `span` nearest to the input (2 brackets it, 3 is the
+    /// nearest and its two neighbours).
+    span: usize,
+}
+
+impl Lattice {
+    /// Centres every `spacing[d]` from `lower[d]` to at least `upper[d]`, Gaussians of σ =
+    /// `width` cells, the `span` nearest centres per axis evaluated.
+    pub fn new(
+        lower: &[f64],
+        upper: &[f64],
+        spacing: &[f64],
+        width: f64,
+        span: usize,
+    ) -> Result<Self, RbfError> {
+        let bad = |s: String| Err(RbfError::Lattice(s));
+        let dim = lower.len();
+        if dim == 0 || dim > MAX_DIM || upper.len() != dim || spacing.len() != dim {
+            return bad(format!(
+                "lower, upper and spacing need the same 1..={MAX_DIM} dimensions, got {}, {}, {}",
+                lower.len(),
+                upper.len(),
+                spacing.len()
+            ));
+        }
+        let mut counts = Vec::with_capacity(dim);
+        for d in 0..dim {
+            if !(lower[d].is_finite() && upper[d].is_finite() && upper[d] > lower[d]) {
+                return bad(format!(
+                    "axis {d}: the box [{}, {}] is empty",
+                    lower[d], upper[d]
+                ));
+            }
+            if !(spacing[d].is_finite() && spacing[d] > 0.0) {
+                return bad(format!("axis {d}: spacing must be > 0, got {}", spacing[d]));
+            }
+            counts.push(((upper[d] - lower[d]) / spacing[d]).ceil() as u64 + 1);
+        }
+        if counts
+            .iter()
+            .try_fold(1u64, |a, &c| a.checked_mul(c))
+            .is_none()
+        {
+            return bad("more centres than a 64-bit index can count".into());
+        }
+        if !(width.is_finite() && width > 0.0) {
+            return bad(format!("width must be > 0 cells, got {width}"));
+        }
+        if !(2..=MAX_SPAN).contains(&span) {
+            return bad(format!(
+                "span must be 2 to {MAX_SPAN} centres per axis, got {span}"
+            ));
+        }
+        Ok(Self {
+            lower: lower.to_vec(),
+            spacing: spacing.to_vec(),
+            counts,
+            width,
+            span,
+        })
+    }
+
+    pub fn dim(&self) -> usize {
+        self.lower.len()
+    }
+
+    /// Total number of lattice centres (mostly never stored).
+    pub fn centres(&self) -> u64 {
+        self.counts.iter().product()
+    }
+
+    /// The smallest fraction of the full (untruncated) kernel mass that the neighbourhood keeps,
+    /// over all input positions: the 1-D worst case over offsets within a cell, to the power dim.
+    pub fn kept_mass(&self) -> f64 {
+        let g = |d: f64| (-d * d / (2.0 * self.width * self.width)).exp();
+        let worst = (0..100)
+            .map(|i| {
+                let u = i as f64 / 100.0;
+                let lo = self.first_index(u);
+                let kept: f64 = (lo..lo + self.span as i64).map(|c| g(u - c as f64)).sum();
+                let all: f64 = (-60..=60).map(|c| g(u - c as f64)).sum();
+                kept / all
+            })
+            .fold(1.0, f64::min);
+        worst.powi(self.dim() as i32)
+    }
+
+    /// The first of the `span` centres nearest to lattice coordinate u.
+    fn first_index(&self, u: f64) -> i64 {
+        (u - 0.5 * (self.span - 1) as f64 + 0.5).floor() as i64
+    }
+
+    /// Writes the normalised features of `x` (clamped into the box) into `out`: the key of each
+    /// nearby centre and its weight, summing to 1. Reuses `out`'s buffers.
+    pub fn features(&self, x: &[f64], out: &mut Features) {
+        debug_assert_eq!(x.len(), self.dim());
+        out.clear();
+        let dim = self.dim();
+        // Per axis: the nearby indices and their 1-D Gaussian factors.
+        let mut first = [0u64; MAX_DIM];
+        let mut factors = [[0.0f64; MAX_SPAN]; MAX_DIM];
+        let mut lens = [0usize; MAX_DIM];
+        for d in 0..dim {
+            let max = (self.counts[d] - 1) as f64;
+            let u = ((x[d] - self.lower[d]) / self.spacing[d]).clamp(0.0, max);
+            let lo = self.first_index(u).max(0);
+            let hi = (self.first_index(u) + self.span as i64 - 1).min(max as i64);
+            first[d] = lo as u64;
+            lens[d] = (hi - lo + 1) as usize;
+            for (j, i) in (lo..=hi).enumerate() {
+                let dist = (u - i as f64) / self.width;
+                factors[d][j] = (-0.5 * dist * dist).exp();
+            }
+        }
+        // Odometer over the neighbourhood.
+        let mut idx = [0usize; MAX_DIM];
+        let mut total = 0.0;
+        loop {
+            let mut key = 0u64;
+            let mut w = 1.0;
+            for d in (0..dim).rev() {
+                key = key * self.counts[d] + first[d] + idx[d] as u64;
+                w *= factors[d][idx[d]];
+            }
+            out.keys.push(key);
+            out.values.push(w);
+            total += w;
+            let mut d = 0;
+            loop {
+                if d == dim {
+                    for v in &mut out.values {
+                        *v /= total;
+                    }
+                    return;
+                }
+                idx[d] += 1;
+                if idx[d] < lens[d] {
+                    break;
+                }
+                idx[d] = 0;
+                d += 1;
+            }
+        }
+    }
+}
+
+/// Normalised features of one input: parallel keys and weights. Keep one and reuse it.
+#[derive(Debug, Clone, Default)]
+pub struct Features {
+    keys: Vec<u64>,
+    values: Vec<f64>,
+}
+
+impl Features {
+    fn clear(&mut self) {
+        self.keys.clear();
+        self.values.clear();
+    }
+
+    pub fn iter(&self) -> impl Iterator<Item = (u64, f64)> + '_ {
+        self.keys.iter().copied().zip(self.values.iter().copied())
+    }
+
+    pub fn len(&self) -> usize {
+        self.keys.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.keys.is_empty()
+    }
+}
+
+/// Lattice keys are already well spread integers: one multiply mixes them enough, at a fraction
+/// of SipHash's cost.
+#[derive(Default)]
+pub struct KeyHasher(u64);
+
+impl Hasher for KeyHasher {
+    fn finish(&self) -> u64 {
+        self.0
+    }
+    fn write(&mut self, bytes: &[u8]) {
+        for b in bytes {
+            self.0 = (self.0 ^ *b as u64).wrapping_mul(0x100_0000_01b3);
+        }
+    }
+    fn write_u64(&mut self, k: u64) {
+        self.0 = (k ^ (k >> 29)).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+    }
+}
+
+type SparseMap<const OUT: usize> = HashMap<u64, [f64; OUT], BuildHasherDefault<KeyHasher>>;
+
+/// A linear function approximator on a lattice: f(x) = Σ φ_i(x) w_i, weights stored only where
+/// trained.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LinearRbf<const OUT: usize> {
+    lattice: Lattice,
+    initial: [f64; OUT],
+    weights: SparseMap<OUT>,
+}
+
+impl<const OUT: usize> LinearRbf<OUT> {
+    pub fn new(lattice: Lattice, initial: [f64; OUT]) -> Self {
+        Self {
+            lattice,
+            initial,
+            weights: SparseMap::default(),
+        }
+    }
+
+    pub fn lattice(&self) -> &Lattice {
+        &self.lattice
+    }
+
+    /// Centres that have a stored weight.
+    pub fn stored(&self) -> usize {
+        self.weights.len()
+    }
+
+    /// f(x), normalised over the centres that have been trained: an untrained centre next to
+    /// trained ones does not drag the estimate toward `initial`. Where none is trained, `initial`.
+    pub fn value(&self, features: &Features) -> [f64; OUT] {
+        let mut out = [0.0; OUT];
+        let mut mass = 0.0;
+        for (key, phi) in features.iter() {
+            if let Some(w) = self.weights.get(&key) {
+                mass += phi;
+                for o in 0..OUT {
+                    out[o] += phi * w[o];
+                }
+            }
+        }
+        if mass <= 0.0 {
+            return self.initial;
+        }
+        out.map(|v| v / mass)
+    }
+
+    /// w_i += rate · φ_i · step for every nearby centre (the gradient step of f toward
+    /// f + step). A centre touched for the first time starts at the current estimate, so the
+    /// function stays continuous as the trained region grows.
+    pub fn update(&mut self, features: &Features, rate: f64, step: &[f64; OUT]) {
+        let here = self.value(features);
+        for (key, phi) in features.iter() {
+            let w = self.weights.entry(key).or_insert(here);
+            for o in 0..OUT {
+                w[o] += rate * phi * step[o];
+            }
+        }
+    }
+
+    /// Moves f(x) the given fraction of the way toward `target` (normalised LMS: the gradient
+    /// step divided by Σφ², so the fraction is exact at x whatever the lattice's width).
+    pub fn move_toward(&mut self, features: &Features, fraction: f64, target: &[f64; OUT]) {
+        let here = self.value(features);
+        let energy: f64 = features.iter().map(|(_, phi)| phi * phi).sum();
+        if energy <= 0.0 {
+            return;
+        }
+        let step: [f64; OUT] = std::array::from_fn(|o| target[o] - here[o]);
+        self.update(features, fraction / energy, &step);
+    }
+
+    /// Weights as a sorted list, for saving.
+    pub fn to_entries(&self) -> Vec<(u64, [f64; OUT])> {
+        let mut v: Vec<_> = self.weights.iter().map(|(k, w)| (*k, *w)).collect();
+        v.sort_unstable_by_key(|e| e.0);
+        v
+    }
+
+    pub fn from_entries(
+        lattice: Lattice,
+        initial: [f64; OUT],
+        entries: &[(u64, [f64; OUT])],
+    ) -> Result<Self, RbfError> {
+        let total = lattice.centres();
+        let mut weights = SparseMap::default();
+        for (k, w) in entries {
+            if *k >= total {
+                return Err(RbfError::Lattice(format!(
+                    "weight for centre {k}, the lattice has {total}"
+                )));
+            }
+            if w.iter().any(|v| !v.is_finite()) {
+                return Err(RbfError::Lattice(format!(
+                    "weight of centre {k} is not finite"
+                )));
+            }
+            weights.insert(*k, *w);
+        }
+        Ok(Self {
+            lattice,
+            initial,
+            weights,
+        })
+    }
+}
+
+/// How the forward model is fitted.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct NetworkConfig {
+    /// Gaussian centres, picked from the data by farthest-point sampling.
+    pub centres: usize,
+    /// Gaussian standard deviation as a multiple of the mean nearest-centre distance.
+    pub width_factor: f64,
+    /// Ridge λ of the output weights.
+    pub ridge: f64,
+}
+
+impl Default for NetworkConfig {
+    fn default() -> Self {
+        Self {
+            centres: 400,
+            width_factor: 1.5,
+            ridge: 1e-8,
+        }
+    }
+}
+
+/// The forward model: y = Σ_c w_c exp(−‖a − c‖² / 2σ²) + W_lin [1, a].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RbfNetwork {
+    centres: Vec<[f64; 6]>,
+    sigma: f64,
+    /// One row per feature (centres, then 1 and the six actuations), one column per axis.
+    weights: Vec<[f64; 3]>,
+}
+
+impl RbfNetwork {
+    /// Fits on (actuation, position) samples.
+    pub fn fit(
+        actuations: &[[f64; 6]],
+        positions: &[[f64; 3]],
+        config: &NetworkConfig,
+    ) -> Result<Self, RbfError> {
+        let bad = |s: String| Err(RbfError::Network(s));
+        if actuations.len() != positions.len() {
+            return bad(format!(
+                "{} actuations but {} positions",
+                actuations.len(),
+                positions.len()
+            ));
+        }
+        let n = actuations.len();
+        if config.centres == 0 || n < config.centres + 7 {
+            return bad(format!(
+                "{n} samples are too few for {} centres (need at least {})",
+                config.centres,
+                config.centres + 7
+            ));
+        }
+        if actuations
+            .iter()
+            .flatten()
+            .chain(positions.iter().flatten())
+            .any(|v| !v.is_finite())
+        {
+            return bad("the samples contain a non-finite value".into());
+        }
+        if !(config.width_factor > 0.0 && config.ridge >= 0.0) {
+            return bad("width_factor must be > 0 and ridge >= 0".into());
+        }
+        let centres = farthest_points(actuations, config.centres);
+        let mean_nn = centres
+            .iter()
+            .enumerate()
+            .map(|(i, c)| {
+                centres
+                    .iter()
+                    .enumerate()
+                    .filter(|(j, _)| *j != i)
+                    .map(|(_, o)| dist2(c, o))
+                    .fold(f64::INFINITY, f64::min)
+                    .sqrt()
+            })
+            .sum::<f64>()
+            / centres.len() as f64;
+        let sigma = (config.width_factor * mean_nn).max(1e-6);
+        let mut net = Self {
+            centres,
+            sigma,
+            weights: Vec::new(),
+        };
+        let f = net.centres.len() + 7;
+        let mut phi = DMatrix::zeros(n, f);
+        let mut row = vec![0.0; f];
+        for (r, a) in actuations.iter().enumerate() {
+            net.features(a, &mut row);
+            for (c, v) in row.iter().enumerate() {
+                phi[(r, c)] = *v;
+            }
+        }
+        let mut a = phi.tr_mul(&phi);
+        for i in 0..f {
+            a[(i, i)] += config.ridge;
+        }
+        let y = DMatrix::from_fn(n, 3, |r, c| positions[r][c]);
+        let rhs = phi.tr_mul(&y);
+        let w = crate::promp::solve_spd(a, rhs)
+            .ok_or_else(|| RbfError::Network("the least-squares system is singular".into()))?;
+        net.weights = (0..f).map(|i| [w[(i, 0)], w[(i, 1)], w[(i, 2)]]).collect();
+        Ok(net)
+    }
+
+    fn features(&self, a: &[f64; 6], out: &mut [f64]) {
+        let inv = 1.0 / (2.0 * self.sigma * self.sigma);
+        for (o, c) in out.iter_mut().zip(&self.centres) {
+            *o = (-dist2(a, c) * inv).exp();
+        }
+        let m = self.centres.len();
+        out[m] = 1.0;
+        out[m + 1..m + 7].copy_from_slice(a);
+    }
+
+    pub fn centres(&self) -> usize {
+        self.centres.len()
+    }
+
+    /// (centres, σ, output weights), for saving.
+    pub fn parts(&self) -> (&[[f64; 6]], f64, &[[f64; 3]]) {
+        (&self.centres, self.sigma, &self.weights)
+    }
+
+    /// A network from saved parts; the weights need one row per centre plus seven.
+    pub fn from_parts(
+        centres: Vec<[f64; 6]>,
+        sigma: f64,
+        weights: Vec<[f64; 3]>,
+    ) -> Result<Self, String> {
+        if centres.is_empty() || weights.len() != centres.len() + 7 {
+            return Err(format!(
+                "forward model: {} centres need {} weight rows, got {}",
+                centres.len(),
+                centres.len() + 7,
+                weights.len()
+            ));
+        }
+        if !(sigma.is_finite() && sigma > 0.0) {
+            return Err(format!("forward model: σ must be > 0, got {sigma}"));
+        }
+        Ok(Self {
+            centres,
+            sigma,
+            weights,
+        })
+    }
+}
+
+impl crate::forward::ForwardModel for RbfNetwork {
+    fn position(&self, a: &[f64; 6]) -> [f64; 3] {
+        let inv = 1.0 / (2.0 * self.sigma * self.sigma);
+        let mut y = [0.0; 3];
+        for (c, w) in self.centres.iter().zip(&self.weights) {
+            let g = (-dist2(a, c) * inv).exp();
+            for d in 0..3 {
+                y[d] += g * w[d];
+            }
+        }
+        let m = self.centres.len();
+        for d in 0..3 {
+            y[d] += self.weights[m][d];
+            for (i, ai) in a.iter().enumerate() {
+                y[d] += self.weights[m + 1 + i][d] * ai;
+            }
+        }
+        y
+    }
+}
+
+fn dist2(a: &[f64; 6], b: &[f64; 6]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum()
+}
+
+/// Greedy farthest-point sampling: spreads `m` centres over the data, deterministically.
+fn farthest_points(data: &[[f64; 6]], m: usize) -> Vec<[f64; 6]> {
+    let mut chosen = vec![data[0]];
+    let mut nearest: Vec<f64> = data.iter().map(|x| dist2(x, &data[0])).collect();
+    while chosen.len() < m {
+        let (i, _) =
+            nearest.iter().enumerate().fold(
+                (0, -1.0),
+                |best, (i, &d)| if d > best.1 { (i, d) } else { best },
+            );
+        let c = data[i];
+        chosen.push(c);
+        for (n, x) in nearest.iter_mut().zip(data) {
+            *n = n.min(dist2(x, &c));
+        }
+    }
+    chosen
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::forward::ForwardModel;
+    use rand::rngs::StdRng;
+    use rand::{RngExt, SeedableRng};
+
+    #[test]
+    fn features_are_normalised_local_and_sparse() {
+        let lat = Lattice::new(&[0.0; 6], &[1.0; 6], &[0.03; 6], 0.5, 3).unwrap();
+        assert!(
+            lat.centres() > 1_000_000_000,
+            "a real 6-D lattice: {}",
+            lat.centres()
+        );
+        let mut f = Features::default();
+        lat.features(&[0.51, 0.2, 0.33, 0.9, 0.11, 0.5], &mut f);
+        assert_eq!(f.len(), 729);
+        assert!((f.iter().map(|(_, v)| v).sum::<f64>() - 1.0).abs() < 1e-12);
+        let mut net = LinearRbf::<1>::new(lat.clone(), [0.0]);
+        net.update(&f, 1.0, &[1.0]);
+        assert_eq!(net.stored(), 729);
+        // At a corner the neighbourhood is cut by the box.
+        lat.features(&[-1.0; 6], &mut f);
+        assert_eq!(f.len(), 64);
+        assert!(
+            lat.kept_mass() > 0.94 && lat.kept_mass() < 1.0,
+            "{}",
+            lat.kept_mass()
+        );
+        // Two bracketing centres per axis: 2^6 features, less of the mass.
+        let two = Lattice::new(&[0.0; 6], &[1.0; 6], &[0.03; 6], 0.5, 2).unwrap();
+        two.features(&[0.51, 0.2, 0.33, 0.9, 0.11, 0.5], &mut f);
+        assert_eq!(f.len(), 64);
+        assert!(
+            (two.kept_mass() - 0.893f64.powi(6)).abs() < 0.01,
+            "{}",
+            two.kept_mass()
+        );
+    }
+
+    #[test]
+    fn a_linear_rbf_learns_a_smooth_function() {
+        let lat = Lattice::new(&[0.0, 0.0], &[1.0, 1.0], &[0.05, 0.05], 0.5, 5).unwrap();
+        let mut net = LinearRbf::<1>::new(lat.clone(), [0.0]);
+        let mut f = Features::default();
+        let target = |x: f64, y: f64| (3.0 * x).sin() + y * y;
+        let mut rng = StdRng::seed_from_u64(5);
+        for _ in 0..100_000 {
+            let (x, y): (f64, f64) = (rng.random(), rng.random());
+            lat.features(&[x, y], &mut f);
+            let v = net.value(&f)[0];
+            net.update(&f, 0.5, &[target(x, y) - v]);
+        }
+        let mut worst = 0.0f64;
+        for i in 1..10 {
+            for j in 1..10 {
+                let (x, y) = (i as f64 / 10.0, j as f64 / 10.0);
+                lat.features(&[x, y], &mut f);
+                worst = worst.max((net.value(&f)[0] - target(x, y)).abs());
+            }
+        }
+        assert!(worst < 0.02, "{worst}");
+        let mut moved = net.clone();
+        lat.features(&[0.33, 0.71], &mut f);
+        let before = moved.value(&f)[0];
+        moved.move_toward(&f, 0.25, &[before + 1.0]);
+        assert!((moved.value(&f)[0] - (before + 0.25)).abs() < 1e-12);
+        let back = LinearRbf::from_entries(lat.clone(), [0.0], &net.to_entries()).unwrap();
+        assert_eq!(back, net);
+        assert!(LinearRbf::from_entries(lat, [0.0], &[(u64::MAX, [0.0])]).is_err());
+    }
+
+    #[test]
+    fn bad_lattices_are_refused() {
+        assert!(Lattice::new(&[0.0], &[0.0], &[0.1], 0.5, 3).is_err());
+        assert!(Lattice::new(&[0.0], &[1.0], &[0.0], 0.5, 3).is_err());
+        assert!(Lattice::new(&[0.0], &[1.0], &[0.1], 0.5, 1).is_err());
+        assert!(Lattice::new(&[0.0], &[1.0], &[0.1], 0.5, 10).is_err());
+        assert!(Lattice::new(&[0.0, 0.0], &[1.0], &[0.1], 0.5, 3).is_err());
+    }
+
+    #[test]
+    fn network_fits_a_smooth_map_and_refuses_bad_data() {
+        let mut a = Vec::new();
+        let mut p = Vec::new();
+        let mut rng = StdRng::seed_from_u64(6);
+        for _ in 0..600 {
+            let x: [f64; 6] = std::array::from_fn(|_| rng.random());
+            a.push(x);
+            p.push([x[0] * x[1], (x[2] - x[3]).sin(), x[4] + 0.5 * x[5] * x[5]]);
+        }
+        let cfg = NetworkConfig {
+            centres: 100,
+            ..Default::default()
+        };
+        let net = RbfNetwork::fit(&a[..500], &p[..500], &cfg).unwrap();
+        let err: f64 = (500..600)
+            .map(|i| {
+                let y = net.position(&a[i]);
+                (0..3).map(|d| (y[d] - p[i][d]).powi(2)).sum::<f64>().sqrt()
+            })
+            .sum::<f64>()
+            / 100.0;
+        assert!(err < 0.02, "held-out error {err}");
+        assert!(RbfNetwork::fit(&a[..50], &p[..50], &cfg).is_err());
+        let mut bad = p.clone();
+        bad[3][1] = f64::NAN;
+        assert!(RbfNetwork::fit(&a, &bad, &cfg).is_err());
+    }
+}

@@ -1,0 +1,65 @@
+//! The two spaces the method works in, named once: actuation space (six actuators, each
+//! normalised to [0, 1]) and task space (end-effector positions in metres, base frame).
+
+/// Actuators of the arm: two modules of three.
+pub const ACTUATORS: usize = 6;
+
+/// At most this many way-points (conditioning points) in a set.
+pub const MAX_WAYPOINTS: usize = 16;
+
+/// A normalised actuation: 0 = actuator at its minimum, 1 = at its maximum.
+pub type Actuation = [f64; ACTUATORS];
+
+/// An end-effector position (m, base/tracker frame).
+pub type Position = [f64; 3];
+
+/// ‖a − b‖ (m).
+pub fn distance(a: &Position, b: &Position) -> f64 {
+    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+}
+
+/// An axis-aligned box in task space (m): where way-points may lie, what the learner's lattices
+/// span.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Workspace {
+    pub min_m: Position,
+    pub max_m: Position,
+}
+
+impl Workspace {
+    /// A box; each axis must be finite and not empty.
+    pub fn new(min_m: Position, max_m: Position) -> Result<Self, String> {
+        for d in 0..3 {
+            if !(min_m[d].is_finite() && max_m[d].is_finite() && min_m[d] < max_m[d]) {
+                return Err(format!(
+                    "axis {} ({}): the box {} .. {} m is empty or not finite",
+                    d,
+                    ["x", "y", "z"][d],
+                    min_m[d],
+                    max_m[d]
+                ));
+            }
+        }
+        Ok(Self { min_m, max_m })
+    }
+
+    pub fn contains(&self, p: &Position) -> bool {
+        (0..3).all(|d| p[d] >= self.min_m[d] && p[d] <= self.max_m[d])
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn boxes_are_checked_and_contain_their_edges() {
+        let w = Workspace::new([-1.0, -1.0, -1.0], [1.0, 1.0, 0.0]).unwrap();
+        assert!(w.contains(&[1.0, -1.0, 0.0]));
+        assert!(!w.contains(&[0.0, 0.0, 0.1]));
+        assert!(!w.contains(&[f64::NAN, 0.0, 0.0]));
+        assert!(Workspace::new([0.0; 3], [1.0, 0.0, 1.0]).unwrap_err().contains("axis 1"));
+        assert!(Workspace::new([0.0; 3], [1.0, 1.0, f64::INFINITY]).is_err());
+        assert_eq!(distance(&[0.0, 3.0, 0.0], &[4.0, 0.0, 0.0]), 5.0);
+    }
+}

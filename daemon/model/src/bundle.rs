@@ -1,0 +1,646 @@
+//! Model bundles and learner checkpoints on disk (DESIGN §7): tensors in safetensors (readable
+//! from Python/numpy), metadata in TOML.
+//!
+//! A bundle in folder `dir` with stem `model` is `model.toml` plus `model-<hash>.safetensors`,
+//! the TOML naming its tensors file with size and FNV-1a hash. Writing puts the tensors file
+//! down first (temp file, fsync, rename), then the TOML the same way: at every instant the
+//! folder holds one complete bundle, old or new, never half of one. Reading checks size, hash,
+//! names, dtypes and shapes, and refuses anything off with an error that says what.
+
+use std::collections::BTreeMap;
+use std::fs;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use nalgebra::{DMatrix, DVector};
+use safetensors::{Dtype, SafeTensors, tensor::TensorView};
+use serde::{Deserialize, Serialize};
+
+use softarm_method::cacla::{LearnerConfig, LearnerState, Memory};
+use softarm_method::promp::{Basis, Primitive};
+use softarm_method::rbf::RbfNetwork;
+
+const FORMAT: u32 = 1;
+
+#[derive(Debug, thiserror::Error)]
+pub enum BundleError {
+    #[error("no {what} at {path} (run `softarm train` to make one)")]
+    Missing { what: &'static str, path: PathBuf },
+    #[error("{path}: {why}")]
+    Io { path: PathBuf, why: String },
+    #[error("{path} is not a valid bundle: {why}")]
+    Invalid { path: PathBuf, why: String },
+}
+
+fn io(path: &Path) -> impl FnOnce(std::io::Error) -> BundleError + '_ {
+    move |e| BundleError::Io {
+        path: path.to_path_buf(),
+        why: e.to_string(),
+    }
+}
+
+/// FNV-1a, 64 bit: catches truncation and corruption (not tampering).
+pub fn fnv64(bytes: &[u8]) -> u64 {
+    bytes.iter().fold(0xcbf2_9ce4_8422_2325, |h, b| {
+        (h ^ *b as u64).wrapping_mul(0x0100_0000_01b3)
+    })
+}
+
+/// Writes `bytes` to `path` atomically: a temp file beside it, fsync, rename, fsync the folder.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), BundleError> {
+    let dir = path.parent().unwrap_or(Path::new("."));
+    fs::create_dir_all(dir).map_err(io(dir))?;
+    let tmp = dir.join(format!(
+        ".{}.{}.tmp",
+        path.file_name().and_then(|n| n.to_str()).unwrap_or("file"),
+        std::process::id()
+    ));
+    let mut f = fs::File::create(&tmp).map_err(io(&tmp))?;
+    f.write_all(bytes).map_err(io(&tmp))?;
+    f.sync_all().map_err(io(&tmp))?;
+    drop(f);
+    fs::rename(&tmp, path).map_err(io(path))?;
+    if let Ok(d) = fs::File::open(dir) {
+        let _ = d.sync_all();
+    }
+    Ok(())
+}
+
+/// Named tensors on their way to or from a file.
+#[derive(Debug, Default)]
+pub struct Tensors {
+    map: BTreeMap<String, (Dtype, Vec<usize>, Vec<u8>)>,
+}
+
+impl Tensors {
+    pub fn put_f64(&mut self, name: &str, shape: &[usize], values: &[f64]) {
+        debug_assert_eq!(shape.iter().product::<usize>(), values.len());
+        let bytes = values.iter().flat_map(|v| v.to_le_bytes()).collect();
+        self.map
+            .insert(name.into(), (Dtype::F64, shape.to_vec(), bytes));
+    }
+
+    pub fn put_u64(&mut self, name: &str, values: &[u64]) {
+        let bytes = values.iter().flat_map(|v| v.to_le_bytes()).collect();
+        self.map
+            .insert(name.into(), (Dtype::U64, vec![values.len()], bytes));
+    }
+
+    fn get(&self, name: &str, dtype: Dtype) -> Result<(&[usize], &[u8]), String> {
+        let (d, shape, bytes) = self
+            .map
+            .get(name)
+            .ok_or_else(|| format!("tensor {name:?} is missing"))?;
+        if *d != dtype {
+            return Err(format!("tensor {name:?} is {d:?}, expected {dtype:?}"));
+        }
+        Ok((shape, bytes))
+    }
+
+    /// An f64 tensor whose shape must equal `shape` (`None` entries match any length).
+    pub fn f64s(
+        &self,
+        name: &str,
+        shape: &[Option<usize>],
+    ) -> Result<(Vec<usize>, Vec<f64>), String> {
+        let (s, bytes) = self.get(name, Dtype::F64)?;
+        let fits =
+            s.len() == shape.len() && s.iter().zip(shape).all(|(a, b)| b.is_none_or(|b| *a == b));
+        if !fits {
+            return Err(format!(
+                "tensor {name:?} has shape {s:?}, expected {shape:?}"
+            ));
+        }
+        let v: Vec<f64> = bytes
+            .chunks_exact(8)
+            .map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes")))
+            .collect();
+        if let Some(i) = v.iter().position(|x| !x.is_finite()) {
+            return Err(format!("tensor {name:?} holds a non-finite value at {i}"));
+        }
+        Ok((s.to_vec(), v))
+    }
+
+    pub fn u64s(&self, name: &str) -> Result<Vec<u64>, String> {
+        let (s, bytes) = self.get(name, Dtype::U64)?;
+        if s.len() != 1 {
+            return Err(format!(
+                "tensor {name:?} has shape {s:?}, expected one axis"
+            ));
+        }
+        Ok(bytes
+            .chunks_exact(8)
+            .map(|c| u64::from_le_bytes(c.try_into().expect("8 bytes")))
+            .collect())
+    }
+}
+
+/// Where a bundle's tensors are and how to know them.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TensorsRef {
+    pub file: String,
+    pub bytes: u64,
+    /// FNV-1a 64 of the file, hex.
+    pub fnv64: String,
+}
+
+/// Writes `<dir>/<stem>.toml` (with `meta` and a `[tensors]` reference) and its tensors file.
+pub fn write<M: Serialize>(
+    dir: &Path,
+    stem: &str,
+    meta: &M,
+    tensors: &Tensors,
+) -> Result<TensorsRef, BundleError> {
+    let views: Vec<(String, TensorView<'_>)> = tensors
+        .map
+        .iter()
+        .map(|(name, (d, shape, bytes))| {
+            TensorView::new(*d, shape.clone(), bytes).map(|v| (name.clone(), v))
+        })
+        .collect::<Result<_, _>>()
+        .map_err(|e| BundleError::Invalid {
+            path: dir.to_path_buf(),
+            why: format!("building tensors: {e:?}"),
+        })?;
+    let data = safetensors::serialize(views, None).map_err(|e| BundleError::Invalid {
+        path: dir.to_path_buf(),
+        why: format!("serialising tensors: {e:?}"),
+    })?;
+    let hash = fnv64(&data);
+    let file = format!("{stem}-{hash:016x}.safetensors");
+    write_atomic(&dir.join(&file), &data)?;
+    let reference = TensorsRef {
+        file: file.clone(),
+        bytes: data.len() as u64,
+        fnv64: format!("{hash:016x}"),
+    };
+    let mut table = toml::Table::try_from(meta).map_err(|e| BundleError::Invalid {
+        path: dir.to_path_buf(),
+        why: format!("metadata: {e}"),
+    })?;
+    table.insert(
+        "tensors".into(),
+        toml::Value::try_from(&reference).expect("a flat struct serialises"),
+    );
+    let text = format!(
+        "# softarm {stem}: metadata; tensors in {file} (safetensors)\n{}",
+        toml::to_string(&table).expect("a table serialises")
+    );
+    let toml_path = dir.join(format!("{stem}.toml"));
+    write_atomic(&toml_path, text.as_bytes())?;
+    // Older tensors files of this stem are no longer referenced.
+    if let Ok(entries) = fs::read_dir(dir) {
+        for e in entries.flatten() {
+            let name = e.file_name().to_string_lossy().to_string();
+            if name.starts_with(&format!("{stem}-"))
+                && name.ends_with(".safetensors")
+                && name != file
+            {
+                let _ = fs::remove_file(e.path());
+            }
+        }
+    }
+    Ok(reference)
+}
+
+/// Reads `<dir>/<stem>.toml` and its tensors; checks the tensors file against the reference.
+pub fn read<M: for<'de> Deserialize<'de>>(
+    dir: &Path,
+    stem: &str,
+    what: &'static str,
+) -> Result<(M, Tensors, TensorsRef), BundleError> {
+    let toml_path = dir.join(format!("{stem}.toml"));
+    let invalid = |why: String| BundleError::Invalid {
+        path: toml_path.clone(),
+        why,
+    };
+    let text = match fs::read_to_string(&toml_path) {
+        Ok(t) => t,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            return Err(BundleError::Missing {
+                what,
+                path: toml_path,
+            });
+        }
+        Err(e) => return Err(io(&toml_path)(e)),
+    };
+    let mut table: toml::Table = toml::from_str(&text).map_err(|e| invalid(e.to_string()))?;
+    let reference: TensorsRef = table
+        .remove("tensors")
+        .ok_or_else(|| invalid("no [tensors] section".into()))?
+        .try_into()
+        .map_err(|e: toml::de::Error| invalid(format!("[tensors]: {e}")))?;
+    let meta: M = table
+        .try_into()
+        .map_err(|e: toml::de::Error| invalid(e.to_string()))?;
+    if reference.file.contains('/') || reference.file.contains("..") {
+        return Err(invalid(format!(
+            "tensors file {:?} must be a plain file name",
+            reference.file
+        )));
+    }
+    let tpath = dir.join(&reference.file);
+    let data = fs::read(&tpath).map_err(|e| BundleError::Invalid {
+        path: tpath.clone(),
+        why: format!("cannot read the tensors file: {e}"),
+    })?;
+    let bad_tensors = |why: String| BundleError::Invalid {
+        path: tpath.clone(),
+        why,
+    };
+    if data.len() as u64 != reference.bytes {
+        return Err(bad_tensors(format!(
+            "{} bytes, the metadata says {} (truncated or replaced)",
+            data.len(),
+            reference.bytes
+        )));
+    }
+    let hash = format!("{:016x}", fnv64(&data));
+    if hash != reference.fnv64 {
+        return Err(bad_tensors(format!(
+            "content hash {hash} differs from the metadata's {} (corrupt)",
+            reference.fnv64
+        )));
+    }
+    let st = SafeTensors::deserialize(&data).map_err(|e| bad_tensors(format!("{e:?}")))?;
+    let mut tensors = Tensors::default();
+    for name in st.names() {
+        let v = st
+            .tensor(name)
+            .map_err(|e| bad_tensors(format!("{name}: {e:?}")))?;
+        tensors.map.insert(
+            name.to_string(),
+            (v.dtype(), v.shape().to_vec(), v.data().to_vec()),
+        );
+    }
+    Ok((meta, tensors, reference))
+}
+
+/// Everything training produces: the primitives, the forward model and the pre-trained learner.
+#[derive(Debug, Clone)]
+pub struct Model {
+    pub actuation: Vec<Primitive>,
+    pub task: Vec<Primitive>,
+    pub forward: RbfNetwork,
+    pub learner: LearnerState,
+    pub demo_duration_s: f64,
+    /// Identity of the bundle it was read from (its tensors hash); empty before writing.
+    pub id: String,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct ModelMeta {
+    format: u32,
+    kind: String,
+    primitives: usize,
+    basis_functions: usize,
+    basis_width: f64,
+    demo_duration_s: f64,
+    forward_sigma: f64,
+    learner: LearnerConfig,
+}
+
+fn put_primitive(t: &mut Tensors, name: &str, p: &Primitive) {
+    let n = p.weight_mean().len();
+    t.put_f64(&format!("{name}.mean"), &[n], p.weight_mean().as_slice());
+    // Row-major, as numpy reads it; Σ_w is symmetric anyway.
+    let cov = p.weight_cov().transpose();
+    t.put_f64(&format!("{name}.cov"), &[n, n], cov.as_slice());
+}
+
+fn get_primitive(t: &Tensors, name: &str, basis: &Basis, dofs: usize) -> Result<Primitive, String> {
+    let n = basis.len() * dofs;
+    let (_, mean) = t.f64s(&format!("{name}.mean"), &[Some(n)])?;
+    let (_, cov) = t.f64s(&format!("{name}.cov"), &[Some(n), Some(n)])?;
+    Primitive::from_weights(
+        basis.clone(),
+        dofs,
+        DVector::from_vec(mean),
+        DMatrix::from_row_slice(n, n, &cov),
+    )
+    .map_err(|e| format!("{name}: {e}"))
+}
+
+fn put_learner(t: &mut Tensors, s: &LearnerState) {
+    let keys: Vec<u64> = s.actor.iter().map(|e| e.0).collect();
+    let w: Vec<f64> = s.actor.iter().flat_map(|e| e.1).collect();
+    t.put_u64("actor.keys", &keys);
+    t.put_f64("actor.weights", &[keys.len(), 6], &w);
+    let keys: Vec<u64> = s.critic.iter().map(|e| e.0).collect();
+    let w: Vec<f64> = s.critic.iter().map(|e| e.1[0]).collect();
+    t.put_u64("critic.keys", &keys);
+    t.put_f64("critic.weights", &[keys.len()], &w);
+    // One row per point: present, visits, target (3), position (3), error.
+    let rows: Vec<f64> = s
+        .memory
+        .iter()
+        .flat_map(|m| match m {
+            Some(m) => [
+                1.0,
+                m.visits as f64,
+                m.target[0],
+                m.target[1],
+                m.target[2],
+                m.position[0],
+                m.position[1],
+                m.position[2],
+                m.error,
+            ],
+            None => [0.0; 9],
+        })
+        .collect();
+    t.put_f64("memory", &[s.memory.len(), 9], &rows);
+}
+
+fn get_learner(t: &Tensors, config: LearnerConfig) -> Result<LearnerState, String> {
+    let keys = t.u64s("actor.keys")?;
+    let (_, w) = t.f64s("actor.weights", &[Some(keys.len()), Some(6)])?;
+    let actor = keys
+        .iter()
+        .zip(w.chunks_exact(6))
+        .map(|(k, c)| (*k, std::array::from_fn(|i| c[i])))
+        .collect();
+    let keys = t.u64s("critic.keys")?;
+    let (_, w) = t.f64s("critic.weights", &[Some(keys.len())])?;
+    let critic = keys.iter().zip(&w).map(|(k, v)| (*k, [*v])).collect();
+    let (_, rows) = t.f64s("memory", &[None, Some(9)])?;
+    let memory = rows
+        .chunks_exact(9)
+        .map(|r| {
+            (r[0] == 1.0).then(|| Memory {
+                visits: r[1] as u64,
+                target: [r[2], r[3], r[4]],
+                position: [r[5], r[6], r[7]],
+                error: r[8],
+            })
+        })
+        .collect();
+    Ok(LearnerState {
+        config,
+        actor,
+        critic,
+        memory,
+    })
+}
+
+impl Model {
+    /// Writes the bundle into `dir` (as `model.toml` + tensors) and returns its id.
+    pub fn write(&self, dir: &Path) -> Result<String, BundleError> {
+        let first = &self.actuation[0];
+        let (centres, sigma, weights) = self.forward.parts();
+        let meta = ModelMeta {
+            format: FORMAT,
+            kind: "softarm-model".into(),
+            primitives: self.actuation.len(),
+            basis_functions: first.basis().len(),
+            basis_width: first.basis().width(),
+            demo_duration_s: self.demo_duration_s,
+            forward_sigma: sigma,
+            learner: self.learner.config,
+        };
+        let mut t = Tensors::default();
+        for (j, p) in self.actuation.iter().enumerate() {
+            put_primitive(&mut t, &format!("promp.actuation.{j}"), p);
+        }
+        for (j, p) in self.task.iter().enumerate() {
+            put_primitive(&mut t, &format!("promp.task.{j}"), p);
+        }
+        let c: Vec<f64> = centres.iter().flatten().copied().collect();
+        t.put_f64("forward.centres", &[centres.len(), 6], &c);
+        let w: Vec<f64> = weights.iter().flatten().copied().collect();
+        t.put_f64("forward.weights", &[weights.len(), 3], &w);
+        put_learner(&mut t, &self.learner);
+        Ok(write(dir, "model", &meta, &t)?.fnv64)
+    }
+
+    /// Reads and checks the bundle in `dir`; nothing is half-loaded.
+    pub fn read(dir: &Path) -> Result<Self, BundleError> {
+        let (meta, t, reference): (ModelMeta, _, _) = read(dir, "model", "model bundle")?;
+        let invalid = |why: String| BundleError::Invalid {
+            path: dir.join("model.toml"),
+            why,
+        };
+        if meta.format != FORMAT || meta.kind != "softarm-model" {
+            return Err(invalid(format!(
+                "format {} of kind {:?}; this softarm reads format {FORMAT} of \"softarm-model\"",
+                meta.format, meta.kind
+            )));
+        }
+        if meta.primitives == 0 || meta.primitives > softarm_method::activation::MAX_PRIMITIVES {
+            return Err(invalid(format!("{} primitives", meta.primitives)));
+        }
+        let basis = Basis::new(meta.basis_functions, Some(meta.basis_width))
+            .map_err(|e| invalid(e.to_string()))?;
+        let build = || -> Result<Model, String> {
+            let actuation = (0..meta.primitives)
+                .map(|j| get_primitive(&t, &format!("promp.actuation.{j}"), &basis, 6))
+                .collect::<Result<Vec<_>, _>>()?;
+            let task = (0..meta.primitives)
+                .map(|j| get_primitive(&t, &format!("promp.task.{j}"), &basis, 3))
+                .collect::<Result<Vec<_>, _>>()?;
+            let (shape, c) = t.f64s("forward.centres", &[None, Some(6)])?;
+            let centres: Vec<[f64; 6]> = c
+                .chunks_exact(6)
+                .map(|r| std::array::from_fn(|i| r[i]))
+                .collect();
+            let (_, w) = t.f64s("forward.weights", &[Some(shape[0] + 7), Some(3)])?;
+            let weights: Vec<[f64; 3]> = w.chunks_exact(3).map(|r| [r[0], r[1], r[2]]).collect();
+            let forward = RbfNetwork::from_parts(centres, meta.forward_sigma, weights)?;
+            meta.learner.validate()?;
+            let learner = get_learner(&t, meta.learner)?;
+            Ok(Model {
+                actuation,
+                task,
+                forward,
+                learner,
+                demo_duration_s: meta.demo_duration_s,
+                id: reference.fnv64.clone(),
+            })
+        };
+        build().map_err(invalid)
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct CheckpointMeta {
+    format: u32,
+    kind: String,
+    /// The model bundle this learner descends from.
+    model: String,
+    learner: LearnerConfig,
+}
+
+/// Saves the learner's state as `<dir>/learner.toml` + tensors.
+pub fn write_checkpoint(
+    dir: &Path,
+    state: &LearnerState,
+    model_id: &str,
+) -> Result<(), BundleError> {
+    let meta = CheckpointMeta {
+        format: FORMAT,
+        kind: "softarm-learner".into(),
+        model: model_id.into(),
+        learner: state.config,
+    };
+    let mut t = Tensors::default();
+    put_learner(&mut t, state);
+    write(dir, "learner", &meta, &t).map(|_| ())
+}
+
+/// Reads a learner checkpoint: the state and the id of the model it descends from.
+pub fn read_checkpoint(dir: &Path) -> Result<(LearnerState, String), BundleError> {
+    let (meta, t, _): (CheckpointMeta, _, _) = read(dir, "learner", "learner checkpoint")?;
+    let invalid = |why: String| BundleError::Invalid {
+        path: dir.join("learner.toml"),
+        why,
+    };
+    if meta.format != FORMAT || meta.kind != "softarm-learner" {
+        return Err(invalid(format!(
+            "format {} of kind {:?}",
+            meta.format, meta.kind
+        )));
+    }
+    meta.learner.validate().map_err(invalid)?;
+    let state = get_learner(&t, meta.learner).map_err(invalid)?;
+    Ok((state, meta.model))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use softarm_method::cacla::{Learner, PretrainConfig, pretrain};
+    use softarm_method::rbf::NetworkConfig;
+    use softarm_method::skill::{DemoRecipe, demonstrations, forward_data, train_primitives};
+    use softarm_method::pcc::ArmGeometry;
+
+    fn model() -> Model {
+        let arm = ArmGeometry::default();
+        let recipe = DemoRecipe {
+            demos_per_class: 4,
+            ..Default::default()
+        };
+        let recs = demonstrations(&arm, &recipe, 3);
+        let (actuation, task) = train_primitives(&recs, 8).unwrap();
+        let (a, p) = forward_data(&recs);
+        let forward = RbfNetwork::fit(
+            &a,
+            &p,
+            &NetworkConfig {
+                centres: 40,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        let mut l = Learner::new(LearnerConfig::default()).unwrap();
+        pretrain(
+            &mut l,
+            &forward,
+            &p,
+            &PretrainConfig {
+                max_epochs: 20,
+                ..Default::default()
+            },
+            |_| true,
+        );
+        l.observe(1, &p[0], &a[0], &p[1]);
+        Model {
+            actuation,
+            task,
+            forward,
+            learner: l.state(),
+            demo_duration_s: recipe.duration_s,
+            id: String::new(),
+        }
+    }
+
+    fn tmp(name: &str) -> PathBuf {
+        let d = std::env::temp_dir().join(format!("softarm-bundle-{name}-{}", std::process::id()));
+        let _ = fs::remove_dir_all(&d);
+        d
+    }
+
+    #[test]
+    fn a_bundle_round_trips_exactly() {
+        let m = model();
+        let dir = tmp("roundtrip");
+        let id = m.write(&dir).unwrap();
+        let back = Model::read(&dir).unwrap();
+        assert_eq!(back.id, id);
+        assert_eq!(back.actuation, m.actuation);
+        assert_eq!(back.task, m.task);
+        assert_eq!(back.forward, m.forward);
+        assert_eq!(back.learner, m.learner);
+        // Rewriting leaves one tensors file.
+        m.write(&dir).unwrap();
+        let n = fs::read_dir(&dir)
+            .unwrap()
+            .filter(|e| {
+                e.as_ref()
+                    .unwrap()
+                    .file_name()
+                    .to_string_lossy()
+                    .ends_with(".safetensors")
+            })
+            .count();
+        assert_eq!(n, 1);
+
+        write_checkpoint(&dir, &m.learner, &id).unwrap();
+        let (state, from) = read_checkpoint(&dir).unwrap();
+        assert_eq!((state, from), (m.learner.clone(), id));
+        fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn corrupt_truncated_or_mismatched_bundles_are_refused() {
+        let m = model();
+        let dir = tmp("corrupt");
+        let r = m.write(&dir).unwrap();
+        let tensors = dir.join(format!("model-{r}.safetensors"));
+        let good = fs::read(&tensors).unwrap();
+
+        fs::write(&tensors, &good[..good.len() / 2]).unwrap();
+        let e = Model::read(&dir).unwrap_err().to_string();
+        assert!(e.contains("truncated"), "{e}");
+
+        let mut flipped = good.clone();
+        let i = flipped.len() - 9;
+        flipped[i] ^= 0x40;
+        fs::write(&tensors, &flipped).unwrap();
+        let e = Model::read(&dir).unwrap_err().to_string();
+        assert!(e.contains("corrupt"), "{e}");
+
+        fs::write(&tensors, &good).unwrap();
+        let meta = dir.join("model.toml");
+        let text = fs::read_to_string(&meta).unwrap();
+        fs::write(
+            &meta,
+            text.replace("basis_functions = 8", "basis_functions = 9"),
+        )
+        .unwrap();
+        let e = Model::read(&dir).unwrap_err().to_string();
+        assert!(e.contains("shape"), "{e}");
+        fs::write(&meta, text.replace("format = 1", "format = 7")).unwrap();
+        assert!(
+            Model::read(&dir)
+                .unwrap_err()
+                .to_string()
+                .contains("format 7")
+        );
+        fs::write(&meta, text.replace("[learner]", "surprise = 1\n[learner]")).unwrap();
+        assert!(
+            Model::read(&dir)
+                .unwrap_err()
+                .to_string()
+                .contains("surprise")
+        );
+        fs::write(&meta, &text).unwrap();
+        assert!(Model::read(&dir).is_ok());
+
+        let e = Model::read(&dir.join("nowhere")).unwrap_err().to_string();
+        assert!(e.contains("softarm train"), "{e}");
+        fs::remove_dir_all(&dir).unwrap();
+    }
+}

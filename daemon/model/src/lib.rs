@@ -1,0 +1,13 @@
+//! softarm's data on disk, and the offline pipeline that makes a model:
+//!
+//! - [`config`]: the one TOML file every process reads; errors name the key and its line.
+//! - [`bundle`]: model bundles and learner checkpoints (safetensors + TOML, atomic writes).
+//! - [`waypoints`]: way-point files and the checks a set must pass.
+//! - [`pipeline`]: demonstrations → primitives → forward model → imitation → pre-training,
+//!   written once for `softarm train`, the tests, the benches and the examples.
+//!
+//! No iceoryx2 here but the payload types of the contract.
+
+pub mod bundle;
+pub mod config;
+pub mod waypoints;

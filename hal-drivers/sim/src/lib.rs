@@ -1,0 +1,63 @@
+//! The `sim` driver process: the PCC plant with its realism layer behind the same services as
+//! the hardware drivers. Consumes `setpoint` (and `estop`), publishes `tracker` and
+//! `motor_state` at its own fixed rate on absolute deadlines.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use softarm_ipc::clock::Ticker;
+use softarm_ipc::{Contract, MotorState, Namespace, TrackerSample, now_ns};
+
+use softarm_method::pcc::ArmGeometry;
+use softarm_method::plant::Plant;
+use softarm_model::config::SimConfig;
+
+/// Runs the simulated arm until `stop` is set.
+pub fn run(
+    config: &SimConfig,
+    arm: &ArmGeometry,
+    namespace: Namespace,
+    stop: &AtomicBool,
+) -> Result<(), String> {
+    let mut plant = Plant::new(*arm, config.realism, config.initial_actuation)?;
+    let ipc = Contract::new(namespace, "sim").map_err(|e| e.to_string())?;
+    let e = |e: softarm_ipc::Error| e.to_string();
+    let setpoints = ipc.subscriber(&ipc.setpoint().map_err(e)?).map_err(e)?;
+    let estop = ipc.subscriber(&ipc.estop().map_err(e)?).map_err(e)?;
+    let tracker = ipc.publisher(&ipc.tracker().map_err(e)?).map_err(e)?;
+    let motors = ipc.publisher(&ipc.motor_state().map_err(e)?).map_err(e)?;
+
+    let dt = 1.0 / config.rate_hz;
+    let mut command = config.initial_actuation;
+    let mut stopped = false;
+    let mut seq = 0u64;
+    let mut ticker = Ticker::new(config.rate_hz);
+    tracing::info!(rate_hz = config.rate_hz, "sim running");
+    while !stop.load(Ordering::Relaxed) {
+        ticker.wait();
+        while let Ok(Some(s)) = setpoints.receive() {
+            command = s.actuation;
+        }
+        while let Ok(Some(s)) = estop.receive() {
+            stopped = s.engaged != 0;
+        }
+        if stopped {
+            // E-stop: the motors hold where they are, whatever is commanded.
+            command = plant.state();
+        }
+        let m = plant.step(&command, dt);
+        seq += 1;
+        let stamp_ns = now_ns();
+        let _ = motors.send_copy(MotorState {
+            seq,
+            stamp_ns,
+            actuation: m.actuation,
+        });
+        let _ = tracker.send_copy(TrackerSample {
+            seq,
+            stamp_ns,
+            position: m.position,
+        });
+    }
+    tracing::info!(overruns = ticker.overruns(), "sim stopped");
+    Ok(())
+}
