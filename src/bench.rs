@@ -3,10 +3,10 @@
 use std::time::Instant;
 
 use softarm_method::activation::ActivationConfig;
-use softarm_method::cacla::{Learner, LearnerConfig, PretrainConfig, pretrain};
+use softarm_method::cacla::{CaclaMtl, LearnerConfig, PretrainConfig, pretrain};
 use softarm_method::engine::{Planner, Timeline};
-use softarm_method::skill::{self, DemoRecipe};
 use softarm_method::pcc::ArmGeometry;
+use softarm_method::skill::{self, DemoRecipe};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -91,7 +91,7 @@ pub fn run(args: &Args) -> Result<(), String> {
     // A CACLA-MTL update at a conditioning point, five points visited in turn as in an
     // execution, on a learner warmed up by a short pre-training.
     let (acts, positions) = skill::forward_data(&demos);
-    let mut learner = Learner::new(LearnerConfig::default())?;
+    let mut learner = CaclaMtl::new(LearnerConfig::default())?;
     learner.imitate(&positions, &acts, 1);
     let warm = PretrainConfig {
         max_epochs: 2_000,

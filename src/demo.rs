@@ -7,9 +7,9 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use softarm_clients::{stats, status, submit, train};
+use softarm_ipc::{ExecutionStats, Namespace};
 use softarm_model::config::{Config, DEFAULT};
 use softarm_model::waypoints::WaypointFile;
-use softarm_ipc::{ExecutionStats, Namespace};
 
 use crate::up::Supervisor;
 

@@ -8,8 +8,8 @@ use std::time::Duration;
 
 use clap::{Parser, Subcommand};
 use softarm_clients::{estop, stats, status, submit, train};
-use softarm_model::config::Config;
 use softarm_ipc::Namespace;
+use softarm_model::config::Config;
 
 mod bench;
 mod demo;
@@ -167,9 +167,7 @@ fn run(cli: Cli) -> Result<ExitCode, String> {
             let config = stack.load()?;
             up::run(stack.args(), &config.robot.drivers, &*stop_flag()?)?
         }
-        Command::Controller(stack) => {
-            softarm_controller::run(&stack.load()?, &*stop_flag()?)?
-        }
+        Command::Controller(stack) => softarm_controller::run(&stack.load()?, &*stop_flag()?)?,
         Command::Learner(stack) => softarm_learner::run(&stack.load()?, &*stop_flag()?)?,
         Command::Sim(stack) => {
             let c = stack.load()?;

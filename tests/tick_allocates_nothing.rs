@@ -13,8 +13,8 @@ use std::time::Duration;
 
 use common::TestStack;
 use softarm_clients::{stats, submit};
-use softarm_model::config::Config;
 use softarm_ipc::Namespace;
+use softarm_model::config::Config;
 
 struct Counting;
 

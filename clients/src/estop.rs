@@ -3,10 +3,10 @@
 
 use std::time::Duration;
 
-use softarm_ipc::{Contract, EstopState, Namespace, now_ns};
+use softarm_ipc::{EstopState, Namespace, Node, now_ns};
 
 pub fn send(namespace: &Namespace, engaged: bool) -> Result<usize, String> {
-    let ipc = Contract::new(namespace.clone(), "estop").map_err(|e| e.to_string())?;
+    let ipc = Node::open(namespace.clone(), "estop").map_err(|e| e.to_string())?;
     let service = ipc.estop().map_err(|e| e.to_string())?;
     let publisher = ipc.publisher(&service).map_err(|e| e.to_string())?;
     let receivers = publisher

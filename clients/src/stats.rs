@@ -2,7 +2,7 @@
 
 use std::time::Duration;
 
-use softarm_ipc::{Contract, ExecutionStats, Namespace, Sub};
+use softarm_ipc::{ExecutionStats, Namespace, Node, Sub};
 
 /// One JSON object per execution: `execution`, `errors_mm`, `mean_mm`, `max_mm`, and the set.
 pub fn json_line(s: &ExecutionStats) -> String {
@@ -40,13 +40,13 @@ pub fn table_row(s: &ExecutionStats) -> String {
 
 /// A subscription to `stats` (the last 64 executions arrive first).
 pub struct Stats {
-    _ipc: Contract,
+    _ipc: Node,
     sub: Sub<ExecutionStats>,
 }
 
 impl Stats {
     pub fn open(namespace: &Namespace) -> Result<Self, String> {
-        let ipc = Contract::new(namespace.clone(), "stats").map_err(|e| e.to_string())?;
+        let ipc = Node::open(namespace.clone(), "stats").map_err(|e| e.to_string())?;
         let service = ipc.stats().map_err(|e| e.to_string())?;
         let sub = ipc.subscriber(&service).map_err(|e| e.to_string())?;
         Ok(Self { _ipc: ipc, sub })

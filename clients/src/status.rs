@@ -2,7 +2,7 @@
 
 use std::time::Duration;
 
-use softarm_ipc::{Contract, ControllerState, ControllerStatus, Namespace};
+use softarm_ipc::{ControllerState, ControllerStatus, Namespace, Node};
 
 pub struct Report {
     /// The stack's processes with a live iceoryx2 node (this client excluded).
@@ -13,7 +13,7 @@ pub struct Report {
 /// Looks at a namespace: the node list and the newest controller status (waiting up to
 /// `timeout` for it).
 pub fn status(namespace: &Namespace, timeout: Duration) -> Result<Report, String> {
-    let ipc = Contract::new(namespace.clone(), "status").map_err(|e| e.to_string())?;
+    let ipc = Node::open(namespace.clone(), "status").map_err(|e| e.to_string())?;
     let sub = ipc
         .subscriber(&ipc.status().map_err(|e| e.to_string())?)
         .map_err(|e| e.to_string())?;

@@ -2,9 +2,9 @@
 
 use std::time::Duration;
 
+use softarm_ipc::{Namespace, Node, WaypointSet, now_ns};
 use softarm_model::config::Config;
 use softarm_model::waypoints::{WaypointFile, validate};
-use softarm_ipc::{Contract, Namespace, WaypointSet, now_ns};
 
 /// How a submission ended; the exit code of `softarm submit`.
 #[derive(Debug, Clone, PartialEq)]
@@ -39,7 +39,7 @@ pub fn prepare(
 
 /// Sends a set and waits for the answer.
 pub fn submit(namespace: &Namespace, mut set: WaypointSet, timeout: Duration) -> Outcome {
-    let ipc = match Contract::new(namespace.clone(), "submit") {
+    let ipc = match Node::open(namespace.clone(), "submit") {
         Ok(c) => c,
         Err(e) => {
             return Outcome::Unreachable {

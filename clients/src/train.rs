@@ -7,13 +7,13 @@ use std::io::IsTerminal;
 use std::time::{Duration, Instant};
 
 use indicatif::{ProgressBar, ProgressStyle};
-use softarm_model::bundle::Model;
-use softarm_method::cacla::{Learner, pretrain};
-use softarm_model::config::Config;
+use softarm_ipc::{ControllerState, DemonstrateRequest, Namespace, Node, now_ns};
+use softarm_method::cacla::{CaclaMtl, pretrain};
 use softarm_method::forward::ForwardModel;
 use softarm_method::rbf::RbfNetwork;
 use softarm_method::skill::{Recording, train_primitives};
-use softarm_ipc::{Contract, ControllerState, DemonstrateRequest, Namespace, now_ns};
+use softarm_model::bundle::Model;
+use softarm_model::config::Config;
 
 /// What training measured.
 #[derive(Debug, Clone)]
@@ -54,7 +54,7 @@ struct Sample {
 /// Records demonstrations through the running stack in `namespace`.
 fn record(namespace: &Namespace, seed: u64) -> Result<(Vec<Sample>, usize, f64), String> {
     let e = |e: softarm_ipc::Error| e.to_string();
-    let ipc = Contract::new(namespace.clone(), "train").map_err(e)?;
+    let ipc = Node::open(namespace.clone(), "train").map_err(e)?;
     let setpoints = ipc.subscriber(&ipc.setpoint().map_err(e)?).map_err(e)?;
     let motors = ipc.subscriber(&ipc.motor_state().map_err(e)?).map_err(e)?;
     let tracker = ipc.subscriber(&ipc.tracker().map_err(e)?).map_err(e)?;
@@ -199,7 +199,7 @@ pub fn train(config: &Config, namespace: &Namespace, seed: u64) -> Result<TrainR
     let forward =
         RbfNetwork::fit(&acts, &positions, &config.forward_model).map_err(|e| e.to_string())?;
 
-    let mut learner = Learner::new(config.learner)?;
+    let mut learner = CaclaMtl::new(config.learner)?;
     learner.imitate(&positions, &acts, 3);
     let budget = Duration::from_secs_f64(config.pretrain.budget_s);
     let progress = bar(budget.as_secs(), "pre-training s");

@@ -13,10 +13,7 @@ use iceoryx2::prelude::*;
 
 pub use iceoryx2;
 
-/// Actuators of the arm.
-pub const ACTUATORS: usize = 6;
-/// At most this many way-points (conditioning points) in a set.
-pub const MAX_WAYPOINTS: usize = 16;
+pub use softarm_method::space::{ACTUATORS, Actuation, MAX_WAYPOINTS, Position};
 /// Longest reason text in a reply.
 pub const MAX_REASON: usize = 200;
 
@@ -32,20 +29,18 @@ pub enum ControllerState {
     Idle = 0,
     /// Playing demonstration sequences (training).
     Demonstrate = 1,
-    /// Planning a newly accepted way-point set.
-    Plan = 2,
     /// Executing a way-point set.
-    Execute = 3,
-    /// Tracker data too old: setpoint frozen at the last safe value.
-    Hold = 4,
+    Execute = 2,
+    /// Tracker or motor data too old: setpoint frozen at the last safe value.
+    Hold = 3,
     /// E-stop latched.
-    Stopped = 5,
+    Stopped = 4,
 }
 
 impl ControllerState {
     pub fn from_u32(v: u32) -> Option<Self> {
         use ControllerState::*;
-        [Idle, Demonstrate, Plan, Execute, Hold, Stopped]
+        [Idle, Demonstrate, Execute, Hold, Stopped]
             .into_iter()
             .find(|s| *s as u32 == v)
     }
@@ -54,7 +49,6 @@ impl ControllerState {
         match self {
             ControllerState::Idle => "IDLE",
             ControllerState::Demonstrate => "DEMONSTRATE",
-            ControllerState::Plan => "PLAN",
             ControllerState::Execute => "EXECUTE",
             ControllerState::Hold => "HOLD",
             ControllerState::Stopped => "STOPPED",
@@ -98,8 +92,8 @@ pub struct MotorState {
     pub actuation: [f64; ACTUATORS],
 }
 
-/// Sent by the controller at each conditioning point (and, with `executed == 0`, to ask for the
-/// first estimates of a new set).
+/// Sent by the controller at each conditioning point: what was executed there and where the end
+/// effector was (one visit of Alg. 1), and which estimate it wants next.
 #[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
 #[type_name("softarm::ConditioningSample")]
 #[repr(C)]
@@ -110,8 +104,7 @@ pub struct ConditioningSample {
     pub execution: u32,
     pub point: u32,
     pub points: u32,
-    /// 1: `actuation` was executed and `reached` measured at the point; 0: a plan request.
-    pub executed: u32,
+    pub _pad: u32,
     pub actuation: [f64; ACTUATORS],
     pub desired: [f64; 3],
     pub reached: [f64; 3],
@@ -120,6 +113,26 @@ pub struct ConditioningSample {
     /// The execution (1-based) that will use that estimate.
     pub next_execution: u32,
     pub next_desired: [f64; 3],
+}
+
+/// Sent by the controller when it accepts a way-point set: the learner answers with one
+/// `ActuationEstimate` per point, the first estimates the set is planned with.
+#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
+#[type_name("softarm::EstimateRequest")]
+#[repr(C)]
+pub struct EstimateRequest {
+    pub seq: u64,
+    pub stamp_ns: u64,
+    pub set_id: u64,
+    pub count: u32,
+    pub _pad: u32,
+    pub desired: [[f64; 3]; MAX_WAYPOINTS],
+}
+
+impl EstimateRequest {
+    pub fn points(&self) -> &[[f64; 3]] {
+        &self.desired[..(self.count as usize).min(MAX_WAYPOINTS)]
+    }
 }
 
 /// The learner's actuation for a conditioning point: the controller conditions group `point`
@@ -350,7 +363,7 @@ fn err<E: std::fmt::Debug>(what: String) -> impl FnOnce(E) -> Error {
     move |e| Error(format!("{what}: {e:?}"))
 }
 
-pub type Node = iceoryx2::node::Node<ipc::Service>;
+pub type IoxNode = iceoryx2::node::Node<ipc::Service>;
 pub type PubSub<T> =
     iceoryx2::service::port_factory::publish_subscribe::PortFactory<ipc::Service, T, ()>;
 pub type ReqRes<Q, R> =
@@ -360,10 +373,11 @@ pub type Sub<T> = Subscriber<ipc::Service, T, ()>;
 pub type Server<Q, R> = iceoryx2::port::server::Server<ipc::Service, Q, (), R, ()>;
 pub type Client<Q, R> = iceoryx2::port::client::Client<ipc::Service, Q, (), R, ()>;
 
-/// A process's iceoryx2 node and the namespace its services live in. The node's name is
-/// `<namespace>/<role>`, so `softarm status` can tell which processes of which stack are alive.
-pub struct Contract {
-    pub node: Node,
+/// A process's iceoryx2 node in its stack's namespace, and the one place each service is opened
+/// with its settings. The node's name is `<namespace>/<role>`, so `softarm status` can tell which
+/// processes of which stack are alive.
+pub struct Node {
+    pub node: IoxNode,
     pub namespace: Namespace,
 }
 
@@ -378,9 +392,9 @@ fn node_name(namespace: &Namespace, role: &str) -> String {
     }
 }
 
-impl Contract {
+impl Node {
     /// Creates this process's node. Signals are left to the process (signal-hook), not iceoryx2.
-    pub fn new(namespace: Namespace, role: &str) -> Result<Self, Error> {
+    pub fn open(namespace: Namespace, role: &str) -> Result<Self, Error> {
         // iceoryx2 warns on stderr that it runs on its built-in defaults, which is intended.
         set_log_level(LogLevel::Error);
         let name = node_name(&namespace, role);
@@ -435,6 +449,11 @@ impl Contract {
     /// `cp_sample`: controller → learner at each conditioning point; none may be lost.
     pub fn cp_sample(&self) -> Result<PubSub<ConditioningSample>, Error> {
         self.pubsub("cp_sample", 0, 64, 2, MAX_SUBSCRIBERS)
+    }
+
+    /// `estimate_request`: controller → learner, the first estimates of a new set.
+    pub fn estimate_request(&self) -> Result<PubSub<EstimateRequest>, Error> {
+        self.pubsub("estimate_request", 0, 8, 2, MAX_SUBSCRIBERS)
     }
 
     /// `estimate`: learner → controller.
@@ -532,7 +551,7 @@ impl Contract {
         let prefix = format!("{}/", self.namespace.as_str());
         let mut names = Vec::new();
         let mut dead = false;
-        Node::list(self.node.config(), |state| {
+        IoxNode::list(self.node.config(), |state| {
             match &state {
                 NodeState::Alive(view) => {
                     if let Some(d) = view.details()
@@ -586,9 +605,9 @@ mod tests {
 
     #[test]
     fn states_round_trip() {
-        for v in 0..6 {
+        for v in 0..5 {
             assert_eq!(ControllerState::from_u32(v).unwrap() as u32, v);
         }
-        assert_eq!(ControllerState::from_u32(6), None);
+        assert_eq!(ControllerState::from_u32(5), None);
     }
 }

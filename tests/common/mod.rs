@@ -6,12 +6,12 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
-use softarm_model::bundle::Model;
-use softarm_method::cacla::{Learner, PretrainConfig, pretrain};
-use softarm_model::config::DEFAULT;
+use softarm_method::cacla::{CaclaMtl, PretrainConfig, pretrain};
+use softarm_method::pcc::ArmGeometry;
 use softarm_method::rbf::{NetworkConfig, RbfNetwork};
 use softarm_method::skill::{DemoRecipe, demonstrations, forward_data, train_primitives};
-use softarm_method::pcc::ArmGeometry;
+use softarm_model::bundle::Model;
+use softarm_model::config::DEFAULT;
 
 pub const BIN: &str = env!("CARGO_BIN_EXE_softarm");
 pub const DEMO_WAYPOINTS: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/config/waypoints/demo.toml");
@@ -65,7 +65,7 @@ pub fn quick_model(dir: &Path) {
         },
     )
     .unwrap();
-    let mut learner = Learner::new(Default::default()).unwrap();
+    let mut learner = CaclaMtl::new(Default::default()).unwrap();
     learner.imitate(&p, &a, 2);
     pretrain(
         &mut learner,

@@ -2,14 +2,14 @@
 //! simulated plant (with realism) and the learner, executing the demo way-point set.
 //! `cargo run --release -p softarm-daemon --example online -- MODEL_DIR [EXECUTIONS]`
 //! Config overrides as TOML in LEARNER / REALISM, e.g. LEARNER='alpha_actor = 0.5'.
-use softarm_model::bundle::Model;
-use softarm_method::cacla::{Learner, LearnerConfig};
-use softarm_model::config::Config;
 use softarm_controller::Limiter;
+use softarm_method::cacla::{CaclaMtl, LearnerConfig};
 use softarm_method::classify::classify;
 use softarm_method::engine::{Planner, Timeline};
-use softarm_model::waypoints::WaypointFile;
 use softarm_method::plant::Plant;
+use softarm_model::bundle::Model;
+use softarm_model::config::Config;
+use softarm_model::waypoints::WaypointFile;
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
@@ -25,7 +25,7 @@ fn main() {
     let realism = rc.try_into().unwrap();
     let mut state = model.learner.clone();
     state.config = lconf;
-    let mut learner = Learner::restore(&state).unwrap();
+    let mut learner = CaclaMtl::restore(&state).unwrap();
     let file = WaypointFile::parse(include_str!("../../../config/waypoints/demo.toml")).unwrap();
     let n = file.point.len();
     let t: Vec<f64> = file.point.iter().map(|p| p.t_s).collect();

@@ -5,23 +5,22 @@
 //! it runs: plans arrive over a bounded lock-free channel as boxes and leave the same way, to be
 //! freed by the service thread; re-conditioned groups reach the engine through its own channel.
 
-use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
 use std::sync::mpsc::{Receiver, SyncSender, TryRecvError, sync_channel};
-use std::time::{Duration, Instant, SystemTime};
+use std::time::{Duration, Instant};
 
 use softarm_ipc::clock::Ticker;
 use softarm_ipc::iceoryx2::port::update_connections::UpdateConnections;
 use softarm_ipc::{
-    ConditioningSample, Contract, ControllerState, ControllerStatus, DemonstrateReply,
-    ExecutionStats, Latency, MAX_WAYPOINTS, Namespace, Setpoint, WaypointReply, now_ns,
+    ConditioningSample, ControllerState, ControllerStatus, DemonstrateReply, EstimateRequest,
+    ExecutionStats, Latency, MAX_WAYPOINTS, Namespace, Node, Setpoint, WaypointReply, now_ns,
 };
 
-use softarm_model::bundle::Model;
-use softarm_model::config::Config;
 use softarm_method::classify::classify;
 use softarm_method::engine::{Planner, Replanner, TickEngine, Timeline};
+use softarm_model::bundle::{BundleWatch, Model};
+use softarm_model::config::Config;
 use softarm_model::waypoints::validate;
 
 const NO_DEMO: u32 = u32::MAX;
@@ -277,7 +276,7 @@ impl Execution {
                 execution: self.execution,
                 point: n as u32,
                 points: plan.points as u32,
-                executed: 1,
+                _pad: 0,
                 actuation: [0.0; 6],
                 desired,
                 reached,
@@ -409,7 +408,7 @@ fn start_io(
         .name("controller-io".into())
         .spawn(move || -> Result<(), String> {
             let e = |e: softarm_ipc::Error| e.to_string();
-            let ipc = Contract::new(namespace, "controller.io").map_err(e)?;
+            let ipc = Node::open(namespace, "controller.io").map_err(e)?;
             let setpoints = ipc.publisher(&ipc.setpoint().map_err(e)?).map_err(e)?;
             let samples = ipc.publisher(&ipc.cp_sample().map_err(e)?).map_err(e)?;
             let stats = ipc.publisher(&ipc.stats().map_err(e)?).map_err(e)?;
@@ -484,7 +483,7 @@ fn tick_thread(
     stop: &AtomicBool,
 ) -> Result<(), String> {
     let e = |e: softarm_ipc::Error| e.to_string();
-    let ipc = Contract::new(namespace, "controller").map_err(e)?;
+    let ipc = Node::open(namespace, "controller").map_err(e)?;
     let tracker = ipc.subscriber(&ipc.tracker().map_err(e)?).map_err(e)?;
     let motors = ipc.subscriber(&ipc.motor_state().map_err(e)?).map_err(e)?;
     let estop = ipc.subscriber(&ipc.estop().map_err(e)?).map_err(e)?;
@@ -743,28 +742,19 @@ struct Planning {
     estimates: Vec<Option<[f64; 6]>>,
 }
 
+/// The model the controller plans with, reloaded when `softarm train` writes a new bundle.
 struct ModelSlot {
-    dir: PathBuf,
+    watch: BundleWatch,
     model: Option<Model>,
-    stamp: Option<SystemTime>,
-    checked: Instant,
 }
 
 impl ModelSlot {
     /// Loads the bundle when it appears or changes; a bad bundle is reported and not used.
     fn refresh(&mut self, shared: &Shared) {
-        if self.checked.elapsed() < Duration::from_millis(200) {
+        if !self.watch.changed() {
             return;
         }
-        self.checked = Instant::now();
-        let stamp = std::fs::metadata(self.dir.join("model.toml"))
-            .and_then(|m| m.modified())
-            .ok();
-        if stamp.is_none() || stamp == self.stamp {
-            return;
-        }
-        self.stamp = stamp;
-        match Model::read(&self.dir) {
+        match Model::read(self.watch.dir()) {
             Ok(m) => {
                 tracing::info!(id = %m.id, primitives = m.actuation.len(), "model bundle loaded");
                 self.model = Some(m);
@@ -784,24 +774,23 @@ fn service_thread(
     stop: &AtomicBool,
 ) -> Result<(), String> {
     let e = |e: softarm_ipc::Error| e.to_string();
-    let ipc = Contract::new(namespace, "controller.service").map_err(e)?;
+    let ipc = Node::open(namespace, "controller.service").map_err(e)?;
     let waypoints = ipc.server(&ipc.waypoints().map_err(e)?).map_err(e)?;
     let demonstrate = ipc.server(&ipc.demonstrate().map_err(e)?).map_err(e)?;
-    let requests = ipc.publisher(&ipc.cp_sample().map_err(e)?).map_err(e)?;
+    let requests = ipc
+        .publisher(&ipc.estimate_request().map_err(e)?)
+        .map_err(e)?;
     let estimates = ipc.subscriber(&ipc.estimate().map_err(e)?).map_err(e)?;
 
     let mut slot = ModelSlot {
-        dir: config.model_dir(),
+        watch: BundleWatch::new(config.model_dir(), Duration::from_millis(200)),
         model: None,
-        stamp: None,
-        // Due at once: the first refresh loads a bundle that is already there.
-        checked: Instant::now() - Duration::from_secs(1),
     };
     slot.refresh(shared);
     if slot.model.is_none() {
         tracing::warn!(
             "no model bundle in {} yet: way-point sets are refused until `softarm train` writes one",
-            slot.dir.display()
+            slot.watch.dir().display()
         );
     }
     let mut planning: Option<Planning> = None;
@@ -830,24 +819,15 @@ fn service_thread(
                         ?q,
                         "way-point set accepted"
                     );
-                    for (point, p) in desired[..n].iter().enumerate() {
-                        request_seq += 1;
-                        let _ = requests.send_copy(ConditioningSample {
-                            seq: request_seq,
-                            stamp_ns: now_ns(),
-                            set_id,
-                            execution: 0,
-                            point: point as u32,
-                            points: n as u32,
-                            executed: 0,
-                            actuation: [0.0; 6],
-                            desired: *p,
-                            reached: [0.0; 3],
-                            next_point: point as u32,
-                            next_execution: 1,
-                            next_desired: *p,
-                        });
-                    }
+                    request_seq += 1;
+                    let _ = requests.send_copy(EstimateRequest {
+                        seq: request_seq,
+                        stamp_ns: now_ns(),
+                        set_id,
+                        count: n as u32,
+                        _pad: 0,
+                        desired,
+                    });
                     planning = Some(Planning {
                         set_id,
                         deadline: Instant::now()
@@ -998,7 +978,7 @@ fn admit(
     let model = slot.model.as_ref().ok_or_else(|| {
         format!(
             "no trained model in {}: run `softarm train` first",
-            slot.dir.display()
+            slot.watch.dir().display()
         )
     })?;
     let n = set.count as usize;

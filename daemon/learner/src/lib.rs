@@ -1,27 +1,20 @@
-//! The learner process: CACLA-MTL at the conditioning points. Each `ConditioningSample` is one
+//! The learner process: CACLA-MTL at the conditioning points. An `EstimateRequest` (a set was
+//! accepted) is answered with the actor's mean for every point; each `ConditioningSample` is one
 //! visit (Alg. 1) and is answered with the `ActuationEstimate` the controller asked for next.
 //! The state is checkpointed atomically after every execution and at exit, and resumed at start
 //! when it descends from the current model bundle.
 
-use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::time::{Duration, Instant, SystemTime};
+use std::time::Duration;
 
-use softarm_ipc::{ActuationEstimate, Contract, Namespace, now_ns};
-
-use softarm_model::bundle::{BundleError, Model, read_checkpoint, write_checkpoint};
-use softarm_method::cacla::{Learner, LearnerConfig};
+use softarm_ipc::{Actuation, ActuationEstimate, Namespace, Node, now_ns};
+use softarm_method::cacla::{CaclaMtl, LearnerConfig};
+use softarm_model::bundle::{BundleError, BundleWatch, Model, read_checkpoint, write_checkpoint};
 use softarm_model::config::Config;
 
 struct Loaded {
-    learner: Learner,
+    learner: CaclaMtl,
     model_id: String,
-}
-
-fn stamp(dir: &Path) -> Option<SystemTime> {
-    std::fs::metadata(dir.join("model.toml"))
-        .and_then(|m| m.modified())
-        .ok()
 }
 
 /// The checkpoint if it descends from the bundle in `model_dir`, else the bundle's learner.
@@ -47,7 +40,7 @@ fn load(config: &Config) -> Result<Loaded, BundleError> {
     };
     let mut state = state;
     state.config = runtime_config(state.config, config.learner);
-    let learner = Learner::restore(&state).map_err(|why| BundleError::Invalid {
+    let learner = CaclaMtl::restore(&state).map_err(|why| BundleError::Invalid {
         path: model_dir.clone(),
         why,
     })?;
@@ -72,7 +65,8 @@ fn runtime_config(trained: LearnerConfig, configured: LearnerConfig) -> LearnerC
     };
     if runtime != configured {
         tracing::warn!(
-            "the [learner] lattice settings differ from the trained model's; the model's are used              (run `softarm train` to apply the new ones)"
+            "the [learner] lattice settings differ from the trained model's; the model's are used \
+             (run `softarm train` to apply the new ones)"
         );
     }
     runtime
@@ -88,84 +82,86 @@ fn checkpoint(config: &Config, l: &Loaded) {
 pub fn run(config: &Config, stop: &AtomicBool) -> Result<(), String> {
     let namespace = Namespace::new(&config.namespace())?;
     let e = |e: softarm_ipc::Error| e.to_string();
-    let ipc = Contract::new(namespace, "learner").map_err(e)?;
+    let ipc = Node::open(namespace, "learner").map_err(e)?;
+    let requests = ipc
+        .subscriber(&ipc.estimate_request().map_err(e)?)
+        .map_err(e)?;
     let samples = ipc.subscriber(&ipc.cp_sample().map_err(e)?).map_err(e)?;
     let estimates = ipc.publisher(&ipc.estimate().map_err(e)?).map_err(e)?;
-
-    let mut loaded: Option<Loaded> = None;
-    // The bundle version last tried, so a bad bundle is reported once, not every look.
-    let mut tried: Option<SystemTime> = None;
-    let mut warned = false;
-    let mut last_check = Instant::now() - Duration::from_secs(10);
-    let mut set_id = 0u64;
     let mut seq = 0u64;
+    let mut send = |set_id: u64, point: u32, actuation: Actuation| {
+        seq += 1;
+        let _ = estimates.send_copy(ActuationEstimate {
+            seq,
+            stamp_ns: now_ns(),
+            set_id,
+            point,
+            _pad: 0,
+            actuation,
+        });
+    };
+
+    let mut watch = BundleWatch::new(config.model_dir(), Duration::from_millis(200));
+    let mut loaded: Option<Loaded> = None;
+    let mut warned = false;
+    let mut set_id = 0u64;
     while !stop.load(Ordering::Relaxed) {
         // Estimates are needed within the 100 ms before the next group's window: 2 ms is plenty.
         std::thread::sleep(Duration::from_millis(2));
         // A new bundle (after `softarm train`) replaces what the learner had.
-        if last_check.elapsed() >= Duration::from_millis(200) {
-            last_check = Instant::now();
-            let current = stamp(&config.model_dir());
-            if current.is_some() && current != tried {
-                tried = current;
-                match load(config) {
-                    Ok(l) => {
-                        tracing::info!(model = %l.model_id, "learner ready");
-                        loaded = Some(l);
-                        set_id = 0;
-                    }
-                    Err(e) => tracing::error!("{e}"),
+        if watch.changed() {
+            match load(config) {
+                Ok(l) => {
+                    tracing::info!(model = %l.model_id, "learner ready");
+                    loaded = Some(l);
+                    set_id = 0;
                 }
-            } else if current.is_none() && !warned {
-                warned = true;
-                tracing::warn!(
-                    "no model bundle in {} yet: waiting for `softarm train`",
-                    config.model_dir().display()
-                );
+                Err(e) => tracing::error!("{e}"),
             }
+        } else if !watch.exists() && !warned {
+            warned = true;
+            tracing::warn!(
+                "no model bundle in {} yet: waiting for `softarm train`",
+                watch.dir().display()
+            );
         }
-        // Without a model, samples wait in the subscriber's buffer until one is loaded.
+        // Without a model, requests and samples wait in the subscribers' buffers.
         let Some(l) = loaded.as_mut() else {
             continue;
         };
+        // A new set: its points' histories start over, and its first execution runs on the
+        // actor's means, without exploration.
+        while let Ok(Some(r)) = requests.receive() {
+            let r = *r;
+            l.learner.forget_points();
+            set_id = r.set_id;
+            for (point, desired) in r.points().iter().enumerate() {
+                send(r.set_id, point as u32, l.learner.act(point, desired, false));
+            }
+        }
         while let Ok(Some(s)) = samples.receive() {
             let s = *s;
             if s.set_id != set_id {
                 l.learner.forget_points();
                 set_id = s.set_id;
             }
-            let executed = s.executed == 1;
-            if executed {
-                if s.reached.iter().all(|v| v.is_finite()) {
-                    let visit =
-                        l.learner
-                            .observe(s.point as usize, &s.desired, &s.actuation, &s.reached);
-                    tracing::debug!(point = s.point, error_mm = visit.error * 1e3, td = ?visit.td_error, "visit");
-                } else {
-                    tracing::warn!(
-                        point = s.point,
-                        "no tracker position at the point: visit skipped"
-                    );
-                }
-            }
-            // The first execution of a set runs on the actor's means, without exploration.
-            let (point, target) = if executed {
-                (s.next_point, s.next_desired)
+            if s.reached.iter().all(|v| v.is_finite()) {
+                let visit =
+                    l.learner
+                        .observe(s.point as usize, &s.desired, &s.actuation, &s.reached);
+                tracing::debug!(point = s.point, error_mm = visit.error * 1e3, td = ?visit.td_error, "visit");
             } else {
-                (s.point, s.desired)
-            };
-            let explore = executed && s.next_execution >= 2;
-            let actuation = l.learner.act(point as usize, &target, explore);
-            seq += 1;
-            let _ = estimates.send_copy(ActuationEstimate {
-                seq,
-                stamp_ns: now_ns(),
-                set_id: s.set_id,
-                point,
-                _pad: 0,
-                actuation,
-            });
-            if executed && s.point + 1 == s.points {
+                tracing::warn!(
+                    point = s.point,
+                    "no tracker position at the point: visit skipped"
+                );
+            }
+            let explore = s.next_execution >= 2;
+            let next = l
+                .learner
+                .act(s.next_point as usize, &s.next_desired, explore);
+            send(s.set_id, s.next_point, next);
+            if s.point + 1 == s.points {
                 checkpoint(config, l);
             }
         }

@@ -5,7 +5,7 @@
 //! The critic V(p_desired, p_current) and the actor Ac(p_desired) → 6 actuations are linear
 //! in normalised RBF features on sparse lattices ([`crate::rbf`]). Per point n the learner keeps
 //! k_n, the last reached position and the last error. Three corrections to the printed paper
-//! (DESIGN §4) are marked `Correction` below.
+//! (see docs/ARCHITECTURE.md, "Where the paper lives") are marked `Correction` below.
 
 use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
@@ -14,6 +14,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::forward::ForwardModel;
 use crate::rbf::{Features, Lattice, LinearRbf, RbfError};
+use crate::space::{ACTUATORS, Actuation, Position, distance};
 
 /// Hyper-parameters; the `[learner]` section of the config. Defaults: DESIGN §4, but for h
 /// (`sigma_max`, see there).
@@ -162,37 +163,86 @@ pub struct LearnerState {
     pub memory: Vec<Option<Memory>>,
 }
 
-pub struct Learner {
+/// The critic V(p_desired, p_current): linear in normalised RBF features on a sparse 6-D
+/// lattice over (p_desired, p_current).
+pub struct Critic {
+    weights: LinearRbf<1>,
+    /// φ(s) of the last state evaluated; [`Critic::update`] moves along it.
+    features: Features,
+}
+
+impl Critic {
+    fn new(weights: LinearRbf<1>) -> Self {
+        Self {
+            weights,
+            features: Features::default(),
+        }
+    }
+
+    /// V(p_desired, p_current).
+    pub fn value(&mut self, target: &Position, current: &Position) -> f64 {
+        let s = [
+            target[0], target[1], target[2], current[0], current[1], current[2],
+        ];
+        self.weights.lattice().features(&s, &mut self.features);
+        self.weights.value(&self.features)[0]
+    }
+
+    /// V(s) += α δ for the state last passed to [`Critic::value`].
+    fn update(&mut self, rate: f64, td: f64) {
+        self.weights.update(&self.features, rate, &[td]);
+    }
+}
+
+/// The actor Ac(p_desired) → six actuations: linear in normalised RBF features on a sparse 3-D
+/// lattice over p_desired.
+pub struct Actor {
+    weights: LinearRbf<ACTUATORS>,
+    features: Features,
+}
+
+impl Actor {
+    fn new(weights: LinearRbf<ACTUATORS>) -> Self {
+        Self {
+            weights,
+            features: Features::default(),
+        }
+    }
+
+    /// Ac(p_desired), clipped to [0, 1].
+    pub fn actuation(&mut self, target: &Position) -> Actuation {
+        self.weights.lattice().features(target, &mut self.features);
+        self.weights
+            .value(&self.features)
+            .map(|v| v.clamp(0.0, 1.0))
+    }
+
+    /// Moves Ac(p_desired) the fraction `fraction` of the way toward `action` (normalised LMS).
+    fn move_toward(&mut self, target: &Position, fraction: f64, action: &Actuation) {
+        self.weights.lattice().features(target, &mut self.features);
+        self.weights.move_toward(&self.features, fraction, action);
+    }
+}
+
+/// CACLA-MTL: one actor and one critic shared by every conditioning point, and per point n its
+/// memory (k_n, the last reached position, the last error).
+pub struct CaclaMtl {
     config: LearnerConfig,
-    actor: LinearRbf<6>,
-    critic: LinearRbf<1>,
+    actor: Actor,
+    critic: Critic,
     memory: Vec<Option<Memory>>,
     rng: StdRng,
-    actor_features: Features,
-    critic_features: Features,
 }
 
-fn distance(a: &[f64; 3], b: &[f64; 3]) -> f64 {
-    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
-}
-
-fn critic_input(target: &[f64; 3], current: &[f64; 3]) -> [f64; 6] {
-    [
-        target[0], target[1], target[2], current[0], current[1], current[2],
-    ]
-}
-
-impl Learner {
+impl CaclaMtl {
     pub fn new(config: LearnerConfig) -> Result<Self, String> {
         config.validate()?;
         let (actor, critic) = config.lattices().map_err(|e| e.to_string())?;
         Ok(Self {
-            actor: LinearRbf::new(actor, [config.initial_actuation; 6]),
-            critic: LinearRbf::new(critic, [0.0]),
+            actor: Actor::new(LinearRbf::new(actor, [config.initial_actuation; ACTUATORS])),
+            critic: Critic::new(LinearRbf::new(critic, [0.0])),
             memory: Vec::new(),
             rng: StdRng::seed_from_u64(config.seed),
-            actor_features: Features::default(),
-            critic_features: Features::default(),
             config,
         })
     }
@@ -212,7 +262,7 @@ impl Learner {
 
     /// Centres with stored weights: (actor, critic).
     pub fn stored_centres(&self) -> (usize, usize) {
-        (self.actor.stored(), self.critic.stored())
+        (self.actor.weights.stored(), self.critic.weights.stored())
     }
 
     /// Correction (printed paper): σ(g) = h / (1 + exp(−c (g − b))). The printed sign of b
@@ -223,20 +273,13 @@ impl Learner {
     }
 
     /// Ac(p_desired), clipped to [0, 1].
-    pub fn actor(&mut self, target: &[f64; 3]) -> [f64; 6] {
-        self.actor
-            .lattice()
-            .features(target, &mut self.actor_features);
-        self.actor
-            .value(&self.actor_features)
-            .map(|v| v.clamp(0.0, 1.0))
+    pub fn actor(&mut self, target: &Position) -> Actuation {
+        self.actor.actuation(target)
     }
 
-    pub fn value(&mut self, target: &[f64; 3], current: &[f64; 3]) -> f64 {
-        self.critic
-            .lattice()
-            .features(&critic_input(target, current), &mut self.critic_features);
-        self.critic.value(&self.critic_features)[0]
+    /// V(p_desired, p_current).
+    pub fn value(&mut self, target: &Position, current: &Position) -> f64 {
+        self.critic.value(target, current)
     }
 
     /// The actuation to try at point `point`: a ~ N(Ac(p_desired), σ(g_prev)² I), clipped to
@@ -290,18 +333,15 @@ impl Learner {
         // in another point's state).
         let reward = prev.error - error;
         let next_value = self.value(target, reached);
-        let prev_value = self.value(target, &prev.position); // leaves φ(s_prev) in the scratch
+        // Evaluated last, so the critic's update moves V(s_prev).
+        let prev_value = self.value(target, &prev.position);
         let td = reward + self.config.gamma * next_value - prev_value;
-        self.critic
-            .update(&self.critic_features, self.config.alpha_critic, &[td]);
+        self.critic.update(self.config.alpha_critic, td);
         let actor_updated = td > 0.0;
         if actor_updated {
-            self.actor
-                .lattice()
-                .features(target, &mut self.actor_features);
             // Ac(p_desired) moves the fraction α_Ac of the way toward the executed action.
             self.actor
-                .move_toward(&self.actor_features, self.config.alpha_actor, action);
+                .move_toward(target, self.config.alpha_actor, action);
         }
         Visit {
             error,
@@ -315,9 +355,8 @@ impl Learner {
     pub fn imitate(&mut self, positions: &[[f64; 3]], actuations: &[[f64; 6]], passes: usize) {
         for _ in 0..passes {
             for (p, a) in positions.iter().zip(actuations) {
-                self.actor.lattice().features(p, &mut self.actor_features);
                 // A running average of the demonstrated actuations near p.
-                self.actor.move_toward(&self.actor_features, 0.2, a);
+                self.actor.move_toward(p, 0.2, a);
             }
         }
     }
@@ -325,8 +364,8 @@ impl Learner {
     pub fn state(&self) -> LearnerState {
         LearnerState {
             config: self.config,
-            actor: self.actor.to_entries(),
-            critic: self.critic.to_entries(),
+            actor: self.actor.weights.to_entries(),
+            critic: self.critic.weights.to_entries(),
             memory: self.memory.clone(),
         }
     }
@@ -335,10 +374,18 @@ impl Learner {
     pub fn restore(state: &LearnerState) -> Result<Self, String> {
         let mut l = Self::new(state.config)?;
         let (actor, critic) = state.config.lattices().map_err(|e| e.to_string())?;
-        l.actor = LinearRbf::from_entries(actor, [state.config.initial_actuation; 6], &state.actor)
-            .map_err(|e| format!("actor: {e}"))?;
-        l.critic = LinearRbf::from_entries(critic, [0.0], &state.critic)
-            .map_err(|e| format!("critic: {e}"))?;
+        l.actor = Actor::new(
+            LinearRbf::from_entries(
+                actor,
+                [state.config.initial_actuation; ACTUATORS],
+                &state.actor,
+            )
+            .map_err(|e| format!("actor: {e}"))?,
+        );
+        l.critic = Critic::new(
+            LinearRbf::from_entries(critic, [0.0], &state.critic)
+                .map_err(|e| format!("critic: {e}"))?,
+        );
         l.memory = state.memory.clone();
         Ok(l)
     }
@@ -381,7 +428,7 @@ pub struct PretrainReport {
 /// Runs epochs against `model` until `max_epochs` or until `keep_going()` says stop (checked
 /// once per epoch: the caller's clock, not ours). Targets are drawn from `pool`.
 pub fn pretrain(
-    learner: &mut Learner,
+    learner: &mut CaclaMtl,
     model: &impl ForwardModel,
     pool: &[[f64; 3]],
     config: &PretrainConfig,
@@ -421,7 +468,7 @@ pub fn pretrain(
 
 /// Errors (m) of the actor's mean on `targets`, executed on `plant`.
 pub fn evaluate(
-    learner: &mut Learner,
+    learner: &mut CaclaMtl,
     plant: &impl ForwardModel,
     targets: &[[f64; 3]],
 ) -> Vec<f64> {
@@ -438,7 +485,7 @@ mod tests {
 
     #[test]
     fn sigma_shrinks_with_the_error() {
-        let l = Learner::new(LearnerConfig::default()).unwrap();
+        let l = CaclaMtl::new(LearnerConfig::default()).unwrap();
         assert!((l.sigma(0.03) - 0.015).abs() < 1e-12);
         assert!(l.sigma(0.0) < 0.002, "{}", l.sigma(0.0));
         assert!(l.sigma(0.2) > 0.0299);
@@ -446,7 +493,7 @@ mod tests {
 
     #[test]
     fn first_visit_has_no_td_update_and_targets_reset_memory() {
-        let mut l = Learner::new(LearnerConfig::default()).unwrap();
+        let mut l = CaclaMtl::new(LearnerConfig::default()).unwrap();
         let target = [0.1, 0.0, -0.45];
         let a = l.act(0, &target, true);
         assert!(
@@ -467,7 +514,7 @@ mod tests {
     #[test]
     fn state_round_trips_exactly() {
         let arm = ArmGeometry::default();
-        let mut l = Learner::new(LearnerConfig::default()).unwrap();
+        let mut l = CaclaMtl::new(LearnerConfig::default()).unwrap();
         let pool = [[0.1, 0.05, -0.45], [-0.05, 0.1, -0.47]];
         let cfg = PretrainConfig {
             max_epochs: 5,
@@ -479,7 +526,7 @@ mod tests {
         let text = serde_json::to_string(&state).unwrap();
         let back: LearnerState = serde_json::from_str(&text).unwrap();
         assert_eq!(back, state);
-        let mut r = Learner::restore(&back).unwrap();
+        let mut r = CaclaMtl::restore(&back).unwrap();
         assert_eq!(r.state(), state);
         for p in &pool {
             assert_eq!(r.actor(p), l.actor(p));
@@ -487,7 +534,7 @@ mod tests {
         }
         let mut bad = state.clone();
         bad.actor[0].1[2] = f64::NAN;
-        assert!(Learner::restore(&bad).err().unwrap().contains("actor"));
+        assert!(CaclaMtl::restore(&bad).err().unwrap().contains("actor"));
     }
 
     #[test]
@@ -496,6 +543,6 @@ mod tests {
             gamma: 1.5,
             ..Default::default()
         };
-        assert!(Learner::new(c).err().unwrap().contains("learner.gamma"));
+        assert!(CaclaMtl::new(c).err().unwrap().contains("learner.gamma"));
     }
 }

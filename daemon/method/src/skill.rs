@@ -8,8 +8,8 @@ use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
 use serde::{Deserialize, Serialize};
 
-use crate::promp::{Basis, Demonstration, Primitive, PrimitiveError, TrainConfig};
 use crate::forward::ForwardModel;
+use crate::promp::{Basis, Demonstration, Primitive, PrimitiveError, TrainConfig};
 
 /// The extremes of one primitive class: where its motions start and end.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]

@@ -58,7 +58,11 @@ mod tests {
         assert!(w.contains(&[1.0, -1.0, 0.0]));
         assert!(!w.contains(&[0.0, 0.0, 0.1]));
         assert!(!w.contains(&[f64::NAN, 0.0, 0.0]));
-        assert!(Workspace::new([0.0; 3], [1.0, 0.0, 1.0]).unwrap_err().contains("axis 1"));
+        assert!(
+            Workspace::new([0.0; 3], [1.0, 0.0, 1.0])
+                .unwrap_err()
+                .contains("axis 1")
+        );
         assert!(Workspace::new([0.0; 3], [1.0, 1.0, f64::INFINITY]).is_err());
         assert_eq!(distance(&[0.0, 3.0, 0.0], &[4.0, 0.0, 0.0]), 5.0);
     }

@@ -4,10 +4,10 @@
 //! result is the same on every machine; small enough for a debug build. Full figures:
 //! `cargo run --release -p softarm-daemon --example convergence`.
 
-use softarm_method::cacla::{Learner, LearnerConfig, PretrainConfig, evaluate, pretrain};
+use softarm_method::cacla::{CaclaMtl, LearnerConfig, PretrainConfig, evaluate, pretrain};
+use softarm_method::pcc::ArmGeometry;
 use softarm_method::rbf::{NetworkConfig, RbfNetwork};
 use softarm_method::skill::{DemoRecipe, demonstrations, forward_data};
-use softarm_method::pcc::ArmGeometry;
 
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
@@ -47,7 +47,7 @@ fn pretraining_on_the_forward_model_reaches_held_out_targets_on_the_plant() {
         .collect();
     assert!(targets.len() > 100, "{}", targets.len());
 
-    let mut learner = Learner::new(LearnerConfig::default()).unwrap();
+    let mut learner = CaclaMtl::new(LearnerConfig::default()).unwrap();
     let untrained = evaluate(&mut learner, &arm, &targets);
     learner.imitate(&positions, &acts, 3);
     let imitated = evaluate(&mut learner, &arm, &targets);

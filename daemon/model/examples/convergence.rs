@@ -8,11 +8,11 @@ use std::time::{Duration, Instant};
 
 use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
-use softarm_method::cacla::{Learner, LearnerConfig, PretrainConfig, evaluate, pretrain};
+use softarm_method::cacla::{CaclaMtl, LearnerConfig, PretrainConfig, evaluate, pretrain};
 use softarm_method::forward::ForwardModel;
+use softarm_method::pcc::ArmGeometry;
 use softarm_method::rbf::{NetworkConfig, RbfNetwork};
 use softarm_method::skill::{DemoRecipe, demonstrations, forward_data};
-use softarm_method::pcc::ArmGeometry;
 
 fn stats(name: &str, mut v: Vec<f64>) {
     v.sort_by(f64::total_cmp);
@@ -86,7 +86,7 @@ fn main() {
     let mut config: LearnerConfig = toml::from_str(&env("LEARNER")).expect("LEARNER");
     config.seed = seed;
     let pre: PretrainConfig = toml::from_str(&env("PRETRAIN")).expect("PRETRAIN");
-    let mut learner = Learner::new(config).unwrap();
+    let mut learner = CaclaMtl::new(config).unwrap();
     stats(
         "untrained actor on PCC",
         evaluate(&mut learner, &arm, &targets),

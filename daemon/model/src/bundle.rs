@@ -11,6 +11,7 @@ use std::collections::BTreeMap;
 use std::fs;
 use std::io::Write;
 use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant, SystemTime};
 
 use nalgebra::{DMatrix, DVector};
 use safetensors::{Dtype, SafeTensors, tensor::TensorView};
@@ -463,6 +464,52 @@ impl Model {
     }
 }
 
+/// Watches a bundle folder for a new or changed bundle (after `softarm train`), looking at most
+/// every `every`: the controller and the learner each keep one and reload on a change.
+#[derive(Debug)]
+pub struct BundleWatch {
+    dir: PathBuf,
+    every: Duration,
+    looked: Option<Instant>,
+    seen: Option<SystemTime>,
+}
+
+impl BundleWatch {
+    /// A watch whose first look is due at once, so a bundle already there counts as new.
+    pub fn new(dir: PathBuf, every: Duration) -> Self {
+        Self {
+            dir,
+            every,
+            looked: None,
+            seen: None,
+        }
+    }
+
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
+    /// Whether `model.toml` was there at the last look.
+    pub fn exists(&self) -> bool {
+        self.seen.is_some()
+    }
+
+    /// `true` once for every bundle that appeared or changed since the last look; `false` while
+    /// nothing changed, nothing is there, or the next look is not due.
+    pub fn changed(&mut self) -> bool {
+        if self.looked.is_some_and(|t| t.elapsed() < self.every) {
+            return false;
+        }
+        self.looked = Some(Instant::now());
+        let stamp = fs::metadata(self.dir.join("model.toml"))
+            .and_then(|m| m.modified())
+            .ok();
+        let changed = stamp.is_some() && stamp != self.seen;
+        self.seen = stamp;
+        changed
+    }
+}
+
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct CheckpointMeta {
@@ -511,10 +558,10 @@ pub fn read_checkpoint(dir: &Path) -> Result<(LearnerState, String), BundleError
 #[cfg(test)]
 mod tests {
     use super::*;
-    use softarm_method::cacla::{Learner, PretrainConfig, pretrain};
+    use softarm_method::cacla::{CaclaMtl, PretrainConfig, pretrain};
+    use softarm_method::pcc::ArmGeometry;
     use softarm_method::rbf::NetworkConfig;
     use softarm_method::skill::{DemoRecipe, demonstrations, forward_data, train_primitives};
-    use softarm_method::pcc::ArmGeometry;
 
     fn model() -> Model {
         let arm = ArmGeometry::default();
@@ -534,7 +581,7 @@ mod tests {
             },
         )
         .unwrap();
-        let mut l = Learner::new(LearnerConfig::default()).unwrap();
+        let mut l = CaclaMtl::new(LearnerConfig::default()).unwrap();
         pretrain(
             &mut l,
             &forward,

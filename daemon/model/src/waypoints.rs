@@ -6,8 +6,8 @@ use std::path::Path;
 use serde::Deserialize;
 use softarm_ipc::{MAX_WAYPOINTS, WaypointSet};
 
-use softarm_method::activation::ActivationConfig;
 use crate::config::WaypointLimits;
+use softarm_method::activation::ActivationConfig;
 
 /// A way-point file: `duration_s`, and `[[point]]` tables with `t_s` and `position_m`.
 #[derive(Debug, Clone, PartialEq, Deserialize)]

@@ -5,7 +5,7 @@
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use softarm_ipc::clock::Ticker;
-use softarm_ipc::{Contract, MotorState, Namespace, TrackerSample, now_ns};
+use softarm_ipc::{MotorState, Namespace, Node, TrackerSample, now_ns};
 
 use softarm_method::pcc::ArmGeometry;
 use softarm_method::plant::Plant;
@@ -19,7 +19,7 @@ pub fn run(
     stop: &AtomicBool,
 ) -> Result<(), String> {
     let mut plant = Plant::new(*arm, config.realism, config.initial_actuation)?;
-    let ipc = Contract::new(namespace, "sim").map_err(|e| e.to_string())?;
+    let ipc = Node::open(namespace, "sim").map_err(|e| e.to_string())?;
     let e = |e: softarm_ipc::Error| e.to_string();
     let setpoints = ipc.subscriber(&ipc.setpoint().map_err(e)?).map_err(e)?;
     let estop = ipc.subscriber(&ipc.estop().map_err(e)?).map_err(e)?;
