@@ -6,6 +6,7 @@ use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
+use anyhow::{Context, bail};
 use softarm_clients::{stats, status, submit, train};
 use softarm_ipc::{ExecutionStats, Namespace};
 use softarm_model::config::{Config, DEFAULT};
@@ -48,9 +49,9 @@ fn say(json: bool, line: &str) {
     }
 }
 
-pub fn run(args: &Args, stop: &AtomicBool) -> Result<(), String> {
+pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
     if args.executions == 0 {
-        return Err("--executions must be at least 1".into());
+        bail!("--executions must be at least 1");
     }
     let started = Instant::now();
     let pid = std::process::id();
@@ -60,7 +61,7 @@ pub fn run(args: &Args, stop: &AtomicBool) -> Result<(), String> {
         .model_dir
         .clone()
         .unwrap_or_else(|| cache_dir().join(format!("demo-model-seed{}", args.seed)));
-    std::fs::create_dir_all(&run_dir).map_err(|e| format!("{}: {e}", run_dir.display()))?;
+    std::fs::create_dir_all(&run_dir).with_context(|| format!("creating {}", run_dir.display()))?;
     let _cleanup = RemoveOnDrop(run_dir.clone());
 
     // The embedded default, in this demo's own namespace, with its own state and seeds.
@@ -93,8 +94,9 @@ pub fn run(args: &Args, stop: &AtomicBool) -> Result<(), String> {
     set(&mut doc, "sim.realism", "seed", (args.seed as i64).into());
     let text = toml::to_string(&doc).expect("serialises");
     let config_path = run_dir.join("softarm.toml");
-    std::fs::write(&config_path, &text).map_err(|e| format!("{}: {e}", config_path.display()))?;
-    let config = Config::load(&config_path).map_err(|e| e.to_string())?;
+    std::fs::write(&config_path, &text)
+        .with_context(|| format!("writing {}", config_path.display()))?;
+    let config = Config::load(&config_path)?;
     let ns = Namespace::new(&namespace)?;
 
     let level = std::env::var("RUST_LOG").unwrap_or_else(|_| "warn".into());
@@ -117,7 +119,7 @@ pub fn run(args: &Args, stop: &AtomicBool) -> Result<(), String> {
         let start = Instant::now();
         loop {
             if stop.load(Ordering::Relaxed) {
-                return Err("interrupted".to_string());
+                bail!("interrupted");
             }
             sup.poll();
             if let Ok(r) = status::status(&ns, Duration::from_millis(200))
@@ -126,10 +128,7 @@ pub fn run(args: &Args, stop: &AtomicBool) -> Result<(), String> {
                 return Ok(());
             }
             if start.elapsed() > limit {
-                return Err(format!(
-                    "{what} did not happen within {} s",
-                    limit.as_secs()
-                ));
+                bail!("{what} did not happen within {} s", limit.as_secs());
             }
         }
     };
@@ -152,7 +151,7 @@ pub fn run(args: &Args, stop: &AtomicBool) -> Result<(), String> {
             ),
         );
         let t = Instant::now();
-        let r = train::train(&config, &ns, args.seed)?;
+        let r = train::train(&config, &ns, args.seed).map_err(anyhow::Error::msg)?;
         say(
             args.json,
             &format!(
@@ -177,16 +176,18 @@ pub fn run(args: &Args, stop: &AtomicBool) -> Result<(), String> {
         },
     )?;
 
-    let file = WaypointFile::parse(WAYPOINTS).map_err(|e| format!("demo way-points: {e}"))?;
-    let waypoints = file.to_set(args.executions)?;
+    let file = WaypointFile::parse(WAYPOINTS)
+        .map_err(anyhow::Error::msg)
+        .context("the demo way-points")?;
+    let waypoints = file.to_set(args.executions).map_err(anyhow::Error::msg)?;
     // Subscribe before submitting: no execution's stats can be missed.
     let follower = stats::Stats::open(&ns)?;
     let set_id = match submit::submit(&ns, waypoints, Duration::from_secs(10)) {
         submit::Outcome::Accepted { set_id } => set_id,
         submit::Outcome::Rejected { reason } => {
-            return Err(format!("the demo set was rejected: {reason}"));
+            bail!("the demo set was rejected: {reason}");
         }
-        submit::Outcome::Unreachable { message } => return Err(message),
+        submit::Outcome::Unreachable { message } => bail!(message),
     };
     say(
         args.json,
@@ -199,19 +200,22 @@ pub fn run(args: &Args, stop: &AtomicBool) -> Result<(), String> {
     );
     say(args.json, &stats::table_header(file.point.len()));
 
-    let per_execution = Duration::from_secs_f64(file.duration_s + config.controller.rest_s + 10.0);
+    // Both bounded by validation (the set's duration, the config's rest).
+    let per_execution =
+        Duration::try_from_secs_f64(file.duration_s + config.controller.rest_s + 10.0)
+            .context("the demo set's duration")?;
     let mut rows: Vec<ExecutionStats> = Vec::new();
     while rows.len() < args.executions as usize {
         if stop.load(Ordering::Relaxed) {
-            return Err("interrupted".into());
+            bail!("interrupted");
         }
         sup.poll();
         let Some(s) = follower.next(per_execution) else {
-            return Err(format!(
+            bail!(
                 "no stats for execution {} within {} s",
                 rows.len() + 1,
                 per_execution.as_secs()
-            ));
+            );
         };
         if s.set_id != set_id {
             continue;

@@ -6,6 +6,7 @@ use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 use std::time::Duration;
 
+use anyhow::{Context, anyhow};
 use clap::{Parser, Subcommand};
 use softarm_clients::{estop, stats, status, submit, train};
 use softarm_ipc::Namespace;
@@ -36,9 +37,9 @@ struct Stack {
 }
 
 impl Stack {
-    fn load(&self) -> Result<Config, String> {
+    fn load(&self) -> anyhow::Result<Config> {
         let mut c = match &self.config {
-            Some(p) => Config::load(p).map_err(|e| e.to_string())?,
+            Some(p) => Config::load(p)?,
             None => Config::default_sim(PathBuf::from(".")),
         };
         if let Some(ns) = &self.namespace {
@@ -48,8 +49,8 @@ impl Stack {
         Ok(c)
     }
 
-    fn namespace(&self) -> Result<Namespace, String> {
-        Namespace::new(&self.load()?.namespace())
+    fn namespace(&self) -> anyhow::Result<Namespace> {
+        Ok(Namespace::new(&self.load()?.namespace())?)
     }
 
     /// The arguments that start a child on the same stack.
@@ -151,23 +152,24 @@ fn init_logging(default: &str) {
 }
 
 /// SIGINT and SIGTERM set the returned flag; processes finish their loop and clean up.
-fn stop_flag() -> Result<Arc<AtomicBool>, String> {
+fn stop_flag() -> anyhow::Result<Arc<AtomicBool>> {
     let flag = Arc::new(AtomicBool::new(false));
     for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
-        signal_hook::flag::register(sig, flag.clone())
-            .map_err(|e| format!("signal handler: {e}"))?;
+        signal_hook::flag::register(sig, flag.clone()).context("installing a signal handler")?;
     }
     Ok(flag)
 }
 
-fn run(cli: Cli) -> Result<ExitCode, String> {
+fn run(cli: Cli) -> anyhow::Result<ExitCode> {
     match cli.command {
         Command::Demo(args) => demo::run(&args, &*stop_flag()?)?,
         Command::Up(stack) => {
             let config = stack.load()?;
             up::run(stack.args(), &config.robot.drivers, &*stop_flag()?)?
         }
-        Command::Controller(stack) => softarm_controller::run(&stack.load()?, &*stop_flag()?)?,
+        Command::Controller(stack) => {
+            softarm_controller::run(&stack.load()?, &*stop_flag()?).map_err(anyhow::Error::msg)?
+        }
         Command::Learner(stack) => softarm_learner::run(&stack.load()?, &*stop_flag()?)?,
         Command::Sim(stack) => {
             let c = stack.load()?;
@@ -180,7 +182,7 @@ fn run(cli: Cli) -> Result<ExitCode, String> {
         }
         Command::Train { stack, seed } => {
             let config = stack.load()?;
-            let r = train::train(&config, &stack.namespace()?, seed)?;
+            let r = train::train(&config, &stack.namespace()?, seed).map_err(anyhow::Error::msg)?;
             println!(
                 "trained model {} in {}: {} demonstrations ({} samples, {:.1} s); forward model held-out \
                  error {:.2} mm mean, {:.2} mm max; pre-training {:.1} s, {} updates",
@@ -224,12 +226,17 @@ fn run(cli: Cli) -> Result<ExitCode, String> {
             if let (Some(f), submit::Outcome::Accepted { set_id }) = (follower, &outcome) {
                 println!("{}", stats::table_header(set.count as usize));
                 let mut done = 0;
+                // Validated: the duration and the rest are bounded by the config's limits.
                 let limit =
-                    Duration::from_secs_f64(set.duration_s + config.controller.rest_s + 30.0);
+                    Duration::try_from_secs_f64(set.duration_s + config.controller.rest_s + 30.0)
+                        .context("the set's duration")?;
                 while done < executions {
-                    let s = f
-                        .next(limit)
-                        .ok_or("no stats arrived: is the stack still running?")?;
+                    let s = f.next(limit).ok_or_else(|| {
+                        anyhow!(
+                            "no stats arrived within {} s: is the stack still running?",
+                            limit.as_secs()
+                        )
+                    })?;
                     if s.set_id == *set_id {
                         println!("{}", stats::table_row(&s));
                         done += 1;
@@ -279,12 +286,12 @@ fn run(cli: Cli) -> Result<ExitCode, String> {
         }
         Command::Config { command } => match command {
             ConfigCommand::Check { file } => {
-                let c = Config::load(&file).map_err(|e| e.to_string())?;
+                let c = Config::load(&file)?;
                 println!("{}: ok (namespace {})", file.display(), c.namespace());
             }
             ConfigCommand::Default => print!("{}", softarm_model::config::DEFAULT),
         },
-        Command::Bench(args) => bench::run(&args)?,
+        Command::Bench(args) => bench::run(&args).map_err(anyhow::Error::msg)?,
     }
     Ok(ExitCode::SUCCESS)
 }
@@ -300,7 +307,7 @@ fn main() -> ExitCode {
     match run(cli) {
         Ok(code) => code,
         Err(e) => {
-            eprintln!("softarm: {e}");
+            eprintln!("softarm: {e:#}");
             ExitCode::FAILURE
         }
     }

@@ -8,6 +8,7 @@ use std::process::{Child, Command, Stdio};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
+use anyhow::Context;
 use nix::sys::signal::{Signal, kill};
 use nix::unistd::Pid;
 
@@ -29,9 +30,8 @@ pub struct Supervisor {
 }
 
 impl Supervisor {
-    pub fn new(common: Vec<String>, env: Vec<(String, String)>) -> Result<Self, String> {
-        let exe =
-            std::env::current_exe().map_err(|e| format!("cannot find my own executable: {e}"))?;
+    pub fn new(common: Vec<String>, env: Vec<(String, String)>) -> anyhow::Result<Self> {
+        let exe = std::env::current_exe().context("finding my own executable")?;
         Ok(Self {
             exe,
             common,
@@ -41,7 +41,7 @@ impl Supervisor {
     }
 
     /// Starts `role` (`softarm <role> ...`) and keeps it running.
-    pub fn add(&mut self, role: &str) -> Result<(), String> {
+    pub fn add(&mut self, role: &str) -> anyhow::Result<()> {
         let mut p = Process {
             role: role.to_string(),
             child: None,
@@ -54,7 +54,7 @@ impl Supervisor {
         Ok(())
     }
 
-    fn spawn(&self, p: &mut Process) -> Result<(), String> {
+    fn spawn(&self, p: &mut Process) -> anyhow::Result<()> {
         let mut cmd = Command::new(&self.exe);
         cmd.arg(&p.role)
             .args(&self.common)
@@ -65,7 +65,7 @@ impl Supervisor {
         }
         let mut child = cmd
             .spawn()
-            .map_err(|e| format!("starting {}: {e}", p.role))?;
+            .with_context(|| format!("starting {}", p.role))?;
         // Each line a child logs goes to our stderr with its role in front.
         if let Some(err) = child.stderr.take() {
             let role = p.role.clone();
@@ -165,7 +165,7 @@ impl Drop for Supervisor {
 }
 
 /// Runs controller, learner and the configured drivers until SIGINT or SIGTERM.
-pub fn run(common: Vec<String>, drivers: &[String], stop: &AtomicBool) -> Result<(), String> {
+pub fn run(common: Vec<String>, drivers: &[String], stop: &AtomicBool) -> anyhow::Result<()> {
     let mut sup = Supervisor::new(common, Vec::new())?;
     for role in drivers
         .iter()

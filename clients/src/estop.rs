@@ -3,12 +3,13 @@
 
 use std::time::Duration;
 
+use anyhow::{Context, anyhow};
+
 use softarm_ipc::{EstopState, Namespace, Node, now_ns};
 
-pub fn send(namespace: &Namespace, engaged: bool) -> Result<usize, String> {
-    let ipc = Node::open(namespace.clone(), "estop").map_err(|e| e.to_string())?;
-    let service = ipc.estop().map_err(|e| e.to_string())?;
-    let publisher = ipc.publisher(&service).map_err(|e| e.to_string())?;
+pub fn send(namespace: &Namespace, engaged: bool) -> anyhow::Result<usize> {
+    let ipc = Node::open(namespace.clone(), "estop")?;
+    let publisher = ipc.publisher(&ipc.estop()?)?;
     let receivers = publisher
         .send_copy(EstopState {
             seq: now_ns(),
@@ -16,7 +17,8 @@ pub fn send(namespace: &Namespace, engaged: bool) -> Result<usize, String> {
             engaged: engaged as u32,
             _pad: 0,
         })
-        .map_err(|e| format!("sending the e-stop: {e:?}"))?;
+        .map_err(|e| anyhow!("{e:?}"))
+        .context("sending the e-stop")?;
     // Subscribers poll every tick; give them a moment before this node (and its sample) goes.
     std::thread::sleep(Duration::from_millis(200));
     Ok(receivers)

@@ -45,10 +45,9 @@ pub struct Stats {
 }
 
 impl Stats {
-    pub fn open(namespace: &Namespace) -> Result<Self, String> {
-        let ipc = Node::open(namespace.clone(), "stats").map_err(|e| e.to_string())?;
-        let service = ipc.stats().map_err(|e| e.to_string())?;
-        let sub = ipc.subscriber(&service).map_err(|e| e.to_string())?;
+    pub fn open(namespace: &Namespace) -> Result<Self, softarm_ipc::Error> {
+        let ipc = Node::open(namespace.clone(), "stats")?;
+        let sub = ipc.subscriber(&ipc.stats()?)?;
         Ok(Self { _ipc: ipc, sub })
     }
 

@@ -12,11 +12,9 @@ pub struct Report {
 
 /// Looks at a namespace: the node list and the newest controller status (waiting up to
 /// `timeout` for it).
-pub fn status(namespace: &Namespace, timeout: Duration) -> Result<Report, String> {
-    let ipc = Node::open(namespace.clone(), "status").map_err(|e| e.to_string())?;
-    let sub = ipc
-        .subscriber(&ipc.status().map_err(|e| e.to_string())?)
-        .map_err(|e| e.to_string())?;
+pub fn status(namespace: &Namespace, timeout: Duration) -> Result<Report, softarm_ipc::Error> {
+    let ipc = Node::open(namespace.clone(), "status")?;
+    let sub = ipc.subscriber(&ipc.status()?)?;
     let mut newest = None;
     crate::poll(timeout, || {
         while let Ok(Some(s)) = sub.receive() {
@@ -25,8 +23,7 @@ pub fn status(namespace: &Namespace, timeout: Duration) -> Result<Report, String
         newest.map(|_| ())
     });
     let mut alive: Vec<String> = ipc
-        .alive_nodes()
-        .map_err(|e| e.to_string())?
+        .alive_nodes()?
         .into_iter()
         .filter(|n| n != "status")
         // One process may hold several nodes (controller, controller.service).

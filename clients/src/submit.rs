@@ -26,6 +26,7 @@ impl Outcome {
 
 /// Reads and checks a way-point file against the config's limits: a set that would be refused
 /// is refused here, before anything is sent.
+/// The error is the reason, for the user.
 pub fn prepare(
     config: &Config,
     file: &std::path::Path,

@@ -315,7 +315,7 @@ pub struct Namespace(String);
 
 impl Namespace {
     /// A namespace; slashes separate levels, and only [A-Za-z0-9_./-] are allowed.
-    pub fn new(name: &str) -> Result<Self, String> {
+    pub fn new(name: &str) -> Result<Self, Error> {
         let ok = !name.is_empty()
             && name.len() <= 100
             && name
@@ -326,14 +326,14 @@ impl Namespace {
         if ok {
             Ok(Self(name.to_string()))
         } else {
-            Err(format!(
+            Err(Error(format!(
                 "namespace {name:?} is not valid: use 1 to 100 of A-Z a-z 0-9 _ - . /, \
                  not starting or ending with /"
-            ))
+            )))
         }
     }
 
-    pub fn for_robot(robot_id: &str) -> Result<Self, String> {
+    pub fn for_robot(robot_id: &str) -> Result<Self, Error> {
         Self::new(&format!("softarm/{robot_id}"))
     }
 

@@ -324,7 +324,7 @@ struct Shared {
 
 /// Runs the controller until `stop` is set.
 pub fn run(config: &Config, stop: &AtomicBool) -> Result<(), String> {
-    let namespace = Namespace::new(&config.namespace())?;
+    let namespace = Namespace::new(&config.namespace()).map_err(|e| e.to_string())?;
     let shared = Arc::new(Shared::default());
     let (to_tick_tx, to_tick_rx) = sync_channel::<ToTick>(4);
     let (retired_tx, retired_rx) = sync_channel::<Retired>(8);

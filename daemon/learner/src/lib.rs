@@ -79,15 +79,12 @@ fn checkpoint(config: &Config, l: &Loaded) {
 }
 
 /// Runs the learner until `stop` is set.
-pub fn run(config: &Config, stop: &AtomicBool) -> Result<(), String> {
+pub fn run(config: &Config, stop: &AtomicBool) -> anyhow::Result<()> {
     let namespace = Namespace::new(&config.namespace())?;
-    let e = |e: softarm_ipc::Error| e.to_string();
-    let ipc = Node::open(namespace, "learner").map_err(e)?;
-    let requests = ipc
-        .subscriber(&ipc.estimate_request().map_err(e)?)
-        .map_err(e)?;
-    let samples = ipc.subscriber(&ipc.cp_sample().map_err(e)?).map_err(e)?;
-    let estimates = ipc.publisher(&ipc.estimate().map_err(e)?).map_err(e)?;
+    let ipc = Node::open(namespace, "learner")?;
+    let requests = ipc.subscriber(&ipc.estimate_request()?)?;
+    let samples = ipc.subscriber(&ipc.cp_sample()?)?;
+    let estimates = ipc.publisher(&ipc.estimate()?)?;
     let mut seq = 0u64;
     let mut send = |set_id: u64, point: u32, actuation: Actuation| {
         seq += 1;

@@ -210,7 +210,7 @@ impl Config {
     fn validate(&self) -> Result<(), (String, String)> {
         let key = |k: &str, m: String| Err((k.to_string(), m));
         softarm_ipc::Namespace::new(&self.namespace())
-            .map_err(|m| ("robot.namespace".to_string(), m))?;
+            .map_err(|m| ("robot.namespace".to_string(), m.to_string()))?;
         for d in &self.robot.drivers {
             if !["sim"].contains(&d.as_str()) {
                 return key(

@@ -4,6 +4,8 @@
 
 use std::sync::atomic::{AtomicBool, Ordering};
 
+use anyhow::Context;
+
 use softarm_ipc::clock::Ticker;
 use softarm_ipc::{MotorState, Namespace, Node, TrackerSample, now_ns};
 
@@ -17,14 +19,15 @@ pub fn run(
     arm: &ArmGeometry,
     namespace: Namespace,
     stop: &AtomicBool,
-) -> Result<(), String> {
-    let mut plant = Plant::new(*arm, config.realism, config.initial_actuation)?;
-    let ipc = Node::open(namespace, "sim").map_err(|e| e.to_string())?;
-    let e = |e: softarm_ipc::Error| e.to_string();
-    let setpoints = ipc.subscriber(&ipc.setpoint().map_err(e)?).map_err(e)?;
-    let estop = ipc.subscriber(&ipc.estop().map_err(e)?).map_err(e)?;
-    let tracker = ipc.publisher(&ipc.tracker().map_err(e)?).map_err(e)?;
-    let motors = ipc.publisher(&ipc.motor_state().map_err(e)?).map_err(e)?;
+) -> anyhow::Result<()> {
+    let mut plant = Plant::new(*arm, config.realism, config.initial_actuation)
+        .map_err(anyhow::Error::msg)
+        .context("the simulated plant")?;
+    let ipc = Node::open(namespace, "sim")?;
+    let setpoints = ipc.subscriber(&ipc.setpoint()?)?;
+    let estop = ipc.subscriber(&ipc.estop()?)?;
+    let tracker = ipc.publisher(&ipc.tracker()?)?;
+    let motors = ipc.publisher(&ipc.motor_state()?)?;
 
     let dt = 1.0 / config.rate_hz;
     let mut command = config.initial_actuation;
