@@ -1,6 +1,6 @@
 //! The contract every softarm process shares: payload types, service names and the one function
 //! per service that opens it with its settings. Every process builds its iceoryx2 node and ports
-//! from here, so types and service settings can never diverge (DESIGN §2).
+//! from here, so types and service settings can never diverge.
 //!
 //! Payloads are `#[repr(C)]`, fixed size, heap-free, and each carries a sequence number and a
 //! CLOCK_MONOTONIC stamp in ns. Positions are metres in the tracker/base frame; actuation is
@@ -63,7 +63,7 @@ impl ControllerState {
 pub struct Setpoint {
     pub seq: u64,
     pub stamp_ns: u64,
-    pub actuation: [f64; ACTUATORS],
+    pub actuation: Actuation,
     /// `ControllerState` as u32.
     pub state: u32,
     /// While demonstrating: the demonstration's index and class, else u32::MAX.
@@ -79,7 +79,7 @@ pub struct Setpoint {
 pub struct TrackerSample {
     pub seq: u64,
     pub stamp_ns: u64,
-    pub position: [f64; 3],
+    pub position: Position,
 }
 
 /// What the actuators actually reached, normalised.
@@ -89,7 +89,7 @@ pub struct TrackerSample {
 pub struct MotorState {
     pub seq: u64,
     pub stamp_ns: u64,
-    pub actuation: [f64; ACTUATORS],
+    pub actuation: Actuation,
 }
 
 /// Sent by the controller at each conditioning point: what was executed there and where the end
@@ -105,14 +105,14 @@ pub struct ConditioningSample {
     pub point: u32,
     pub points: u32,
     pub _pad: u32,
-    pub actuation: [f64; ACTUATORS],
-    pub desired: [f64; 3],
-    pub reached: [f64; 3],
+    pub actuation: Actuation,
+    pub desired: Position,
+    pub reached: Position,
     /// The point whose estimate the controller wants next, and where it is.
     pub next_point: u32,
     /// The execution (1-based) that will use that estimate.
     pub next_execution: u32,
-    pub next_desired: [f64; 3],
+    pub next_desired: Position,
 }
 
 /// Sent by the controller when it accepts a way-point set: the learner answers with one
@@ -126,11 +126,11 @@ pub struct EstimateRequest {
     pub set_id: u64,
     pub count: u32,
     pub _pad: u32,
-    pub desired: [[f64; 3]; MAX_WAYPOINTS],
+    pub desired: [Position; MAX_WAYPOINTS],
 }
 
 impl EstimateRequest {
-    pub fn points(&self) -> &[[f64; 3]] {
+    pub fn points(&self) -> &[Position] {
         &self.desired[..(self.count as usize).min(MAX_WAYPOINTS)]
     }
 }
@@ -146,7 +146,7 @@ pub struct ActuationEstimate {
     pub set_id: u64,
     pub point: u32,
     pub _pad: u32,
-    pub actuation: [f64; ACTUATORS],
+    pub actuation: Actuation,
 }
 
 /// A way-point set to execute (request of `waypoints`).
@@ -160,7 +160,7 @@ pub struct WaypointSet {
     pub executions: u32,
     pub count: u32,
     pub times_s: [f64; MAX_WAYPOINTS],
-    pub positions_m: [[f64; 3]; MAX_WAYPOINTS],
+    pub positions_m: [Position; MAX_WAYPOINTS],
 }
 
 /// Answer to a `WaypointSet`.
@@ -601,6 +601,18 @@ mod tests {
         let long = "é".repeat(150);
         let r = WaypointReply::rejected(1, &long);
         assert!(r.reason().len() <= MAX_REASON && r.reason().chars().all(|c| c == 'é'));
+    }
+
+    #[test]
+    fn a_request_never_reads_past_its_points() {
+        let mut r = EstimateRequest {
+            count: 2,
+            ..Default::default()
+        };
+        r.desired[1] = [0.1, 0.2, 0.3];
+        assert_eq!(r.points(), &[[0.0; 3], [0.1, 0.2, 0.3]]);
+        r.count = u32::MAX;
+        assert_eq!(r.points().len(), MAX_WAYPOINTS);
     }
 
     #[test]
