@@ -103,7 +103,8 @@ pub fn run(config: &Config, stop: &AtomicBool) -> anyhow::Result<()> {
     let mut warned = false;
     let mut set_id = 0u64;
     while !stop.load(Ordering::Relaxed) {
-        // Estimates are needed within the 100 ms before the next group's window: 2 ms is plenty.
+        // An estimate is needed before the next group fades in (at least window_s / 2 after the
+        // point): 2 ms is plenty.
         std::thread::sleep(Duration::from_millis(2));
         // A new bundle (after `softarm train`) replaces what the learner had.
         if watch.changed() {
