@@ -11,7 +11,7 @@
 use serde::{Deserialize, Serialize};
 
 /// At most this many conditioning points (way-points) per execution (DESIGN §2).
-pub const MAX_CONDITIONING_POINTS: usize = 16;
+pub const MAX_CONDITIONING_POINTS: usize = crate::space::MAX_WAYPOINTS;
 /// At most this many primitives.
 pub const MAX_PRIMITIVES: usize = 8;
 
@@ -94,7 +94,8 @@ pub enum ScheduleError {
     TooClose(usize, usize, f64, f64),
     #[error("conditioning point {index} is assigned primitive {q}, there are only {m}")]
     NoSuchPrimitive { index: usize, q: usize, m: usize },
-    #[error("activation config: {0}")]
+    /// The config's dotted key and what is wrong with it: `activation.KEY: message`.
+    #[error("{0}")]
     Config(String),
 }
 
@@ -276,35 +277,61 @@ impl Schedule {
 }
 
 fn validate_config(c: &ActivationConfig) -> Result<(), ScheduleError> {
-    let bad = |s: String| Err(ScheduleError::Config(s));
-    if !(c.window_s.is_finite() && c.window_s >= 0.0) {
-        return bad(format!("window_s must be >= 0, got {}", c.window_s));
+    c.validate().map_err(ScheduleError::Config)
+}
+
+impl ActivationConfig {
+    /// Longest `window_s` and `crossfade_s` (s): a way-point set lasts at most an hour.
+    pub const MAX_SPAN_S: f64 = 60.0;
+    /// Largest `max_rate_per_s` (1/s).
+    pub const MAX_RATE_PER_S: f64 = 1000.0;
+
+    /// Checks every field; the error is `activation.KEY: message`.
+    pub fn validate(&self) -> Result<(), String> {
+        let bad = |key: &str, m: String| Err(format!("activation.{key}: {m}"));
+        let max = Self::MAX_SPAN_S;
+        if !(self.window_s.is_finite() && (0.0..=max).contains(&self.window_s)) {
+            return bad(
+                "window_s",
+                format!("must be in [0, {max}] s, got {:?}", self.window_s),
+            );
+        }
+        if !(self.crossfade_s.is_finite() && self.crossfade_s > 0.0 && self.crossfade_s <= max) {
+            return bad(
+                "crossfade_s",
+                format!("must be in (0, {max}] s, got {:?}", self.crossfade_s),
+            );
+        }
+        if !(self.floor > 0.0 && self.floor <= 1.0) {
+            return bad("floor", format!("must be in (0, 1], got {:?}", self.floor));
+        }
+        let max_rate = Self::MAX_RATE_PER_S;
+        if !(self.max_rate_per_s > 0.0 && self.max_rate_per_s <= max_rate) {
+            return bad(
+                "max_rate_per_s",
+                format!(
+                    "must be in (0, {max_rate}] /s, got {:?}",
+                    self.max_rate_per_s
+                ),
+            );
+        }
+        // b's hand-over spans the gap between windows, which is at least crossfade_s wide, so
+        // the a_j cross-fade is the steepest activation.
+        let steepest = self.fade.max_slope() / self.crossfade_s;
+        if steepest > self.max_rate_per_s {
+            return bad(
+                "crossfade_s",
+                format!(
+                    "{} s changes activations at {steepest:.2} /s, above max_rate_per_s = {}; \
+                     widen crossfade_s to at least {:.3} s",
+                    self.crossfade_s,
+                    self.max_rate_per_s,
+                    self.fade.max_slope() / self.max_rate_per_s
+                ),
+            );
+        }
+        Ok(())
     }
-    if !(c.crossfade_s.is_finite() && c.crossfade_s > 0.0) {
-        return bad(format!("crossfade_s must be > 0, got {}", c.crossfade_s));
-    }
-    if !(c.floor > 0.0 && c.floor <= 1.0) {
-        return bad(format!("floor must be in (0, 1], got {}", c.floor));
-    }
-    if !(c.max_rate_per_s.is_finite() && c.max_rate_per_s > 0.0) {
-        return bad(format!(
-            "max_rate_per_s must be > 0, got {}",
-            c.max_rate_per_s
-        ));
-    }
-    // b's hand-over spans the gap between windows, which is at least crossfade_s wide, so the
-    // a_j cross-fade is the steepest activation.
-    let steepest = c.fade.max_slope() / c.crossfade_s;
-    if steepest > c.max_rate_per_s {
-        return bad(format!(
-            "crossfade_s = {} s changes activations at {steepest:.2} /s, above max_rate_per_s = {}; \
-             widen crossfade_s to at least {:.3} s",
-            c.crossfade_s,
-            c.max_rate_per_s,
-            c.fade.max_slope() / c.max_rate_per_s
-        ));
-    }
-    Ok(())
 }
 
 #[cfg(test)]
@@ -421,5 +448,46 @@ mod tests {
         assert!(Schedule::new(&[1.0, 5.0], &[0, 0], 1, 4.0, c).is_err());
         assert!(Schedule::new(&[f64::NAN], &[0], 1, 4.0, c).is_err());
         assert!(Schedule::new(&[], &[], 1, 4.0, c).is_err());
+    }
+
+    #[test]
+    fn config_errors_name_the_key_and_the_range() {
+        let check = |edit: &dyn Fn(&mut ActivationConfig), want: &str| {
+            let mut c = ActivationConfig::default();
+            edit(&mut c);
+            let e = c.validate().unwrap_err();
+            assert!(e.starts_with(want), "{e} (wanted {want:?})");
+            assert_eq!(
+                Schedule::new(&[1.0], &[0], 1, 2.0, c).unwrap_err(),
+                ScheduleError::Config(e)
+            );
+        };
+        check(
+            &|c| c.window_s = f64::NAN,
+            "activation.window_s: must be in [0, 60] s",
+        );
+        check(
+            &|c| c.window_s = 1e300,
+            "activation.window_s: must be in [0, 60] s",
+        );
+        check(
+            &|c| c.crossfade_s = f64::INFINITY,
+            "activation.crossfade_s: must be in (0, 60] s",
+        );
+        check(
+            &|c| c.crossfade_s = 0.0,
+            "activation.crossfade_s: must be in (0, 60] s",
+        );
+        check(&|c| c.floor = 0.0, "activation.floor: must be in (0, 1]");
+        check(
+            &|c| c.max_rate_per_s = f64::INFINITY,
+            "activation.max_rate_per_s: must be in (0, 1000] /s",
+        );
+        check(
+            &|c| c.crossfade_s = 0.05,
+            "activation.crossfade_s: 0.05 s changes activations",
+        );
+        ActivationConfig::default().validate().unwrap();
+        assert_eq!(MAX_CONDITIONING_POINTS, crate::space::MAX_WAYPOINTS);
     }
 }

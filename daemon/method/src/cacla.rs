@@ -81,7 +81,10 @@ impl Default for LearnerConfig {
 }
 
 impl LearnerConfig {
+    /// Checks every field; the error is `learner.KEY: message`. Spans and lattice sizes are
+    /// what [`Lattice::new`] accepts.
     pub fn validate(&self) -> Result<(), String> {
+        let bad = |key: &str, m: String| Err(format!("learner.{key}: {m}"));
         let unit = [
             ("alpha_critic", self.alpha_critic),
             ("alpha_actor", self.alpha_actor),
@@ -90,24 +93,74 @@ impl LearnerConfig {
         ];
         for (k, v) in unit {
             if !(0.0..=1.0).contains(&v) {
-                return Err(format!("learner.{k} must be in [0, 1], got {v}"));
+                return bad(k, format!("must be in [0, 1], got {v:?}"));
             }
         }
+        // (key, value, largest, unit)
         let positive = [
-            ("sigma_max", self.sigma_max),
-            ("sigma_mid_m", self.sigma_mid_m),
-            ("sigma_slope_per_m", self.sigma_slope_per_m),
+            ("sigma_max", self.sigma_max, 1.0, ""),
+            ("sigma_mid_m", self.sigma_mid_m, 1.0, " m"),
+            ("sigma_slope_per_m", self.sigma_slope_per_m, 1e4, " /m"),
+            ("critic_width", self.critic_width, 10.0, " cells"),
+            ("actor_width", self.actor_width, 10.0, " cells"),
+        ];
+        for (k, v, max, u) in positive {
+            if !(v.is_finite() && v > 0.0 && v <= max) {
+                return bad(k, format!("must be in (0, {max}]{u}, got {v:?}"));
+            }
+        }
+        for (k, v) in [
             ("critic_spacing_m", self.critic_spacing_m),
             ("actor_spacing_m", self.actor_spacing_m),
-            ("critic_width", self.critic_width),
-            ("actor_width", self.actor_width),
-        ];
-        for (k, v) in positive {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(format!("learner.{k} must be finite and > 0, got {v}"));
+        ] {
+            if !(v.is_finite() && (0.001..=1.0).contains(&v)) {
+                return bad(k, format!("must be in [0.001, 1] m, got {v:?}"));
             }
         }
-        Ok(())
+        let max_span = crate::rbf::MAX_SPAN;
+        for (k, v) in [
+            ("critic_span", self.critic_span),
+            ("actor_span", self.actor_span),
+        ] {
+            if !(2..=max_span).contains(&v) {
+                return bad(
+                    k,
+                    format!("must be 2 to {max_span} centres per axis, got {v}"),
+                );
+            }
+        }
+        let (lo, hi) = (self.workspace_min_m, self.workspace_max_m);
+        if let Err(e) = crate::space::Workspace::new(lo, hi) {
+            let key = if lo.iter().all(|v| v.is_finite()) {
+                "workspace_max_m"
+            } else {
+                "workspace_min_m"
+            };
+            return bad(key, e);
+        }
+        // Lattice::new counts centres in a u64: keep well inside it.
+        const MAX_CENTRES: f64 = 1e18;
+        for (k, spacing, dims) in [
+            ("actor_spacing_m", self.actor_spacing_m, 1),
+            ("critic_spacing_m", self.critic_spacing_m, 2),
+        ] {
+            let per_box: f64 = (0..3)
+                .map(|d| ((hi[d] - lo[d]) / spacing).ceil() + 1.0)
+                .product();
+            let centres = per_box.powi(dims);
+            if centres.is_nan() || centres > MAX_CENTRES {
+                return bad(
+                    k,
+                    format!(
+                        "{spacing} m over the workspace makes {centres:.1e} lattice centres, more \
+                         than {MAX_CENTRES:.0e}: widen the spacing or shrink the workspace"
+                    ),
+                );
+            }
+        }
+        self.lattices()
+            .map(|_| ())
+            .map_err(|e| format!("learner: {e}"))
     }
 
     fn lattices(&self) -> Result<(Lattice, Lattice), RbfError> {
@@ -544,5 +597,76 @@ mod tests {
             ..Default::default()
         };
         assert!(CaclaMtl::new(c).err().unwrap().contains("learner.gamma"));
+    }
+
+    #[test]
+    fn every_field_is_checked_and_spans_are_what_lattices_accept() {
+        let check = |edit: &dyn Fn(&mut LearnerConfig), want: &str| {
+            let mut c = LearnerConfig::default();
+            edit(&mut c);
+            let e = c.validate().unwrap_err();
+            assert!(e.starts_with(want), "{e} (wanted {want:?})");
+            assert_eq!(e.matches(want.split(':').next().unwrap()).count(), 1, "{e}");
+        };
+        check(
+            &|c| c.critic_span = 1,
+            "learner.critic_span: must be 2 to 9 centres per axis",
+        );
+        check(
+            &|c| c.actor_span = 10,
+            "learner.actor_span: must be 2 to 9 centres per axis",
+        );
+        check(
+            &|c| c.alpha_actor = f64::NAN,
+            "learner.alpha_actor: must be in [0, 1]",
+        );
+        check(
+            &|c| c.sigma_max = 2.0,
+            "learner.sigma_max: must be in (0, 1]",
+        );
+        check(
+            &|c| c.sigma_slope_per_m = f64::INFINITY,
+            "learner.sigma_slope_per_m: must be in (0, 10000] /m",
+        );
+        check(
+            &|c| c.actor_width = 1e300,
+            "learner.actor_width: must be in (0, 10] cells",
+        );
+        check(
+            &|c| c.critic_spacing_m = 0.0,
+            "learner.critic_spacing_m: must be in [0.001, 1] m",
+        );
+        check(
+            &|c| c.workspace_min_m[1] = f64::NAN,
+            "learner.workspace_min_m: axis 1 (y): the box NaN",
+        );
+        check(
+            &|c| c.workspace_max_m[2] = -1.0,
+            "learner.workspace_max_m: axis 2 (z): the box -0.6 .. -1 m is empty",
+        );
+        // A box so wide the lattices cannot be counted: an error, not an overflow.
+        check(
+            &|c| {
+                c.workspace_min_m = [-1e300; 3];
+                c.workspace_max_m = [1e300; 3];
+            },
+            "learner.actor_spacing_m: 0.015 m over the workspace makes inf lattice centres",
+        );
+        check(
+            &|c| {
+                c.workspace_min_m = [-1e3; 3];
+                c.workspace_max_m = [1e3; 3];
+            },
+            "learner.critic_spacing_m: 0.03 m over the workspace makes",
+        );
+        for span in [2, crate::rbf::MAX_SPAN] {
+            let c = LearnerConfig {
+                critic_span: span,
+                actor_span: span,
+                ..Default::default()
+            };
+            c.validate().unwrap();
+            c.lattices().unwrap();
+        }
     }
 }

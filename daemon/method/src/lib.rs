@@ -1,16 +1,17 @@
 //! The method of "Task Driven Skill Learning in a Soft-Robotic Arm" (IROS 2021), pure math:
 //! no I/O, no clock, no iceoryx2 (Cargo enforces it: this crate depends on neither).
 //!
-//! - [`space`]: actuation and task space, named once.
-//! - [`promp`]: probabilistic movement primitives (train, condition, marginals).
-//! - [`activation`]: a_j(t) and b_i(t) of Eq. 11.
-//! - [`engine`]: Eq. 11 on the controller's tick grid ([`engine::Planner`] →
+//! - [`space`] — actuation and task space, named once.
+//! - [`promp`] — probabilistic movement primitives (train, condition, marginals).
+//! - [`activation`] — a_j(t) and b_i(t) of Eq. 11.
+//! - [`engine`] — Eq. 11 on the controller's tick grid ([`engine::Planner`] →
 //!   [`engine::TickEngine`] + [`engine::Replanner`]).
-//! - [`classify`]: ClassifyToPrimitives.
-//! - [`skill`]: demonstrations by the paper's III-B recipe and the primitives trained on them.
-//! - [`rbf`]: RBF lattices and the RBF forward-model network; [`forward::ForwardModel`].
-//! - [`cacla`]: CACLA-MTL (Alg. 1): [`cacla::Actor`], [`cacla::Critic`], pre-training.
-//! - [`pcc`]: piecewise-constant-curvature kinematics; [`plant`]: the simulated plant.
+//! - [`classify`] — ClassifyToPrimitives.
+//! - [`skill`] — demonstrations by the paper's III-B recipe and the primitives trained on them.
+//! - [`rbf`] — RBF lattices and the RBF forward-model network; [`forward`] — the
+//!   `ForwardModel` trait.
+//! - [`cacla`] — CACLA-MTL (Alg. 1): [`cacla::Actor`], [`cacla::Critic`], pre-training.
+//! - [`pcc`] — piecewise-constant-curvature kinematics; [`plant`]: the simulated plant.
 
 pub mod activation;
 pub mod cacla;

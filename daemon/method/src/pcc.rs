@@ -120,31 +120,47 @@ fn sinc_terms(theta: f64) -> (f64, f64) {
 }
 
 impl ArmGeometry {
-    /// Checks the geometry; the error names the key.
+    /// Longest length of the geometry (m): actuators, connector and tool.
+    pub const MAX_LENGTH_M: f64 = 10.0;
+    /// Largest actuator radius (m).
+    pub const MAX_RADIUS_M: f64 = 1.0;
+
+    /// Checks the geometry; the error is `arm.KEY: message`.
     pub fn validate(&self) -> Result<(), String> {
+        let max = Self::MAX_LENGTH_M;
+        let r = Self::MAX_RADIUS_M;
         let positive = [
-            ("actuator_radius_m", self.actuator_radius_m),
-            ("actuator_min_m", self.actuator_min_m),
-            ("actuator_max_m", self.actuator_max_m),
+            ("actuator_radius_m", self.actuator_radius_m, r),
+            ("actuator_min_m", self.actuator_min_m, max),
+            ("actuator_max_m", self.actuator_max_m, max),
         ];
-        for (key, v) in positive {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(format!("arm.{key} must be a finite length > 0, got {v}"));
+        for (key, v, max) in positive {
+            if !(v.is_finite() && v > 0.0 && v <= max) {
+                return Err(format!(
+                    "arm.{key}: must be a length in (0, {max}] m, got {v:?}"
+                ));
             }
         }
         for (key, v) in [("connector_m", self.connector_m), ("tool_m", self.tool_m)] {
-            if !(v.is_finite() && v >= 0.0) {
-                return Err(format!("arm.{key} must be a finite length >= 0, got {v}"));
+            if !(v.is_finite() && (0.0..=max).contains(&v)) {
+                return Err(format!(
+                    "arm.{key}: must be a length in [0, {max}] m, got {v:?}"
+                ));
             }
         }
         if self.actuator_max_m <= self.actuator_min_m {
             return Err(format!(
-                "arm.actuator_max_m ({}) must exceed arm.actuator_min_m ({})",
+                "arm.actuator_max_m: {} m must exceed actuator_min_m = {} m",
                 self.actuator_max_m, self.actuator_min_m
             ));
         }
-        if self.module_rotation_deg.iter().any(|v| !v.is_finite()) {
-            return Err("arm.module_rotation_deg must be finite".into());
+        for (m, v) in self.module_rotation_deg.iter().enumerate() {
+            if !(v.is_finite() && (-360.0..=360.0).contains(v)) {
+                return Err(format!(
+                    "arm.module_rotation_deg: module {} is {v:?}; each must be in [-360, 360] degrees",
+                    m + 1
+                ));
+            }
         }
         Ok(())
     }
@@ -345,5 +361,56 @@ mod tests {
                 .contains("arm.actuator_radius_m")
         );
         assert!(ArmGeometry::default().validate().is_ok());
+    }
+
+    #[test]
+    fn every_length_and_angle_is_bounded() {
+        let check = |arm: ArmGeometry, want: &str| {
+            let e = arm.validate().unwrap_err();
+            assert!(e.starts_with(want), "{e} (wanted {want:?})");
+        };
+        let d = ArmGeometry::default();
+        check(
+            ArmGeometry {
+                module_rotation_deg: [0.0, f64::NAN],
+                ..d
+            },
+            "arm.module_rotation_deg: module 2 is NaN; each must be in [-360, 360] degrees",
+        );
+        check(
+            ArmGeometry {
+                module_rotation_deg: [1e300, 0.0],
+                ..d
+            },
+            "arm.module_rotation_deg: module 1 is 1e300",
+        );
+        check(
+            ArmGeometry {
+                actuator_max_m: 1e300,
+                ..d
+            },
+            "arm.actuator_max_m: must be a length in (0, 10] m",
+        );
+        check(
+            ArmGeometry {
+                actuator_radius_m: 2.0,
+                ..d
+            },
+            "arm.actuator_radius_m: must be a length in (0, 1] m",
+        );
+        check(
+            ArmGeometry {
+                tool_m: f64::INFINITY,
+                ..d
+            },
+            "arm.tool_m: must be a length in [0, 10] m",
+        );
+        check(
+            ArmGeometry {
+                actuator_max_m: 0.1,
+                ..d
+            },
+            "arm.actuator_max_m: 0.1 m must exceed actuator_min_m = 0.19 m",
+        );
     }
 }

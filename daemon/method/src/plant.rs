@@ -63,25 +63,26 @@ impl Realism {
         }
     }
 
+    /// Checks every field; the error is `sim.realism.KEY: message`.
     pub fn validate(&self) -> Result<(), String> {
         let fields = [
-            ("lag_s", self.lag_s),
-            ("rate_limit_per_s", self.rate_limit_per_s),
-            ("backlash", self.backlash),
-            ("actuation_noise", self.actuation_noise),
-            ("tracker_noise_m", self.tracker_noise_m),
-            ("drift_m", self.drift_m),
-            ("drift_period_s", self.drift_period_s),
+            ("lag_s", self.lag_s, 10.0, " s"),
+            ("rate_limit_per_s", self.rate_limit_per_s, 1000.0, " /s"),
+            ("backlash", self.backlash, 1.0, ""),
+            ("actuation_noise", self.actuation_noise, 1.0, ""),
+            ("tracker_noise_m", self.tracker_noise_m, 1.0, " m"),
+            ("drift_m", self.drift_m, 0.1, " m"),
+            ("drift_period_s", self.drift_period_s, 1e6, " s"),
         ];
-        for (key, v) in fields {
-            if !(v.is_finite() && v >= 0.0) {
+        for (key, v, max, unit) in fields {
+            if !(v.is_finite() && (0.0..=max).contains(&v)) {
                 return Err(format!(
-                    "sim.{key} must be finite and >= 0 (0 turns it off), got {v}"
+                    "sim.realism.{key}: must be in [0, {max}]{unit} (0 turns it off), got {v:?}"
                 ));
             }
         }
         if self.drift_m > 0.0 && self.drift_period_s == 0.0 {
-            return Err("sim.drift_period_s must be > 0 when sim.drift_m is set".into());
+            return Err("sim.realism.drift_period_s: must be > 0 when drift_m is set".into());
         }
         Ok(())
     }
@@ -119,13 +120,27 @@ impl Plant {
     ) -> Result<Self, String> {
         geometry.validate()?;
         realism.validate()?;
-        let normal = |s: f64| (s > 0.0).then(|| Normal::new(0.0, s).expect("s > 0 is finite"));
+        if let Some(i) = initial.iter().position(|a| !(0.0..=1.0).contains(a)) {
+            return Err(format!(
+                "sim.initial_actuation: actuator {} is {:?}; each must be in [0, 1]",
+                i + 1,
+                initial[i]
+            ));
+        }
+        let normal = |key: &str, s: f64| -> Result<Option<Normal<f64>>, String> {
+            if s > 0.0 {
+                let n = Normal::new(0.0, s).map_err(|e| format!("sim.realism.{key}: {e}"))?;
+                Ok(Some(n))
+            } else {
+                Ok(None)
+            }
+        };
         Ok(Self {
             geometry,
             realism,
             rng: StdRng::seed_from_u64(realism.seed),
-            noise: normal(realism.actuation_noise),
-            tracker_noise: normal(realism.tracker_noise_m),
+            noise: normal("actuation_noise", realism.actuation_noise)?,
+            tracker_noise: normal("tracker_noise_m", realism.tracker_noise_m)?,
             played: initial,
             state: initial,
             time: 0.0,
@@ -300,5 +315,57 @@ mod tests {
             )
             .is_err()
         );
+    }
+
+    #[test]
+    fn realism_errors_name_the_full_key_and_the_range() {
+        let check = |r: Realism, want: &str| {
+            let e = r.validate().unwrap_err();
+            assert!(e.starts_with(want), "{e} (wanted {want:?})");
+            let e = Plant::new(ArmGeometry::default(), r, [0.5; 6])
+                .err()
+                .unwrap();
+            assert!(e.starts_with(want), "{e}");
+        };
+        let ideal = Realism::ideal();
+        check(
+            Realism {
+                lag_s: 1e300,
+                ..ideal
+            },
+            "sim.realism.lag_s: must be in [0, 10] s",
+        );
+        check(
+            Realism {
+                tracker_noise_m: f64::INFINITY,
+                ..ideal
+            },
+            "sim.realism.tracker_noise_m: must be in [0, 1] m",
+        );
+        check(
+            Realism {
+                actuation_noise: f64::NAN,
+                ..ideal
+            },
+            "sim.realism.actuation_noise: must be in [0, 1]",
+        );
+        check(
+            Realism {
+                drift_m: 0.01,
+                ..ideal
+            },
+            "sim.realism.drift_period_s: must be > 0 when drift_m is set",
+        );
+        let e = Plant::new(
+            ArmGeometry::default(),
+            ideal,
+            [0.5, 0.5, f64::NAN, 0.5, 0.5, 0.5],
+        );
+        assert!(
+            e.err()
+                .unwrap()
+                .starts_with("sim.initial_actuation: actuator 3 is NaN")
+        );
+        Realism::default().validate().unwrap();
     }
 }

@@ -14,6 +14,8 @@ use serde::{Deserialize, Serialize};
 pub enum PrimitiveError {
     #[error("a basis needs at least 2 functions per DoF, got K = {0}")]
     TooFewBasisFunctions(usize),
+    #[error("a basis has at most {MAX_BASIS_FUNCTIONS} functions per DoF, got K = {0}")]
+    TooManyBasisFunctions(usize),
     #[error("basis width (variance) must be finite and > 0, got {0}")]
     BadWidth(f64),
     #[error("no demonstrations to train from")]
@@ -43,6 +45,9 @@ pub enum PrimitiveError {
     Singular,
 }
 
+/// Most basis functions per DoF: a model file cannot make [`Basis::new`] allocate without bound.
+pub const MAX_BASIS_FUNCTIONS: usize = 1000;
+
 /// K normalised Gaussian basis functions over the phase, shared by every DoF.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Basis {
@@ -57,6 +62,9 @@ impl Basis {
     pub fn new(k: usize, width: Option<f64>) -> Result<Self, PrimitiveError> {
         if k < 2 {
             return Err(PrimitiveError::TooFewBasisFunctions(k));
+        }
+        if k > MAX_BASIS_FUNCTIONS {
+            return Err(PrimitiveError::TooManyBasisFunctions(k));
         }
         let width = width.unwrap_or_else(|| Self::default_width(k));
         if !(width.is_finite() && width > 0.0) {
@@ -85,6 +93,8 @@ impl Basis {
     }
 
     /// Normalised basis values at phase z, written into `out` (length K). Allocates nothing.
+    /// Where every Gaussian underflows (a very narrow width between centres) the nearest centre
+    /// takes it all, rather than 0/0.
     pub fn evaluate_into(&self, z: f64, out: &mut [f64]) {
         debug_assert_eq!(out.len(), self.len());
         let mut sum = 0.0;
@@ -92,6 +102,14 @@ impl Basis {
             let d = z - c;
             *o = (-d * d / (2.0 * self.width)).exp();
             sum += *o;
+        }
+        let k = self.centres.len();
+        if sum == 0.0 && z.is_finite() && k > 0 {
+            let nearest = ((z.clamp(0.0, 1.0) * (k - 1) as f64).round() as usize).min(k - 1);
+            for (i, o) in out.iter_mut().enumerate() {
+                *o = if i == nearest { 1.0 } else { 0.0 };
+            }
+            return;
         }
         for o in out.iter_mut() {
             *o /= sum;
@@ -256,7 +274,10 @@ impl Primitive {
         ridge: f64,
     ) -> Result<DVector<f64>, PrimitiveError> {
         demo.validate(0, None)?;
-        Ok(fit_validated(basis, demo, ridge))
+        if !(ridge >= 0.0 && ridge.is_finite()) {
+            return Err(PrimitiveError::Negative("ridge"));
+        }
+        fit_validated(basis, demo, 0, ridge)
     }
 
     /// Trains N(μ_w, Σ_w) from demonstrations: per-demo ridge least squares, then the sample
@@ -283,10 +304,11 @@ impl Primitive {
         for (i, d) in demos.iter().enumerate() {
             d.validate(i, Some(dofs))?;
         }
-        let weights: Vec<DVector<f64>> = demos
+        let weights = demos
             .iter()
-            .map(|d| fit_validated(&basis, d, config.ridge))
-            .collect();
+            .enumerate()
+            .map(|(i, d)| fit_validated(&basis, d, i, config.ridge))
+            .collect::<Result<Vec<_>, _>>()?;
         let n = weights.len() as f64;
         let mean = weights
             .iter()
@@ -462,10 +484,25 @@ impl Primitive {
     }
 }
 
-fn fit_validated(basis: &Basis, demo: &Demonstration, ridge: f64) -> DVector<f64> {
+/// Ridge least squares of one validated demonstration. With λ = 0 and fewer samples than basis
+/// functions ΦᵀΦ is singular: an error, as is any fit that does not come out finite.
+fn fit_validated(
+    basis: &Basis,
+    demo: &Demonstration,
+    index: usize,
+    ridge: f64,
+) -> Result<DVector<f64>, PrimitiveError> {
     let k = basis.len();
     let dofs = demo.values.ncols();
-    let mut phi = DMatrix::zeros(demo.times.len(), k);
+    let samples = demo.times.len();
+    let singular = |why: String| PrimitiveError::BadDemonstration { demo: index, why };
+    if ridge == 0.0 && samples < k {
+        return Err(singular(format!(
+            "{samples} samples cannot fit K = {k} basis functions without a ridge (ridge = 0); \
+             give at least {k} samples or a ridge > 0"
+        )));
+    }
+    let mut phi = DMatrix::zeros(samples, k);
     let mut row = vec![0.0; k];
     for (r, z) in demo.phases().enumerate() {
         basis.evaluate_into(z, &mut row);
@@ -478,8 +515,15 @@ fn fit_validated(basis: &Basis, demo: &Demonstration, ridge: f64) -> DVector<f64
         a[(i, i)] += ridge;
     }
     let rhs = phi.tr_mul(&demo.values); // K × D
-    let w = solve_spd(a, rhs).expect("ΦᵀΦ + λI of normalised Gaussians is positive definite");
-    DVector::from_fn(k * dofs, |i, _| w[(i % k, i / k)])
+    let w = solve_spd(a, rhs)
+        .filter(|w| w.iter().all(|v| v.is_finite()))
+        .ok_or_else(|| {
+            singular(format!(
+                "the least-squares fit of K = {k} basis functions is singular (ridge = {ridge}); \
+                 use a ridge > 0"
+            ))
+        })?;
+    Ok(DVector::from_fn(k * dofs, |i, _| w[(i % k, i / k)]))
 }
 
 /// Solves A X = B for a symmetric A: Cholesky when A is positive definite, else LU.
@@ -644,5 +688,58 @@ mod tests {
             Err(PrimitiveError::Singular)
         );
         assert_eq!(p, p0);
+    }
+
+    #[test]
+    fn ridge_zero_on_degenerate_demos_is_an_error_not_a_panic() {
+        let basis = Basis::new(10, None).unwrap();
+        let ridge0 = TrainConfig {
+            ridge: 0.0,
+            ..Default::default()
+        };
+        // Three samples cannot fit ten weights without a ridge: ΦᵀΦ is singular.
+        let few: Vec<Demonstration> = (0..3)
+            .map(|i| {
+                Demonstration::new(
+                    vec![0.0, 0.5, 1.0],
+                    DMatrix::from_fn(3, 2, |r, c| (r + c + i) as f64),
+                )
+            })
+            .collect();
+        let err = Primitive::train(basis.clone(), &few, &ridge0).unwrap_err();
+        assert!(
+            matches!(err, PrimitiveError::BadDemonstration { demo: 0, .. }),
+            "{err}"
+        );
+        assert!(err.to_string().contains("ridge > 0"), "{err}");
+        assert!(Primitive::fit_weights(&basis, &few[1], 0.0).is_err());
+        assert_eq!(
+            Primitive::fit_weights(&basis, &few[1], f64::NAN),
+            Err(PrimitiveError::Negative("ridge"))
+        );
+        // Enough samples, but every one on the first or last centre: exactly singular.
+        let narrow = Basis::new(10, Some(1e-300)).unwrap();
+        let mut times: Vec<f64> = (0..11).map(|i| i as f64 * 1e-3).collect();
+        times.push(1.0);
+        let clustered = Demonstration::new(times, DMatrix::from_element(12, 1, 0.5));
+        let err = Primitive::train(narrow, &[clustered], &ridge0).unwrap_err();
+        assert!(err.to_string().contains("singular"), "{err}");
+        // With a ridge the same demos train.
+        Primitive::train(basis.clone(), &few, &TrainConfig::default()).unwrap();
+        Primitive::train(basis, &line_demos(), &ridge0).unwrap();
+    }
+
+    #[test]
+    fn basis_sizes_and_widths_from_a_model_file_cannot_hurt() {
+        assert_eq!(
+            Basis::new(usize::MAX, None),
+            Err(PrimitiveError::TooManyBasisFunctions(usize::MAX))
+        );
+        assert!(Basis::new(MAX_BASIS_FUNCTIONS, None).is_ok());
+        // So narrow that every Gaussian underflows between the centres: the nearest takes it.
+        let b = Basis::new(5, Some(1e-300)).unwrap();
+        let v = b.evaluate(0.3);
+        assert_eq!(v.as_slice(), &[0.0, 1.0, 0.0, 0.0, 0.0]);
+        assert!(b.evaluate(f64::NAN).iter().all(|x| x.is_nan()));
     }
 }

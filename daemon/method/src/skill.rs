@@ -63,35 +63,87 @@ impl Default for DemoRecipe {
 }
 
 impl DemoRecipe {
+    /// Checks every field; the error is `demonstrations.KEY: message`. The bounds keep the
+    /// demonstrations under an hour and their samples in memory.
     pub fn validate(&self) -> Result<(), String> {
-        if self.classes.is_empty() || self.classes.len() > crate::activation::MAX_PRIMITIVES {
-            return Err(format!(
-                "demonstrations.classes: need 1 to {} classes, got {}",
-                crate::activation::MAX_PRIMITIVES,
-                self.classes.len()
-            ));
+        let bad = |key: &str, m: String| Err(format!("demonstrations.{key}: {m}"));
+        let max_classes = crate::activation::MAX_PRIMITIVES;
+        if self.classes.is_empty() || self.classes.len() > max_classes {
+            return bad(
+                "classes",
+                format!(
+                    "need 1 to {max_classes} classes, got {}",
+                    self.classes.len()
+                ),
+            );
         }
-        if self.demos_per_class < 2 {
-            return Err("demonstrations.demos_per_class must be at least 2".into());
+        if !(2..=1000).contains(&self.demos_per_class) {
+            return bad(
+                "demos_per_class",
+                format!("must be 2 to 1000, got {}", self.demos_per_class),
+            );
         }
-        if !(self.duration_s.is_finite() && self.duration_s > 0.0) {
-            return Err("demonstrations.duration_s must be > 0".into());
+        if !(self.duration_s.is_finite() && self.duration_s > 0.0 && self.duration_s <= 600.0) {
+            return bad(
+                "duration_s",
+                format!("must be in (0, 600] s, got {:?}", self.duration_s),
+            );
         }
-        if !(self.sample_rate_hz.is_finite() && self.sample_rate_hz * self.duration_s >= 10.0) {
-            return Err("demonstrations.sample_rate_hz must give at least 10 samples".into());
+        if !(self.sample_rate_hz.is_finite()
+            && self.sample_rate_hz > 0.0
+            && self.sample_rate_hz <= 1000.0)
+        {
+            return bad(
+                "sample_rate_hz",
+                format!("must be in (0, 1000] Hz, got {:?}", self.sample_rate_hz),
+            );
+        }
+        let per_demo = self.sample_rate_hz * self.duration_s;
+        if !(10.0..=10_000.0).contains(&per_demo) {
+            return bad(
+                "sample_rate_hz",
+                format!(
+                    "{} Hz over duration_s = {} s makes {per_demo:.0} samples per \
+                     demonstration; need 10 to 10000",
+                    self.sample_rate_hz, self.duration_s
+                ),
+            );
+        }
+        let demos = self.classes.len() * self.demos_per_class;
+        let total_s = demos as f64 * self.duration_s;
+        if total_s > 3600.0 {
+            return bad(
+                "demos_per_class",
+                format!(
+                    "{demos} demonstrations of {} s take {total_s:.0} s; at most 3600 s in all",
+                    self.duration_s
+                ),
+            );
         }
         if !(0.0..=0.5).contains(&self.spread) {
-            return Err("demonstrations.spread must be in [0, 0.5]".into());
+            return bad(
+                "spread",
+                format!("must be in [0, 0.5], got {:?}", self.spread),
+            );
+        }
+        if self.intermediate_points > 100 {
+            return bad(
+                "intermediate_points",
+                format!("must be 0 to 100, got {}", self.intermediate_points),
+            );
         }
         for (i, c) in self.classes.iter().enumerate() {
-            if c.start
-                .iter()
-                .chain(&c.end)
-                .any(|v| !(0.0..=1.0).contains(v))
-            {
-                return Err(format!(
-                    "demonstrations.classes[{i}]: actuations must be in [0, 1]"
-                ));
+            for (field, values) in [("start", &c.start), ("end", &c.end)] {
+                if let Some(d) = values.iter().position(|v| !(0.0..=1.0).contains(v)) {
+                    return bad(
+                        &format!("classes[{i}].{field}"),
+                        format!(
+                            "actuator {} is {:?}; each must be in [0, 1]",
+                            d + 1,
+                            values[d]
+                        ),
+                    );
+                }
             }
         }
         Ok(())
@@ -257,5 +309,59 @@ mod tests {
             ..Default::default()
         };
         assert!(bad.validate().unwrap_err().contains("spread"));
+    }
+
+    #[test]
+    fn every_field_is_bounded_and_named() {
+        let check = |edit: &dyn Fn(&mut DemoRecipe), want: &str| {
+            let mut r = DemoRecipe::default();
+            edit(&mut r);
+            let e = r.validate().unwrap_err();
+            assert!(e.starts_with(want), "{e} (wanted {want:?})");
+        };
+        check(
+            &|r| r.demos_per_class = 1 << 40,
+            "demonstrations.demos_per_class: must be 2 to 1000",
+        );
+        check(
+            &|r| r.duration_s = 1e300,
+            "demonstrations.duration_s: must be in (0, 600] s, got 1e300",
+        );
+        check(
+            &|r| r.sample_rate_hz = f64::INFINITY,
+            "demonstrations.sample_rate_hz: must be in (0, 1000] Hz",
+        );
+        check(
+            &|r| r.sample_rate_hz = 1.0,
+            "demonstrations.sample_rate_hz: 1 Hz over duration_s = 4 s makes 4 samples",
+        );
+        check(
+            &|r| r.intermediate_points = usize::MAX,
+            "demonstrations.intermediate_points: must be 0 to 100",
+        );
+        check(
+            &|r| r.spread = f64::NAN,
+            "demonstrations.spread: must be in [0, 0.5]",
+        );
+        check(
+            &|r| r.classes.clear(),
+            "demonstrations.classes: need 1 to 8 classes, got 0",
+        );
+        check(
+            &|r| {
+                r.demos_per_class = 1000;
+                r.duration_s = 600.0;
+                r.sample_rate_hz = 10.0;
+            },
+            "demonstrations.demos_per_class: 3000 demonstrations of 600 s take 1800000 s",
+        );
+        check(
+            &|r| r.classes[1].end[3] = 1.5,
+            "demonstrations.classes[1].end: actuator 4 is 1.5",
+        );
+        check(
+            &|r| r.classes[2].start[0] = f64::NAN,
+            "demonstrations.classes[2].start: actuator 1 is NaN",
+        );
     }
 }

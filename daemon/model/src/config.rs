@@ -4,6 +4,7 @@
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
+use softarm_method::Workspace;
 use softarm_method::pcc::ArmGeometry;
 use softarm_method::plant::Realism;
 
@@ -14,6 +15,14 @@ use softarm_method::skill::DemoRecipe;
 
 /// The simulation default, embedded so `softarm demo` needs no file.
 pub const DEFAULT: &str = include_str!("../../../config/softarm.toml");
+
+/// Longest a way-point set may last (s): the ceiling of `waypoints.max_duration_s`.
+pub const MAX_DURATION_S: f64 = 3600.0;
+/// Most ticks in one execution (`waypoints.max_duration_s` × `controller.rate_hz`): the planner
+/// keeps a table of marginals per tick for every primitive and conditioning point.
+pub const MAX_TICKS: f64 = 120_000.0;
+/// CPUs a Linux CPU set can name (`CPU_SETSIZE`): the ceiling of `controller.cpu`.
+pub const MAX_CPUS: usize = 1024;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -91,6 +100,16 @@ pub struct WaypointLimits {
     pub max_executions: u32,
 }
 
+impl WaypointLimits {
+    /// The box way-points must lie in; `Config` has checked it with [`Workspace::new`].
+    pub fn workspace(&self) -> Workspace {
+        Workspace {
+            min_m: self.workspace_min_m,
+            max_m: self.workspace_max_m,
+        }
+    }
+}
+
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ModelConfig {
@@ -128,19 +147,24 @@ impl Default for SimConfig {
 }
 
 impl SimConfig {
+    /// Checks every field; the error is `sim.KEY: message` (`sim.realism.KEY` for the realism).
     pub fn validate(&self) -> Result<(), String> {
         if !(self.rate_hz.is_finite() && (1.0..=5000.0).contains(&self.rate_hz)) {
             return Err(format!(
-                "sim.rate_hz must be 1 to 5000, got {}",
+                "sim.rate_hz: must be in [1, 5000] Hz, got {:?}",
                 self.rate_hz
             ));
         }
-        if self
+        if let Some(i) = self
             .initial_actuation
             .iter()
-            .any(|a| !(0.0..=1.0).contains(a))
+            .position(|a| !(0.0..=1.0).contains(a))
         {
-            return Err("sim.initial_actuation must be in [0, 1]".into());
+            return Err(format!(
+                "sim.initial_actuation: actuator {} is {:?}; each must be in [0, 1]",
+                i + 1,
+                self.initial_actuation[i]
+            ));
         }
         self.realism.validate()
     }
@@ -179,13 +203,13 @@ impl Config {
     pub fn parse(text: &str, origin: &str, base_dir: PathBuf) -> Result<Self, ConfigError> {
         let mut c: Config = toml::from_str(text).map_err(|e| ConfigError {
             origin: origin.into(),
-            line: e.span().map(|s| text[..s.start].lines().count().max(1)),
+            line: e.span().map(|s| line_at(text, s.start)),
             message: e.message().to_string(),
         })?;
         c.base_dir = base_dir;
         c.validate().map_err(|(key, message)| ConfigError {
             origin: origin.into(),
-            line: line_of(text, &key),
+            line: key_line(text, &key),
             message: format!("{key}: {message}"),
         })?;
         Ok(c)
@@ -207,131 +231,325 @@ impl Config {
         self.base_dir.join(&self.state.dir)
     }
 
-    fn validate(&self) -> Result<(), (String, String)> {
-        let key = |k: &str, m: String| Err((k.to_string(), m));
-        softarm_ipc::Namespace::new(&self.namespace())
-            .map_err(|m| ("robot.namespace".to_string(), m.to_string()))?;
-        for d in &self.robot.drivers {
+    /// Checks every value of every section. The error is the exact dotted key (array elements
+    /// as `[i]`) and a message that does not repeat it.
+    fn validate(&self) -> Result<(), Invalid> {
+        let r = &self.robot;
+        softarm_ipc::Namespace::new(&self.namespace()).map_err(|m| {
+            let key = if r.namespace.is_some() {
+                "robot.namespace"
+            } else {
+                "robot.id"
+            };
+            (key.to_string(), m.to_string())
+        })?;
+        for (i, d) in r.drivers.iter().enumerate() {
             if !["sim"].contains(&d.as_str()) {
-                return key(
+                return invalid(
                     "robot.drivers",
                     format!("unknown driver {d:?}; this build has \"sim\""),
                 );
             }
+            if r.drivers[..i].contains(d) {
+                return invalid("robot.drivers", format!("driver {d:?} is listed twice"));
+            }
         }
+
         let c = &self.controller;
-        if !(c.rate_hz.is_finite() && (10.0..=1000.0).contains(&c.rate_hz)) {
-            return key(
-                "controller.rate_hz",
-                format!("must be 10 to 1000 Hz, got {}", c.rate_hz),
-            );
-        }
-        if !(c.tracker_timeout_ms.is_finite() && c.tracker_timeout_ms > 0.0) {
-            return key("controller.tracker_timeout_ms", "must be > 0".into());
-        }
-        if !(c.slew_per_s.is_finite() && c.slew_per_s > 0.0) {
-            return key("controller.slew_per_s", "must be > 0".into());
-        }
+        within("controller.rate_hz", c.rate_hz, Closed(10.0), 1000.0, " Hz")?;
+        within(
+            "controller.tracker_timeout_ms",
+            c.tracker_timeout_ms,
+            Open(0.0),
+            10_000.0,
+            " ms",
+        )?;
+        within(
+            "controller.slew_per_s",
+            c.slew_per_s,
+            Open(0.0),
+            1000.0,
+            " /s",
+        )?;
         for i in 0..6 {
             let (lo, hi) = (c.actuator_min[i], c.actuator_max[i]);
-            if !(0.0..=1.0).contains(&lo) || !(0.0..=1.0).contains(&hi) || lo >= hi {
-                return key(
+            if !(0.0..=1.0).contains(&lo) {
+                return invalid(
                     "controller.actuator_min",
-                    format!(
-                        "actuator {}: limits [{lo}, {hi}] must satisfy 0 <= min < max <= 1",
-                        i + 1
-                    ),
+                    format!("actuator {} is {lo:?}; each must be in [0, 1]", i + 1),
+                );
+            }
+            if !(0.0..=1.0).contains(&hi) {
+                return invalid(
+                    "controller.actuator_max",
+                    format!("actuator {} is {hi:?}; each must be in [0, 1]", i + 1),
+                );
+            }
+            if lo >= hi {
+                return invalid(
+                    "controller.actuator_max",
+                    format!("actuator {}: {hi} must exceed its actuator_min {lo}", i + 1),
                 );
             }
         }
-        if !(c.rest_s.is_finite() && c.rest_s >= 0.0) {
-            return key("controller.rest_s", "must be >= 0".into());
-        }
-        if !(c.variance_floor.is_finite() && c.variance_floor > 0.0) {
-            return key("controller.variance_floor", "must be > 0".into());
-        }
-        if !(c.estimate_timeout_s.is_finite() && c.estimate_timeout_s > 0.0) {
-            return key("controller.estimate_timeout_s", "must be > 0".into());
-        }
+        within("controller.rest_s", c.rest_s, Closed(0.0), 60.0, " s")?;
+        within(
+            "controller.variance_floor",
+            c.variance_floor,
+            Open(0.0),
+            1.0,
+            "",
+        )?;
+        within(
+            "controller.estimate_timeout_s",
+            c.estimate_timeout_s,
+            Open(0.0),
+            60.0,
+            " s",
+        )?;
         if !(0..=99).contains(&c.realtime_priority) {
-            return key(
+            return invalid(
                 "controller.realtime_priority",
-                "must be 0 (off) to 99".into(),
+                format!("must be 0 (off) to 99, got {}", c.realtime_priority),
             );
         }
-        let w = &self.waypoints;
-        for d in 0..3 {
-            if !(w.workspace_min_m[d].is_finite()
-                && w.workspace_max_m[d].is_finite()
-                && w.workspace_min_m[d] < w.workspace_max_m[d])
-            {
-                return key(
-                    "waypoints.workspace_min_m",
-                    format!("axis {d}: the box is empty"),
-                );
-            }
-        }
-        if !(w.min_duration_s > 0.0
-            && w.min_duration_s <= w.max_duration_s
-            && w.max_duration_s.is_finite())
+        if let Some(cpu) = c.cpu
+            && cpu >= MAX_CPUS
         {
-            return key(
-                "waypoints.min_duration_s",
-                "need 0 < min_duration_s <= max_duration_s".into(),
+            return invalid(
+                "controller.cpu",
+                format!(
+                    "must be 0 to {}, the CPUs a CPU set can name, got {cpu}",
+                    MAX_CPUS - 1
+                ),
             );
         }
-        if w.max_executions == 0 {
-            return key("waypoints.max_executions", "must be >= 1".into());
+
+        let w = &self.waypoints;
+        workspace("waypoints", w.workspace_min_m, w.workspace_max_m)?;
+        within(
+            "waypoints.min_duration_s",
+            w.min_duration_s,
+            Open(0.0),
+            MAX_DURATION_S,
+            " s",
+        )?;
+        if !(w.max_duration_s >= w.min_duration_s && w.max_duration_s <= MAX_DURATION_S) {
+            return invalid(
+                "waypoints.max_duration_s",
+                format!(
+                    "must be in [min_duration_s, {MAX_DURATION_S}] = [{}, {MAX_DURATION_S}] s, \
+                     got {:?}",
+                    w.min_duration_s, w.max_duration_s
+                ),
+            );
         }
-        softarm_method::activation::Schedule::new(&[0.5], &[0], 1, 1.0, self.activation)
-            .map_err(|e| ("activation".to_string(), e.to_string()))?;
-        if !(2..=40).contains(&self.model.basis_functions) {
-            return key("model.basis_functions", "must be 2 to 40".into());
+        let ticks = w.max_duration_s * c.rate_hz;
+        if ticks > MAX_TICKS {
+            return invalid(
+                "waypoints.max_duration_s",
+                format!(
+                    "{} s at controller.rate_hz = {} Hz is {ticks:.0} ticks; the planner keeps \
+                     tables per tick, so at most {MAX_TICKS} ({:.0} s at this rate)",
+                    w.max_duration_s,
+                    c.rate_hz,
+                    MAX_TICKS / c.rate_hz
+                ),
+            );
         }
-        self.demonstrations
+        count(
+            "waypoints.max_executions",
+            w.max_executions as usize,
+            1,
+            1_000_000,
+        )?;
+
+        self.activation
             .validate()
-            .map_err(|m| ("demonstrations".to_string(), m))?;
-        if self.forward_model.centres == 0 {
-            return key("forward_model.centres", "must be >= 1".into());
+            .map_err(|e| keyed("activation", e))?;
+
+        if self.model.dir.as_os_str().is_empty() {
+            return invalid("model.dir", "must name a folder".into());
         }
-        self.learner
-            .validate()
-            .map_err(|m| ("learner".to_string(), m))?;
-        if !(self.pretrain.budget_s.is_finite() && self.pretrain.budget_s >= 0.0) {
-            return key("pretrain.budget_s", "must be >= 0".into());
+        count("model.basis_functions", self.model.basis_functions, 2, 40)?;
+
+        let d = &self.demonstrations;
+        d.validate().map_err(|e| keyed("demonstrations", e))?;
+        if d.sample_rate_hz > c.rate_hz {
+            return invalid(
+                "demonstrations.sample_rate_hz",
+                format!(
+                    "{} Hz is faster than controller.rate_hz = {} Hz, which plays the samples",
+                    d.sample_rate_hz, c.rate_hz
+                ),
+            );
         }
-        self.arm.validate().map_err(|m| ("arm".to_string(), m))?;
-        self.sim.validate().map_err(|m| ("sim".to_string(), m))?;
+
+        let f = &self.forward_model;
+        count("forward_model.centres", f.centres, 1, 2000)?;
+        within(
+            "forward_model.width_factor",
+            f.width_factor,
+            Open(0.0),
+            100.0,
+            "",
+        )?;
+        within("forward_model.ridge", f.ridge, Closed(0.0), 1.0, "")?;
+
+        self.learner.validate().map_err(|e| keyed("learner", e))?;
+
+        let p = &self.pretrain;
+        count("pretrain.targets_per_epoch", p.targets_per_epoch, 0, 1000)?;
+        within("pretrain.threshold_m", p.threshold_m, Open(0.0), 1.0, " m")?;
+        count("pretrain.visits_per_epoch", p.visits_per_epoch, 1, 100_000)?;
+        within("pretrain.budget_s", p.budget_s, Closed(0.0), 86_400.0, " s")?;
+
+        if self.state.dir.as_os_str().is_empty() {
+            return invalid("state.dir", "must name a folder".into());
+        }
+        self.arm.validate().map_err(|e| keyed("arm", e))?;
+        self.sim.validate().map_err(|e| keyed("sim", e))?;
         Ok(())
     }
 }
 
-/// The line (1-based) where a dotted key stands: its section header, then the key within it.
-fn line_of(text: &str, dotted: &str) -> Option<usize> {
-    let (section, leaf) = match dotted.rsplit_once('.') {
-        Some((s, l)) => (s, l),
-        None => (dotted, ""),
-    };
-    let mut in_section = false;
-    let mut header = None;
-    for (i, raw) in text.lines().enumerate() {
-        let line = raw.trim();
-        if line.starts_with('[') {
-            let name = line.trim_matches(|c| c == '[' || c == ']').trim();
-            in_section = name == section || name == dotted;
-            if in_section && header.is_none() {
-                header = Some(i + 1);
-            }
-            continue;
+/// A failed check: the dotted key and a message that does not repeat it.
+type Invalid = (String, String);
+
+fn invalid(key: &str, message: String) -> Result<(), Invalid> {
+    Err((key.to_string(), message))
+}
+
+/// Splits a section's `KEY: message` (KEY a dotted path in `section`) into key and message; a
+/// message without such a key stays whole, under the section.
+fn keyed(section: &str, e: String) -> Invalid {
+    match e.split_once(": ") {
+        Some((key, message))
+            if !key.contains(' ')
+                && (key == section || key.starts_with(&format!("{section}."))) =>
+        {
+            (key.to_string(), message.to_string())
         }
-        if in_section && !leaf.is_empty() {
-            let k = line.split('=').next().unwrap_or("").trim();
-            if k == leaf {
-                return Some(i + 1);
-            }
+        _ => (section.to_string(), e),
+    }
+}
+
+/// The lower end of a range: included or not.
+#[derive(Clone, Copy)]
+enum Lower {
+    Closed(f64),
+    Open(f64),
+}
+use Lower::{Closed, Open};
+
+/// A finite `v` within the range, or an error that names the range.
+fn within(key: &str, v: f64, lower: Lower, upper: f64, unit: &str) -> Result<(), Invalid> {
+    let (ok, bracket, lo) = match lower {
+        Closed(lo) => (v >= lo, '[', lo),
+        Open(lo) => (v > lo, '(', lo),
+    };
+    if v.is_finite() && ok && v <= upper {
+        return Ok(());
+    }
+    invalid(
+        key,
+        format!("must be in {bracket}{lo}, {upper}]{unit}, got {v:?}"),
+    )
+}
+
+fn count(key: &str, v: usize, lo: usize, hi: usize) -> Result<(), Invalid> {
+    if (lo..=hi).contains(&v) {
+        return Ok(());
+    }
+    invalid(key, format!("must be {lo} to {hi}, got {v}"))
+}
+
+/// A box checked by [`Workspace::new`]; the key is the bound that is not finite, else the upper.
+fn workspace(section: &str, min_m: [f64; 3], max_m: [f64; 3]) -> Result<(), Invalid> {
+    Workspace::new(min_m, max_m).map(|_| ()).map_err(|m| {
+        let bound = if min_m.iter().all(|v| v.is_finite()) {
+            "workspace_max_m"
+        } else {
+            "workspace_min_m"
+        };
+        (format!("{section}.{bound}"), m)
+    })
+}
+
+/// The line (1-based) of byte `offset` of `text`.
+pub(crate) fn line_at(text: &str, offset: usize) -> usize {
+    let end = offset.min(text.len());
+    text.as_bytes()[..end]
+        .iter()
+        .filter(|&&b| b == b'\n')
+        .count()
+        + 1
+}
+
+/// The line where the dotted key `path` stands in the TOML `text` (`sim.realism.lag_s`,
+/// `demonstrations.classes[1].start`, `point[2].t_s`), from the parser's spans: dotted keys,
+/// inline tables, arrays and arrays of tables included. A key that is absent (left to its
+/// default) gives the line of its nearest present parent; `None` when no part of it is there.
+pub(crate) fn key_line(text: &str, path: &str) -> Option<usize> {
+    let doc = toml_edit::Document::parse(text).ok()?;
+    let mut node = Node::Item(doc.as_item());
+    let mut at = None;
+    'walk: for part in path.split('.') {
+        let (name, indices) = part.split_once('[').unwrap_or((part, ""));
+        let Some((span, next)) = node.field(name) else {
+            break;
+        };
+        at = span.map(|s| s.start).or(at);
+        node = next;
+        for index in indices.split('[') {
+            let Ok(i) = index.trim_end_matches(']').parse::<usize>() else {
+                continue;
+            };
+            let Some((span, next)) = node.element(i) else {
+                break 'walk;
+            };
+            at = span.map(|s| s.start).or(at);
+            node = next;
         }
     }
-    header
+    at.map(|offset| line_at(text, offset))
+}
+
+/// A place in a parsed TOML document.
+enum Node<'a> {
+    Item(&'a toml_edit::Item),
+    Value(&'a toml_edit::Value),
+    Table(&'a toml_edit::Table),
+}
+
+type Span = Option<std::ops::Range<usize>>;
+
+impl<'a> Node<'a> {
+    /// Key `name` of a table, inline table or dotted key: where the key stands, and its value.
+    fn field(&self, name: &str) -> Option<(Span, Node<'a>)> {
+        let table: &'a dyn toml_edit::TableLike = match *self {
+            Node::Item(i) => i.as_table_like()?,
+            Node::Value(v) => v.as_inline_table()?,
+            Node::Table(t) => t,
+        };
+        let (key, item) = table.get_key_value(name)?;
+        Some((key.span().or_else(|| item.span()), Node::Item(item)))
+    }
+
+    /// Element `i` of an array or an array of tables.
+    fn element(&self, i: usize) -> Option<(Span, Node<'a>)> {
+        match *self {
+            Node::Item(toml_edit::Item::ArrayOfTables(a)) => {
+                let t = a.get(i)?;
+                Some((t.span(), Node::Table(t)))
+            }
+            Node::Item(toml_edit::Item::Value(v)) | Node::Value(v) => {
+                let e = v.as_array()?.get(i)?;
+                Some((e.span(), Node::Value(e)))
+            }
+            _ => None,
+        }
+    }
 }
 
 #[cfg(test)]
@@ -369,7 +587,9 @@ mod tests {
         let unknown = DEFAULT.replace("[controller]\n", "[controller]\nrate = 3\n");
         let e = Config::parse(&unknown, "c.toml", ".".into()).unwrap_err();
         assert!(e.message.contains("unknown field `rate`"), "{e}");
-        assert!(e.line.is_some(), "{e}");
+        // The key's own line, not the one before it (a span at a line's start).
+        let line = unknown.lines().position(|l| l == "rate = 3").unwrap() + 1;
+        assert_eq!(e.line, Some(line), "{e}");
 
         let e = Config::parse("[robot\n", "c.toml", ".".into()).unwrap_err();
         assert_eq!(e.line, Some(1));
@@ -377,5 +597,308 @@ mod tests {
         let bad = DEFAULT.replace("gamma = 0.5", "gamma = 2.0");
         let e = Config::parse(&bad, "c.toml", ".".into()).unwrap_err();
         assert!(e.to_string().contains("learner.gamma"), "{e}");
+    }
+
+    /// DEFAULT with the first line starting `from` after the `[section]` header replaced by
+    /// `to`, and that line's number.
+    fn edit(section: &str, from: &str, to: &str) -> (String, usize) {
+        let lines: Vec<&str> = DEFAULT.lines().collect();
+        let header = format!("[{section}]");
+        let start = lines.iter().position(|l| l.starts_with(&header)).unwrap();
+        let at = start
+            + lines[start..]
+                .iter()
+                .position(|l| l.starts_with(from))
+                .unwrap_or_else(|| panic!("no {from:?} in [{section}]"));
+        let mut out: Vec<&str> = lines.clone();
+        out[at] = to;
+        (out.join("\n") + "\n", at + 1)
+    }
+
+    fn refused(text: &str) -> ConfigError {
+        Config::parse(text, "c.toml", ".".into()).unwrap_err()
+    }
+
+    /// The message starts with the full key and names it only there.
+    fn names_key_once(e: &ConfigError, key: &str) {
+        assert!(
+            e.message.starts_with(&format!("{key}: ")),
+            "{e} (wanted {key})"
+        );
+        assert_eq!(e.message.matches(key).count(), 1, "{e}");
+        assert!(e.to_string().starts_with("c.toml:"), "{e}");
+    }
+
+    #[test]
+    fn nested_keys_point_at_their_own_line_and_are_named_once() {
+        let cases = [
+            ("sim.realism", "lag_s", "lag_s = -1.0", "sim.realism.lag_s"),
+            (
+                "sim.realism",
+                "drift_period_s",
+                "drift_period_s = 0.0",
+                "sim.realism.drift_period_s",
+            ),
+            ("sim", "rate_hz", "rate_hz = 0.5", "sim.rate_hz"),
+            (
+                "sim",
+                "initial_actuation",
+                "initial_actuation = [0.5, 0.5, 0.5, 2.0, 0.5, 0.5]",
+                "sim.initial_actuation",
+            ),
+            (
+                "learner",
+                "critic_span",
+                "critic_span = 1",
+                "learner.critic_span",
+            ),
+            (
+                "learner",
+                "actor_span",
+                "actor_span = 10",
+                "learner.actor_span",
+            ),
+            ("learner", "gamma", "gamma = 2.0", "learner.gamma"),
+            (
+                "learner",
+                "workspace_min_m",
+                "workspace_min_m = [nan, 0.0, 0.0]",
+                "learner.workspace_min_m",
+            ),
+            (
+                "arm",
+                "module_rotation_deg",
+                "module_rotation_deg = [0.0, nan]",
+                "arm.module_rotation_deg",
+            ),
+            (
+                "arm",
+                "actuator_max_m",
+                "actuator_max_m = 0.1",
+                "arm.actuator_max_m",
+            ),
+            (
+                "activation",
+                "window_s",
+                "window_s = -0.1",
+                "activation.window_s",
+            ),
+            (
+                "activation",
+                "crossfade_s",
+                "crossfade_s = 0.01",
+                "activation.crossfade_s",
+            ),
+            (
+                "demonstrations",
+                "spread",
+                "spread = 0.9",
+                "demonstrations.spread",
+            ),
+            (
+                "waypoints",
+                "workspace_max_m",
+                "workspace_max_m = [0.45, -0.5, 0.05]",
+                "waypoints.workspace_max_m",
+            ),
+            (
+                "controller",
+                "actuator_max",
+                "actuator_max = [1.0, 1.0, 0.0, 1.0, 1.0, 1.0]",
+                "controller.actuator_max",
+            ),
+        ];
+        for (section, from, to, key) in cases {
+            let (text, line) = edit(section, from, to);
+            let e = refused(&text);
+            assert_eq!(e.line, Some(line), "{to}: {e}");
+            names_key_once(&e, key);
+        }
+    }
+
+    #[test]
+    fn inline_table_elements_point_at_their_own_line() {
+        let class =
+            "  { start = [0.8, 0.2, 0.7, 0.7, 1.2, 0.6], end = [0.6, 0.8, 0.2, 0.5, 0.8, 0.2] },";
+        let (text, line) = edit("demonstrations", "  { start = [0.8, 0.2", class);
+        let e = refused(&text);
+        assert_eq!(e.line, Some(line), "{e}");
+        names_key_once(&e, "demonstrations.classes[1].start");
+        assert!(e.message.contains("actuator 5 is 1.2"), "{e}");
+    }
+
+    #[test]
+    fn dotted_keys_point_at_their_own_line() {
+        let cut = DEFAULT.find("[sim.realism]").unwrap();
+        let text = format!(
+            "{}realism.seed = 1\nrealism.lag_s = -0.5\nrealism.backlash = 0.0\n",
+            &DEFAULT[..cut]
+        );
+        let line = text
+            .lines()
+            .position(|l| l.starts_with("realism.lag_s"))
+            .unwrap()
+            + 1;
+        let e = refused(&text);
+        assert_eq!(e.line, Some(line), "{e}");
+        names_key_once(&e, "sim.realism.lag_s");
+    }
+
+    #[test]
+    fn absent_keys_point_at_their_nearest_parent() {
+        let text = "[sim]\nrate_hz = 1.0\n\n[sim.realism]\nseed = 1\n";
+        assert_eq!(key_line(text, "sim.rate_hz"), Some(2));
+        assert_eq!(key_line(text, "sim.realism.lag_s"), Some(4));
+        assert_eq!(key_line(text, "sim.initial_actuation"), Some(1));
+        assert_eq!(key_line(text, "learner.gamma"), None);
+        let points = "duration_s = 2\n[[point]]\nt_s = 1\n\n[[point]]\nt_s = 2\n";
+        assert_eq!(key_line(points, "point[1].t_s"), Some(6));
+        assert_eq!(key_line(points, "point[1].position_m"), Some(5));
+        assert_eq!(key_line(points, "point[7].t_s"), Some(2));
+        let array = "a = [\n  1,\n  [2, 3],\n]\n";
+        assert_eq!(key_line(array, "a[1]"), Some(3));
+        assert_eq!(key_line(array, "a[1][1]"), Some(3));
+        assert_eq!(key_line(array, "a[9]"), Some(1));
+        assert_eq!(key_line("a = [", "a"), None);
+        assert_eq!(line_at("a\nb\n", 2), 2);
+    }
+
+    #[test]
+    fn durations_counts_and_sizes_are_bounded() {
+        let cases = [
+            (
+                "controller",
+                "estimate_timeout_s",
+                "estimate_timeout_s = 1e300",
+                "(0, 60] s",
+            ),
+            ("controller", "rest_s", "rest_s = inf", "[0, 60] s"),
+            (
+                "controller",
+                "tracker_timeout_ms",
+                "tracker_timeout_ms = 1e20",
+                "(0, 10000] ms",
+            ),
+            (
+                "controller",
+                "slew_per_s",
+                "slew_per_s = inf",
+                "(0, 1000] /s",
+            ),
+            (
+                "controller",
+                "variance_floor",
+                "variance_floor = nan",
+                "(0, 1]",
+            ),
+            ("controller", "# cpu", "cpu = 4096", "0 to 1023"),
+            (
+                "waypoints",
+                "max_duration_s",
+                "max_duration_s = 1e300",
+                "3600] s",
+            ),
+            (
+                "waypoints",
+                "min_duration_s",
+                "min_duration_s = 0.0",
+                "(0, 3600] s",
+            ),
+            (
+                "waypoints",
+                "max_executions",
+                "max_executions = 0",
+                "1 to 1000000",
+            ),
+            (
+                "model",
+                "basis_functions",
+                "basis_functions = 1000000",
+                "2 to 40",
+            ),
+            ("model", "dir", "dir = \"\"", "folder"),
+            (
+                "demonstrations",
+                "duration_s",
+                "duration_s = 1e9",
+                "(0, 600] s",
+            ),
+            (
+                "demonstrations",
+                "demos_per_class",
+                "demos_per_class = 1000000000",
+                "2 to 1000",
+            ),
+            (
+                "demonstrations",
+                "sample_rate_hz",
+                "sample_rate_hz = 1e300",
+                "(0, 1000] Hz",
+            ),
+            (
+                "demonstrations",
+                "sample_rate_hz",
+                "sample_rate_hz = 1000.0",
+                "controller.rate_hz",
+            ),
+            (
+                "demonstrations",
+                "intermediate_points",
+                "intermediate_points = 100000000",
+                "0 to 100",
+            ),
+            (
+                "forward_model",
+                "centres",
+                "centres = 100000000",
+                "1 to 2000",
+            ),
+            (
+                "forward_model",
+                "width_factor",
+                "width_factor = inf",
+                "(0, 100]",
+            ),
+            ("forward_model", "ridge", "ridge = nan", "[0, 1]"),
+            (
+                "learner",
+                "critic_spacing_m",
+                "critic_spacing_m = 1e-9",
+                "[0.001, 1] m",
+            ),
+            ("learner", "sigma_max", "sigma_max = inf", "(0, 1]"),
+            ("pretrain", "budget_s", "budget_s = 1e12", "[0, 86400] s"),
+            (
+                "pretrain",
+                "targets_per_epoch",
+                "targets_per_epoch = 100000000",
+                "0 to 1000",
+            ),
+            (
+                "pretrain",
+                "visits_per_epoch",
+                "visits_per_epoch = 0",
+                "1 to 100000",
+            ),
+            ("pretrain", "threshold_m", "threshold_m = 0.0", "(0, 1] m"),
+            ("state", "dir", "dir = \"\"", "folder"),
+            (
+                "arm",
+                "actuator_max_m",
+                "actuator_max_m = 1e300",
+                "(0, 10] m",
+            ),
+            ("sim.realism", "lag_s", "lag_s = 1e300", "[0, 10] s"),
+        ];
+        for (section, from, to, range) in cases {
+            let (text, line) = edit(section, from, to);
+            let e = refused(&text);
+            assert_eq!(e.line, Some(line), "{to}: {e}");
+            let key = e.message.split(": ").next().unwrap().to_string();
+            let leaf = to.split(' ').next().unwrap();
+            assert!(key.ends_with(&format!(".{leaf}")), "{to}: {e}");
+            names_key_once(&e, &key);
+            assert!(e.message.contains(range), "{to}: {e} (wanted {range:?})");
+        }
     }
 }
