@@ -10,8 +10,8 @@
 
 use serde::{Deserialize, Serialize};
 
-/// At most this many conditioning points (way-points) per execution (DESIGN §2).
-pub const MAX_CONDITIONING_POINTS: usize = crate::space::MAX_WAYPOINTS;
+use crate::space::MAX_WAYPOINTS;
+
 /// At most this many primitives.
 pub const MAX_PRIMITIVES: usize = 8;
 
@@ -77,7 +77,7 @@ impl Default for ActivationConfig {
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum ScheduleError {
-    #[error("need 1 to {MAX_CONDITIONING_POINTS} conditioning points, got {0}")]
+    #[error("need 1 to {MAX_WAYPOINTS} conditioning points, got {0}")]
     PointCount(usize),
     #[error("need 1 to {MAX_PRIMITIVES} primitives, got {0}")]
     PrimitiveCount(usize),
@@ -138,8 +138,8 @@ impl ActiveGroups {
 /// a_j(t) and b_i(t) for one way-point set. Copy, no heap: the tick evaluates it in place.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Schedule {
-    t_cond: [f64; MAX_CONDITIONING_POINTS],
-    q: [usize; MAX_CONDITIONING_POINTS],
+    t_cond: [f64; MAX_WAYPOINTS],
+    q: [usize; MAX_WAYPOINTS],
     points: usize,
     primitives: usize,
     duration: f64,
@@ -155,7 +155,7 @@ impl Schedule {
         config: ActivationConfig,
     ) -> Result<Self, ScheduleError> {
         let n = t_cond.len();
-        if n == 0 || n > MAX_CONDITIONING_POINTS {
+        if n == 0 || n > MAX_WAYPOINTS {
             return Err(ScheduleError::PointCount(n));
         }
         if primitives == 0 || primitives > MAX_PRIMITIVES {
@@ -191,8 +191,8 @@ impl Schedule {
             }
         }
         let mut s = Self {
-            t_cond: [0.0; MAX_CONDITIONING_POINTS],
-            q: [0; MAX_CONDITIONING_POINTS],
+            t_cond: [0.0; MAX_WAYPOINTS],
+            q: [0; MAX_WAYPOINTS],
             points: n,
             primitives,
             duration,
@@ -488,6 +488,6 @@ mod tests {
             "activation.crossfade_s: 0.05 s changes activations",
         );
         ActivationConfig::default().validate().unwrap();
-        assert_eq!(MAX_CONDITIONING_POINTS, crate::space::MAX_WAYPOINTS);
+        assert_eq!(MAX_WAYPOINTS, crate::space::MAX_WAYPOINTS);
     }
 }
