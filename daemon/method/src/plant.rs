@@ -11,6 +11,51 @@ use serde::{Deserialize, Serialize};
 
 use crate::pcc::{ACTUATORS, ArmGeometry};
 
+/// The `[sim]` section: the sim driver's rate and start, and the plant's realism.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SimConfig {
+    /// Rate of `tracker` and `motor_state` (Hz).
+    pub rate_hz: f64,
+    /// Where the actuators rest at start.
+    pub initial_actuation: [f64; ACTUATORS],
+    pub realism: Realism,
+}
+
+impl Default for SimConfig {
+    fn default() -> Self {
+        Self {
+            rate_hz: 200.0,
+            initial_actuation: [0.5; ACTUATORS],
+            realism: Realism::default(),
+        }
+    }
+}
+
+impl SimConfig {
+    /// Checks every field; the error is `sim.KEY: message` (`sim.realism.KEY` for the realism).
+    pub fn validate(&self) -> Result<(), String> {
+        if !(self.rate_hz.is_finite() && (1.0..=5000.0).contains(&self.rate_hz)) {
+            return Err(format!(
+                "sim.rate_hz: must be in [1, 5000] Hz, got {:?}",
+                self.rate_hz
+            ));
+        }
+        if let Some(i) = self
+            .initial_actuation
+            .iter()
+            .position(|a| !(0.0..=1.0).contains(a))
+        {
+            return Err(format!(
+                "sim.initial_actuation: actuator {} is {:?}; each must be in [0, 1]",
+                i + 1,
+                self.initial_actuation[i]
+            ));
+        }
+        self.realism.validate()
+    }
+}
+
 /// The `[sim]` realism settings. Zero turns an effect off.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]

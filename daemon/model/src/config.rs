@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 use softarm_method::Workspace;
 use softarm_method::pcc::ArmGeometry;
-use softarm_method::plant::Realism;
+use softarm_method::plant::SimConfig;
 
 use softarm_method::activation::ActivationConfig;
 use softarm_method::cacla::{LearnerConfig, PretrainConfig};
@@ -123,51 +123,6 @@ pub struct ModelConfig {
 pub struct StateConfig {
     /// Learner checkpoints live here.
     pub dir: PathBuf,
-}
-
-/// The `[sim]` section.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct SimConfig {
-    /// Rate of `tracker` and `motor_state` (Hz).
-    pub rate_hz: f64,
-    /// Where the actuators rest at start.
-    pub initial_actuation: [f64; 6],
-    pub realism: Realism,
-}
-
-impl Default for SimConfig {
-    fn default() -> Self {
-        Self {
-            rate_hz: 200.0,
-            initial_actuation: [0.5; 6],
-            realism: Realism::default(),
-        }
-    }
-}
-
-impl SimConfig {
-    /// Checks every field; the error is `sim.KEY: message` (`sim.realism.KEY` for the realism).
-    pub fn validate(&self) -> Result<(), String> {
-        if !(self.rate_hz.is_finite() && (1.0..=5000.0).contains(&self.rate_hz)) {
-            return Err(format!(
-                "sim.rate_hz: must be in [1, 5000] Hz, got {:?}",
-                self.rate_hz
-            ));
-        }
-        if let Some(i) = self
-            .initial_actuation
-            .iter()
-            .position(|a| !(0.0..=1.0).contains(a))
-        {
-            return Err(format!(
-                "sim.initial_actuation: actuator {} is {:?}; each must be in [0, 1]",
-                i + 1,
-                self.initial_actuation[i]
-            ));
-        }
-        self.realism.validate()
-    }
 }
 
 /// A config error: the message names the key; `line` is where that key stands, if found.

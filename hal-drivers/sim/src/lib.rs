@@ -10,8 +10,7 @@ use softarm_ipc::clock::Ticker;
 use softarm_ipc::{MotorState, Namespace, Node, TrackerSample, now_ns};
 
 use softarm_method::pcc::ArmGeometry;
-use softarm_method::plant::Plant;
-use softarm_model::config::SimConfig;
+use softarm_method::plant::{Plant, SimConfig};
 
 /// Runs the simulated arm until `stop` is set.
 pub fn run(
