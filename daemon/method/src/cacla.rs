@@ -16,8 +16,9 @@ use crate::forward::ForwardModel;
 use crate::rbf::{Features, Lattice, LinearRbf, RbfError};
 use crate::space::{ACTUATORS, Actuation, Position, distance};
 
-/// Hyper-parameters; the `[learner]` section of the config. Defaults: DESIGN §4, but for h
-/// (`sigma_max`, see there).
+/// Hyper-parameters; the `[learner]` section of the config. Defaults: the starting values the
+/// paper's method suggests (α_V 0.1, α_Ac 0.2, γ 0.5, b 30 mm, c 100 /m, lattices 30/15 mm), but
+/// for h (`sigma_max`, see there).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct LearnerConfig {
@@ -27,7 +28,7 @@ pub struct LearnerConfig {
     pub alpha_actor: f64,
     /// γ
     pub gamma: f64,
-    /// h: the largest exploration σ (normalised actuation). DESIGN's starting value 0.15 is
+    /// h: the largest exploration σ (normalised actuation). The usual starting value 0.15 is
     /// unstable on the suggested arm: σ = 0.15 moves the end effector ~135 mm, so the next
     /// σ(g) is h again and the error never falls (loop gain ≈ 0.9 m · h c / 4 ≈ 3.4). 0.03 keeps
     /// that gain below 1.

@@ -1,5 +1,5 @@
-//! Piecewise-constant-curvature kinematics of the two-module, six-actuator arm (DESIGN §5,
-//! conventions of `shared/reference/pcc.md`). Pure math.
+//! Piecewise-constant-curvature kinematics of the two-module, six-actuator arm, with the
+//! conventions of the independent NumPy model the tests agree with. Pure math.
 //!
 //! Module frame: z along the straight backbone; actuator i at β_i = ψ + (i − 1)·120°, radius d.
 //! A module bends towards φ by θ = κ·l, and actuator i has length l − θ d cos(β_i − φ).
@@ -25,8 +25,8 @@ pub enum Mount {
     Standing,
 }
 
-/// The arm's geometry; the `[arm]` section of the config. Defaults: the suggested arm of
-/// DESIGN §5.
+/// The arm's geometry; the `[arm]` section of the config. Defaults: two 0.22 m modules,
+/// actuator radius 25 mm, actuator length 0.19–0.25 m, second module rotated 60°, hanging base.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct ArmGeometry {
@@ -269,8 +269,8 @@ mod tests {
         }
     }
 
-    /// Every value of `shared/reference/pcc.md` (independent NumPy implementation, given to
-    /// 1e-6 m there; agreement here is to the printed digits, 5e-7 m).
+    /// Every value of the team's PCC reference table (an independent NumPy implementation,
+    /// printed to 1e-6 m and copied here; agreement is to the printed digits, 5e-7 m).
     #[test]
     fn agrees_with_the_reference_values() {
         let arm = ArmGeometry::default();

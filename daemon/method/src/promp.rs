@@ -2,7 +2,7 @@
 //! the weights of normalised Gaussian basis functions, trained from demonstrations and
 //! conditioned on via-points. Pure math: no I/O.
 //!
-//! Conventions (DESIGN §4, and `movement_primitives` 0.9.1, which the tests cross-check):
+//! Conventions (those of `movement_primitives` 0.9.1, which the tests cross-check):
 //! phase z = t / T on [0, 1]; K centres `linspace(0, 1, K)`; basis variance
 //! h = −1 / (8 K² ln 0.7) unless configured; weights DoF-major `[dof0 w0..wK-1, dof1 ...]`.
 

@@ -1,4 +1,4 @@
-//! Model bundles and learner checkpoints on disk (DESIGN §7): tensors in safetensors (readable
+//! Model bundles and learner checkpoints on disk: tensors in safetensors (readable
 //! from Python/numpy), metadata in TOML.
 //!
 //! A bundle in folder `dir` with stem `model` is `model.toml` plus `model-<hash>.safetensors`,

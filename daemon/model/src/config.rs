@@ -1,4 +1,4 @@
-//! The one configuration file every softarm process reads (DESIGN §7): TOML, unknown keys
+//! The one configuration file every softarm process reads: TOML, unknown keys
 //! refused, every value checked at start; errors name the key and its line.
 
 use std::path::{Path, PathBuf};
