@@ -25,7 +25,7 @@ pub enum Mount {
     Standing,
 }
 
-/// The arm's geometry; the `[arm]` section of the config. Defaults: two 0.22 m modules,
+/// The arm's geometry; the `[arm]` section of the config. Defaults: two modules,
 /// actuator radius 25 mm, actuator length 0.19–0.25 m, second module rotated 60°, hanging base.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
