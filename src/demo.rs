@@ -152,7 +152,7 @@ pub fn run(args: &Args, stop: &AtomicBool) -> Result<(), String> {
             ),
         );
         let t = Instant::now();
-        let r = train::train(&config, &ns, args.seed)?;
+        let r = train::train(&config, &ns, args.seed).map_err(|e| format!("{e:#}"))?;
         say(
             args.json,
             &format!(

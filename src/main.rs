@@ -180,7 +180,8 @@ fn run(cli: Cli) -> Result<ExitCode, String> {
         }
         Command::Train { stack, seed } => {
             let config = stack.load()?;
-            let r = train::train(&config, &stack.namespace()?, seed)?;
+            let r =
+                train::train(&config, &stack.namespace()?, seed).map_err(|e| format!("{e:#}"))?;
             println!(
                 "trained model {} in {}: {} demonstrations ({} samples, {:.1} s); forward model held-out \
                  error {:.2} mm mean, {:.2} mm max; pre-training {:.1} s, {} updates",
