@@ -2,11 +2,14 @@
 
 use std::time::Instant;
 
+use hdrhistogram::Histogram;
 use softarm_method::activation::ActivationConfig;
-use softarm_method::cacla::{CaclaMtl, LearnerConfig, PretrainConfig, pretrain};
+use softarm_method::cacla::{LearnerConfig, PretrainConfig};
 use softarm_method::engine::{Planner, Timeline};
 use softarm_method::pcc::ArmGeometry;
-use softarm_method::skill::{self, DemoRecipe};
+use softarm_method::rbf::NetworkConfig;
+use softarm_method::skill::DemoRecipe;
+use softarm_model::pipeline::{self, Training, TrainingData};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -18,10 +21,8 @@ pub struct Args {
     reconditions: usize,
 }
 
-/// Sorted durations in ns → a min / p50 / p99 / p99.9 / max line.
-fn summary(name: &str, mut ns: Vec<u64>) {
-    ns.sort_unstable();
-    let at = |q: f64| ns[((ns.len() - 1) as f64 * q).round() as usize];
+/// Durations in ns → a min / p50 / p99 / p99.9 / max line (3 significant digits).
+fn summary(name: &str, ns: &Histogram<u64>) {
     let fmt = |v: u64| {
         if v >= 1_000_000 {
             format!("{:.2} ms", v as f64 / 1e6)
@@ -34,12 +35,23 @@ fn summary(name: &str, mut ns: Vec<u64>) {
     println!(
         "{name:<44} n={:<7} min {:>9}  p50 {:>9}  p99 {:>9}  p99.9 {:>9}  max {:>9}",
         ns.len(),
-        fmt(ns[0]),
-        fmt(at(0.5)),
-        fmt(at(0.99)),
-        fmt(at(0.999)),
-        fmt(ns[ns.len() - 1])
+        fmt(ns.min()),
+        fmt(ns.value_at_quantile(0.5)),
+        fmt(ns.value_at_quantile(0.99)),
+        fmt(ns.value_at_quantile(0.999)),
+        fmt(ns.max())
     );
+}
+
+/// An empty histogram of durations from 1 ns to an hour, in ns.
+fn histogram() -> Histogram<u64> {
+    Histogram::new_with_bounds(1, 3_600_000_000_000, 3).expect("valid bounds")
+}
+
+/// Records `start.elapsed()` (beyond the bounds: clamped to them).
+fn record(ns: &mut Histogram<u64>, start: Instant) {
+    let v = u64::try_from(start.elapsed().as_nanos()).unwrap_or(u64::MAX);
+    ns.saturating_record(v);
 }
 
 pub fn run(args: &Args) -> Result<(), String> {
@@ -48,8 +60,9 @@ pub fn run(args: &Args) -> Result<(), String> {
     }
     let arm = ArmGeometry::default();
     let recipe = DemoRecipe::default();
-    let demos = skill::demonstrations(&arm, &recipe, 1);
-    let (actuation, _task) = skill::train_primitives(&demos, 15).map_err(|e| e.to_string())?;
+    let demos = TrainingData::from_plant(&arm, &recipe, 1).map_err(|e| e.to_string())?;
+    let (actuation, _task) =
+        pipeline::primitives(&demos.recordings, 15).map_err(|e| e.to_string())?;
     let t_cond = [1.0, 3.0, 5.0, 7.0, 9.0];
     let planner = Planner::<6>::new(
         actuation,
@@ -67,39 +80,45 @@ pub fn run(args: &Args) -> Result<(), String> {
         std::thread::available_parallelism().map_or(0, |n| n.get())
     );
 
-    let mut ns = Vec::with_capacity(args.ticks);
+    let mut ns = histogram();
     let mut sink = 0.0;
     for i in 0..args.ticks {
         let start = Instant::now();
         let v = engine.tick(std::hint::black_box(i % ticks));
-        ns.push(start.elapsed().as_nanos() as u64);
+        record(&mut ns, start);
         sink += v[0];
     }
-    summary("Eq. 11 tick", ns);
+    summary("Eq. 11 tick", &ns);
 
     let k3 = engine.timeline().tick_of(t_cond[3]);
-    let mut ns = Vec::with_capacity(args.reconditions);
+    let mut ns = histogram();
     for i in 0..args.reconditions {
         let a = [0.4 + 0.002 * i as f64; 6];
         let start = Instant::now();
         replanner.recondition(1, &a).map_err(|e| e.to_string())?;
         sink += engine.tick(k3)[0];
-        ns.push(start.elapsed().as_nanos() as u64);
+        record(&mut ns, start);
     }
-    summary("re-condition one group + ready", ns);
+    summary("re-condition one group + ready", &ns);
 
     // A CACLA-MTL update at a conditioning point, five points visited in turn as in an
-    // execution, on a learner warmed up by a short pre-training.
-    let (acts, positions) = skill::forward_data(&demos);
-    let mut learner = CaclaMtl::new(LearnerConfig::default())?;
-    learner.imitate(&positions, &acts, 1);
-    let warm = PretrainConfig {
-        max_epochs: 2_000,
-        ..Default::default()
+    // execution, on a learner warmed up by one imitation pass and a short pre-training on the
+    // kinematic model.
+    let warm = Training {
+        basis_functions: 15,
+        forward: NetworkConfig::default(),
+        learner: LearnerConfig::default(),
+        pretrain: PretrainConfig {
+            max_epochs: 2_000,
+            ..Default::default()
+        },
+        imitation_passes: 1,
     };
-    pretrain(&mut learner, &arm, &positions, &warm, |_| true);
+    let positions = &demos.positions;
+    let (mut learner, _) = pipeline::learner(&warm, &arm, &demos.actuations, positions, |_| true)
+        .map_err(|e| e.to_string())?;
     let updates = args.ticks.min(100_000);
-    let mut ns = Vec::with_capacity(updates);
+    let mut ns = histogram();
     for i in 0..updates {
         let point = i % 5;
         let target = positions[(i / 100 * 5 + point) * 37 % positions.len()];
@@ -107,10 +126,10 @@ pub fn run(args: &Args) -> Result<(), String> {
         let reached = arm.position(&a);
         let start = Instant::now();
         let visit = learner.observe(point, &target, &a, &reached);
-        ns.push(start.elapsed().as_nanos() as u64);
+        record(&mut ns, start);
         sink += visit.error;
     }
-    summary("CACLA-MTL update at a conditioning point", ns);
+    summary("CACLA-MTL update at a conditioning point", &ns);
     std::hint::black_box(sink);
     Ok(())
 }

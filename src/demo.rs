@@ -151,7 +151,7 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
             ),
         );
         let t = Instant::now();
-        let r = train::train(&config, &ns, args.seed).map_err(anyhow::Error::msg)?;
+        let r = train::train(&config, &ns, args.seed)?;
         say(
             args.json,
             &format!(

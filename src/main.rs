@@ -182,7 +182,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         }
         Command::Train { stack, seed } => {
             let config = stack.load()?;
-            let r = train::train(&config, &stack.namespace()?, seed).map_err(anyhow::Error::msg)?;
+            let r = train::train(&config, &stack.namespace()?, seed)?;
             println!(
                 "trained model {} in {}: {} demonstrations ({} samples, {:.1} s); forward model held-out \
                  error {:.2} mm mean, {:.2} mm max; pre-training {:.1} s, {} updates",

@@ -1,18 +1,18 @@
 //! End to end: the real `softarm` binary as separate processes over real iceoryx2 services, one
 //! namespace per test.
 
-mod common;
-
 use std::path::Path;
 use std::time::Duration;
 
-use common::{DEMO_WAYPOINTS, TestStack, alive, set_id};
 use nix::sys::signal::{Signal, kill};
 use nix::unistd::Pid;
+use softarm_test_support::{DEMO_WAYPOINTS, TestStack, alive, set_id};
+
+const BIN: &str = env!("CARGO_BIN_EXE_softarm");
 
 #[test]
 fn a_set_is_executed_and_stats_arrive_for_every_execution() {
-    let mut s = TestStack::new("execute", true);
+    let mut s = TestStack::new(BIN, "execute", true);
     s.up();
     let (code, out, err) = s.submit(Path::new(DEMO_WAYPOINTS), 2);
     assert_eq!(code, 0, "{out}{err}");
@@ -52,7 +52,7 @@ fn a_set_is_executed_and_stats_arrive_for_every_execution() {
 
 #[test]
 fn an_invalid_set_is_rejected_with_its_reason_and_the_running_one_goes_on() {
-    let mut s = TestStack::new("reject", true);
+    let mut s = TestStack::new(BIN, "reject", true);
     s.up();
     let (code, out, err) = s.submit(Path::new(DEMO_WAYPOINTS), 3);
     assert_eq!(code, 0, "{out}{err}");
@@ -81,7 +81,8 @@ fn an_invalid_set_is_rejected_with_its_reason_and_the_running_one_goes_on() {
         "duration_s = 2.0\n[[point]]\nt_s = 1.0\nposition_m = [0.0, 0.0, 0.3]\n",
     )
     .unwrap();
-    let out = std::process::Command::new(common::BIN)
+    let out = s
+        .command()
         .args([
             "submit",
             far.to_str().unwrap(),
@@ -108,7 +109,7 @@ fn an_invalid_set_is_rejected_with_its_reason_and_the_running_one_goes_on() {
 
 #[test]
 fn submit_without_a_stack_says_what_to_do() {
-    let s = TestStack::new("nostack", false);
+    let s = TestStack::new(BIN, "nostack", false);
     let (code, out, err) = s.submit(Path::new(DEMO_WAYPOINTS), 1);
     assert_eq!(code, 1, "{out}{err}");
     assert!(
@@ -119,7 +120,7 @@ fn submit_without_a_stack_says_what_to_do() {
 
 #[test]
 fn stopping_up_leaves_no_process_behind() {
-    let mut s = TestStack::new("stop", false);
+    let mut s = TestStack::new(BIN, "stop", false);
     s.up();
     let children = s.children();
     let roles: Vec<&str> = children.iter().map(|c| c.0.as_str()).collect();
@@ -133,7 +134,7 @@ fn stopping_up_leaves_no_process_behind() {
 
 #[test]
 fn a_killed_process_is_noticed_and_restarted() {
-    let mut s = TestStack::new("restart", true);
+    let mut s = TestStack::new(BIN, "restart", true);
     s.up();
     let (_, learner) = s.children().into_iter().find(|c| c.0 == "learner").unwrap();
     kill(Pid::from_raw(learner), Signal::SIGKILL).unwrap();
@@ -154,7 +155,7 @@ fn a_killed_process_is_noticed_and_restarted() {
 
 #[test]
 fn stale_tracker_data_holds_and_estop_stops() {
-    let mut s = TestStack::new("safety", false);
+    let mut s = TestStack::new(BIN, "safety", false);
     s.up();
     let (_, sim) = s.children().into_iter().find(|c| c.0 == "sim").unwrap();
     // A frozen driver: no tracker data, so HOLD; it resumes when the data returns.
@@ -184,7 +185,7 @@ fn stale_tracker_data_holds_and_estop_stops() {
 
 #[test]
 fn train_writes_a_bundle_through_the_running_stack() {
-    let mut s = TestStack::new("train", false);
+    let mut s = TestStack::new(BIN, "train", false);
     s.up();
     // Without a model the controller says what to do.
     let (code, out, _) = s.submit(Path::new(DEMO_WAYPOINTS), 1);
@@ -213,13 +214,14 @@ fn train_writes_a_bundle_through_the_running_stack() {
 
 #[test]
 fn config_check_names_the_key_and_line() {
-    let s = TestStack::new("config", false);
+    let s = TestStack::new(BIN, "config", false);
     let text = std::fs::read_to_string(&s.config)
         .unwrap()
         .replace("rate_hz = 500.0", "rate_hz = 5000.0");
     let bad = s.dir.join("bad.toml");
     std::fs::write(&bad, &text).unwrap();
-    let out = std::process::Command::new(common::BIN)
+    let out = s
+        .command()
         .args(["config", "check"])
         .arg(&bad)
         .output()
@@ -235,7 +237,8 @@ fn config_check_names_the_key_and_line() {
         err.contains(&format!("bad.toml:{line}: controller.rate_hz")),
         "{err}"
     );
-    let out = std::process::Command::new(common::BIN)
+    let out = s
+        .command()
         .args(["config", "check"])
         .arg(&s.config)
         .output()

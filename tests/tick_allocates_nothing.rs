@@ -3,54 +3,22 @@
 //! and `learner` processes, through whole executions of a way-point set: conditioning samples,
 //! re-conditioned groups swapped in, stats and status published.
 
-mod common;
-
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
 use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
-use common::TestStack;
 use softarm_clients::{stats, submit};
 use softarm_ipc::Namespace;
 use softarm_model::config::Config;
-
-struct Counting;
-
-static TICK_ALLOCATIONS: AtomicU64 = AtomicU64::new(0);
-
-thread_local! {
-    static COUNTED: Cell<bool> = const { Cell::new(false) };
-}
-
-fn count() {
-    if COUNTED.try_with(|c| c.get()).unwrap_or(false) {
-        TICK_ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
-    }
-}
-
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        count();
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        count();
-        unsafe { System.dealloc(ptr, layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new: usize) -> *mut u8 {
-        count();
-        unsafe { System.realloc(ptr, layout, new) }
-    }
-}
+use softarm_test_support::alloc::{self, Counting};
+use softarm_test_support::{DEMO_WAYPOINTS, TestStack};
 
 #[global_allocator]
 static GLOBAL: Counting = Counting;
 
 #[test]
 fn the_controller_tick_allocates_nothing_once_running() {
-    let s = TestStack::new("alloc", true);
+    let s = TestStack::new(env!("CARGO_BIN_EXE_softarm"), "alloc", true);
     let config = Config::load(&s.config).unwrap();
     let mut sim = s.spawn(&["sim"]);
     let mut learner = s.spawn(&["learner"]);
@@ -62,14 +30,14 @@ fn the_controller_tick_allocates_nothing_once_running() {
         // `controller::run` runs its tick loop on the calling thread: this one is counted. Its
         // service thread, and everything else in this test, is not.
         std::thread::spawn(move || {
-            COUNTED.with(|c| c.set(true));
+            let _counted = alloc::count_this_thread();
             softarm_controller::run(&config, &stop)
         })
     };
 
     let ns = Namespace::new(&s.namespace).unwrap();
     let follower = stats::Stats::open(&ns).unwrap();
-    let set = submit::prepare(&config, std::path::Path::new(common::DEMO_WAYPOINTS), 3).unwrap();
+    let set = submit::prepare(&config, std::path::Path::new(DEMO_WAYPOINTS), 3).unwrap();
     // The controller may still be loading its model: retry until it takes the set.
     let mut outcome = submit::submit(&ns, set, Duration::from_secs(10));
     for _ in 0..20 {
@@ -92,10 +60,10 @@ fn the_controller_tick_allocates_nothing_once_running() {
     };
     // Warm: the first execution ran every path of the tick once.
     assert_eq!(next().execution, 1);
-    let before = TICK_ALLOCATIONS.load(Ordering::Relaxed);
+    let before = alloc::all_threads();
     assert_eq!(next().execution, 2);
     assert_eq!(next().execution, 3);
-    let during = TICK_ALLOCATIONS.load(Ordering::Relaxed) - before;
+    let during = alloc::all_threads() - before;
 
     stop.store(true, Ordering::Relaxed);
     controller.join().unwrap().unwrap();

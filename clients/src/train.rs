@@ -1,19 +1,18 @@
 //! `softarm train`: drives the arm through the paper's III-B demonstrations via the running
-//! controller, records actuation and end-effector position, trains the actuation- and
-//! task-space ProMPs and the forward model, pre-trains the learner against the forward model,
-//! and writes the model bundle (atomically) where the controller and learner pick it up.
+//! controller and records actuation and end-effector position; then the offline pipeline
+//! ([`softarm_model::pipeline`]) trains the actuation- and task-space ProMPs and the forward
+//! model and pre-trains the learner against the forward model; the bundle is written
+//! (atomically) where the controller and learner pick it up.
 
 use std::io::IsTerminal;
 use std::time::{Duration, Instant};
 
+use anyhow::{Context, Result, anyhow, bail, ensure};
 use indicatif::{ProgressBar, ProgressStyle};
 use softarm_ipc::{ControllerState, DemonstrateRequest, Namespace, Node, now_ns};
-use softarm_method::cacla::{CaclaMtl, pretrain};
-use softarm_method::forward::ForwardModel;
-use softarm_method::rbf::RbfNetwork;
-use softarm_method::skill::{Recording, train_primitives};
-use softarm_model::bundle::Model;
+use softarm_method::skill::Recording;
 use softarm_model::config::Config;
+use softarm_model::pipeline::{self, Training, TrainingData};
 
 /// What training measured.
 #[derive(Debug, Clone)]
@@ -51,38 +50,55 @@ struct Sample {
     position: [f64; 3],
 }
 
-/// Records demonstrations through the running stack in `namespace`.
-fn record(namespace: &Namespace, seed: u64) -> Result<(Vec<Sample>, usize, f64), String> {
-    let e = |e: softarm_ipc::Error| e.to_string();
-    let ipc = Node::open(namespace.clone(), "train").map_err(e)?;
-    let setpoints = ipc.subscriber(&ipc.setpoint().map_err(e)?).map_err(e)?;
-    let motors = ipc.subscriber(&ipc.motor_state().map_err(e)?).map_err(e)?;
-    let tracker = ipc.subscriber(&ipc.tracker().map_err(e)?).map_err(e)?;
-    let client = ipc.client(&ipc.demonstrate().map_err(e)?).map_err(e)?;
+/// Records demonstrations through the running stack in `namespace`: (samples, demonstrations,
+/// seconds it took).
+fn record(namespace: &Namespace, seed: u64) -> Result<(Vec<Sample>, usize, f64)> {
+    let ipc = Node::open(namespace.clone(), "train")
+        .with_context(|| format!("joining namespace {:?}", namespace.as_str()))?;
+    let setpoints = ipc
+        .subscriber(&ipc.setpoint().context("the setpoint service")?)
+        .context("subscribing to setpoints")?;
+    let motors = ipc
+        .subscriber(&ipc.motor_state().context("the motor_state service")?)
+        .context("subscribing to motor_state")?;
+    let tracker = ipc
+        .subscriber(&ipc.tracker().context("the tracker service")?)
+        .context("subscribing to the tracker")?;
+    let client = ipc
+        .client(&ipc.demonstrate().context("the demonstrate service")?)
+        .context("a client of the demonstrate service")?;
     let pending = client
         .send_copy(DemonstrateRequest {
             seq: now_ns(),
             stamp_ns: now_ns(),
             seed,
         })
-        .map_err(|x| format!("sending the request: {x:?}"))?;
+        .map_err(|x| anyhow!("sending the request: {x:?}"))?;
     let reply = crate::poll(Duration::from_secs(5), || {
         pending.receive().ok().flatten().map(|r| *r)
     })
-    .ok_or_else(|| crate::unreachable(namespace.as_str(), "the demonstration request"))?;
-    if reply.accepted != 1 {
-        return Err(
-            "the controller refused to demonstrate: it is busy (executing, planning or in HOLD); \
-                    wait for it to be IDLE"
-                .into(),
-        );
-    }
+    .ok_or_else(|| {
+        anyhow!(crate::unreachable(
+            namespace.as_str(),
+            "the demonstration request"
+        ))
+    })?;
+    ensure!(
+        reply.accepted == 1,
+        "the controller refused to demonstrate: it is busy (executing, planning or in HOLD); \
+         wait for it to be IDLE"
+    );
     let demos = reply.demos as usize;
     let expected = reply.duration_s;
     tracing::info!(demos, seconds = expected, "playing demonstrations");
+    let deadline = deadline(expected).ok_or_else(|| {
+        anyhow!(
+            "the controller announced {demos} demonstrations taking {expected} s, which is no \
+             usable duration; nothing was written"
+        )
+    })?;
     let progress = bar(demos as u64, "demonstrations");
     let start = Instant::now();
-    let deadline = Duration::from_secs_f64(expected * 1.5 + 10.0);
     let mut samples = Vec::new();
     let mut setpoint = None;
     let mut measured = None;
@@ -120,115 +136,180 @@ fn record(namespace: &Namespace, seed: u64) -> Result<(Vec<Sample>, usize, f64),
             }
             demonstrating |= state == Some(ControllerState::Demonstrate);
             if demonstrating && state == Some(ControllerState::Idle) {
-                return Err("the controller stopped demonstrating before the last demonstration;                             nothing was written"
-                    .into());
+                bail!(
+                    "the controller stopped demonstrating before the last demonstration; \
+                     nothing was written"
+                );
             }
             if matches!(state, Some(ControllerState::Stopped)) {
-                return Err(
-                    "the e-stop was engaged during the demonstrations; nothing was written".into(),
-                );
+                bail!("the e-stop was engaged during the demonstrations; nothing was written");
             }
         }
         if start.elapsed() > deadline {
-            return Err(format!(
+            bail!(
                 "the demonstrations did not finish within {:.0} s (controller in HOLD? sim running?); \
                  nothing was written",
                 deadline.as_secs_f64()
-            ));
+            );
         }
     }
     progress.finish_and_clear();
     Ok((samples, demos, start.elapsed().as_secs_f64()))
 }
 
-/// Runs the whole training against the stack in `namespace` and writes the bundle.
-pub fn train(config: &Config, namespace: &Namespace, seed: u64) -> Result<TrainReport, String> {
-    let (samples, demos, demonstrate_s) = record(namespace, seed)?;
+/// How long to wait for demonstrations the controller says take `expected` s: half as long
+/// again and 10 s more; `None` for a negative, non-finite or too large `expected`.
+fn deadline(expected: f64) -> Option<Duration> {
+    if expected.is_nan() || expected < 0.0 {
+        return None;
+    }
+    Duration::try_from_secs_f64(expected * 1.5 + 10.0).ok()
+}
+
+/// The pre-training budget `pretrain.budget_s` as a duration; one too large to represent is no
+/// limit at all.
+fn budget(seconds: f64) -> Result<Duration> {
+    ensure!(
+        seconds >= 0.0,
+        "pretrain.budget_s must be a number of seconds >= 0, got {seconds}"
+    );
+    Ok(Duration::try_from_secs_f64(seconds).unwrap_or(Duration::MAX))
+}
+
+/// The samples of demonstrations `0..demos`, one recording each: commanded actuation and
+/// tracked position, times from the demonstration's first sample, strictly increasing.
+fn recordings(samples: &[Sample], demos: usize) -> Result<Vec<Recording>> {
     let mut recordings = Vec::with_capacity(demos);
     for d in 0..demos as u32 {
         let mine: Vec<&Sample> = samples.iter().filter(|s| s.demo == d).collect();
         if mine.len() < 10 {
-            return Err(format!(
+            bail!(
                 "demonstration {d} has only {} samples (tracker or controller stalled); nothing was written",
                 mine.len()
-            ));
+            );
         }
         let t0 = mine[0].stamp_ns;
+        let mut times: Vec<f64> = mine
+            .iter()
+            .map(|s| s.stamp_ns.saturating_sub(t0) as f64 * 1e-9)
+            .collect();
+        // Timestamps of two samples can coincide: keep times strictly increasing.
+        for i in 1..times.len() {
+            if times[i] <= times[i - 1] {
+                times[i] = times[i - 1] + 1e-6;
+            }
+        }
         recordings.push(Recording {
             class: mine[0].class as usize,
-            times: mine
-                .iter()
-                .map(|s| (s.stamp_ns - t0) as f64 * 1e-9)
-                .collect(),
+            times,
             actuation: mine.iter().map(|s| s.commanded).collect(),
             position: mine.iter().map(|s| s.position).collect(),
         });
     }
-    // Timestamps of two samples can coincide: keep times strictly increasing.
-    for r in &mut recordings {
-        for i in 1..r.times.len() {
-            if r.times[i] <= r.times[i - 1] {
-                r.times[i] = r.times[i - 1] + 1e-6;
-            }
-        }
-    }
-    let (actuation, task) = train_primitives(&recordings, config.model.basis_functions)
-        .map_err(|e| format!("training the primitives: {e}"))?;
+    Ok(recordings)
+}
 
-    // D_fwd: what the actuators really did and where the end effector was.
-    let acts: Vec<[f64; 6]> = samples.iter().map(|s| s.measured).collect();
-    let positions: Vec<[f64; 3]> = samples.iter().map(|s| s.position).collect();
-    let fit_idx: Vec<usize> = (0..acts.len()).filter(|i| i % 5 != 0).collect();
-    let fit_a: Vec<_> = fit_idx.iter().map(|&i| acts[i]).collect();
-    let fit_p: Vec<_> = fit_idx.iter().map(|&i| positions[i]).collect();
-    let held = RbfNetwork::fit(&fit_a, &fit_p, &config.forward_model).map_err(|e| e.to_string())?;
-    let errs: Vec<f64> = (0..acts.len())
-        .step_by(5)
-        .map(|i| {
-            let y = held.position(&acts[i]);
-            (0..3)
-                .map(|d| (y[d] - positions[i][d]).powi(2))
-                .sum::<f64>()
-                .sqrt()
-        })
-        .collect();
-    let forward_error_m = (
-        errs.iter().sum::<f64>() / errs.len() as f64,
-        errs.iter().cloned().fold(0.0, f64::max),
-    );
-    let forward =
-        RbfNetwork::fit(&acts, &positions, &config.forward_model).map_err(|e| e.to_string())?;
-
-    let mut learner = CaclaMtl::new(config.learner)?;
-    learner.imitate(&positions, &acts, 3);
-    let budget = Duration::from_secs_f64(config.pretrain.budget_s);
-    let progress = bar(budget.as_secs(), "pre-training s");
-    let start = Instant::now();
-    let report = pretrain(&mut learner, &forward, &positions, &config.pretrain, |_| {
+/// Runs the whole training against the stack in `namespace` and writes the bundle.
+pub fn train(config: &Config, namespace: &Namespace, seed: u64) -> Result<TrainReport> {
+    let budget = budget(config.pretrain.budget_s)?;
+    let (samples, demos, demonstrate_s) = record(namespace, seed)?;
+    let data = TrainingData {
+        recordings: recordings(&samples, demos)?,
+        duration_s: config.demonstrations.duration_s,
+        // D_fwd: what the actuators really did and where the end effector was.
+        actuations: samples.iter().map(|s| s.measured).collect(),
+        positions: samples.iter().map(|s| s.position).collect(),
+    };
+    // The budget and the progress bar start with the pre-training, after the fits.
+    let mut started: Option<(Instant, ProgressBar)> = None;
+    let trained = pipeline::train(&data, &Training::from(config), |_| {
+        let (start, progress) = started
+            .get_or_insert_with(|| (Instant::now(), bar(budget.as_secs(), "pre-training s")));
         progress.set_position(start.elapsed().as_secs());
         start.elapsed() < budget
     });
-    progress.finish_and_clear();
-    let pretrain_s = start.elapsed().as_secs_f64();
-
-    let model = Model {
-        actuation,
-        task,
-        forward,
-        learner: learner.state(),
-        demo_duration_s: config.demonstrations.duration_s,
-        id: String::new(),
-    };
+    let pretrain_s = started.map_or(0.0, |(start, progress)| {
+        progress.finish_and_clear();
+        start.elapsed().as_secs_f64()
+    });
+    let (model, report) = trained.context("training on the demonstrations; nothing was written")?;
     let model_id = model
         .write(&config.model_dir())
-        .map_err(|e| e.to_string())?;
+        .context("writing the model bundle")?;
     Ok(TrainReport {
         demos,
         samples: samples.len(),
         demonstrate_s,
-        forward_error_m,
+        forward_error_m: (report.forward_error.mean_m, report.forward_error.max_m),
         pretrain_s,
-        pretrain_updates: report.updates,
+        pretrain_updates: report.pretrain.updates,
         model_id,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sample(demo: u32, class: u32, stamp_ns: u64, v: f64) -> Sample {
+        Sample {
+            demo,
+            class,
+            stamp_ns,
+            commanded: [v; 6],
+            measured: [v + 0.01; 6],
+            position: [v, 0.0, -0.5],
+        }
+    }
+
+    #[test]
+    fn samples_become_one_recording_per_demonstration_with_increasing_times() {
+        let mut samples = Vec::new();
+        for d in 0..2u32 {
+            for i in 0..12u64 {
+                // Samples 2 and 3 share a stamp.
+                let stamp =
+                    1_000_000_000 * (d as u64 + 1) + 20_000_000 * if i == 3 { 2 } else { i };
+                samples.push(sample(d, d + 1, stamp, 0.1 * i as f64));
+            }
+        }
+        samples.push(sample(7, 0, 5, 0.5));
+        let r = recordings(&samples, 2).unwrap();
+        assert_eq!(r.len(), 2);
+        for (d, rec) in r.iter().enumerate() {
+            assert_eq!(rec.class, d + 1);
+            assert_eq!(rec.times.len(), 12);
+            assert_eq!(rec.times[0], 0.0);
+            assert!(rec.times.windows(2).all(|w| w[1] > w[0]), "{:?}", rec.times);
+            assert_eq!(rec.actuation[3], [0.30000000000000004; 6]);
+            assert_eq!(rec.position[3][0], 0.30000000000000004);
+        }
+        // A stamp before the first one does not underflow.
+        samples.insert(1, sample(0, 1, 0, 0.0));
+        let r = recordings(&samples, 2).unwrap();
+        assert!(r[0].times.windows(2).all(|w| w[1] > w[0]));
+    }
+
+    #[test]
+    fn a_stalled_demonstration_is_an_error() {
+        let samples: Vec<Sample> = (0..30).map(|i| sample(i % 3, 0, i as u64, 0.5)).collect();
+        let e = recordings(&samples, 4).unwrap_err().to_string();
+        assert!(e.contains("demonstration 3 has only 0 samples"), "{e}");
+        assert!(recordings(&samples, 3).is_ok());
+    }
+
+    #[test]
+    fn unusable_durations_are_errors_not_panics() {
+        assert_eq!(deadline(4.0), Some(Duration::from_secs(16)));
+        for bad in [f64::NAN, -1.0, f64::INFINITY, 1e300] {
+            assert_eq!(deadline(bad), None, "{bad}");
+        }
+        assert_eq!(budget(2.5).unwrap(), Duration::from_millis(2500));
+        assert_eq!(budget(1e300).unwrap(), Duration::MAX);
+        assert_eq!(budget(f64::INFINITY).unwrap(), Duration::MAX);
+        for bad in [f64::NAN, -0.5] {
+            let e = budget(bad).unwrap_err().to_string();
+            assert!(e.contains("pretrain.budget_s"), "{e}");
+        }
+    }
 }

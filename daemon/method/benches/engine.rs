@@ -1,5 +1,5 @@
 //! Criterion benches of the tick engine: one Eq. 11 tick, re-condition + ready, training, one
-//! conditioning. `cargo bench -p softarm-daemon --bench engine`. Percentiles of single ticks:
+//! conditioning. `cargo bench -p softarm-method --bench engine`. Percentiles of single ticks:
 //! `softarm bench`.
 
 #[path = "../tests/common/mod.rs"]

@@ -1,43 +1,16 @@
 //! A tick of the engine allocates nothing, even while it takes in re-conditioned groups and
 //! hands the old tables back. Proven with a counting global allocator that counts only the
-//! calling thread, so the other tests of this binary can run beside it.
+//! threads that ask, so the other tests of this binary can run beside it.
 
 mod common;
-
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::cell::Cell;
 
 use common::{D, primitives};
 use softarm_method::activation::ActivationConfig;
 use softarm_method::engine::{Planner, Timeline};
-
-struct Counting;
-
-thread_local! {
-    static ALLOCATIONS: Cell<u64> = const { Cell::new(0) };
-}
-
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        let _ = ALLOCATIONS.try_with(|c| c.set(c.get() + 1));
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        let _ = ALLOCATIONS.try_with(|c| c.set(c.get() + 1));
-        unsafe { System.dealloc(ptr, layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new: usize) -> *mut u8 {
-        let _ = ALLOCATIONS.try_with(|c| c.set(c.get() + 1));
-        unsafe { System.realloc(ptr, layout, new) }
-    }
-}
+use softarm_test_support::alloc::{self, Counting};
 
 #[global_allocator]
 static GLOBAL: Counting = Counting;
-
-fn count() -> u64 {
-    ALLOCATIONS.with(|c| c.get())
-}
 
 #[test]
 fn ticks_allocate_and_free_nothing() {
@@ -65,13 +38,14 @@ fn ticks_allocate_and_free_nothing() {
     });
     let replanner = worker.join().unwrap();
 
-    let before = count();
+    let _counted = alloc::count_this_thread();
+    let before = alloc::this_thread();
     let mut sink = 0.0;
     for k in 0..tl.ticks() {
         let v = engine.tick(k);
         sink += v[0];
     }
-    let during = count() - before;
+    let during = alloc::this_thread() - before;
     assert!(sink.is_finite());
     assert!(!engine.has_pending(), "every update was taken in");
     assert_eq!(
@@ -85,8 +59,22 @@ fn ticks_allocate_and_free_nothing() {
 
 #[test]
 fn the_counter_sees_allocations() {
-    let before = count();
+    let before = alloc::this_thread();
     let v: Vec<u8> = Vec::with_capacity(std::hint::black_box(16));
     drop(std::hint::black_box(v));
-    assert_eq!(count() - before, 2);
+    assert_eq!(alloc::this_thread(), before, "not counted before asking");
+    let counted = alloc::count_this_thread();
+    let all = alloc::all_threads();
+    let v: Vec<u8> = Vec::with_capacity(std::hint::black_box(16));
+    drop(std::hint::black_box(v));
+    assert_eq!(alloc::this_thread() - before, 2);
+    assert!(alloc::all_threads() - all >= 2);
+    drop(counted);
+    let v: Vec<u8> = Vec::with_capacity(std::hint::black_box(16));
+    drop(std::hint::black_box(v));
+    assert_eq!(
+        alloc::this_thread() - before,
+        2,
+        "not counted after the guard"
+    );
 }

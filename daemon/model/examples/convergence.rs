@@ -1,62 +1,80 @@
 //! The paper's simulation pipeline, measured: III-B demonstrations from the PCC model, the RBF
-//! forward model fitted on them, CACLA-MTL pre-trained against the forward model, then
-//! evaluated against the PCC model on 200 held-out targets without exploration.
+//! forward model fitted on them, CACLA-MTL warm-started by imitation and pre-trained against
+//! the forward model (the steps of `softarm_model::pipeline`, as `softarm train` runs them),
+//! then evaluated against the PCC model on 200 held-out targets without exploration.
 //!
-//! `cargo run --release -p softarm-daemon --example convergence [-- SECONDS [SEED]]`
+//! `cargo run --release -p softarm-model --example convergence [-- SECONDS [SEED]]`
 
 use std::time::{Duration, Instant};
 
+use hdrhistogram::Histogram;
 use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
-use softarm_method::cacla::{CaclaMtl, LearnerConfig, PretrainConfig, evaluate, pretrain};
+use softarm_method::cacla::{LearnerConfig, PretrainConfig, evaluate};
 use softarm_method::forward::ForwardModel;
 use softarm_method::pcc::ArmGeometry;
-use softarm_method::rbf::{NetworkConfig, RbfNetwork};
-use softarm_method::skill::{DemoRecipe, demonstrations, forward_data};
+use softarm_method::rbf::NetworkConfig;
+use softarm_method::skill::DemoRecipe;
+use softarm_method::space::distance;
+use softarm_model::pipeline::{
+    IMITATION_PASSES, Training, TrainingData, forward_model, imitation, learner,
+};
 
-fn stats(name: &str, mut v: Vec<f64>) {
-    v.sort_by(f64::total_cmp);
-    let n = v.len() as f64;
-    let mean = v.iter().sum::<f64>() / n;
-    let sd = (v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / n).sqrt();
-    let q = |p: f64| v[((v.len() - 1) as f64 * p).round() as usize];
+/// Values on a 3-significant-digit histogram.
+fn histogram(values: impl IntoIterator<Item = u64>) -> Histogram<u64> {
+    let mut h = Histogram::new(3).expect("3 significant digits");
+    for v in values {
+        h.record(v).expect("an auto-resizing histogram");
+    }
+    h
+}
+
+/// Errors (m) → mean ± sd, median, p90 and max in mm.
+fn stats(name: &str, errors: Vec<f64>) {
+    let nm = histogram(errors.iter().map(|e| (e * 1e9).round() as u64));
+    let mm = |v: f64| v / 1e6;
     println!(
         "{name:<34} mean {:6.2} ± {:5.2} mm  median {:6.2}  p90 {:6.2}  max {:6.2}",
-        mean * 1e3,
-        sd * 1e3,
-        q(0.5) * 1e3,
-        q(0.9) * 1e3,
-        q(1.0) * 1e3
+        mm(nm.mean()),
+        mm(nm.stdev()),
+        mm(nm.value_at_quantile(0.5) as f64),
+        mm(nm.value_at_quantile(0.9) as f64),
+        mm(nm.max() as f64)
     );
 }
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
-    let budget = Duration::from_secs_f64(args.get(1).and_then(|s| s.parse().ok()).unwrap_or(60.0));
+    let budget_s: f64 = args.get(1).and_then(|s| s.parse().ok()).unwrap_or(60.0);
+    let Ok(budget) = Duration::try_from_secs_f64(budget_s) else {
+        eprintln!("SECONDS must be a duration >= 0, got {budget_s}");
+        std::process::exit(2);
+    };
     let seed: u64 = args.get(2).and_then(|s| s.parse().ok()).unwrap_or(1);
     let arm = ArmGeometry::default();
     let recipe = DemoRecipe::default();
 
-    let demos = demonstrations(&arm, &recipe, seed);
-    let (acts, positions) = forward_data(&demos);
-    let held_out = demonstrations(&arm, &recipe, seed + 1000);
-    let (h_acts, h_pos) = forward_data(&held_out);
+    let data = TrainingData::from_plant(&arm, &recipe, seed).expect("the default recipe");
+    let (acts, positions) = (&data.actuations, &data.positions);
+    let held_out =
+        TrainingData::from_plant(&arm, &recipe, seed + 1000).expect("the default recipe");
 
     let t = Instant::now();
-    let net = RbfNetwork::fit(&acts, &positions, &NetworkConfig::default()).unwrap();
+    let (net, fifth) =
+        forward_model(acts, positions, &NetworkConfig::default()).expect("a forward model");
     println!(
-        "forward model: {} centres, fitted on {} samples in {:.2?}",
+        "forward model: {} centres, fitted on {} samples in {:.2?} (with the held-out fit); every 5th sample held out: mean {:.2} mm, max {:.2} mm",
         net.centres(),
         acts.len(),
-        t.elapsed()
+        t.elapsed(),
+        fifth.mean_m * 1e3,
+        fifth.max_m * 1e3
     );
-    let fwd_err: Vec<f64> = h_acts
+    let fwd_err: Vec<f64> = held_out
+        .actuations
         .iter()
-        .zip(&h_pos)
-        .map(|(a, p)| {
-            let y = net.position(a);
-            (0..3).map(|d| (y[d] - p[d]).powi(2)).sum::<f64>().sqrt()
-        })
+        .zip(&held_out.positions)
+        .map(|(a, p)| distance(&net.position(a), p))
         .collect();
     stats("forward model, held-out", fwd_err);
 
@@ -68,6 +86,7 @@ fn main() {
             .iter()
             .any(|q| (0..3).map(|d| (p[d] - q[d]).powi(2)).sum::<f64>() < 1e-4)
     };
+    let h_pos = &held_out.positions;
     let (mut targets, mut outside) = (Vec::new(), 0);
     while targets.len() < 200 {
         let p = h_pos[rng.random_range(0..h_pos.len())];
@@ -86,24 +105,31 @@ fn main() {
     let mut config: LearnerConfig = toml::from_str(&env("LEARNER")).expect("LEARNER");
     config.seed = seed;
     let pre: PretrainConfig = toml::from_str(&env("PRETRAIN")).expect("PRETRAIN");
-    let mut learner = CaclaMtl::new(config).unwrap();
+    let warm = std::env::var("WARM").map(|v| v != "0").unwrap_or(true);
+    let training = Training {
+        basis_functions: 15,
+        forward: NetworkConfig::default(),
+        learner: config,
+        pretrain: pre,
+        imitation_passes: if warm { IMITATION_PASSES } else { 0 },
+    };
+    let mut untrained = imitation(config, acts, positions, 0).expect("LEARNER");
     stats(
         "untrained actor on PCC",
-        evaluate(&mut learner, &arm, &targets),
+        evaluate(&mut untrained, &arm, &targets),
     );
-    let warm = std::env::var("WARM").map(|v| v != "0").unwrap_or(true);
-    let t = Instant::now();
     if warm {
-        learner.imitate(&positions, &acts, 3);
+        let mut imitated =
+            imitation(config, acts, positions, training.imitation_passes).expect("LEARNER");
         stats(
             "after imitation on PCC",
-            evaluate(&mut learner, &arm, &targets),
+            evaluate(&mut imitated, &arm, &targets),
         );
     }
-    let start = Instant::now();
+    let t = Instant::now();
     let mut next_report = Duration::from_secs(10);
-    let report = pretrain(&mut learner, &net, &positions, &pre, |r| {
-        let e = start.elapsed();
+    let (mut learner, report) = learner(&training, &net, acts, positions, |r| {
+        let e = t.elapsed();
         if e >= next_report {
             next_report += Duration::from_secs(10);
             eprintln!(
@@ -113,8 +139,9 @@ fn main() {
                 r.updates
             );
         }
-        t.elapsed() < budget
-    });
+        e < budget
+    })
+    .expect("LEARNER");
     println!(
         "pre-training: {:.1} s, {} epochs ({} converged), {} updates, centres stored {:?}",
         t.elapsed().as_secs_f64(),
@@ -141,14 +168,14 @@ fn main() {
         let reached = arm.position(&a);
         let t = Instant::now();
         std::hint::black_box(learner.observe(i % 5, &target, &a, &reached));
-        ns.push(t.elapsed().as_nanos() as f64);
+        ns.push(t.elapsed().as_nanos() as u64);
     }
-    ns.sort_by(f64::total_cmp);
-    let q = |p: f64| ns[((ns.len() - 1) as f64 * p).round() as usize] / 1e3;
+    let ns = histogram(ns);
+    let us = |v: u64| v as f64 / 1e3;
     println!(
         "learner update (observe): p50 {:.1} µs  p99 {:.1} µs  max {:.1} µs",
-        q(0.5),
-        q(0.99),
-        q(1.0)
+        us(ns.value_at_quantile(0.5)),
+        us(ns.value_at_quantile(0.99)),
+        us(ns.max())
     );
 }

@@ -558,49 +558,37 @@ pub fn read_checkpoint(dir: &Path) -> Result<(LearnerState, String), BundleError
 #[cfg(test)]
 mod tests {
     use super::*;
-    use softarm_method::cacla::{CaclaMtl, PretrainConfig, pretrain};
+    use crate::pipeline::{Training, from_plant};
+    use softarm_method::cacla::{CaclaMtl, PretrainConfig};
     use softarm_method::pcc::ArmGeometry;
     use softarm_method::rbf::NetworkConfig;
-    use softarm_method::skill::{DemoRecipe, demonstrations, forward_data, train_primitives};
+    use softarm_method::skill::DemoRecipe;
 
+    /// A small model from the pipeline, with one remembered point so the memory round-trips too.
     fn model() -> Model {
-        let arm = ArmGeometry::default();
         let recipe = DemoRecipe {
             demos_per_class: 4,
             ..Default::default()
         };
-        let recs = demonstrations(&arm, &recipe, 3);
-        let (actuation, task) = train_primitives(&recs, 8).unwrap();
-        let (a, p) = forward_data(&recs);
-        let forward = RbfNetwork::fit(
-            &a,
-            &p,
-            &NetworkConfig {
+        let training = Training {
+            basis_functions: 8,
+            forward: NetworkConfig {
                 centres: 40,
                 ..Default::default()
             },
-        )
-        .unwrap();
-        let mut l = CaclaMtl::new(LearnerConfig::default()).unwrap();
-        pretrain(
-            &mut l,
-            &forward,
-            &p,
-            &PretrainConfig {
+            learner: LearnerConfig::default(),
+            pretrain: PretrainConfig {
                 max_epochs: 20,
                 ..Default::default()
             },
-            |_| true,
-        );
-        l.observe(1, &p[0], &a[0], &p[1]);
-        Model {
-            actuation,
-            task,
-            forward,
-            learner: l.state(),
-            demo_duration_s: recipe.duration_s,
-            id: String::new(),
-        }
+            imitation_passes: 0,
+        };
+        let (mut m, _) =
+            from_plant(&ArmGeometry::default(), &recipe, 3, &training, |_| true).unwrap();
+        let mut l = CaclaMtl::restore(&m.learner).unwrap();
+        l.observe(1, &[0.1, 0.0, -0.45], &[0.4; 6], &[0.11, 0.0, -0.46]);
+        m.learner = l.state();
+        m
     }
 
     fn tmp(name: &str) -> PathBuf {

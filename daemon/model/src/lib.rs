@@ -10,4 +10,5 @@
 
 pub mod bundle;
 pub mod config;
+pub mod pipeline;
 pub mod waypoints;

@@ -2,12 +2,13 @@
 //! the actor puts the real (PCC) end effector on held-out targets far better than untrained,
 //! and better than the demonstrations alone. Fixed seeds and a fixed number of epochs, so the
 //! result is the same on every machine; small enough for a debug build. Full figures:
-//! `cargo run --release -p softarm-daemon --example convergence`.
+//! `cargo run --release -p softarm-model --example convergence`.
 
-use softarm_method::cacla::{CaclaMtl, LearnerConfig, PretrainConfig, evaluate, pretrain};
+use softarm_method::cacla::{LearnerConfig, PretrainConfig, evaluate, pretrain};
 use softarm_method::pcc::ArmGeometry;
-use softarm_method::rbf::{NetworkConfig, RbfNetwork};
-use softarm_method::skill::{DemoRecipe, demonstrations, forward_data};
+use softarm_method::rbf::NetworkConfig;
+use softarm_method::skill::DemoRecipe;
+use softarm_model::pipeline::{TrainingData, forward_model, imitation};
 
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
@@ -22,19 +23,23 @@ fn mean(v: &[f64]) -> f64 {
 fn pretraining_on_the_forward_model_reaches_held_out_targets_on_the_plant() {
     let arm = ArmGeometry::default();
     let recipe = DemoRecipe::default();
-    let (acts, positions) = forward_data(&demonstrations(&arm, &recipe, 1));
-    let net = RbfNetwork::fit(
-        &acts,
-        &positions,
+    let data = TrainingData::from_plant(&arm, &recipe, 1).unwrap();
+    let (acts, positions) = (&data.actuations, &data.positions);
+    let (net, fit) = forward_model(
+        acts,
+        positions,
         &NetworkConfig {
             centres: 200,
             ..Default::default()
         },
     )
     .unwrap();
+    assert!(fit.mean_m < 0.002, "forward model held-out error {fit:?}");
     // Held-out targets: every 97th sample of demonstrations made with another seed, kept where
     // they lie inside the demonstrated subspace (within 10 mm of a training sample).
-    let (_, held_out) = forward_data(&demonstrations(&arm, &recipe, 99));
+    let held_out = TrainingData::from_plant(&arm, &recipe, 99)
+        .unwrap()
+        .positions;
     let targets: Vec<[f64; 3]> = held_out
         .iter()
         .step_by(97)
@@ -47,19 +52,19 @@ fn pretraining_on_the_forward_model_reaches_held_out_targets_on_the_plant() {
         .collect();
     assert!(targets.len() > 100, "{}", targets.len());
 
-    let mut learner = CaclaMtl::new(LearnerConfig::default()).unwrap();
-    let untrained = evaluate(&mut learner, &arm, &targets);
-    learner.imitate(&positions, &acts, 3);
+    let mut untrained = imitation(LearnerConfig::default(), acts, positions, 0).unwrap();
+    let untrained = evaluate(&mut untrained, &arm, &targets);
+    let mut learner = imitation(LearnerConfig::default(), acts, positions, 3).unwrap();
     let imitated = evaluate(&mut learner, &arm, &targets);
     let config = PretrainConfig {
         max_epochs: 20_000,
         ..Default::default()
     };
-    let report = pretrain(&mut learner, &net, &positions, &config, |_| true);
+    let report = pretrain(&mut learner, &net, positions, &config, |_| true);
     let trained = evaluate(&mut learner, &arm, &targets);
     let mm = |v: &[f64]| (mean(v) * 1e3, median(v.to_vec()) * 1e3);
     eprintln!(
-        "untrained {:.1?} mm, imitated {:.1?} mm, trained {:.1?} mm (mean, median); {report:?}",
+        "untrained {:.1?} mm, imitated {:.1?} mm, trained {:.1?} mm (mean, median); {report:?}; forward model {fit:?}",
         mm(&untrained),
         mm(&imitated),
         mm(&trained)

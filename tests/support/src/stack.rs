@@ -1,97 +1,35 @@
-//! Helpers for the end-to-end tests: a stack of real `softarm` processes in a namespace and a
-//! folder of its own, so tests run in parallel without crosstalk.
-#![allow(dead_code)]
+//! The end-to-end harness: a stack of real `softarm` processes in a folder and an iceoryx2
+//! namespace of its own, so tests run in parallel without crosstalk. The binary's path comes from
+//! the caller: `env!("CARGO_BIN_EXE_softarm")` exists only in the root package's tests.
 
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
-use softarm_method::cacla::{CaclaMtl, PretrainConfig, pretrain};
-use softarm_method::pcc::ArmGeometry;
-use softarm_method::rbf::{NetworkConfig, RbfNetwork};
-use softarm_method::skill::{DemoRecipe, demonstrations, forward_data, train_primitives};
-use softarm_model::bundle::Model;
-use softarm_model::config::DEFAULT;
+use crate::config::config_text;
+use crate::model::quick_model;
 
-pub const BIN: &str = env!("CARGO_BIN_EXE_softarm");
-pub const DEMO_WAYPOINTS: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/config/waypoints/demo.toml");
+/// The demo way-point set.
+pub const DEMO_WAYPOINTS: &str = concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/../../config/waypoints/demo.toml"
+);
 
+/// A test's own stack: `dir` holds its config (`config`), model, state and logs; `up` is
+/// `softarm up` once started. Dropping it stops `up` and removes `dir`.
+#[derive(Debug)]
 pub struct TestStack {
+    pub bin: PathBuf,
     pub dir: PathBuf,
     pub config: PathBuf,
     pub namespace: String,
     pub up: Option<Child>,
 }
 
-/// The embedded default with a namespace, folders and quick training settings of the test's own.
-pub fn config_text(dir: &Path, namespace: &str) -> String {
-    let mut doc: toml::Table = toml::from_str(DEFAULT).unwrap();
-    let mut set = |section: &str, key: &str, v: toml::Value| {
-        doc[section].as_table_mut().unwrap().insert(key.into(), v);
-    };
-    set("robot", "namespace", namespace.into());
-    set(
-        "model",
-        "dir",
-        dir.join("model").display().to_string().into(),
-    );
-    set(
-        "state",
-        "dir",
-        dir.join("state").display().to_string().into(),
-    );
-    set("demonstrations", "demos_per_class", 3.into());
-    set("demonstrations", "duration_s", 1.5.into());
-    set("pretrain", "budget_s", 2.0.into());
-    toml::to_string(&doc).unwrap()
-}
-
-/// A model bundle made straight from the kinematic plant, in a second or two.
-pub fn quick_model(dir: &Path) {
-    let arm = ArmGeometry::default();
-    let recipe = DemoRecipe {
-        demos_per_class: 6,
-        ..Default::default()
-    };
-    let recs = demonstrations(&arm, &recipe, 5);
-    let (actuation, task) = train_primitives(&recs, 15).unwrap();
-    let (a, p) = forward_data(&recs);
-    let forward = RbfNetwork::fit(
-        &a,
-        &p,
-        &NetworkConfig {
-            centres: 80,
-            ..Default::default()
-        },
-    )
-    .unwrap();
-    let mut learner = CaclaMtl::new(Default::default()).unwrap();
-    learner.imitate(&p, &a, 2);
-    pretrain(
-        &mut learner,
-        &forward,
-        &p,
-        &PretrainConfig {
-            max_epochs: 300,
-            ..Default::default()
-        },
-        |_| true,
-    );
-    Model {
-        actuation,
-        task,
-        forward,
-        learner: learner.state(),
-        demo_duration_s: recipe.duration_s,
-        id: String::new(),
-    }
-    .write(dir)
-    .unwrap();
-}
-
 impl TestStack {
-    /// A folder, config and namespace for test `name`; with a model bundle if asked.
-    pub fn new(name: &str, with_model: bool) -> Self {
+    /// A folder, config and namespace for test `name`, run with the `softarm` binary `bin`;
+    /// with a quick model bundle if asked.
+    pub fn new(bin: impl AsRef<Path>, name: &str, with_model: bool) -> Self {
         let pid = std::process::id();
         let dir = std::env::temp_dir().join(format!("softarm-test-{name}-{pid}"));
         let _ = std::fs::remove_dir_all(&dir);
@@ -103,6 +41,7 @@ impl TestStack {
             quick_model(&dir.join("model"));
         }
         Self {
+            bin: bin.as_ref().to_path_buf(),
             dir,
             config,
             namespace,
@@ -110,9 +49,14 @@ impl TestStack {
         }
     }
 
+    /// `softarm` without arguments (nor this stack's config).
+    pub fn command(&self) -> Command {
+        Command::new(&self.bin)
+    }
+
     /// `softarm <args> --config <this stack's config>`.
     pub fn run(&self, args: &[&str]) -> Output {
-        Command::new(BIN)
+        self.command()
             .args(args)
             .arg("--config")
             .arg(&self.config)
@@ -123,7 +67,7 @@ impl TestStack {
 
     pub fn spawn(&self, args: &[&str]) -> Child {
         let log = std::fs::File::create(self.dir.join(format!("{}.log", args[0]))).unwrap();
-        Command::new(BIN)
+        self.command()
             .args(args)
             .arg("--config")
             .arg(&self.config)
@@ -301,4 +245,54 @@ pub fn set_id(stdout: &str) -> u64 {
         .strip_prefix("accepted: set ")
         .and_then(|s| s.parse().ok())
         .unwrap_or_else(|| panic!("not accepted: {stdout}"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn set_ids_are_read_from_submits_answer() {
+        assert_eq!(set_id("accepted: set 42\n"), 42);
+        let refused = std::panic::catch_unwind(|| set_id("rejected: late"));
+        assert!(refused.is_err());
+    }
+
+    #[test]
+    fn children_are_found_by_parent_and_role_and_their_death_is_seen() {
+        let me = std::process::id() as i32;
+        assert!(alive(me));
+        let mut child = Command::new("sleep").arg("30").spawn().unwrap();
+        let pid = child.id() as i32;
+        // Right after the spawn the child may still be in exec, its command line empty.
+        let mut mine = children_of(me);
+        for _ in 0..5000 {
+            if mine.iter().any(|c| c.0 == "30") {
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(1));
+            mine = children_of(me);
+        }
+        assert!(mine.contains(&("30".to_string(), pid)), "{pid}: {mine:?}");
+        assert!(alive(pid));
+        child.kill().unwrap();
+        child.wait().unwrap();
+        assert!(!alive(pid));
+        assert!(!children_of(me).iter().any(|c| c.1 == pid));
+    }
+
+    #[test]
+    fn a_stack_has_its_own_folder_config_and_namespace_and_cleans_up() {
+        let dir;
+        {
+            let s = TestStack::new("/nonexistent/softarm", "support-self", false);
+            dir = s.dir.clone();
+            assert!(s.namespace.starts_with("softarm/test-support-self-"));
+            let text = std::fs::read_to_string(&s.config).unwrap();
+            assert!(text.contains(&s.namespace), "{text}");
+            assert!(!s.dir.join("model/model.toml").exists());
+            assert!(Path::new(DEMO_WAYPOINTS).exists());
+        }
+        assert!(!dir.exists());
+    }
 }

@@ -1,0 +1,549 @@
+//! The offline pipeline that makes a [`Model`], written once: demonstrations → actuation- and
+//! task-space ProMPs → RBF forward model (with its held-out error) → imitation warm start of
+//! CACLA-MTL → pre-training against the forward model.
+//!
+//! `softarm train` records its demonstrations through the running stack and hands them to
+//! [`train`]; the tests, the benches and the examples make them straight from the kinematic
+//! model with [`from_plant`]. Pure: no iceoryx2, no files, no clock — pre-training runs until
+//! its epoch cap or until the caller's `keep_going` says stop, as [`cacla::pretrain`] does.
+//!
+//! [`cacla::pretrain`]: softarm_method::cacla::pretrain
+
+use softarm_method::activation::MAX_PRIMITIVES;
+use softarm_method::cacla::{self, CaclaMtl, LearnerConfig, PretrainConfig, PretrainReport};
+use softarm_method::forward::ForwardModel;
+use softarm_method::promp::{Primitive, PrimitiveError};
+use softarm_method::rbf::{NetworkConfig, RbfError, RbfNetwork};
+use softarm_method::skill::{self, DemoRecipe, Recording};
+use softarm_method::space::{Actuation, Position, distance};
+
+use crate::bundle::Model;
+use crate::config::Config;
+
+/// Supervised passes over D_fwd that warm-start the actor before pre-training (`softarm train`).
+pub const IMITATION_PASSES: usize = 3;
+
+/// Every this-many-th sample of D_fwd (from the first on) is held out of the forward model's
+/// first fit to measure its error.
+pub const HOLD_OUT_EVERY: usize = 5;
+
+/// What can go wrong in the pipeline: bad input, never a panic.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum PipelineError {
+    #[error("no demonstrations were recorded")]
+    NoRecordings,
+    #[error("recording {index}: {why}")]
+    Recording { index: usize, why: String },
+    #[error("no recording of class {class}, though there are {classes} classes (numbered from 0)")]
+    MissingClass { class: usize, classes: usize },
+    #[error("the demonstration recipe: {0}")]
+    Recipe(String),
+    #[error("training the primitives: {0}")]
+    Primitives(PrimitiveError),
+    #[error("D_fwd has {actuations} actuations but {positions} positions")]
+    Mismatch { actuations: usize, positions: usize },
+    #[error("D_fwd is empty: no samples to fit the forward model on")]
+    NoSamples,
+    #[error("fitting the forward model {stage}: {error}")]
+    Forward {
+        stage: &'static str,
+        error: RbfError,
+    },
+    #[error("the learner: {0}")]
+    Learner(String),
+}
+
+/// How the pipeline trains; [`Training::from`] a [`Config`] gives `softarm train`'s settings.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Training {
+    /// K of every ProMP, per DoF.
+    pub basis_functions: usize,
+    pub forward: NetworkConfig,
+    pub learner: LearnerConfig,
+    /// Pre-training; its `budget_s` is for the caller's `keep_going`, not read here.
+    pub pretrain: PretrainConfig,
+    pub imitation_passes: usize,
+}
+
+impl From<&Config> for Training {
+    fn from(config: &Config) -> Self {
+        Self {
+            basis_functions: config.model.basis_functions,
+            forward: config.forward_model,
+            learner: config.learner,
+            pretrain: config.pretrain,
+            imitation_passes: IMITATION_PASSES,
+        }
+    }
+}
+
+/// What the pipeline learns from.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TrainingData {
+    /// The demonstrations the ProMPs learn from (commanded actuation, end-effector position).
+    pub recordings: Vec<Recording>,
+    /// Their nominal duration (s): the bundle's `demo_duration_s`.
+    pub duration_s: f64,
+    /// D_fwd, which the forward model and the imitation learn from: on the stack what the
+    /// actuators really did, from the kinematic model the commanded actuations.
+    pub actuations: Vec<Actuation>,
+    pub positions: Vec<Position>,
+}
+
+impl TrainingData {
+    /// The recipe's demonstrations played through `plant` (the kinematic model), D_fwd all of
+    /// their samples.
+    pub fn from_plant(
+        plant: &impl ForwardModel,
+        recipe: &DemoRecipe,
+        seed: u64,
+    ) -> Result<Self, PipelineError> {
+        recipe.validate().map_err(PipelineError::Recipe)?;
+        let recordings = skill::demonstrations(plant, recipe, seed);
+        let (actuations, positions) = skill::forward_data(&recordings);
+        Ok(Self {
+            recordings,
+            duration_s: recipe.duration_s,
+            actuations,
+            positions,
+        })
+    }
+}
+
+/// The forward model's error (m) on the samples held out of its first fit.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct HeldOut {
+    pub samples: usize,
+    pub mean_m: f64,
+    pub max_m: f64,
+}
+
+/// What training measured.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TrainReport {
+    pub recordings: usize,
+    /// Samples of D_fwd.
+    pub samples: usize,
+    pub forward_error: HeldOut,
+    pub pretrain: PretrainReport,
+}
+
+/// One actuation-space (6 DoF) and one task-space (3 DoF) ProMP per class, K = `basis_functions`.
+/// Classes are numbered from 0 and each needs a recording.
+pub fn primitives(
+    recordings: &[Recording],
+    basis_functions: usize,
+) -> Result<(Vec<Primitive>, Vec<Primitive>), PipelineError> {
+    if recordings.is_empty() {
+        return Err(PipelineError::NoRecordings);
+    }
+    for (index, r) in recordings.iter().enumerate() {
+        let (t, a, p) = (r.times.len(), r.actuation.len(), r.position.len());
+        if t != a || t != p {
+            return Err(PipelineError::Recording {
+                index,
+                why: format!("{t} times, {a} actuations and {p} positions"),
+            });
+        }
+        if r.class >= MAX_PRIMITIVES {
+            return Err(PipelineError::Recording {
+                index,
+                why: format!("class {} (at most {MAX_PRIMITIVES} classes)", r.class),
+            });
+        }
+    }
+    let classes = recordings.iter().map(|r| r.class + 1).max().unwrap_or(0);
+    if let Some(class) = (0..classes).find(|c| recordings.iter().all(|r| r.class != *c)) {
+        return Err(PipelineError::MissingClass { class, classes });
+    }
+    skill::train_primitives(recordings, basis_functions).map_err(PipelineError::Primitives)
+}
+
+fn same_length(actuations: &[Actuation], positions: &[Position]) -> Result<(), PipelineError> {
+    if actuations.len() != positions.len() {
+        return Err(PipelineError::Mismatch {
+            actuations: actuations.len(),
+            positions: positions.len(),
+        });
+    }
+    if actuations.is_empty() {
+        return Err(PipelineError::NoSamples);
+    }
+    Ok(())
+}
+
+/// The forward model on D_fwd: fitted first without every [`HOLD_OUT_EVERY`]-th sample to
+/// measure its error there, then refitted on every sample.
+pub fn forward_model(
+    actuations: &[Actuation],
+    positions: &[Position],
+    config: &NetworkConfig,
+) -> Result<(RbfNetwork, HeldOut), PipelineError> {
+    same_length(actuations, positions)?;
+    let kept = |i: &usize| !i.is_multiple_of(HOLD_OUT_EVERY);
+    let fit_a: Vec<Actuation> = (0..actuations.len())
+        .filter(kept)
+        .map(|i| actuations[i])
+        .collect();
+    let fit_p: Vec<Position> = (0..positions.len())
+        .filter(kept)
+        .map(|i| positions[i])
+        .collect();
+    let partial =
+        RbfNetwork::fit(&fit_a, &fit_p, config).map_err(|error| PipelineError::Forward {
+            stage: "without the held-out samples",
+            error,
+        })?;
+    let errors: Vec<f64> = (0..actuations.len())
+        .step_by(HOLD_OUT_EVERY)
+        .map(|i| distance(&partial.position(&actuations[i]), &positions[i]))
+        .collect();
+    let held_out = HeldOut {
+        samples: errors.len(),
+        mean_m: errors.iter().sum::<f64>() / errors.len() as f64,
+        max_m: errors.iter().copied().fold(0.0, f64::max),
+    };
+    let forward =
+        RbfNetwork::fit(actuations, positions, config).map_err(|error| PipelineError::Forward {
+            stage: "on every sample",
+            error,
+        })?;
+    Ok((forward, held_out))
+}
+
+/// The imitation warm start: a new learner whose actor took `passes` supervised passes over
+/// D_fwd (the demonstrations say which actuation reaches which position).
+pub fn imitation(
+    config: LearnerConfig,
+    actuations: &[Actuation],
+    positions: &[Position],
+    passes: usize,
+) -> Result<CaclaMtl, PipelineError> {
+    same_length(actuations, positions)?;
+    let mut learner = CaclaMtl::new(config).map_err(PipelineError::Learner)?;
+    learner.imitate(positions, actuations, passes);
+    Ok(learner)
+}
+
+/// The imitation warm start, then CACLA-MTL pre-training against `model` on targets drawn from
+/// D_fwd's positions, until `training.pretrain.max_epochs` or until `keep_going` says stop.
+pub fn learner(
+    training: &Training,
+    model: &impl ForwardModel,
+    actuations: &[Actuation],
+    positions: &[Position],
+    keep_going: impl FnMut(&PretrainReport) -> bool,
+) -> Result<(CaclaMtl, PretrainReport), PipelineError> {
+    let mut learner = imitation(
+        training.learner,
+        actuations,
+        positions,
+        training.imitation_passes,
+    )?;
+    let report = cacla::pretrain(
+        &mut learner,
+        model,
+        positions,
+        &training.pretrain,
+        keep_going,
+    );
+    Ok((learner, report))
+}
+
+/// The whole pipeline: primitives, forward model, pre-trained learner, as a [`Model`] (its `id`
+/// empty until written).
+pub fn train(
+    data: &TrainingData,
+    training: &Training,
+    keep_going: impl FnMut(&PretrainReport) -> bool,
+) -> Result<(Model, TrainReport), PipelineError> {
+    let (actuation, task) = primitives(&data.recordings, training.basis_functions)?;
+    let (forward, forward_error) =
+        forward_model(&data.actuations, &data.positions, &training.forward)?;
+    let (learner, pretrain) = learner(
+        training,
+        &forward,
+        &data.actuations,
+        &data.positions,
+        keep_going,
+    )?;
+    let model = Model {
+        actuation,
+        task,
+        forward,
+        learner: learner.state(),
+        demo_duration_s: data.duration_s,
+        id: String::new(),
+    };
+    Ok((
+        model,
+        TrainReport {
+            recordings: data.recordings.len(),
+            samples: data.actuations.len(),
+            forward_error,
+            pretrain,
+        },
+    ))
+}
+
+/// The simulated path: the recipe's demonstrations straight from `plant` (the kinematic model),
+/// then [`train`].
+pub fn from_plant(
+    plant: &impl ForwardModel,
+    recipe: &DemoRecipe,
+    seed: u64,
+    training: &Training,
+    keep_going: impl FnMut(&PretrainReport) -> bool,
+) -> Result<(Model, TrainReport), PipelineError> {
+    train(
+        &TrainingData::from_plant(plant, recipe, seed)?,
+        training,
+        keep_going,
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use softarm_method::cacla::evaluate;
+    use softarm_method::pcc::ArmGeometry;
+
+    fn quick() -> Training {
+        Training {
+            basis_functions: 8,
+            forward: NetworkConfig {
+                centres: 60,
+                ..Default::default()
+            },
+            learner: LearnerConfig::default(),
+            pretrain: PretrainConfig {
+                max_epochs: 100,
+                ..Default::default()
+            },
+            imitation_passes: 2,
+        }
+    }
+
+    fn recipe() -> DemoRecipe {
+        DemoRecipe {
+            demos_per_class: 4,
+            ..Default::default()
+        }
+    }
+
+    fn mean(v: &[f64]) -> f64 {
+        v.iter().sum::<f64>() / v.len() as f64
+    }
+
+    #[test]
+    fn a_quick_model_from_the_plant_is_whole_and_the_same_for_the_same_inputs() {
+        let arm = ArmGeometry::default();
+        let (m, r) = from_plant(&arm, &recipe(), 3, &quick(), |_| true).unwrap();
+        assert_eq!((m.actuation.len(), m.task.len()), (3, 3));
+        assert_eq!((m.actuation[0].dofs(), m.task[0].dofs()), (6, 3));
+        assert_eq!(m.actuation[0].basis().len(), 8);
+        assert_eq!(m.forward.centres(), 60);
+        assert_eq!(m.demo_duration_s, recipe().duration_s);
+        assert!(m.id.is_empty());
+        assert_eq!(r.recordings, 12);
+        assert_eq!(r.samples, 12 * 201);
+        assert_eq!(r.forward_error.samples, (12 * 201usize).div_ceil(5));
+        assert_eq!(r.pretrain.epochs, 100);
+        assert!(r.pretrain.updates > 0);
+        assert!(!m.learner.actor.is_empty() && !m.learner.critic.is_empty());
+        // The forward model predicts the plant to within millimetres where it was not fitted.
+        assert!(
+            r.forward_error.mean_m < 0.003 && r.forward_error.max_m < 0.03,
+            "{:?}",
+            r.forward_error
+        );
+        // Nothing but the inputs decides the model.
+        let (again, _) = from_plant(&arm, &recipe(), 3, &quick(), |_| true).unwrap();
+        assert_eq!(again.actuation, m.actuation);
+        assert_eq!(again.task, m.task);
+        assert_eq!(again.forward, m.forward);
+        assert_eq!(again.learner, m.learner);
+        let (other, _) = from_plant(&arm, &recipe(), 4, &quick(), |_| true).unwrap();
+        assert_ne!(other.forward, m.forward);
+    }
+
+    #[test]
+    fn the_forward_model_is_refitted_on_every_sample_after_the_held_out_check() {
+        let arm = ArmGeometry::default();
+        let data = TrainingData::from_plant(&arm, &recipe(), 5).unwrap();
+        let config = quick().forward;
+        let (net, held) = forward_model(&data.actuations, &data.positions, &config).unwrap();
+        assert_eq!(
+            net,
+            RbfNetwork::fit(&data.actuations, &data.positions, &config).unwrap()
+        );
+        assert_eq!(held.samples, data.actuations.len().div_ceil(HOLD_OUT_EVERY));
+        assert!(held.mean_m > 0.0 && held.mean_m <= held.max_m, "{held:?}");
+        // The held-out error is the partial fit's: larger than the full fit's on those samples.
+        let on_all: f64 = (0..data.actuations.len())
+            .step_by(HOLD_OUT_EVERY)
+            .map(|i| distance(&net.position(&data.actuations[i]), &data.positions[i]))
+            .sum::<f64>()
+            / held.samples as f64;
+        assert!(on_all < held.mean_m, "{on_all} vs {held:?}");
+    }
+
+    #[test]
+    fn pretraining_lowers_the_error_of_imitation_alone() {
+        let arm = ArmGeometry::default();
+        let data = TrainingData::from_plant(&arm, &recipe(), 7).unwrap();
+        let (net, _) = forward_model(&data.actuations, &data.positions, &quick().forward).unwrap();
+        let targets: Vec<Position> = data.positions.iter().step_by(41).copied().collect();
+        let training = Training {
+            pretrain: PretrainConfig {
+                max_epochs: 1500,
+                ..Default::default()
+            },
+            ..quick()
+        };
+        let mut imitated = imitation(
+            training.learner,
+            &data.actuations,
+            &data.positions,
+            training.imitation_passes,
+        )
+        .unwrap();
+        let before = mean(&evaluate(&mut imitated, &arm, &targets));
+        let mut untrained =
+            imitation(training.learner, &data.actuations, &data.positions, 0).unwrap();
+        let untrained = mean(&evaluate(&mut untrained, &arm, &targets));
+        let (mut trained, report) =
+            learner(&training, &net, &data.actuations, &data.positions, |_| true).unwrap();
+        let after = mean(&evaluate(&mut trained, &arm, &targets));
+        assert_eq!(report.epochs, 1500);
+        assert!(
+            before < untrained,
+            "imitation {before} vs untrained {untrained}"
+        );
+        assert!(
+            after < 0.8 * before,
+            "pre-trained {} mm vs imitation only {} mm",
+            after * 1e3,
+            before * 1e3
+        );
+    }
+
+    #[test]
+    fn keep_going_stops_pre_training() {
+        let arm = ArmGeometry::default();
+        let mut asked = 0;
+        let (_, r) = from_plant(&arm, &recipe(), 3, &quick(), |p| {
+            asked += 1;
+            p.epochs < 3
+        })
+        .unwrap();
+        assert_eq!(r.pretrain.epochs, 3);
+        assert_eq!(asked, 4);
+    }
+
+    #[test]
+    fn bad_input_is_an_error_not_a_panic() {
+        let arm = ArmGeometry::default();
+        let data = TrainingData::from_plant(&arm, &recipe(), 1).unwrap();
+        let t = quick();
+        assert_eq!(primitives(&[], 8).unwrap_err(), PipelineError::NoRecordings);
+
+        let mut short = data.recordings.clone();
+        short[5].position.pop();
+        let e = primitives(&short, 8).unwrap_err();
+        assert!(
+            matches!(e, PipelineError::Recording { index: 5, .. }),
+            "{e}"
+        );
+        assert!(
+            e.to_string()
+                .contains("201 times, 201 actuations and 200 positions")
+        );
+
+        let gap: Vec<Recording> = data
+            .recordings
+            .iter()
+            .filter(|r| r.class != 1)
+            .cloned()
+            .collect();
+        assert_eq!(
+            primitives(&gap, 8).unwrap_err(),
+            PipelineError::MissingClass {
+                class: 1,
+                classes: 3
+            }
+        );
+        let mut many = data.recordings.clone();
+        many[0].class = MAX_PRIMITIVES;
+        assert!(primitives(&many, 8).is_err());
+
+        let mut backwards = data.recordings.clone();
+        backwards[2].times[3] = backwards[2].times[2];
+        let e = primitives(&backwards, 8).unwrap_err();
+        assert!(matches!(e, PipelineError::Primitives(_)), "{e}");
+        assert!(matches!(
+            primitives(&data.recordings, 1).unwrap_err(),
+            PipelineError::Primitives(PrimitiveError::TooFewBasisFunctions(1))
+        ));
+
+        let (a, p) = (&data.actuations, &data.positions);
+        assert!(matches!(
+            forward_model(a, &p[1..], &t.forward).unwrap_err(),
+            PipelineError::Mismatch { .. }
+        ));
+        assert_eq!(
+            forward_model(&[], &[], &t.forward).unwrap_err(),
+            PipelineError::NoSamples
+        );
+        // Enough samples for one fit on all of them, not for the one without the held-out fifth.
+        let e = forward_model(&a[..70], &p[..70], &t.forward).unwrap_err();
+        assert!(
+            matches!(
+                e,
+                PipelineError::Forward {
+                    stage: "without the held-out samples",
+                    ..
+                }
+            ),
+            "{e}"
+        );
+        let mut nan = a.clone();
+        nan[17][2] = f64::NAN;
+        assert!(forward_model(&nan, p, &t.forward).is_err());
+
+        assert!(imitation(t.learner, a, &p[..10], 1).is_err());
+        let bad = LearnerConfig {
+            gamma: 2.0,
+            ..Default::default()
+        };
+        let e = imitation(bad, a, p, 1).err().unwrap().to_string();
+        assert!(e.contains("learner.gamma"), "{e}");
+
+        let mut mismatched = data.clone();
+        mismatched.positions.pop();
+        assert!(train(&mismatched, &t, |_| true).is_err());
+        let e = from_plant(
+            &arm,
+            &DemoRecipe {
+                demos_per_class: 0,
+                ..Default::default()
+            },
+            1,
+            &t,
+            |_| true,
+        )
+        .unwrap_err();
+        assert!(matches!(e, PipelineError::Recipe(_)), "{e}");
+    }
+
+    #[test]
+    fn training_from_a_config_takes_its_sections() {
+        let c = Config::default_sim(std::path::PathBuf::from("/tmp/x"));
+        let t = Training::from(&c);
+        assert_eq!(t.basis_functions, c.model.basis_functions);
+        assert_eq!(t.forward, c.forward_model);
+        assert_eq!(t.learner, c.learner);
+        assert_eq!(t.pretrain, c.pretrain);
+        assert_eq!(t.imitation_passes, IMITATION_PASSES);
+    }
+}

@@ -1,0 +1,74 @@
+//! Test configs: the embedded default, edited by dotted key (`"pretrain.budget_s"`).
+
+use std::path::Path;
+
+use softarm_model::config::DEFAULT;
+
+/// `text` (a config) with each `(dotted key, value)` set; the key's section must exist.
+/// Comments do not survive.
+pub fn with_overrides(text: &str, overrides: &[(&str, toml::Value)]) -> String {
+    let mut doc: toml::Table = toml::from_str(text).expect("a config in TOML");
+    for (key, value) in overrides {
+        let (path, leaf) = key
+            .rsplit_once('.')
+            .unwrap_or_else(|| panic!("{key:?}: need section.key"));
+        let mut table = &mut doc;
+        for section in path.split('.') {
+            table = table
+                .get_mut(section)
+                .and_then(toml::Value::as_table_mut)
+                .unwrap_or_else(|| panic!("{key:?}: no section [{path}] in the config"));
+        }
+        table.insert(leaf.into(), value.clone());
+    }
+    toml::to_string(&doc).expect("a table serialises")
+}
+
+/// The embedded default with namespace `namespace`, model and state folders under `dir`, and
+/// quick training settings (3 demonstrations per class of 1.5 s, 2 s of pre-training).
+pub fn config_text(dir: &Path, namespace: &str) -> String {
+    let path = |sub: &str| toml::Value::from(dir.join(sub).display().to_string());
+    with_overrides(
+        DEFAULT,
+        &[
+            ("robot.namespace", namespace.into()),
+            ("model.dir", path("model")),
+            ("state.dir", path("state")),
+            ("demonstrations.demos_per_class", 3.into()),
+            ("demonstrations.duration_s", 1.5.into()),
+            ("pretrain.budget_s", 2.0.into()),
+        ],
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use softarm_model::config::Config;
+
+    #[test]
+    fn a_test_config_is_valid_and_has_its_overrides() {
+        let text = config_text(Path::new("/tmp/t"), "softarm/test-x");
+        let c = Config::parse(&text, "t.toml", "/".into()).unwrap();
+        assert_eq!(c.namespace(), "softarm/test-x");
+        assert_eq!(c.model_dir(), Path::new("/tmp/t/model"));
+        assert_eq!(c.state_dir(), Path::new("/tmp/t/state"));
+        assert_eq!(c.demonstrations.demos_per_class, 3);
+        assert_eq!(c.demonstrations.duration_s, 1.5);
+        assert_eq!(c.pretrain.budget_s, 2.0);
+        // Untouched keys keep the default's values.
+        let default = Config::parse(DEFAULT, "d.toml", "/".into()).unwrap();
+        assert_eq!(c.learner, default.learner);
+        assert_eq!(c.controller, default.controller);
+
+        let nested = with_overrides(&text, &[("sim.realism.seed", 9.into())]);
+        let c = Config::parse(&nested, "t.toml", "/".into()).unwrap();
+        assert_eq!(c.sim.realism.seed, 9);
+    }
+
+    #[test]
+    #[should_panic(expected = "no section [nowhere]")]
+    fn an_override_of_a_missing_section_says_so() {
+        with_overrides(DEFAULT, &[("nowhere.key", 1.into())]);
+    }
+}
