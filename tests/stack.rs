@@ -34,6 +34,8 @@ fn a_set_is_executed_and_stats_arrive_for_every_execution() {
             "{v}"
         );
     }
+    // The learner answered the set's request for first estimates.
+    assert!(s.logs().contains("first estimates sent"), "{}", s.logs());
     // The learner checkpointed after each execution.
     assert!(s.dir.join("state/learner.toml").exists());
     // Status names every process and reports tick timing.

@@ -136,6 +136,7 @@ pub fn run(config: &Config, stop: &AtomicBool) -> anyhow::Result<()> {
             for (point, desired) in r.points().iter().enumerate() {
                 send(r.set_id, point as u32, l.learner.act(point, desired, false));
             }
+            tracing::info!(set_id, points = r.points().len(), "first estimates sent");
         }
         while let Ok(Some(s)) = samples.receive() {
             let s = *s;

@@ -629,6 +629,33 @@ mod tests {
     }
 
     #[test]
+    fn a_watch_reports_each_new_bundle_once() {
+        let dir = tmp("watch");
+        let mut w = BundleWatch::new(dir.clone(), Duration::ZERO);
+        assert!(!w.changed() && !w.exists(), "nothing there yet");
+        let file = dir.join("model.toml");
+        let stamp = |secs: u64| {
+            let f = fs::File::options().write(true).open(&file).unwrap();
+            f.set_modified(SystemTime::UNIX_EPOCH + Duration::from_secs(secs))
+                .unwrap();
+        };
+        fs::create_dir_all(&dir).unwrap();
+        fs::write(&file, "").unwrap();
+        stamp(1_000);
+        assert!(w.changed() && w.exists(), "a bundle appeared");
+        assert!(!w.changed(), "reported once");
+        stamp(2_000);
+        assert!(w.changed(), "a new bundle");
+        let mut slow = BundleWatch::new(dir.clone(), Duration::from_secs(3600));
+        assert!(slow.changed(), "the first look is due at once");
+        stamp(3_000);
+        assert!(!slow.changed(), "the next look is not due yet");
+        fs::remove_file(&file).unwrap();
+        assert!(!w.changed() && !w.exists(), "gone");
+        let _ = fs::remove_dir_all(&dir);
+    }
+
+    #[test]
     fn corrupt_truncated_or_mismatched_bundles_are_refused() {
         let m = model();
         let dir = tmp("corrupt");
