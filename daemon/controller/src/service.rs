@@ -234,15 +234,22 @@ impl Service {
                     sequences.sequences.len(),
                     sequences.duration_s(&self.config),
                 );
-                match self.to_tick.push(ToTick::Demonstrate(Box::new(sequences))) {
-                    Ok(()) => DemonstrateReply {
+                // Refused if the tick's ring is full, or the tick is gone (stopping).
+                let sent = !self.to_tick.is_abandoned()
+                    && self
+                        .to_tick
+                        .push(ToTick::Demonstrate(Box::new(sequences)))
+                        .is_ok();
+                if sent {
+                    DemonstrateReply {
                         seq: r.seq,
                         stamp_ns: now_ns(),
                         accepted: 1,
                         demos: demos as u32,
                         duration_s,
-                    },
-                    Err(PushError::Full(_)) => refused,
+                    }
+                } else {
+                    refused
                 }
             } else {
                 tracing::warn!("demonstrations refused: the controller is busy");
