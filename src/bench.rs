@@ -54,26 +54,24 @@ fn record(ns: &mut Histogram<u64>, start: Instant) {
     ns.saturating_record(v);
 }
 
-pub fn run(args: &Args) -> Result<(), String> {
+pub fn run(args: &Args) -> anyhow::Result<()> {
     if args.ticks == 0 || args.reconditions == 0 {
-        return Err("--ticks and --reconditions must be > 0".into());
+        anyhow::bail!("--ticks and --reconditions must be > 0");
     }
     let arm = ArmGeometry::default();
     let recipe = DemoRecipe::default();
-    let demos = TrainingData::from_plant(&arm, &recipe, 1).map_err(|e| e.to_string())?;
-    let (actuation, _task) =
-        pipeline::primitives(&demos.recordings, 15).map_err(|e| e.to_string())?;
+    let demos = TrainingData::from_plant(&arm, &recipe, 1)?;
+    let (actuation, _task) = pipeline::primitives(&demos.recordings, 15)?;
     let t_cond = [1.0, 3.0, 5.0, 7.0, 9.0];
     let planner = Planner::<6>::new(
         actuation,
         &t_cond,
         &[0, 1, 2, 1, 0],
-        Timeline::new(10.0, 500.0).map_err(|e| e.to_string())?,
+        Timeline::new(10.0, 500.0)?,
         ActivationConfig::default(),
         1e-6,
-    )
-    .map_err(|e| e.to_string())?;
-    let (mut engine, mut replanner) = planner.start(&[[0.5; 6]; 5]).map_err(|e| e.to_string())?;
+    )?;
+    let (mut engine, mut replanner) = planner.start(&[[0.5; 6]; 5])?;
     let ticks = engine.timeline().ticks();
     println!(
         "softarm bench: N=5 conditioning points, M=3 primitives, D=6, K=15, 10 s at 500 Hz ({} cores)",
@@ -95,7 +93,7 @@ pub fn run(args: &Args) -> Result<(), String> {
     for i in 0..args.reconditions {
         let a = [0.4 + 0.002 * i as f64; 6];
         let start = Instant::now();
-        replanner.recondition(1, &a).map_err(|e| e.to_string())?;
+        replanner.recondition(1, &a)?;
         sink += engine.tick(k3)[0];
         record(&mut ns, start);
     }
@@ -115,8 +113,7 @@ pub fn run(args: &Args) -> Result<(), String> {
         imitation_passes: 1,
     };
     let positions = &demos.positions;
-    let (mut learner, _) = pipeline::learner(&warm, &arm, &demos.actuations, positions, |_| true)
-        .map_err(|e| e.to_string())?;
+    let (mut learner, _) = pipeline::learner(&warm, &arm, &demos.actuations, positions, |_| true)?;
     let updates = args.ticks.min(100_000);
     let mut ns = histogram();
     for i in 0..updates {

@@ -167,9 +167,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             let config = stack.load()?;
             up::run(stack.args(), &config.robot.drivers, &*stop_flag()?)?
         }
-        Command::Controller(stack) => {
-            softarm_controller::run(&stack.load()?, &*stop_flag()?).map_err(anyhow::Error::msg)?
-        }
+        Command::Controller(stack) => softarm_controller::run(&stack.load()?, &*stop_flag()?)?,
         Command::Learner(stack) => softarm_learner::run(&stack.load()?, &*stop_flag()?)?,
         Command::Sim(stack) => {
             let c = stack.load()?;
@@ -291,7 +289,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             }
             ConfigCommand::Default => print!("{}", softarm_model::config::DEFAULT),
         },
-        Command::Bench(args) => bench::run(&args).map_err(anyhow::Error::msg)?,
+        Command::Bench(args) => bench::run(&args)?,
     }
     Ok(ExitCode::SUCCESS)
 }

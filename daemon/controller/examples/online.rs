@@ -1,51 +1,60 @@
 //! Diagnostic: Alg. 2 in one process, faster than real time: the Eq. 11 engine, the limiter, the
 //! simulated plant (with realism) and the learner, executing the demo way-point set.
-//! `cargo run --release -p softarm-daemon --example online -- MODEL_DIR [EXECUTIONS]`
+//! `cargo run --release -p softarm-controller --example online -- MODEL_DIR [EXECUTIONS]`
 //! Config overrides as TOML in LEARNER / REALISM, e.g. LEARNER='alpha_actor = 0.5'.
+
+use anyhow::{Context, bail};
 use softarm_controller::Limiter;
 use softarm_method::cacla::{CaclaMtl, LearnerConfig};
 use softarm_method::classify::classify;
+use softarm_method::distance;
 use softarm_method::engine::{Planner, Timeline};
 use softarm_method::plant::Plant;
 use softarm_model::bundle::Model;
 use softarm_model::config::Config;
 use softarm_model::waypoints::WaypointFile;
 
-fn main() {
+fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().collect();
-    let model = Model::read(std::path::Path::new(&args[1])).unwrap();
-    let executions: u32 = args.get(2).and_then(|s| s.parse().ok()).unwrap_or(20);
+    let Some(dir) = args.get(1) else {
+        bail!("usage: online MODEL_DIR [EXECUTIONS]");
+    };
+    let model = Model::read(std::path::Path::new(dir))?;
+    let executions: u32 = match args.get(2) {
+        Some(s) => s.parse().context("EXECUTIONS must be a whole number")?,
+        None => 20,
+    };
     let config = Config::default_sim(".".into());
     let env = |k: &str| std::env::var(k).unwrap_or_default().replace(';', "\n");
-    let mut lc: toml::Table = toml::Table::try_from(config.learner).unwrap();
-    lc.extend(toml::from_str::<toml::Table>(&env("LEARNER")).unwrap());
-    let lconf: LearnerConfig = lc.try_into().unwrap();
-    let mut rc: toml::Table = toml::Table::try_from(config.sim.realism).unwrap();
-    rc.extend(toml::from_str::<toml::Table>(&env("REALISM")).unwrap());
-    let realism = rc.try_into().unwrap();
+    let mut lc = toml::Table::try_from(config.learner)?;
+    lc.extend(toml::from_str::<toml::Table>(&env("LEARNER")).context("LEARNER")?);
+    let lconf: LearnerConfig = lc.try_into().context("LEARNER")?;
+    let mut rc = toml::Table::try_from(config.sim.realism)?;
+    rc.extend(toml::from_str::<toml::Table>(&env("REALISM")).context("REALISM")?);
+    let realism = rc.try_into().context("REALISM")?;
     let mut state = model.learner.clone();
     state.config = lconf;
-    let mut learner = CaclaMtl::restore(&state).unwrap();
-    let file = WaypointFile::parse(include_str!("../../../config/waypoints/demo.toml")).unwrap();
+    let mut learner = CaclaMtl::restore(&state).map_err(anyhow::Error::msg)?;
+    let file = WaypointFile::parse(include_str!("../../../config/waypoints/demo.toml"))
+        .map_err(anyhow::Error::msg)?;
     let n = file.point.len();
     let t: Vec<f64> = file.point.iter().map(|p| p.t_s).collect();
     let p: Vec<[f64; 3]> = file.point.iter().map(|p| p.position_m).collect();
     let z: Vec<f64> = t.iter().map(|t| t / file.duration_s).collect();
     let rate = config.controller.rate_hz;
-    let q = classify(&model.task, &p, &z, 1e-6).unwrap();
+    let q = classify(&model.task, &p, &z, 1e-6)?;
     let planner = Planner::<6>::new(
         model.actuation.clone(),
         &t,
         &q,
-        Timeline::new(file.duration_s, rate).unwrap(),
+        Timeline::new(file.duration_s, rate)?,
         config.activation,
         1e-6,
-    )
-    .unwrap();
+    )?;
     let cond = planner.conditioning_ticks().to_vec();
     let initial: Vec<[f64; 6]> = (0..n).map(|i| learner.act(i, &p[i], false)).collect();
-    let (mut engine, mut replanner) = planner.start(&initial).unwrap();
-    let mut plant = Plant::new(config.arm, realism, [0.5; 6]).unwrap();
+    let (mut engine, mut replanner) = planner.start(&initial)?;
+    let mut plant = Plant::new(config.arm, realism, [0.5; 6]).map_err(anyhow::Error::msg)?;
     let dt = 1.0 / rate;
     let mut lim = Limiter::new(
         [0.0; 6],
@@ -70,11 +79,11 @@ fn main() {
             if next < n && k == cond[next] {
                 let i = next;
                 let reached = m.position;
-                errs[i] = ((0..3).map(|d| (reached[d] - p[i][d]).powi(2)).sum::<f64>()).sqrt();
+                errs[i] = distance(&reached, &p[i]);
                 learner.observe(i, &p[i], &c, &reached);
                 let (np, ne) = if i + 1 < n { (i + 1, e) } else { (0, e + 1) };
                 let a = learner.act(np, &p[np], ne >= 2);
-                replanner.recondition(np, &a).unwrap();
+                replanner.recondition(np, &a)?;
                 next += 1;
             }
         }
@@ -98,4 +107,5 @@ fn main() {
         last * 1e3,
         tail.iter().sum::<f64>() / tail.len() as f64 * 1e3
     );
+    Ok(())
 }

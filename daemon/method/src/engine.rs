@@ -9,10 +9,13 @@
 //! Groups are N copies of the M primitives; in group n, primitive Q[n] is conditioned on the
 //! actuation estimate for conditioning point n (UpdatePrim). Re-conditioning runs off the tick
 //! thread in a [`Replanner`]: it fills a spare table and sends it over a bounded lock-free
-//! channel; the tick swaps it in only while b_n = 0, so replanning never moves the setpoint,
-//! and sends the old table back for reuse, so the tick never frees memory either.
+//! single-producer single-consumer ring ([`rtrb`]); the tick swaps it in only while b_n = 0, so
+//! replanning never moves the setpoint, and sends the old table back over another ring for
+//! reuse, so the tick never frees memory either.
 
-use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
+use std::time::Duration;
+
+use rtrb::{Consumer, Producer, PushError, RingBuffer};
 
 use nalgebra::{DMatrix, DVector};
 
@@ -388,9 +391,9 @@ impl<const D: usize> Planner<D> {
             conditioned.push(t);
         }
         // Bounded both ways: a replanner can be at most `n` updates ahead, and the retired
-        // channel has room for every table that can be in flight.
-        let (updates_tx, updates_rx) = sync_channel(n);
-        let (retired_tx, retired_rx) = sync_channel(4 * n);
+        // ring has room for every table that can be in flight.
+        let (updates_tx, updates_rx) = RingBuffer::new(n);
+        let (retired_tx, retired_rx) = RingBuffer::new(4 * n);
         let engine = TickEngine {
             schedule: self.schedule,
             timeline: self.timeline,
@@ -450,9 +453,13 @@ fn base_marginals<const D: usize>(
 /// Re-conditions groups off the tick thread and hands the result to the [`TickEngine`].
 pub struct Replanner<const D: usize> {
     planner: Planner<D>,
-    updates: SyncSender<Update<D>>,
-    retired: Receiver<Table<D>>,
+    updates: Producer<Update<D>>,
+    retired: Consumer<Table<D>>,
 }
+
+/// How long [`Replanner::recondition`] waits before it tries a full update ring again: the tick
+/// takes updates in every tick of an execution.
+const FULL_RETRY: Duration = Duration::from_micros(100);
 
 impl<const D: usize> Replanner<D> {
     pub fn planner(&self) -> &Planner<D> {
@@ -461,16 +468,27 @@ impl<const D: usize> Replanner<D> {
 
     /// UpdatePrim for one group: conditions primitive Q[group] on `actuation` at T_cond[group]
     /// into a recycled table and sends it to the tick, which swaps it in while b_group = 0.
-    /// Blocks (this thread only) if `n` updates are already waiting.
+    /// Blocks (this thread only) while `n` updates are already waiting; fails once the tick
+    /// engine is gone.
     pub fn recondition(&mut self, group: usize, actuation: &[f64; D]) -> Result<(), EngineError> {
-        let mut table = match self.retired.try_recv() {
+        let mut table = match self.retired.pop() {
             Ok(t) => t,
             Err(_) => Table::zeroed(self.planner.timeline.ticks()),
         };
         self.planner.condition(group, actuation, &mut table)?;
-        self.updates
-            .send(Update { group, table })
-            .map_err(|_| EngineError::Disconnected)
+        let mut update = Update { group, table };
+        loop {
+            if self.updates.is_abandoned() {
+                return Err(EngineError::Disconnected);
+            }
+            match self.updates.push(update) {
+                Ok(()) => return Ok(()),
+                Err(PushError::Full(u)) => {
+                    update = u;
+                    std::thread::sleep(FULL_RETRY);
+                }
+            }
+        }
     }
 }
 
@@ -485,8 +503,8 @@ pub struct TickEngine<const D: usize> {
     /// Re-conditioned tables waiting for their group to be inactive.
     pending: Vec<Option<Table<D>>>,
     pending_count: usize,
-    updates: Receiver<Update<D>>,
-    retired: SyncSender<Table<D>>,
+    updates: Consumer<Update<D>>,
+    retired: Producer<Table<D>>,
 }
 
 impl<const D: usize> TickEngine<D> {
@@ -511,7 +529,7 @@ impl<const D: usize> TickEngine<D> {
     }
 
     fn take_updates(&mut self, tick: usize) {
-        while let Ok(Update { group, table }) = self.updates.try_recv() {
+        while let Ok(Update { group, table }) = self.updates.pop() {
             // A newer estimate for the same group supersedes one still waiting.
             match self.pending[group].replace(table) {
                 Some(old) => self.retire(old),
@@ -535,10 +553,11 @@ impl<const D: usize> TickEngine<D> {
         }
     }
 
-    fn retire(&self, table: Table<D>) {
-        // The channel has room for every table in flight; it is only full or closed when the
-        // replanner is gone, and then freeing here is all that is left to do.
-        let _ = self.retired.try_send(table);
+    fn retire(&mut self, table: Table<D>) {
+        // The ring has room for every table in flight, even once the replanner is gone (its
+        // tables are then freed with the engine, off the tick thread); were it ever full, freeing
+        // here is all that is left to do.
+        let _ = self.retired.push(table);
     }
 
     /// v at a tick (Eq. 11). Ticks past the end hold the last value.

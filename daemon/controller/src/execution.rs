@@ -1,0 +1,279 @@
+//! Executing a way-point set: per execution a rest that slews to v(0), then Eq. 11 tick by tick;
+//! at each conditioning point a sample for the learner, at the end of each execution its stats.
+
+use softarm_ipc::{
+    ACTUATORS, Actuation, ConditioningSample, ExecutionStats, MAX_WAYPOINTS, Position,
+};
+use softarm_method::distance;
+use softarm_method::engine::TickEngine;
+
+/// A way-point set ready to run: its engine and what the tick needs to know.
+pub(crate) struct ReadySet {
+    pub(crate) set_id: u64,
+    pub(crate) executions: u32,
+    pub(crate) points: usize,
+    pub(crate) desired: [Position; MAX_WAYPOINTS],
+    /// The tick of each conditioning point.
+    pub(crate) cond_ticks: [usize; MAX_WAYPOINTS],
+    pub(crate) engine: TickEngine<ACTUATORS>,
+}
+
+/// Executing a way-point set, `executions` times over.
+pub(crate) struct Execution {
+    set: Box<ReadySet>,
+    /// 1-based.
+    execution: u32,
+    /// Ticks into the execution; negative while resting before it.
+    k: i64,
+    next_point: usize,
+    errors: [f64; MAX_WAYPOINTS],
+}
+
+/// What one tick of an execution produced.
+pub(crate) struct ExecutionTick {
+    pub(crate) target: Actuation,
+    /// At a conditioning point: the sample for the learner (the caller fills in the setpoint it
+    /// published, and the sequence number).
+    pub(crate) point: Option<ConditioningSample>,
+    /// At the end of an execution: its stats (sequence number by the caller).
+    pub(crate) finished: Option<ExecutionStats>,
+}
+
+impl Execution {
+    pub(crate) fn new(set: Box<ReadySet>, rest_ticks: i64) -> Self {
+        Self {
+            set,
+            execution: 1,
+            k: -rest_ticks,
+            next_point: 0,
+            errors: [0.0; MAX_WAYPOINTS],
+        }
+    }
+
+    pub(crate) fn set_id(&self) -> u64 {
+        self.set.set_id
+    }
+
+    /// The execution under way (1-based); past the last once the set is through.
+    pub(crate) fn execution(&self) -> u32 {
+        self.execution
+    }
+
+    /// Starts the current execution over (after an e-stop).
+    pub(crate) fn restart(&mut self, rest_ticks: i64) {
+        if self.k >= 0 {
+            self.k = -rest_ticks;
+            self.next_point = 0;
+        }
+    }
+
+    /// Whether it is between executions, where the set may end or give way to the next.
+    pub(crate) fn at_boundary(&self, rest_ticks: i64) -> bool {
+        self.k == -rest_ticks
+    }
+
+    /// Whether every execution has run.
+    pub(crate) fn through(&self) -> bool {
+        self.execution > self.set.executions
+    }
+
+    /// The set back, to be freed off the tick thread.
+    pub(crate) fn into_set(self) -> Box<ReadySet> {
+        self.set
+    }
+
+    pub(crate) fn step(
+        &mut self,
+        reached: Option<Position>,
+        rest_ticks: i64,
+        now: u64,
+    ) -> ExecutionTick {
+        let set = &mut self.set;
+        if self.k < 0 {
+            self.k += 1;
+            return ExecutionTick {
+                target: set.engine.evaluate(0),
+                point: None,
+                finished: None,
+            };
+        }
+        let tick = self.k as usize;
+        let target = set.engine.tick(tick);
+        let mut point = None;
+        if self.next_point < set.points && tick == set.cond_ticks[self.next_point] {
+            let n = self.next_point;
+            let reached = reached.unwrap_or([f64::NAN; 3]);
+            let desired = set.desired[n];
+            self.errors[n] = distance(&desired, &reached);
+            // The estimate wanted next: the following point, or the first of the next execution.
+            let (next, next_execution) = if n + 1 < set.points {
+                (n + 1, self.execution)
+            } else {
+                (0, self.execution + 1)
+            };
+            point = Some(ConditioningSample {
+                seq: 0,
+                stamp_ns: now,
+                set_id: set.set_id,
+                execution: self.execution,
+                point: n as u32,
+                points: set.points as u32,
+                _pad: 0,
+                actuation: [0.0; ACTUATORS],
+                desired,
+                reached,
+                next_point: next as u32,
+                next_execution,
+                next_desired: set.desired[next],
+            });
+            self.next_point += 1;
+        }
+        self.k += 1;
+        let mut finished = None;
+        if self.k as usize >= set.engine.timeline().ticks() {
+            let errs = &self.errors[..set.points];
+            finished = Some(ExecutionStats {
+                seq: 0,
+                stamp_ns: now,
+                set_id: set.set_id,
+                execution: self.execution,
+                executions: set.executions,
+                count: set.points as u32,
+                _pad: 0,
+                errors_m: self.errors,
+                mean_m: errs.iter().sum::<f64>() / errs.len() as f64,
+                max_m: errs.iter().cloned().fold(0.0, f64::max),
+            });
+            self.execution += 1;
+            self.k = -rest_ticks;
+            self.next_point = 0;
+        }
+        ExecutionTick {
+            target,
+            point,
+            finished,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::DMatrix;
+    use softarm_method::activation::ActivationConfig;
+    use softarm_method::engine::{Planner, Timeline};
+    use softarm_method::promp::{Basis, Demonstration, Primitive, TrainConfig};
+
+    const REST: i64 = 5;
+    const REACHED: Position = [0.0, 0.0, -0.3];
+
+    fn primitive(offset: f64) -> Primitive {
+        let demos: Vec<Demonstration> = (0..8)
+            .map(|i| {
+                let times: Vec<f64> = (0..50).map(|s| 4.0 * s as f64 / 49.0).collect();
+                let values = DMatrix::from_fn(50, ACTUATORS, |r, d| {
+                    offset + 0.1 * (times[r] + 0.3 * d as f64 + 0.05 * i as f64).sin()
+                });
+                Demonstration::new(times, values)
+            })
+            .collect();
+        Primitive::train(
+            Basis::new(5, None).unwrap(),
+            &demos,
+            &TrainConfig::default(),
+        )
+        .unwrap()
+    }
+
+    /// A 4 s set at 50 Hz through two way-points (at 1 s and 3 s), executed twice.
+    fn ready_set() -> Box<ReadySet> {
+        let planner = Planner::<ACTUATORS>::new(
+            vec![primitive(0.4), primitive(0.6)],
+            &[1.0, 3.0],
+            &[0, 1],
+            Timeline::new(4.0, 50.0).unwrap(),
+            ActivationConfig::default(),
+            1e-6,
+        )
+        .unwrap();
+        let mut cond_ticks = [0; MAX_WAYPOINTS];
+        cond_ticks[..2].copy_from_slice(planner.conditioning_ticks());
+        let (engine, _replanner) = planner.start(&[[0.5; ACTUATORS]; 2]).unwrap();
+        let mut desired = [[0.0; 3]; MAX_WAYPOINTS];
+        desired[0] = [0.1, 0.0, -0.3];
+        desired[1] = [0.0, 0.2, -0.3];
+        Box::new(ReadySet {
+            set_id: 7,
+            executions: 2,
+            points: 2,
+            desired,
+            cond_ticks,
+            engine,
+        })
+    }
+
+    #[test]
+    fn executions_rest_sample_each_point_and_end_with_stats() {
+        let set = ready_set();
+        let (cond, ticks) = (set.cond_ticks, set.engine.timeline().ticks() as u64);
+        let mut x = Execution::new(set, REST);
+        assert!(x.at_boundary(REST) && !x.through());
+        let (mut samples, mut stats) = (Vec::new(), Vec::new());
+        let mut n = 0u64;
+        while stats.len() < 2 {
+            let t = x.step(Some(REACHED), REST, n);
+            assert!(t.target.iter().all(|v| v.is_finite()));
+            samples.extend(t.point.map(|s| (n, s)));
+            stats.extend(t.finished.map(|s| (n, s)));
+            n += 1;
+            assert!(n < 10_000, "the executions never end");
+        }
+        assert!(x.at_boundary(REST) && x.through());
+
+        // Each execution: REST ticks of rest, then the timeline; points at their ticks.
+        let per_execution = REST as u64 + ticks;
+        let at = |execution: u64, tick: u64| execution * per_execution + REST as u64 + tick;
+        let got: Vec<_> = samples
+            .iter()
+            .map(|(n, s)| (*n, s.execution, s.point, s.next_point, s.next_execution))
+            .collect();
+        assert_eq!(
+            got,
+            [
+                (at(0, cond[0] as u64), 1, 0, 1, 1),
+                (at(0, cond[1] as u64), 1, 1, 0, 2),
+                (at(1, cond[0] as u64), 2, 0, 1, 2),
+                (at(1, cond[1] as u64), 2, 1, 0, 3),
+            ]
+        );
+        assert!(samples.iter().all(|(_, s)| s.set_id == 7 && s.points == 2));
+        assert_eq!(samples[1].1.next_desired, [0.1, 0.0, -0.3]);
+
+        assert_eq!(stats[0].0, at(0, ticks - 1));
+        assert_eq!(stats[1].0, at(1, ticks - 1));
+        let s = stats[1].1;
+        assert_eq!((s.execution, s.executions, s.count), (2, 2, 2));
+        assert!((s.errors_m[0] - 0.1).abs() < 1e-12 && (s.errors_m[1] - 0.2).abs() < 1e-12);
+        assert!((s.mean_m - 0.15).abs() < 1e-12 && (s.max_m - 0.2).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_restart_begins_the_execution_again_from_its_rest() {
+        let mut x = Execution::new(ready_set(), REST);
+        x.step(None, REST, 0);
+        x.restart(REST);
+        assert!(!x.at_boundary(REST), "resting: a restart changes nothing");
+        for n in 1..REST as u64 + 60 {
+            x.step(None, REST, n);
+        }
+        x.restart(REST);
+        assert!(x.at_boundary(REST));
+        assert_eq!(x.execution(), 1);
+        // The first point is sampled again, with no position: NaN reached, NaN error.
+        let first = (0..1000)
+            .find_map(|n| x.step(None, REST, n).point)
+            .expect("the first point again");
+        assert_eq!((first.execution, first.point), (1, 0));
+        assert!(first.reached[0].is_nan());
+    }
+}

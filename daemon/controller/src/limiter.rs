@@ -1,0 +1,79 @@
+//! The last word on every setpoint: clamped to the actuator limits, slewed at most a fixed step
+//! per tick.
+
+use softarm_ipc::{ACTUATORS, Actuation};
+
+/// Clamps to the actuator limits and limits the change per tick.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Limiter {
+    min: Actuation,
+    max: Actuation,
+    step: f64,
+    last: Actuation,
+}
+
+impl Limiter {
+    pub fn new(
+        min: Actuation,
+        max: Actuation,
+        slew_per_s: f64,
+        rate_hz: f64,
+        start: Actuation,
+    ) -> Self {
+        let mut l = Self {
+            min,
+            max,
+            step: slew_per_s / rate_hz,
+            last: start,
+        };
+        l.reset(start);
+        l
+    }
+
+    /// Starts again from a measured state (after HOLD or e-stop), so resuming never jumps.
+    pub fn reset(&mut self, measured: Actuation) {
+        self.last = std::array::from_fn(|i| measured[i].clamp(self.min[i], self.max[i]));
+    }
+
+    pub fn last(&self) -> Actuation {
+        self.last
+    }
+
+    /// The setpoint for a target: at most `step` from the last, inside the limits. A non-finite
+    /// target holds the last setpoint.
+    pub fn apply(&mut self, target: &Actuation) -> Actuation {
+        if target.iter().all(|v| v.is_finite()) {
+            for i in 0..ACTUATORS {
+                let t = target[i].clamp(self.min[i], self.max[i]);
+                self.last[i] += (t - self.last[i]).clamp(-self.step, self.step);
+            }
+        }
+        self.last
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_limiter_clamps_and_slews() {
+        let mut l = Limiter::new(
+            [0.1; ACTUATORS],
+            [0.9; ACTUATORS],
+            1.0,
+            100.0,
+            [0.5; ACTUATORS],
+        );
+        let out = l.apply(&[1.0; ACTUATORS]);
+        assert!((out[0] - 0.51).abs() < 1e-12);
+        for _ in 0..100 {
+            l.apply(&[1.0; ACTUATORS]);
+        }
+        assert_eq!(l.last(), [0.9; ACTUATORS]);
+        let held = l.apply(&[f64::NAN; ACTUATORS]);
+        assert_eq!(held, [0.9; ACTUATORS]);
+        l.reset([0.0; ACTUATORS]);
+        assert_eq!(l.last(), [0.1; ACTUATORS]);
+    }
+}

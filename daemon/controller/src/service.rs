@@ -1,0 +1,432 @@
+//! The service thread: admits and plans way-point sets, asks the learner for their first
+//! estimates, re-conditions the running set as estimates come, starts demonstrations, reloads
+//! the model, and frees what the tick is done with. Not real-time.
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::thread;
+use std::time::{Duration, Instant};
+
+use anyhow::Context;
+use rtrb::{Consumer, Producer, PushError};
+use softarm_ipc::{
+    ACTUATORS, Actuation, ActuationEstimate, ControllerState, DemonstrateReply, DemonstrateRequest,
+    EstimateRequest, MAX_WAYPOINTS, Namespace, Node, Position, Pub, Server, Sub, WaypointReply,
+    WaypointSet, now_ns,
+};
+use softarm_method::classify::classify;
+use softarm_method::engine::{Planner, Replanner, Timeline};
+use softarm_model::bundle::{BundleWatch, Model};
+use softarm_model::config::Config;
+use softarm_model::waypoints::validate;
+
+use crate::demonstration::DemoSequences;
+use crate::execution::ReadySet;
+use crate::{Retired, Shared, ToTick};
+
+/// How often the service thread looks for work: quick enough for users and the learner, and
+/// light on the CPU.
+const POLL: Duration = Duration::from_millis(2);
+
+/// How long to wait before offering the tick a set again when its ring is full.
+const TO_TICK_RETRY: Duration = Duration::from_micros(200);
+
+/// A set admitted and planned, waiting for the learner's first estimates.
+struct PendingSet {
+    set_id: u64,
+    /// `None`: wait for every estimate, however long.
+    deadline: Option<Instant>,
+    planner: Planner<ACTUATORS>,
+    executions: u32,
+    desired: [Position; MAX_WAYPOINTS],
+    /// The phase of each way-point.
+    z: Vec<f64>,
+    estimates: Vec<Option<Actuation>>,
+}
+
+impl PendingSet {
+    fn ready(&self, now: Instant) -> bool {
+        self.estimates.iter().all(Option::is_some) || self.deadline.is_some_and(|d| now >= d)
+    }
+}
+
+/// A set that passed admission: planned, with each way-point's primitive and phase.
+struct Admitted {
+    planner: Planner<ACTUATORS>,
+    q: Vec<usize>,
+    z: Vec<f64>,
+}
+
+/// The model the controller plans with, reloaded when `softarm train` writes a new bundle.
+struct ModelSlot {
+    watch: BundleWatch,
+    model: Option<Model>,
+}
+
+impl ModelSlot {
+    /// Loads the bundle when it appears or changes; a bad bundle is reported and not used.
+    fn refresh(&mut self, shared: &Shared) {
+        if !self.watch.changed() {
+            return;
+        }
+        match Model::read(self.watch.dir()) {
+            Ok(m) => {
+                tracing::info!(id = %m.id, primitives = m.actuation.len(), "model bundle loaded");
+                self.model = Some(m);
+                shared.model_loaded.store(true, Ordering::Relaxed);
+            }
+            Err(e) => tracing::error!("{e}; keeping the model I had"),
+        }
+    }
+}
+
+/// The service thread's ports.
+struct Ports {
+    waypoints: Server<WaypointSet, WaypointReply>,
+    demonstrate: Server<DemonstrateRequest, DemonstrateReply>,
+    requests: Pub<EstimateRequest>,
+    estimates: Sub<ActuationEstimate>,
+    /// Last, so the ports go before it.
+    _node: Node,
+}
+
+impl Ports {
+    fn open(namespace: Namespace) -> Result<Self, softarm_ipc::Error> {
+        let node = Node::open(namespace, "controller.service")?;
+        Ok(Self {
+            waypoints: node.server(&node.waypoints()?)?,
+            demonstrate: node.server(&node.demonstrate()?)?,
+            requests: node.publisher(&node.estimate_request()?)?,
+            estimates: node.subscriber(&node.estimate()?)?,
+            _node: node,
+        })
+    }
+}
+
+pub(crate) struct Service {
+    config: Config,
+    shared: Arc<Shared>,
+    ports: Ports,
+    to_tick: Producer<ToTick>,
+    retired: Consumer<Retired>,
+    slot: ModelSlot,
+    pending: Option<PendingSet>,
+    /// The set the tick runs (or has queued) and its replanner.
+    active: Option<(u64, Replanner<ACTUATORS>)>,
+    next_set_id: u64,
+    request_seq: u64,
+}
+
+impl Service {
+    pub(crate) fn open(
+        config: Config,
+        namespace: Namespace,
+        shared: Arc<Shared>,
+        to_tick: Producer<ToTick>,
+        retired: Consumer<Retired>,
+    ) -> anyhow::Result<Self> {
+        let ports = Ports::open(namespace).context("opening the service thread's ports")?;
+        let mut slot = ModelSlot {
+            watch: BundleWatch::new(config.model_dir(), Duration::from_millis(200)),
+            model: None,
+        };
+        slot.refresh(&shared);
+        if slot.model.is_none() {
+            tracing::warn!(
+                "no model bundle in {} yet: way-point sets are refused until `softarm train` writes one",
+                slot.watch.dir().display()
+            );
+        }
+        Ok(Self {
+            config,
+            shared,
+            ports,
+            to_tick,
+            retired,
+            slot,
+            pending: None,
+            active: None,
+            next_set_id: (now_ns() & 0xffff_ffff) << 16,
+            request_seq: 0,
+        })
+    }
+
+    /// Serves until `stop` is set.
+    pub(crate) fn run(mut self, stop: &AtomicBool) -> anyhow::Result<()> {
+        while !stop.load(Ordering::Relaxed) {
+            thread::sleep(POLL);
+            self.slot.refresh(&self.shared);
+            self.admit_sets();
+            self.answer_demonstration_requests();
+            self.take_estimates();
+            self.start_when_ready();
+            self.free_retired();
+        }
+        Ok(())
+    }
+
+    /// Answers way-point sets: admitted ones wait for their first estimates (replacing any set
+    /// still waiting), the others are rejected with the reason.
+    fn admit_sets(&mut self) {
+        while let Ok(Some(req)) = self.ports.waypoints.receive() {
+            let set = *req.payload();
+            let reply = match admit(&self.config, &self.slot, &set) {
+                Ok(admitted) => {
+                    let set_id = self.request_estimates(&set, admitted);
+                    WaypointReply::accepted(set.seq, set_id)
+                }
+                Err(reason) => {
+                    tracing::warn!("way-point set rejected: {reason}");
+                    WaypointReply::rejected(set.seq, &reason.to_string())
+                }
+            };
+            let _ = req.send_copy(reply);
+        }
+    }
+
+    /// Names an admitted set, asks the learner for its first estimates, and keeps it pending.
+    fn request_estimates(&mut self, set: &WaypointSet, admitted: Admitted) -> u64 {
+        self.next_set_id += 1;
+        let set_id = self.next_set_id;
+        let n = set.count as usize;
+        let mut desired = [[0.0; 3]; MAX_WAYPOINTS];
+        desired[..n].copy_from_slice(&set.positions_m[..n]);
+        tracing::info!(
+            set_id,
+            points = n,
+            executions = set.executions,
+            q = ?admitted.q,
+            "way-point set accepted"
+        );
+        self.request_seq += 1;
+        let _ = self.ports.requests.send_copy(EstimateRequest {
+            seq: self.request_seq,
+            stamp_ns: now_ns(),
+            set_id,
+            count: n as u32,
+            _pad: 0,
+            desired,
+        });
+        self.pending = Some(PendingSet {
+            set_id,
+            deadline: estimate_deadline(Instant::now(), self.config.controller.estimate_timeout_s),
+            planner: admitted.planner,
+            executions: set.executions,
+            desired,
+            z: admitted.z,
+            estimates: vec![None; n],
+        });
+        set_id
+    }
+
+    /// Demonstrations start only while the controller is idle with no set on its way.
+    fn answer_demonstration_requests(&mut self) {
+        while let Ok(Some(req)) = self.ports.demonstrate.receive() {
+            let r = *req.payload();
+            let idle = self.shared.state.load(Ordering::Relaxed) == ControllerState::Idle as u32;
+            let refused = DemonstrateReply {
+                seq: r.seq,
+                ..Default::default()
+            };
+            let reply = if idle && self.pending.is_none() && self.active.is_none() {
+                let sequences = DemoSequences::new(&self.config, r.seed);
+                let (demos, duration_s) = (
+                    sequences.sequences.len(),
+                    sequences.duration_s(&self.config),
+                );
+                // Refused if the tick's ring is full, or the tick is gone (stopping).
+                let sent = !self.to_tick.is_abandoned()
+                    && self
+                        .to_tick
+                        .push(ToTick::Demonstrate(Box::new(sequences)))
+                        .is_ok();
+                if sent {
+                    DemonstrateReply {
+                        seq: r.seq,
+                        stamp_ns: now_ns(),
+                        accepted: 1,
+                        demos: demos as u32,
+                        duration_s,
+                    }
+                } else {
+                    refused
+                }
+            } else {
+                tracing::warn!("demonstrations refused: the controller is busy");
+                refused
+            };
+            let _ = req.send_copy(reply);
+        }
+    }
+
+    /// Estimates for the pending set are kept for its start; those for the running set
+    /// re-condition it.
+    fn take_estimates(&mut self) {
+        while let Ok(Some(s)) = self.ports.estimates.receive() {
+            let s = *s;
+            let point = s.point as usize;
+            if let Some(p) = self.pending.as_mut().filter(|p| p.set_id == s.set_id) {
+                if point < p.estimates.len() {
+                    p.estimates[point] = Some(s.actuation);
+                }
+            } else if let Some((set_id, replanner)) =
+                self.active.as_mut().filter(|a| a.0 == s.set_id)
+                && let Err(err) = replanner.recondition(point, &s.actuation)
+            {
+                tracing::warn!(set_id = *set_id, point, "estimate not used: {err}");
+            }
+        }
+    }
+
+    /// Once the pending set has its estimates (or waited long enough for them), builds its tick
+    /// engine and hands it to the tick.
+    fn start_when_ready(&mut self) {
+        if !self
+            .pending
+            .as_ref()
+            .is_some_and(|p| p.ready(Instant::now()))
+        {
+            return;
+        }
+        let p = self.pending.take().expect("checked above");
+        let model = self
+            .slot
+            .model
+            .as_ref()
+            .expect("a set is only admitted with a model");
+        let q = p.planner.schedule().assignment();
+        let initial: Vec<Actuation> = p
+            .estimates
+            .iter()
+            .enumerate()
+            .map(|(n, e)| {
+                e.unwrap_or_else(|| {
+                    // No learner: the primitive's own mean there, i.e. no conditioning change.
+                    let m = model.actuation[q[n]].marginal(p.z[n]).mean;
+                    std::array::from_fn(|d| m[d])
+                })
+            })
+            .collect();
+        if p.estimates.iter().any(Option::is_none) {
+            tracing::warn!(
+                set_id = p.set_id,
+                "no estimates from the learner in time: starting from the primitives' means"
+            );
+        }
+        let points = initial.len();
+        let mut cond_ticks = [0usize; MAX_WAYPOINTS];
+        cond_ticks[..points].copy_from_slice(p.planner.conditioning_ticks());
+        match p.planner.start(&initial) {
+            Ok((engine, replanner)) => {
+                let set = ReadySet {
+                    set_id: p.set_id,
+                    executions: p.executions,
+                    points,
+                    desired: p.desired,
+                    cond_ticks,
+                    engine,
+                };
+                if self.send_to_tick(ToTick::Execute(Box::new(set))) {
+                    self.active = Some((p.set_id, replanner));
+                }
+            }
+            Err(err) => tracing::error!(set_id = p.set_id, "planning failed: {err}"),
+        }
+    }
+
+    /// Hands the tick a message, waiting (this thread only) while its ring is full; false if
+    /// the tick is gone.
+    fn send_to_tick(&mut self, mut m: ToTick) -> bool {
+        loop {
+            if self.to_tick.is_abandoned() {
+                return false;
+            }
+            match self.to_tick.push(m) {
+                Ok(()) => return true,
+                Err(PushError::Full(back)) => {
+                    m = back;
+                    thread::sleep(TO_TICK_RETRY);
+                }
+            }
+        }
+    }
+
+    /// Sets and demonstrations the tick is done with are freed here, never on the tick thread.
+    fn free_retired(&mut self) {
+        while let Ok(r) = self.retired.pop() {
+            match r {
+                Retired::Set(set) => {
+                    if self.active.as_ref().is_some_and(|a| a.0 == set.set_id) {
+                        self.active = None;
+                    }
+                    tracing::info!(set_id = set.set_id, "way-point set finished");
+                }
+                Retired::Demo(d) => {
+                    tracing::info!(demos = d.sequences.len(), "demonstrations finished");
+                }
+            }
+        }
+    }
+}
+
+/// When to stop waiting for a set's first estimates: `timeout_s` from `now`. Never panics,
+/// whatever the configuration says: a timeout too long for a `Duration` or an `Instant` waits
+/// for the estimates however long they take, one that is not > 0 (or NaN) does not wait.
+fn estimate_deadline(now: Instant, timeout_s: f64) -> Option<Instant> {
+    let wait = Duration::try_from_secs_f64(timeout_s).unwrap_or(if timeout_s > 0.0 {
+        Duration::MAX
+    } else {
+        Duration::ZERO
+    });
+    now.checked_add(wait)
+}
+
+/// Validates a set and plans it: ClassifyToPrimitives, then the primitives' marginals on the
+/// tick grid. Any error is the rejection reason, worded for the user; nothing changes.
+fn admit(config: &Config, slot: &ModelSlot, set: &WaypointSet) -> anyhow::Result<Admitted> {
+    validate(set, &config.waypoints, &config.activation).map_err(anyhow::Error::msg)?;
+    let Some(model) = slot.model.as_ref() else {
+        anyhow::bail!(
+            "no trained model in {}: run `softarm train` first",
+            slot.watch.dir().display()
+        );
+    };
+    let n = set.count as usize;
+    let points = &set.positions_m[..n];
+    let z: Vec<f64> = set.times_s[..n]
+        .iter()
+        .map(|t| t / set.duration_s)
+        .collect();
+    let q = classify(&model.task, points, &z, config.controller.variance_floor)?;
+    let timeline = Timeline::new(set.duration_s, config.controller.rate_hz)?;
+    let planner = Planner::new(
+        model.actuation.clone(),
+        &set.times_s[..n],
+        &q,
+        timeline,
+        config.activation,
+        config.controller.variance_floor,
+    )?;
+    Ok(Admitted { planner, q, z })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn any_estimate_timeout_gives_a_deadline_without_panicking() {
+        let now = Instant::now();
+        assert_eq!(
+            estimate_deadline(now, 0.5),
+            Some(now + Duration::from_millis(500))
+        );
+        assert_eq!(estimate_deadline(now, 1e30), None);
+        assert_eq!(estimate_deadline(now, f64::INFINITY), None);
+        assert_eq!(estimate_deadline(now, f64::NAN), Some(now));
+        assert_eq!(estimate_deadline(now, -1.0), Some(now));
+        assert_eq!(estimate_deadline(now, 0.0), Some(now));
+        // Fits a Duration but not an Instant from now.
+        assert_eq!(estimate_deadline(now, 1e19), None);
+    }
+}

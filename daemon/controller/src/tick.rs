@@ -1,0 +1,453 @@
+//! The tick loop: on every absolute deadline, read the inputs, decide the state, step the mode,
+//! limit, publish, and now and then the status. It allocates nothing, locks nothing and frees
+//! nothing once running: sets and demonstrations come and go as boxes over lock-free rings, and
+//! what it publishes goes to the io thread.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use anyhow::Context;
+use rtrb::{Consumer, Producer};
+use softarm_ipc::clock::Ticker;
+use softarm_ipc::{
+    Actuation, ConditioningSample, ControllerState, ControllerStatus, EstopState, ExecutionStats,
+    MotorState, Namespace, Node, Position, Setpoint, Sub, TrackerSample, now_ns,
+};
+use softarm_model::config::{Config, Controller};
+
+use crate::demonstration::{self, DemoPlayback, DemoSequences, NO_DEMO};
+use crate::execution::{Execution, ReadySet};
+use crate::io::{Outbox, Outgoing};
+use crate::latency::TickLatency;
+use crate::limiter::Limiter;
+use crate::{Retired, Shared, ToTick, rt};
+
+/// The tick's ends of the rings to the other threads.
+pub(crate) struct Links {
+    /// Sets and demonstrations from the service thread.
+    pub(crate) plans: Consumer<ToTick>,
+    /// What the tick is done with, back to the service thread.
+    pub(crate) retired: Producer<Retired>,
+    pub(crate) outbox: Outbox,
+}
+
+/// Runs the tick loop on the calling thread until `stop` is set.
+pub(crate) fn run(
+    config: &Config,
+    namespace: Namespace,
+    shared: &Shared,
+    links: Links,
+    stop: &AtomicBool,
+) -> anyhow::Result<()> {
+    let ports = Inputs::open(namespace).context("opening the tick's subscribers")?;
+    rt::setup(&config.controller);
+    let mut tick = Tick::new(&config.controller, ports, shared, links);
+    tracing::info!(rate_hz = tick.timing.rate_hz, "controller running");
+    let mut notified = false;
+    while !stop.load(Ordering::Relaxed) {
+        tick.tick();
+        if !notified {
+            notified = true;
+            rt::notify_ready();
+        }
+    }
+    tracing::info!(
+        overruns = tick.ticker.overruns(),
+        ticks = tick.count.ticks,
+        "controller stopped"
+    );
+    Ok(())
+}
+
+/// What a playing tick does.
+enum Mode {
+    Idle,
+    Demonstrate(DemoPlayback),
+    Execute(Execution),
+}
+
+/// The configured timing, in ticks where the loop counts ticks.
+struct Timing {
+    rate_hz: f64,
+    /// Tracker or motor data older than this holds the arm (ns).
+    timeout_ns: u64,
+    rest_ticks: i64,
+    demo_rest_ticks: i64,
+    /// Ticks per status (10 Hz).
+    status_every: u64,
+}
+
+impl Timing {
+    fn new(c: &Controller) -> Self {
+        Self {
+            rate_hz: c.rate_hz,
+            timeout_ns: (c.tracker_timeout_ms * 1e6) as u64,
+            rest_ticks: (c.rest_s * c.rate_hz).round() as i64,
+            demo_rest_ticks: (demonstration::rest_s(c) * c.rate_hz).round() as i64,
+            status_every: (c.rate_hz / 10.0).round().max(1.0) as u64,
+        }
+    }
+}
+
+/// The subscriptions, and the newest of each.
+struct Inputs {
+    tracker: Sub<TrackerSample>,
+    motors: Sub<MotorState>,
+    estop: Sub<EstopState>,
+    /// The end-effector position and its stamp.
+    position: Option<(Position, u64)>,
+    /// The measured actuation and its stamp.
+    measured: Option<(Actuation, u64)>,
+    engaged: bool,
+    /// Last, so the ports go before it.
+    _node: Node,
+}
+
+impl Inputs {
+    fn open(namespace: Namespace) -> Result<Self, softarm_ipc::Error> {
+        let node = Node::open(namespace, "controller")?;
+        Ok(Self {
+            tracker: node.subscriber(&node.tracker()?)?,
+            motors: node.subscriber(&node.motor_state()?)?,
+            estop: node.subscriber(&node.estop()?)?,
+            position: None,
+            measured: None,
+            engaged: false,
+            _node: node,
+        })
+    }
+
+    /// Takes in everything that arrived since the last tick.
+    fn read(&mut self) {
+        while let Ok(Some(s)) = self.tracker.receive() {
+            self.position = Some((s.position, s.stamp_ns));
+        }
+        while let Ok(Some(s)) = self.motors.receive() {
+            self.measured = Some((s.actuation, s.stamp_ns));
+        }
+        while let Ok(Some(s)) = self.estop.receive() {
+            self.engaged = s.engaged != 0;
+        }
+    }
+}
+
+/// How fresh the data is at this tick, and so whether the arm may move.
+struct Health {
+    tracker_age_ns: u64,
+    motor_age_ns: u64,
+    safe: bool,
+}
+
+/// What the mode produced this tick.
+struct Step {
+    /// `None` holds the last setpoint.
+    target: Option<Actuation>,
+    /// (demonstration, class) while one is recorded.
+    demo: (u32, u32),
+    /// The execution under way, 0 if none.
+    execution: u32,
+    sample: Option<ConditioningSample>,
+    finished: Option<ExecutionStats>,
+}
+
+impl Step {
+    const HOLD: Self = Self {
+        target: None,
+        demo: (NO_DEMO, NO_DEMO),
+        execution: 0,
+        sample: None,
+        finished: None,
+    };
+}
+
+/// Sequence numbers of what the tick publishes.
+#[derive(Default)]
+struct Counts {
+    ticks: u64,
+    setpoints: u64,
+    samples: u64,
+    stats: u64,
+}
+
+/// Everything the tick loop keeps between ticks.
+struct Tick<'a> {
+    config: &'a Controller,
+    timing: Timing,
+    inputs: Inputs,
+    shared: &'a Shared,
+    links: Links,
+    ticker: Ticker,
+    latency: TickLatency,
+    /// `None` until the arm's state is known: the first setpoint starts there.
+    limiter: Option<Limiter>,
+    mode: Mode,
+    /// The next set, waiting for the running one's execution to end.
+    queued: Option<Box<ReadySet>>,
+    was_safe: bool,
+    /// Whether the unsafe spell now ending included an e-stop (restart) or only stale data
+    /// (resume where the execution paused).
+    stopped_while_unsafe: bool,
+    count: Counts,
+}
+
+impl<'a> Tick<'a> {
+    fn new(config: &'a Controller, inputs: Inputs, shared: &'a Shared, links: Links) -> Self {
+        let timing = Timing::new(config);
+        Self {
+            ticker: Ticker::starting_at(timing.rate_hz, links.outbox.epoch_ns()),
+            config,
+            timing,
+            inputs,
+            shared,
+            links,
+            latency: TickLatency::new(),
+            limiter: None,
+            mode: Mode::Idle,
+            queued: None,
+            was_safe: false,
+            stopped_while_unsafe: false,
+            count: Counts::default(),
+        }
+    }
+
+    /// One tick: read the inputs, decide the state, step the mode, limit, publish, status.
+    fn tick(&mut self) {
+        let now = self.wait();
+        self.inputs.read();
+        self.take_plan();
+        self.start_limiter();
+        let health = self.health(now);
+        let state = self.decide_state(&health);
+        self.shared.state.store(state as u32, Ordering::Relaxed);
+        if self.limiter.is_some() {
+            if health.safe && !self.was_safe {
+                self.resume();
+            }
+            let step = self.step_mode(health.safe, now);
+            let setpoint = self.limit(step.target);
+            self.publish(state, now, setpoint, step);
+        }
+        self.was_safe = health.safe;
+        self.stopped_while_unsafe |= self.inputs.engaged;
+        self.end_at_boundary();
+        if self.count.ticks.is_multiple_of(self.timing.status_every) {
+            self.publish_status(state, now, &health);
+        }
+        self.shared
+            .heartbeat
+            .store(self.count.ticks, Ordering::Relaxed);
+    }
+
+    /// Sleeps until the next deadline; the time of this tick.
+    fn wait(&mut self) -> u64 {
+        let wake = self.ticker.wait();
+        self.latency.record(wake.latency_ns);
+        self.count.ticks += 1;
+        now_ns()
+    }
+
+    /// A set or demonstration from the service thread, if one came.
+    fn take_plan(&mut self) {
+        match self.links.plans.pop() {
+            Ok(ToTick::Execute(set)) => self.execute(set),
+            Ok(ToTick::Demonstrate(seqs)) => self.demonstrate(seqs),
+            Err(_) => {}
+        }
+    }
+
+    /// A new set runs at once, or after the running set's execution (replacing a queued one).
+    fn execute(&mut self, set: Box<ReadySet>) {
+        if let Mode::Execute(_) = self.mode {
+            if let Some(old) = self.queued.replace(set) {
+                self.retire(Retired::Set(old));
+            }
+            return;
+        }
+        if let Mode::Demonstrate(d) = std::mem::replace(&mut self.mode, Mode::Idle) {
+            self.retire(Retired::Demo(d.into_sequences()));
+        }
+        self.mode = Mode::Execute(Execution::new(set, self.timing.rest_ticks));
+    }
+
+    /// Demonstrations play only from idle.
+    fn demonstrate(&mut self, seqs: Box<DemoSequences>) {
+        if let Mode::Idle = self.mode {
+            self.mode = Mode::Demonstrate(DemoPlayback::new(seqs, self.timing.demo_rest_ticks));
+        } else {
+            self.retire(Retired::Demo(seqs));
+        }
+    }
+
+    /// Back to the service thread to be freed. Never blocks: the ring has room for all that
+    /// can be in flight; were it full, the box would be freed here, as with any bounded channel.
+    fn retire(&mut self, r: Retired) {
+        let _ = self.links.retired.push(r);
+    }
+
+    /// Nothing is published before the arm's state is known: the first setpoint starts there.
+    fn start_limiter(&mut self) {
+        if self.limiter.is_none()
+            && let Some((m, _)) = self.inputs.measured
+        {
+            let c = self.config;
+            self.limiter = Some(Limiter::new(
+                c.actuator_min,
+                c.actuator_max,
+                c.slew_per_s,
+                self.timing.rate_hz,
+                m,
+            ));
+        }
+    }
+
+    fn health(&self, now: u64) -> Health {
+        let age = |stamp: Option<u64>| stamp.map_or(u64::MAX, |t| now.saturating_sub(t));
+        let tracker_age_ns = age(self.inputs.position.map(|p| p.1));
+        let motor_age_ns = age(self.inputs.measured.map(|m| m.1));
+        let timeout = self.timing.timeout_ns;
+        Health {
+            tracker_age_ns,
+            motor_age_ns,
+            safe: !self.inputs.engaged && tracker_age_ns <= timeout && motor_age_ns <= timeout,
+        }
+    }
+
+    /// STOPPED on e-stop, HOLD on stale data (or before the arm's state is known), else the
+    /// mode's.
+    fn decide_state(&self, health: &Health) -> ControllerState {
+        if self.inputs.engaged {
+            ControllerState::Stopped
+        } else if !health.safe || self.limiter.is_none() {
+            ControllerState::Hold
+        } else {
+            match self.mode {
+                Mode::Idle => ControllerState::Idle,
+                Mode::Demonstrate(_) => ControllerState::Demonstrate,
+                Mode::Execute(_) => ControllerState::Execute,
+            }
+        }
+    }
+
+    /// Safe again after HOLD or STOPPED: start from the measured state, never jumping; after an
+    /// e-stop the execution starts over from its rest phase.
+    fn resume(&mut self) {
+        if let (Some(lim), Some((m, _))) = (self.limiter.as_mut(), self.inputs.measured) {
+            lim.reset(m);
+        }
+        if let Mode::Execute(x) = &mut self.mode
+            && self.stopped_while_unsafe
+        {
+            x.restart(self.timing.rest_ticks);
+        }
+        self.stopped_while_unsafe = false;
+    }
+
+    /// The mode's target for this tick; unsafe, the mode pauses and the setpoint holds.
+    fn step_mode(&mut self, safe: bool, now: u64) -> Step {
+        if !safe {
+            return Step::HOLD;
+        }
+        match &mut self.mode {
+            Mode::Idle => Step::HOLD,
+            Mode::Demonstrate(d) => {
+                let (target, tag) = d.step(self.timing.demo_rest_ticks);
+                Step {
+                    target: Some(target),
+                    demo: tag.unwrap_or((NO_DEMO, NO_DEMO)),
+                    ..Step::HOLD
+                }
+            }
+            Mode::Execute(x) => {
+                let execution = x.execution();
+                let reached = self.inputs.position.map(|p| p.0);
+                let t = x.step(reached, self.timing.rest_ticks, now);
+                Step {
+                    target: Some(t.target),
+                    execution,
+                    sample: t.point,
+                    finished: t.finished,
+                    ..Step::HOLD
+                }
+            }
+        }
+    }
+
+    /// Clamp and slew; `None` holds the last setpoint.
+    fn limit(&mut self, target: Option<Actuation>) -> Actuation {
+        let lim = self.limiter.as_mut().expect("only called with a limiter");
+        match target {
+            Some(t) => lim.apply(&t),
+            None => lim.last(),
+        }
+    }
+
+    /// The setpoint, and the conditioning sample and stats the step produced.
+    fn publish(&mut self, state: ControllerState, now: u64, setpoint: Actuation, step: Step) {
+        self.count.setpoints += 1;
+        self.links.outbox.send(Outgoing::Setpoint(Setpoint {
+            seq: self.count.setpoints,
+            stamp_ns: now,
+            actuation: setpoint,
+            state: state as u32,
+            demo: step.demo.0,
+            demo_class: step.demo.1,
+            execution: step.execution,
+        }));
+        if let Some(mut s) = step.sample {
+            self.count.samples += 1;
+            s.seq = self.count.samples;
+            s.actuation = setpoint;
+            self.links.outbox.send(Outgoing::Sample(s));
+        }
+        if let Some(mut s) = step.finished {
+            self.count.stats += 1;
+            s.seq = self.count.stats;
+            self.links.outbox.send(Outgoing::Stats(s));
+        }
+    }
+
+    /// Mode changes at boundaries: a finished demonstration run, or a way-point set through (or
+    /// giving way to the queued one) between executions.
+    fn end_at_boundary(&mut self) {
+        let done = match &self.mode {
+            Mode::Demonstrate(d) => d.done(),
+            Mode::Execute(x) => {
+                x.at_boundary(self.timing.rest_ticks) && (x.through() || self.queued.is_some())
+            }
+            Mode::Idle => false,
+        };
+        if !done {
+            return;
+        }
+        match std::mem::replace(&mut self.mode, Mode::Idle) {
+            Mode::Demonstrate(d) => self.retire(Retired::Demo(d.into_sequences())),
+            Mode::Execute(x) => self.retire(Retired::Set(x.into_set())),
+            Mode::Idle => {}
+        }
+        if let Some(set) = self.queued.take() {
+            self.mode = Mode::Execute(Execution::new(set, self.timing.rest_ticks));
+        }
+    }
+
+    fn publish_status(&mut self, state: ControllerState, now: u64, health: &Health) {
+        let (set_id, execution) = match &self.mode {
+            Mode::Execute(x) => (x.set_id(), x.execution()),
+            _ => (0, 0),
+        };
+        let status = ControllerStatus {
+            seq: self.count.ticks,
+            stamp_ns: now,
+            state: state as u32,
+            execution,
+            set_id,
+            rate_hz: self.timing.rate_hz,
+            ticks: self.count.ticks,
+            overruns: self.ticker.overruns(),
+            latency: self.latency.summary(),
+            tracker_age_ns: health.tracker_age_ns,
+            motor_age_ns: health.motor_age_ns,
+            model_loaded: self.shared.model_loaded.load(Ordering::Relaxed) as u32,
+            _pad: 0,
+        };
+        self.links.outbox.send(Outgoing::Status(status));
+    }
+}
