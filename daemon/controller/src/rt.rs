@@ -1,5 +1,6 @@
 //! Real-time set-up of the tick thread (locked memory, a pinned CPU, SCHED_FIFO), each refused
-//! one a warning, and systemd's notifications: READY once the tick runs, WATCHDOG while it does.
+//! one a warning, and systemd's notifications: READY once the tick runs (sent by the service
+//! thread), WATCHDOG while it does.
 
 use std::sync::Arc;
 use std::sync::atomic::Ordering;

@@ -22,7 +22,7 @@ use softarm_model::waypoints::validate;
 
 use crate::demonstration::DemoSequences;
 use crate::execution::ReadySet;
-use crate::{Retired, Shared, ToTick};
+use crate::{Retired, Shared, ToTick, rt};
 
 /// How often the service thread looks for work: quick enough for users and the learner, and
 /// light on the CPU.
@@ -39,8 +39,9 @@ struct PendingSet {
     planner: Planner<ACTUATORS>,
     executions: u32,
     desired: [Position; MAX_WAYPOINTS],
-    /// The phase of each way-point.
-    z: Vec<f64>,
+    /// Without the learner's estimate, each point's primitive's own mean at its phase (no
+    /// conditioning change), from the model this set was planned with.
+    fallback: Vec<Actuation>,
     estimates: Vec<Option<Actuation>>,
 }
 
@@ -50,11 +51,11 @@ impl PendingSet {
     }
 }
 
-/// A set that passed admission: planned, with each way-point's primitive and phase.
+/// A set that passed admission: planned, with each way-point's primitive and its mean there.
 struct Admitted {
     planner: Planner<ACTUATORS>,
     q: Vec<usize>,
-    z: Vec<f64>,
+    fallback: Vec<Actuation>,
 }
 
 /// The model the controller plans with, reloaded when `softarm train` writes a new bundle.
@@ -153,8 +154,15 @@ impl Service {
 
     /// Serves until `stop` is set.
     pub(crate) fn run(mut self, stop: &AtomicBool) -> anyhow::Result<()> {
+        let mut ready = false;
         while !stop.load(Ordering::Relaxed) {
             thread::sleep(POLL);
+            // READY=1 from here, not the tick thread: once the tick has run and every port is
+            // open (this thread's were opened before the loop).
+            if !ready && self.shared.heartbeat.load(Ordering::Relaxed) > 0 {
+                ready = true;
+                rt::notify_ready();
+            }
             self.slot.refresh(&self.shared);
             self.admit_sets();
             self.answer_demonstration_requests();
@@ -213,7 +221,7 @@ impl Service {
             planner: admitted.planner,
             executions: set.executions,
             desired,
-            z: admitted.z,
+            fallback: admitted.fallback,
             estimates: vec![None; n],
         });
         set_id
@@ -289,23 +297,11 @@ impl Service {
             return;
         }
         let p = self.pending.take().expect("checked above");
-        let model = self
-            .slot
-            .model
-            .as_ref()
-            .expect("a set is only admitted with a model");
-        let q = p.planner.schedule().assignment();
         let initial: Vec<Actuation> = p
             .estimates
             .iter()
-            .enumerate()
-            .map(|(n, e)| {
-                e.unwrap_or_else(|| {
-                    // No learner: the primitive's own mean there, i.e. no conditioning change.
-                    let m = model.actuation[q[n]].marginal(p.z[n]).mean;
-                    std::array::from_fn(|d| m[d])
-                })
-            })
+            .zip(&p.fallback)
+            .map(|(e, fallback)| e.unwrap_or(*fallback))
             .collect();
         if p.estimates.iter().any(Option::is_none) {
             tracing::warn!(
@@ -407,7 +403,19 @@ fn admit(config: &Config, slot: &ModelSlot, set: &WaypointSet) -> anyhow::Result
         config.activation,
         config.controller.variance_floor,
     )?;
-    Ok(Admitted { planner, q, z })
+    let fallback = q
+        .iter()
+        .zip(&z)
+        .map(|(&j, &z)| {
+            let m = model.actuation[j].marginal(z).mean;
+            std::array::from_fn(|d| m[d])
+        })
+        .collect();
+    Ok(Admitted {
+        planner,
+        q,
+        fallback,
+    })
 }
 
 #[cfg(test)]

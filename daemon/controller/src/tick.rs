@@ -42,13 +42,8 @@ pub(crate) fn run(
     rt::setup(&config.controller);
     let mut tick = Tick::new(&config.controller, ports, shared, links);
     tracing::info!(rate_hz = tick.timing.rate_hz, "controller running");
-    let mut notified = false;
     while !stop.load(Ordering::Relaxed) {
         tick.tick();
-        if !notified {
-            notified = true;
-            rt::notify_ready();
-        }
     }
     tracing::info!(
         overruns = tick.ticker.overruns(),
