@@ -29,12 +29,13 @@ pub enum ControllerState {
     Idle = 0,
     /// Playing demonstration sequences (training).
     Demonstrate = 1,
+    // 2 was PLAN, never set; left free so the numbers of the others stay what peers expect.
     /// Executing a way-point set.
-    Execute = 2,
+    Execute = 3,
     /// Tracker or motor data too old: setpoint frozen at the last safe value.
-    Hold = 3,
+    Hold = 4,
     /// E-stop latched.
-    Stopped = 4,
+    Stopped = 5,
 }
 
 impl ControllerState {
@@ -95,7 +96,9 @@ pub struct MotorState {
 /// Sent by the controller at each conditioning point: what was executed there and where the end
 /// effector was (one visit of Alg. 1), and which estimate it wants next.
 #[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
-#[type_name("softarm::ConditioningSample")]
+// The type name changed with the layout (the `executed` flag left for `EstimateRequest`), so a
+// peer built before cannot connect and misread it.
+#[type_name("softarm::ConditioningSample.v2")]
 #[repr(C)]
 pub struct ConditioningSample {
     pub seq: u64,
@@ -617,9 +620,11 @@ mod tests {
 
     #[test]
     fn states_round_trip() {
-        for v in 0..5 {
+        for v in [0, 1, 3, 4, 5] {
             assert_eq!(ControllerState::from_u32(v).unwrap() as u32, v);
         }
-        assert_eq!(ControllerState::from_u32(5), None);
+        for v in [2, 6, u32::MAX] {
+            assert_eq!(ControllerState::from_u32(v), None);
+        }
     }
 }

@@ -7,7 +7,10 @@
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
-use softarm_ipc::{Actuation, ActuationEstimate, Namespace, Node, now_ns};
+use softarm_ipc::{
+    Actuation, ActuationEstimate, ConditioningSample, EstimateRequest, MAX_WAYPOINTS, Namespace,
+    Node, now_ns,
+};
 use softarm_method::cacla::{CaclaMtl, LearnerConfig};
 use softarm_model::bundle::{BundleError, BundleWatch, Model, read_checkpoint, write_checkpoint};
 use softarm_model::config::Config;
@@ -78,6 +81,51 @@ fn checkpoint(config: &Config, l: &Loaded) {
     }
 }
 
+/// What the controller sent, merged from the two services.
+enum Incoming {
+    Request(EstimateRequest),
+    Sample(ConditioningSample),
+}
+
+impl Incoming {
+    fn stamp_ns(&self) -> u64 {
+        match self {
+            Incoming::Request(r) => r.stamp_ns,
+            Incoming::Sample(s) => s.stamp_ns,
+        }
+    }
+}
+
+/// A sample the learner can use: points in range (the memory grows to the point's index), and
+/// finite positions and actuation.
+fn check(s: &ConditioningSample) -> Result<(), &'static str> {
+    let points = s.points as usize;
+    if points == 0 || points > MAX_WAYPOINTS {
+        return Err("the set's point count is out of range");
+    }
+    if s.point >= s.points || s.next_point >= s.points {
+        return Err("a point index is out of range");
+    }
+    let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
+    if !(finite(&s.desired) && finite(&s.next_desired) && finite(&s.actuation)) {
+        return Err("a position or the actuation is not finite");
+    }
+    Ok(())
+}
+
+/// One visit of Alg. 1; without a tracker position at the point there is nothing to learn.
+fn visit(learner: &mut CaclaMtl, s: &ConditioningSample) {
+    if s.reached.iter().all(|v| v.is_finite()) {
+        let v = learner.observe(s.point as usize, &s.desired, &s.actuation, &s.reached);
+        tracing::debug!(point = s.point, error_mm = v.error * 1e3, td = ?v.td_error, "visit");
+    } else {
+        tracing::warn!(
+            point = s.point,
+            "no tracker position at the point: visit skipped"
+        );
+    }
+}
+
 /// Runs the learner until `stop` is set.
 pub fn run(config: &Config, stop: &AtomicBool) -> anyhow::Result<()> {
     let namespace = Namespace::new(&config.namespace())?;
@@ -102,6 +150,7 @@ pub fn run(config: &Config, stop: &AtomicBool) -> anyhow::Result<()> {
     let mut loaded: Option<Loaded> = None;
     let mut warned = false;
     let mut set_id = 0u64;
+    let mut inbox: Vec<Incoming> = Vec::new();
     while !stop.load(Ordering::Relaxed) {
         // An estimate is needed before the next group fades in (at least window_s / 2 after the
         // point): 2 ms is plenty.
@@ -127,41 +176,46 @@ pub fn run(config: &Config, stop: &AtomicBool) -> anyhow::Result<()> {
         let Some(l) = loaded.as_mut() else {
             continue;
         };
-        // A new set: its points' histories start over, and its first execution runs on the
-        // actor's means, without exploration.
+        // Both queues, in the order the controller sent them: a sample of the running set
+        // sent before a new set's request is still a visit of that set.
         while let Ok(Some(r)) = requests.receive() {
-            let r = *r;
-            l.learner.forget_points();
-            set_id = r.set_id;
-            for (point, desired) in r.points().iter().enumerate() {
-                send(r.set_id, point as u32, l.learner.act(point, desired, false));
-            }
-            tracing::info!(set_id, points = r.points().len(), "first estimates sent");
+            inbox.push(Incoming::Request(*r));
         }
         while let Ok(Some(s)) = samples.receive() {
-            let s = *s;
-            if s.set_id != set_id {
-                l.learner.forget_points();
-                set_id = s.set_id;
-            }
-            if s.reached.iter().all(|v| v.is_finite()) {
-                let visit =
-                    l.learner
-                        .observe(s.point as usize, &s.desired, &s.actuation, &s.reached);
-                tracing::debug!(point = s.point, error_mm = visit.error * 1e3, td = ?visit.td_error, "visit");
-            } else {
-                tracing::warn!(
-                    point = s.point,
-                    "no tracker position at the point: visit skipped"
-                );
-            }
-            let explore = s.next_execution >= 2;
-            let next = l
-                .learner
-                .act(s.next_point as usize, &s.next_desired, explore);
-            send(s.set_id, s.next_point, next);
-            if s.point + 1 == s.points {
-                checkpoint(config, l);
+            inbox.push(Incoming::Sample(*s));
+        }
+        inbox.sort_by_key(Incoming::stamp_ns);
+        for m in inbox.drain(..) {
+            match m {
+                Incoming::Request(r) => {
+                    // A new set: its points' histories start over, and its first execution
+                    // runs on the actor's means, without exploration.
+                    l.learner.forget_points();
+                    set_id = r.set_id;
+                    for (point, desired) in r.points().iter().enumerate() {
+                        send(r.set_id, point as u32, l.learner.act(point, desired, false));
+                    }
+                    tracing::info!(set_id, points = r.points().len(), "first estimates sent");
+                }
+                Incoming::Sample(s) => {
+                    if let Err(why) = check(&s) {
+                        tracing::warn!(set_id = s.set_id, point = s.point, "sample ignored: {why}");
+                        continue;
+                    }
+                    if s.set_id != set_id {
+                        l.learner.forget_points();
+                        set_id = s.set_id;
+                    }
+                    visit(&mut l.learner, &s);
+                    let explore = s.next_execution >= 2;
+                    let next = l
+                        .learner
+                        .act(s.next_point as usize, &s.next_desired, explore);
+                    send(s.set_id, s.next_point, next);
+                    if s.point + 1 == s.points {
+                        checkpoint(config, l);
+                    }
+                }
             }
         }
     }
@@ -170,4 +224,68 @@ pub fn run(config: &Config, stop: &AtomicBool) -> anyhow::Result<()> {
     }
     tracing::info!("learner stopped");
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sample() -> ConditioningSample {
+        ConditioningSample {
+            points: 3,
+            point: 2,
+            next_point: 0,
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn malformed_samples_are_refused_with_a_reason() {
+        assert_eq!(check(&sample()), Ok(()));
+        let bad = [
+            ConditioningSample {
+                points: 0,
+                ..sample()
+            },
+            ConditioningSample {
+                points: MAX_WAYPOINTS as u32 + 1,
+                ..sample()
+            },
+            ConditioningSample {
+                point: 3,
+                ..sample()
+            },
+            ConditioningSample {
+                next_point: u32::MAX,
+                ..sample()
+            },
+            ConditioningSample {
+                desired: [f64::NAN, 0.0, 0.0],
+                ..sample()
+            },
+            ConditioningSample {
+                actuation: [f64::INFINITY; 6],
+                ..sample()
+            },
+        ];
+        for s in bad {
+            assert!(check(&s).is_err(), "{s:?}");
+        }
+    }
+
+    #[test]
+    fn the_inbox_keeps_the_order_things_were_sent_in() {
+        let mut inbox = vec![
+            Incoming::Request(EstimateRequest {
+                stamp_ns: 20,
+                ..Default::default()
+            }),
+            Incoming::Sample(ConditioningSample {
+                stamp_ns: 10,
+                ..sample()
+            }),
+        ];
+        inbox.sort_by_key(Incoming::stamp_ns);
+        assert!(matches!(inbox[0], Incoming::Sample(_)));
+    }
 }
