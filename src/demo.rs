@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, bail};
 use softarm_clients::{stats, status, submit, train};
 use softarm_ipc::{ExecutionStats, Namespace};
-use softarm_model::config::{Config, DEFAULT};
+use softarm_model::config::{self, Config, DEFAULT};
 use softarm_model::waypoints::WaypointFile;
 
 use crate::up::Supervisor;
@@ -65,34 +65,22 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
     let _cleanup = RemoveOnDrop(run_dir.clone());
 
     // The embedded default, in this demo's own namespace, with its own state and seeds.
-    let mut doc: toml::Table = toml::from_str(DEFAULT).expect("the embedded config parses");
-    let set = |doc: &mut toml::Table, section: &str, key: &str, v: toml::Value| {
-        let mut t = doc;
-        for part in section.split('.') {
-            t = t
-                .entry(part)
-                .or_insert_with(|| toml::Value::Table(Default::default()))
-                .as_table_mut()
-                .expect("a section");
-        }
-        t.insert(key.into(), v);
-    };
-    set(&mut doc, "robot", "namespace", namespace.clone().into());
-    set(
-        &mut doc,
-        "model",
-        "dir",
-        model_dir.display().to_string().into(),
-    );
-    set(
-        &mut doc,
-        "state",
-        "dir",
-        run_dir.join("state").display().to_string().into(),
-    );
-    set(&mut doc, "learner", "seed", (args.seed as i64).into());
-    set(&mut doc, "sim.realism", "seed", (args.seed as i64).into());
-    let text = toml::to_string(&doc).expect("serialises");
+    let seed = i64::try_from(args.seed).context("--seed must be at most 9223372036854775807")?;
+    let text = config::with_overrides(
+        DEFAULT,
+        &[
+            ("robot.namespace", namespace.clone().into()),
+            ("model.dir", model_dir.display().to_string().into()),
+            (
+                "state.dir",
+                run_dir.join("state").display().to_string().into(),
+            ),
+            ("learner.seed", seed.into()),
+            ("sim.realism.seed", seed.into()),
+        ],
+    )
+    .map_err(anyhow::Error::msg)
+    .context("the demo's config")?;
     let config_path = run_dir.join("softarm.toml");
     std::fs::write(&config_path, &text)
         .with_context(|| format!("writing {}", config_path.display()))?;

@@ -125,6 +125,27 @@ pub struct StateConfig {
     pub dir: PathBuf,
 }
 
+/// `text` (a config) with each `(dotted key, value)` set, e.g. `("sim.realism.seed", 3)`; the
+/// key's section must exist. For the tools that run a stack of their own (`softarm demo`, the
+/// tests). Comments do not survive.
+pub fn with_overrides(text: &str, overrides: &[(&str, toml::Value)]) -> Result<String, String> {
+    let mut doc: toml::Table = toml::from_str(text).map_err(|e| e.message().to_string())?;
+    for (key, value) in overrides {
+        let (path, leaf) = key
+            .rsplit_once('.')
+            .ok_or_else(|| format!("{key:?}: need section.key"))?;
+        let mut table = &mut doc;
+        for section in path.split('.') {
+            table = table
+                .get_mut(section)
+                .and_then(toml::Value::as_table_mut)
+                .ok_or_else(|| format!("{key:?}: no section [{path}] in the config"))?;
+        }
+        table.insert(leaf.into(), value.clone());
+    }
+    toml::to_string(&doc).map_err(|e| e.to_string())
+}
+
 /// A config error: the message names the key; `line` is where that key stands, if found.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[error("{origin}{}: {message}", line.map(|l| format!(":{l}")).unwrap_or_default())]
@@ -510,6 +531,17 @@ impl<'a> Node<'a> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn overrides_set_nested_keys_or_say_what_is_missing() {
+        let text = with_overrides(DEFAULT, &[("sim.realism.seed", 7.into())]).unwrap();
+        let c = Config::parse(&text, "o.toml", ".".into()).unwrap();
+        assert_eq!(c.sim.realism.seed, 7);
+        let e = with_overrides(DEFAULT, &[("nowhere.key", 1.into())]).unwrap_err();
+        assert!(e.contains("no section [nowhere]"), "{e}");
+        assert!(with_overrides(DEFAULT, &[("flat", 1.into())]).is_err());
+        assert!(with_overrides("[robot", &[]).is_err());
+    }
 
     #[test]
     fn the_embedded_default_is_valid() {

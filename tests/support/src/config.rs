@@ -2,26 +2,11 @@
 
 use std::path::Path;
 
-use softarm_model::config::DEFAULT;
+use softarm_model::config::{self, DEFAULT};
 
-/// `text` (a config) with each `(dotted key, value)` set; the key's section must exist.
-/// Comments do not survive.
+/// [`softarm_model::config::with_overrides`], for tests: a bad override is a test bug.
 pub fn with_overrides(text: &str, overrides: &[(&str, toml::Value)]) -> String {
-    let mut doc: toml::Table = toml::from_str(text).expect("a config in TOML");
-    for (key, value) in overrides {
-        let (path, leaf) = key
-            .rsplit_once('.')
-            .unwrap_or_else(|| panic!("{key:?}: need section.key"));
-        let mut table = &mut doc;
-        for section in path.split('.') {
-            table = table
-                .get_mut(section)
-                .and_then(toml::Value::as_table_mut)
-                .unwrap_or_else(|| panic!("{key:?}: no section [{path}] in the config"));
-        }
-        table.insert(leaf.into(), value.clone());
-    }
-    toml::to_string(&doc).expect("a table serialises")
+    config::with_overrides(text, overrides).unwrap_or_else(|e| panic!("{e}"))
 }
 
 /// The embedded default with namespace `namespace`, model and state folders under `dir`, and
