@@ -336,10 +336,6 @@ impl Namespace {
         }
     }
 
-    pub fn for_robot(robot_id: &str) -> Result<Self, Error> {
-        Self::new(&format!("softarm/{robot_id}"))
-    }
-
     pub fn as_str(&self) -> &str {
         &self.0
     }
@@ -591,7 +587,6 @@ mod tests {
     #[test]
     fn namespaces_are_checked() {
         assert!(Namespace::new("softarm/arm-1").is_ok());
-        assert!(Namespace::for_robot("lab.2").is_ok());
         for bad in ["", "/x", "x/", "a b", "ä"] {
             assert!(Namespace::new(bad).is_err(), "{bad:?}");
         }

@@ -7,9 +7,9 @@ use anyhow::{Context, bail};
 use softarm_controller::Limiter;
 use softarm_method::cacla::{CaclaMtl, LearnerConfig};
 use softarm_method::classify::classify;
-use softarm_method::distance;
 use softarm_method::engine::{Planner, Timeline};
 use softarm_method::plant::Plant;
+use softarm_method::{ACTUATORS, Actuation, distance};
 use softarm_model::bundle::Model;
 use softarm_model::config::Config;
 use softarm_model::waypoints::WaypointFile;
@@ -24,6 +24,9 @@ fn main() -> anyhow::Result<()> {
         Some(s) => s.parse().context("EXECUTIONS must be a whole number")?,
         None => 20,
     };
+    if executions == 0 {
+        bail!("EXECUTIONS must be at least 1");
+    }
     let config = Config::default_sim(".".into());
     let env = |k: &str| std::env::var(k).unwrap_or_default().replace(';', "\n");
     let mut lc = toml::Table::try_from(config.learner)?;
@@ -42,28 +45,25 @@ fn main() -> anyhow::Result<()> {
     let p: Vec<[f64; 3]> = file.point.iter().map(|p| p.position_m).collect();
     let z: Vec<f64> = t.iter().map(|t| t / file.duration_s).collect();
     let rate = config.controller.rate_hz;
-    let q = classify(&model.task, &p, &z, 1e-6)?;
-    let planner = Planner::<6>::new(
+    let c = &config.controller;
+    let q = classify(&model.task, &p, &z, c.variance_floor)?;
+    let planner = Planner::<ACTUATORS>::new(
         model.actuation.clone(),
         &t,
         &q,
         Timeline::new(file.duration_s, rate)?,
         config.activation,
-        1e-6,
+        c.variance_floor,
     )?;
     let cond = planner.conditioning_ticks().to_vec();
-    let initial: Vec<[f64; 6]> = (0..n).map(|i| learner.act(i, &p[i], false)).collect();
+    let initial: Vec<Actuation> = (0..n).map(|i| learner.act(i, &p[i], false)).collect();
     let (mut engine, mut replanner) = planner.start(&initial)?;
-    let mut plant = Plant::new(config.arm, realism, [0.5; 6]).map_err(anyhow::Error::msg)?;
+    let mut plant = Plant::new(config.arm, realism, config.sim.initial_actuation)
+        .map_err(anyhow::Error::msg)?;
     let dt = 1.0 / rate;
-    let mut lim = Limiter::new(
-        [0.0; 6],
-        [1.0; 6],
-        config.controller.slew_per_s,
-        rate,
-        [0.5; 6],
-    );
-    let rest = (config.controller.rest_s * rate) as usize;
+    let start = config.sim.initial_actuation;
+    let mut lim = Limiter::new(c.actuator_min, c.actuator_max, c.slew_per_s, rate, start);
+    let rest = (c.rest_s * rate).round() as usize;
     let mut last = 0.0;
     let mut means = Vec::new();
     for e in 1..=executions {

@@ -82,6 +82,8 @@ fn checkpoint(config: &Config, l: &Loaded) {
 }
 
 /// What the controller sent, merged from the two services.
+// A few at a time in a reused buffer: boxing the large variant would only add allocations.
+#[allow(clippy::large_enum_variant)]
 enum Incoming {
     Request(EstimateRequest),
     Sample(ConditioningSample),
@@ -275,7 +277,7 @@ mod tests {
 
     #[test]
     fn the_inbox_keeps_the_order_things_were_sent_in() {
-        let mut inbox = vec![
+        let mut inbox = [
             Incoming::Request(EstimateRequest {
                 stamp_ns: 20,
                 ..Default::default()

@@ -72,7 +72,7 @@ impl Default for LearnerConfig {
             actor_width: 0.5,
             critic_span: 2,
             actor_span: 3,
-            // pcc.md: the reachable box of the suggested arm, with a margin.
+            // The reachable box of the default arm, with a margin.
             workspace_min_m: [-0.45, -0.45, -0.6],
             workspace_max_m: [0.45, 0.45, 0.05],
             initial_actuation: 0.5,

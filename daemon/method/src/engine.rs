@@ -462,10 +462,6 @@ pub struct Replanner<const D: usize> {
 const FULL_RETRY: Duration = Duration::from_micros(100);
 
 impl<const D: usize> Replanner<D> {
-    pub fn planner(&self) -> &Planner<D> {
-        &self.planner
-    }
-
     /// UpdatePrim for one group: conditions primitive Q[group] on `actuation` at T_cond[group]
     /// into a recycled table and sends it to the tick, which swaps it in while b_group = 0.
     /// Blocks (this thread only) while `n` updates are already waiting; fails once the tick

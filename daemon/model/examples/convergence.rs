@@ -7,6 +7,7 @@
 
 use std::time::{Duration, Instant};
 
+use anyhow::{Context, bail};
 use hdrhistogram::Histogram;
 use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
@@ -43,25 +44,27 @@ fn stats(name: &str, errors: Vec<f64>) {
     );
 }
 
-fn main() {
+fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().collect();
-    let budget_s: f64 = args.get(1).and_then(|s| s.parse().ok()).unwrap_or(60.0);
-    let Ok(budget) = Duration::try_from_secs_f64(budget_s) else {
-        eprintln!("SECONDS must be a duration >= 0, got {budget_s}");
-        std::process::exit(2);
+    let budget_s: f64 = match args.get(1) {
+        Some(s) => s.parse().context("SECONDS must be a number")?,
+        None => 60.0,
     };
-    let seed: u64 = args.get(2).and_then(|s| s.parse().ok()).unwrap_or(1);
+    let budget = Duration::try_from_secs_f64(budget_s)
+        .with_context(|| format!("SECONDS must be a duration >= 0, got {budget_s}"))?;
+    let seed: u64 = match args.get(2) {
+        Some(s) => s.parse().context("SEED must be a whole number >= 0")?,
+        None => 1,
+    };
     let arm = ArmGeometry::default();
     let recipe = DemoRecipe::default();
 
-    let data = TrainingData::from_plant(&arm, &recipe, seed).expect("the default recipe");
+    let data = TrainingData::from_plant(&arm, &recipe, seed)?;
     let (acts, positions) = (&data.actuations, &data.positions);
-    let held_out =
-        TrainingData::from_plant(&arm, &recipe, seed + 1000).expect("the default recipe");
+    let held_out = TrainingData::from_plant(&arm, &recipe, seed.wrapping_add(1000))?;
 
     let t = Instant::now();
-    let (net, fifth) =
-        forward_model(acts, positions, &NetworkConfig::default()).expect("a forward model");
+    let (net, fifth) = forward_model(acts, positions, &NetworkConfig::default())?;
     println!(
         "forward model: {} centres, fitted on {} samples in {:.2?} (with the held-out fit); every 5th sample held out: mean {:.2} mm, max {:.2} mm",
         net.centres(),
@@ -78,17 +81,16 @@ fn main() {
         .collect();
     stats("forward model, held-out", fwd_err);
 
-    let mut rng = StdRng::seed_from_u64(seed + 7);
+    let mut rng = StdRng::seed_from_u64(seed.wrapping_add(7));
     // Held-out targets inside the demonstrated subspace: positions of held-out demonstrations
     // within 10 mm of a training demonstration.
-    let near = |p: &[f64; 3]| {
-        positions
-            .iter()
-            .any(|q| (0..3).map(|d| (p[d] - q[d]).powi(2)).sum::<f64>() < 1e-4)
-    };
+    let near = |p: &[f64; 3]| positions.iter().any(|q| distance(p, q) < 0.01);
     let h_pos = &held_out.positions;
     let (mut targets, mut outside) = (Vec::new(), 0);
     while targets.len() < 200 {
+        if outside > 1_000_000 {
+            bail!("fewer than 200 held-out positions lie within 10 mm of a demonstration");
+        }
         let p = h_pos[rng.random_range(0..h_pos.len())];
         if near(&p) {
             targets.push(p)
@@ -102,9 +104,11 @@ fn main() {
 
     // Overrides for experiments, as TOML: LEARNER='alpha_actor = 0.1', PRETRAIN='...'.
     let env = |k: &str| std::env::var(k).unwrap_or_default().replace(';', "\n");
-    let mut config: LearnerConfig = toml::from_str(&env("LEARNER")).expect("LEARNER");
+    let mut config: LearnerConfig =
+        toml::from_str(&env("LEARNER")).context("LEARNER: not [learner] keys")?;
     config.seed = seed;
-    let pre: PretrainConfig = toml::from_str(&env("PRETRAIN")).expect("PRETRAIN");
+    let pre: PretrainConfig =
+        toml::from_str(&env("PRETRAIN")).context("PRETRAIN: not [pretrain] keys")?;
     let warm = std::env::var("WARM").map(|v| v != "0").unwrap_or(true);
     let training = Training {
         basis_functions: 15,
@@ -113,14 +117,13 @@ fn main() {
         pretrain: pre,
         imitation_passes: if warm { IMITATION_PASSES } else { 0 },
     };
-    let mut untrained = imitation(config, acts, positions, 0).expect("LEARNER");
+    let mut untrained = imitation(config, acts, positions, 0)?;
     stats(
         "untrained actor on PCC",
         evaluate(&mut untrained, &arm, &targets),
     );
     if warm {
-        let mut imitated =
-            imitation(config, acts, positions, training.imitation_passes).expect("LEARNER");
+        let mut imitated = imitation(config, acts, positions, training.imitation_passes)?;
         stats(
             "after imitation on PCC",
             evaluate(&mut imitated, &arm, &targets),
@@ -140,8 +143,7 @@ fn main() {
             );
         }
         e < budget
-    })
-    .expect("LEARNER");
+    })?;
     println!(
         "pre-training: {:.1} s, {} epochs ({} converged), {} updates, centres stored {:?}",
         t.elapsed().as_secs_f64(),
@@ -178,4 +180,5 @@ fn main() {
         us(ns.value_at_quantile(0.99)),
         us(ns.max())
     );
+    Ok(())
 }

@@ -154,13 +154,14 @@ pub fn validate(
     let d = set.duration_s;
     if !(d.is_finite() && d >= limits.min_duration_s && d <= limits.max_duration_s) {
         return Err(format!(
-            "duration {d} s is outside [{}, {}] s",
+            "duration {d} s is outside [{}, {}] s (the config's waypoints.min_duration_s and \
+             max_duration_s)",
             limits.min_duration_s, limits.max_duration_s
         ));
     }
     if set.executions == 0 || set.executions > limits.max_executions {
         return Err(format!(
-            "{} executions; 1 to {} are allowed",
+            "{} executions; 1 to {} are allowed (the config's waypoints.max_executions)",
             set.executions, limits.max_executions
         ));
     }
@@ -181,7 +182,8 @@ pub fn validate(
     let workspace = limits.workspace();
     if let Some(i) = positions.iter().position(|p| !workspace.contains(p)) {
         return Err(format!(
-            "point {}: position {:?} m is outside the workspace box {:?}..{:?} m",
+            "point {}: position {:?} m is outside the workspace box {:?}..{:?} m (the config's \
+             waypoints.workspace_min_m and workspace_max_m)",
             i + 1,
             positions[i],
             workspace.min_m,
