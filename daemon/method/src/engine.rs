@@ -13,7 +13,6 @@
 //! replanning never moves the setpoint, and sends the old table back over another ring for
 //! reuse, so the tick never frees memory either.
 
-use std::time::Duration;
 
 use rtrb::{Consumer, Producer, PushError, RingBuffer};
 
@@ -48,6 +47,8 @@ pub enum EngineError {
     },
     #[error("the tick engine is gone (the controller stopped)")]
     Disconnected,
+    #[error("{0} re-conditioned groups already wait for the tick; try again once it runs")]
+    Busy(usize),
 }
 
 /// The controller's tick grid over one execution: tick k at t = k / rate, phase k / (ticks − 1).
@@ -457,33 +458,25 @@ pub struct Replanner<const D: usize> {
     retired: Consumer<Table<D>>,
 }
 
-/// How long [`Replanner::recondition`] waits before it tries a full update ring again: the tick
-/// takes updates in every tick of an execution.
-const FULL_RETRY: Duration = Duration::from_micros(100);
-
 impl<const D: usize> Replanner<D> {
     /// UpdatePrim for one group: conditions primitive Q[group] on `actuation` at T_cond[group]
     /// into a recycled table and sends it to the tick, which swaps it in while b_group = 0.
-    /// Blocks (this thread only) while `n` updates are already waiting; fails once the tick
-    /// engine is gone.
+    /// Never blocks: while `n` updates already wait (the tick is not evaluating this set, e.g.
+    /// in HOLD) it is refused with [`EngineError::Busy`]; once the tick engine is gone, with
+    /// [`EngineError::Disconnected`].
     pub fn recondition(&mut self, group: usize, actuation: &[f64; D]) -> Result<(), EngineError> {
         let mut table = match self.retired.pop() {
             Ok(t) => t,
             Err(_) => Table::zeroed(self.planner.timeline.ticks()),
         };
         self.planner.condition(group, actuation, &mut table)?;
-        let mut update = Update { group, table };
-        loop {
-            if self.updates.is_abandoned() {
-                return Err(EngineError::Disconnected);
-            }
-            match self.updates.push(update) {
-                Ok(()) => return Ok(()),
-                Err(PushError::Full(u)) => {
-                    update = u;
-                    std::thread::sleep(FULL_RETRY);
-                }
-            }
+        if self.updates.is_abandoned() {
+            return Err(EngineError::Disconnected);
+        }
+        match self.updates.push(Update { group, table }) {
+            Ok(()) => Ok(()),
+            // The table is freed here, on this thread, never on the tick's.
+            Err(PushError::Full(_)) => Err(EngineError::Busy(self.updates.buffer().capacity())),
         }
     }
 }

@@ -8,7 +8,7 @@ use common::{D, primitives};
 use nalgebra::{DMatrix, DVector};
 use softarm_method::activation::{ActivationConfig, MAX_PRIMITIVES};
 use softarm_method::classify::classify;
-use softarm_method::engine::{Planner, Timeline};
+use softarm_method::engine::{EngineError, Planner, Timeline};
 use softarm_method::promp::{Basis, Demonstration, Primitive, TrainConfig, ViaPoint};
 
 const FLOOR: f64 = 1e-6;
@@ -182,6 +182,26 @@ fn bad_estimates_are_refused_and_change_nothing() {
     for (k, b) in before.iter().enumerate() {
         assert_eq!(&engine.tick(k), b);
     }
+}
+
+#[test]
+fn a_replanner_never_blocks_on_a_tick_that_does_not_run() {
+    let (mut engine, mut replanner) = planner(100.0).start(&initial()).unwrap();
+    let groups = T_COND.len();
+    // The tick takes nothing in: after one update per group waiting, the next is refused.
+    for _ in 0..groups {
+        replanner.recondition(1, &[0.6; D]).unwrap();
+    }
+    let e = replanner.recondition(1, &[0.6; D]).unwrap_err();
+    assert!(matches!(e, EngineError::Busy(n) if n == groups), "{e}");
+    // Once the tick runs it takes them in, and there is room again.
+    engine.tick(engine.timeline().tick_of(T_COND[3]));
+    replanner.recondition(1, &[0.7; D]).unwrap();
+    drop(engine);
+    assert!(matches!(
+        replanner.recondition(1, &[0.7; D]),
+        Err(EngineError::Disconnected)
+    ));
 }
 
 #[test]
