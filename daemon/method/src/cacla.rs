@@ -50,8 +50,8 @@ pub struct LearnerConfig {
     pub critic_span: usize,
     pub actor_span: usize,
     /// The box the lattices span (m): the arm's reachable workspace.
-    pub workspace_min_m: [f64; 3],
-    pub workspace_max_m: [f64; 3],
+    pub workspace_min_m: Position,
+    pub workspace_max_m: Position,
     /// The actuation an untrained actor proposes.
     pub initial_actuation: f64,
     pub seed: u64,
@@ -191,9 +191,9 @@ impl LearnerConfig {
 pub struct Memory {
     /// k_n: visits so far.
     pub visits: u64,
-    pub target: [f64; 3],
+    pub target: Position,
     /// Where the end effector was at the last visit.
-    pub position: [f64; 3],
+    pub position: Position,
     /// g at the last visit (m).
     pub error: f64,
 }
@@ -212,7 +212,7 @@ pub struct Visit {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct LearnerState {
     pub config: LearnerConfig,
-    pub actor: Vec<(u64, [f64; 6])>,
+    pub actor: Vec<(u64, Actuation)>,
     pub critic: Vec<(u64, [f64; 1])>,
     pub memory: Vec<Option<Memory>>,
 }
@@ -338,7 +338,7 @@ impl CaclaMtl {
 
     /// The actuation to try at point `point`: a ~ N(Ac(p_desired), σ(g_prev)² I), clipped to
     /// [0, 1]. Without exploration, or on a first visit (no g_prev yet), the actor's mean.
-    pub fn act(&mut self, point: usize, target: &[f64; 3], explore: bool) -> [f64; 6] {
+    pub fn act(&mut self, point: usize, target: &Position, explore: bool) -> Actuation {
         let mean = self.actor(target);
         let prev = self.memory(point).filter(|m| m.target == *target).copied();
         match prev {
@@ -359,9 +359,9 @@ impl CaclaMtl {
     pub fn observe(
         &mut self,
         point: usize,
-        target: &[f64; 3],
-        action: &[f64; 6],
-        reached: &[f64; 3],
+        target: &Position,
+        action: &Actuation,
+        reached: &Position,
     ) -> Visit {
         let error = distance(target, reached);
         if self.memory.len() <= point {
@@ -406,7 +406,7 @@ impl CaclaMtl {
 
     /// Supervised warm start of the actor on demonstrated (position, actuation) pairs: the
     /// demonstrations say which actuation reaches which position.
-    pub fn imitate(&mut self, positions: &[[f64; 3]], actuations: &[[f64; 6]], passes: usize) {
+    pub fn imitate(&mut self, positions: &[Position], actuations: &[Actuation], passes: usize) {
         for _ in 0..passes {
             for (p, a) in positions.iter().zip(actuations) {
                 // A running average of the demonstrated actuations near p.
@@ -484,7 +484,7 @@ pub struct PretrainReport {
 pub fn pretrain(
     learner: &mut CaclaMtl,
     model: &impl ForwardModel,
-    pool: &[[f64; 3]],
+    pool: &[Position],
     config: &PretrainConfig,
     mut keep_going: impl FnMut(&PretrainReport) -> bool,
 ) -> PretrainReport {
@@ -524,7 +524,7 @@ pub fn pretrain(
 pub fn evaluate(
     learner: &mut CaclaMtl,
     plant: &impl ForwardModel,
-    targets: &[[f64; 3]],
+    targets: &[Position],
 ) -> Vec<f64> {
     targets
         .iter()

@@ -13,7 +13,6 @@
 //! replanning never moves the setpoint, and sends the old table back over another ring for
 //! reuse, so the tick never frees memory either.
 
-
 use rtrb::{Consumer, Producer, PushError, RingBuffer};
 
 use nalgebra::{DMatrix, DVector};

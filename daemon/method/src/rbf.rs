@@ -13,6 +13,8 @@ use std::hash::{BuildHasherDefault, Hasher};
 use nalgebra::DMatrix;
 use serde::{Deserialize, Serialize};
 
+use crate::space::{Actuation, Position};
+
 /// Largest lattice dimension.
 pub const MAX_DIM: usize = 8;
 /// Most centres evaluated per axis.
@@ -358,17 +360,17 @@ impl Default for NetworkConfig {
 /// The forward model: y = Σ_c w_c exp(−‖a − c‖² / 2σ²) + W_lin [1, a].
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct RbfNetwork {
-    centres: Vec<[f64; 6]>,
+    centres: Vec<Actuation>,
     sigma: f64,
     /// One row per feature (centres, then 1 and the six actuations), one column per axis.
-    weights: Vec<[f64; 3]>,
+    weights: Vec<Position>,
 }
 
 impl RbfNetwork {
     /// Fits on (actuation, position) samples.
     pub fn fit(
-        actuations: &[[f64; 6]],
-        positions: &[[f64; 3]],
+        actuations: &[Actuation],
+        positions: &[Position],
         config: &NetworkConfig,
     ) -> Result<Self, RbfError> {
         let bad = |s: String| Err(RbfError::Network(s));
@@ -440,7 +442,7 @@ impl RbfNetwork {
         Ok(net)
     }
 
-    fn features(&self, a: &[f64; 6], out: &mut [f64]) {
+    fn features(&self, a: &Actuation, out: &mut [f64]) {
         let inv = 1.0 / (2.0 * self.sigma * self.sigma);
         for (o, c) in out.iter_mut().zip(&self.centres) {
             *o = (-dist2(a, c) * inv).exp();
@@ -455,15 +457,15 @@ impl RbfNetwork {
     }
 
     /// (centres, σ, output weights), for saving.
-    pub fn parts(&self) -> (&[[f64; 6]], f64, &[[f64; 3]]) {
+    pub fn parts(&self) -> (&[Actuation], f64, &[Position]) {
         (&self.centres, self.sigma, &self.weights)
     }
 
     /// A network from saved parts; the weights need one row per centre plus seven.
     pub fn from_parts(
-        centres: Vec<[f64; 6]>,
+        centres: Vec<Actuation>,
         sigma: f64,
-        weights: Vec<[f64; 3]>,
+        weights: Vec<Position>,
     ) -> Result<Self, String> {
         if centres.is_empty() || weights.len() != centres.len() + 7 {
             return Err(format!(
@@ -485,7 +487,7 @@ impl RbfNetwork {
 }
 
 impl crate::forward::ForwardModel for RbfNetwork {
-    fn position(&self, a: &[f64; 6]) -> [f64; 3] {
+    fn position(&self, a: &Actuation) -> Position {
         let inv = 1.0 / (2.0 * self.sigma * self.sigma);
         let mut y = [0.0; 3];
         for (c, w) in self.centres.iter().zip(&self.weights) {
@@ -505,12 +507,12 @@ impl crate::forward::ForwardModel for RbfNetwork {
     }
 }
 
-fn dist2(a: &[f64; 6], b: &[f64; 6]) -> f64 {
+fn dist2(a: &Actuation, b: &Actuation) -> f64 {
     a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum()
 }
 
 /// Greedy farthest-point sampling: spreads `m` centres over the data, deterministically.
-fn farthest_points(data: &[[f64; 6]], m: usize) -> Vec<[f64; 6]> {
+fn farthest_points(data: &[Actuation], m: usize) -> Vec<Actuation> {
     let mut chosen = vec![data[0]];
     let mut nearest: Vec<f64> = data.iter().map(|x| dist2(x, &data[0])).collect();
     while chosen.len() < m {
@@ -616,7 +618,7 @@ mod tests {
         let mut p = Vec::new();
         let mut rng = StdRng::seed_from_u64(6);
         for _ in 0..600 {
-            let x: [f64; 6] = std::array::from_fn(|_| rng.random());
+            let x: Actuation = std::array::from_fn(|_| rng.random());
             a.push(x);
             p.push([x[0] * x[1], (x[2] - x[3]).sin(), x[4] + 0.5 * x[5] * x[5]]);
         }

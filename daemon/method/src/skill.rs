@@ -10,13 +10,14 @@ use serde::{Deserialize, Serialize};
 
 use crate::forward::ForwardModel;
 use crate::promp::{Basis, Demonstration, Primitive, PrimitiveError, TrainConfig};
+use crate::space::{Actuation, Position};
 
 /// The extremes of one primitive class: where its motions start and end.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ClassExtremes {
-    pub start: [f64; 6],
-    pub end: [f64; 6],
+    pub start: Actuation,
+    pub end: Actuation,
 }
 
 /// How demonstrations are made.
@@ -150,20 +151,20 @@ impl DemoRecipe {
     }
 
     /// The actuation sequences to play, per class: (class, samples at `sample_rate_hz`).
-    pub fn sequences(&self, seed: u64) -> Vec<(usize, Vec<[f64; 6]>)> {
+    pub fn sequences(&self, seed: u64) -> Vec<(usize, Vec<Actuation>)> {
         let mut rng = StdRng::seed_from_u64(seed);
         let samples = (self.duration_s * self.sample_rate_hz).round() as usize + 1;
         let mut out = Vec::with_capacity(self.classes.len() * self.demos_per_class);
         for (class, ex) in self.classes.iter().enumerate() {
             for _ in 0..self.demos_per_class {
-                let mut jitter = |nominal: [f64; 6]| -> [f64; 6] {
+                let mut jitter = |nominal: Actuation| -> Actuation {
                     nominal
                         .map(|v| (v + rng.random_range(-self.spread..=self.spread)).clamp(0.0, 1.0))
                 };
                 let mut knots = vec![(0.0, jitter(ex.start))];
                 for i in 1..=self.intermediate_points {
                     let f = i as f64 / (self.intermediate_points + 1) as f64;
-                    let nominal: [f64; 6] =
+                    let nominal: Actuation =
                         std::array::from_fn(|d| ex.start[d] + f * (ex.end[d] - ex.start[d]));
                     knots.push((f, jitter(nominal)));
                 }
@@ -179,7 +180,7 @@ impl DemoRecipe {
 }
 
 /// Piecewise-linear interpolation through (phase, actuation) knots.
-fn interpolate(knots: &[(f64, [f64; 6])], z: f64) -> [f64; 6] {
+fn interpolate(knots: &[(f64, Actuation)], z: f64) -> Actuation {
     let i = knots
         .windows(2)
         .position(|w| z <= w[1].0)
@@ -195,8 +196,8 @@ fn interpolate(knots: &[(f64, [f64; 6])], z: f64) -> [f64; 6] {
 pub struct Recording {
     pub class: usize,
     pub times: Vec<f64>,
-    pub actuation: Vec<[f64; 6]>,
-    pub position: Vec<[f64; 3]>,
+    pub actuation: Vec<Actuation>,
+    pub position: Vec<Position>,
 }
 
 /// Plays the recipe's sequences through a forward model (the kinematic plant) and records.
@@ -253,7 +254,7 @@ pub fn train_primitives(
 }
 
 /// All (actuation, position) samples: D_fwd.
-pub fn forward_data(recordings: &[Recording]) -> (Vec<[f64; 6]>, Vec<[f64; 3]>) {
+pub fn forward_data(recordings: &[Recording]) -> (Vec<Actuation>, Vec<Position>) {
     let a = recordings
         .iter()
         .flat_map(|r| r.actuation.iter().copied())

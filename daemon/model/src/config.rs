@@ -7,6 +7,7 @@ use serde::{Deserialize, Serialize};
 use softarm_method::Workspace;
 use softarm_method::pcc::ArmGeometry;
 use softarm_method::plant::SimConfig;
+use softarm_method::space::{Actuation, Position};
 
 use softarm_method::activation::ActivationConfig;
 use softarm_method::cacla::{LearnerConfig, PretrainConfig};
@@ -71,8 +72,8 @@ pub struct Controller {
     /// Fastest a setpoint may change (normalised units per s).
     pub slew_per_s: f64,
     /// Actuator limits in normalised units; setpoints are clamped to them.
-    pub actuator_min: [f64; 6],
-    pub actuator_max: [f64; 6],
+    pub actuator_min: Actuation,
+    pub actuator_max: Actuation,
     /// Time between executions to slew to the next start (s).
     pub rest_s: f64,
     /// Variance floor of the Eq. 11 marginals.
@@ -93,8 +94,8 @@ pub struct Controller {
 #[serde(deny_unknown_fields)]
 pub struct WaypointLimits {
     /// Way-points must lie in this box (m, tracker frame).
-    pub workspace_min_m: [f64; 3],
-    pub workspace_max_m: [f64; 3],
+    pub workspace_min_m: Position,
+    pub workspace_max_m: Position,
     pub min_duration_s: f64,
     pub max_duration_s: f64,
     pub max_executions: u32,
@@ -441,7 +442,7 @@ fn count(key: &str, v: usize, lo: usize, hi: usize) -> Result<(), Invalid> {
 }
 
 /// A box checked by [`Workspace::new`]; the key is the bound that is not finite, else the upper.
-fn workspace(section: &str, min_m: [f64; 3], max_m: [f64; 3]) -> Result<(), Invalid> {
+fn workspace(section: &str, min_m: Position, max_m: Position) -> Result<(), Invalid> {
     Workspace::new(min_m, max_m).map(|_| ()).map_err(|m| {
         let bound = if min_m.iter().all(|v| v.is_finite()) {
             "workspace_max_m"
