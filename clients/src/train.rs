@@ -14,9 +14,9 @@ use softarm_method::skill::Recording;
 use softarm_model::config::Config;
 use softarm_model::pipeline::{self, Training, TrainingData};
 
-/// What training measured.
+/// What `softarm train` made and measured, for the user.
 #[derive(Debug, Clone)]
-pub struct TrainReport {
+pub struct Trained {
     pub demos: usize,
     pub samples: usize,
     pub demonstrate_s: f64,
@@ -210,7 +210,7 @@ fn recordings(samples: &[Sample], demos: usize) -> Result<Vec<Recording>> {
 }
 
 /// Runs the whole training against the stack in `namespace` and writes the bundle.
-pub fn train(config: &Config, namespace: &Namespace, seed: u64) -> Result<TrainReport> {
+pub fn train(config: &Config, namespace: &Namespace, seed: u64) -> Result<Trained> {
     let budget = budget(config.pretrain.budget_s)?;
     let (samples, demos, demonstrate_s) = record(namespace, seed)?;
     let data = TrainingData {
@@ -236,7 +236,7 @@ pub fn train(config: &Config, namespace: &Namespace, seed: u64) -> Result<TrainR
     let model_id = model
         .write(&config.model_dir())
         .context("writing the model bundle")?;
-    Ok(TrainReport {
+    Ok(Trained {
         demos,
         samples: samples.len(),
         demonstrate_s,
