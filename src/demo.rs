@@ -10,9 +10,10 @@ use anyhow::{Context, bail};
 use softarm_clients::{stats, status, submit, train};
 use softarm_ipc::{ExecutionStats, Namespace};
 use softarm_model::config::{self, Config, DEFAULT};
+use softarm_model::scenario::Scenario;
 use softarm_model::waypoints::WaypointFile;
 
-use crate::up::Supervisor;
+use crate::up::{self, Supervisor};
 
 /// The demo's way-point set: five conditioning points inside the demonstrated subspace.
 pub const WAYPOINTS: &str = include_str!("../config/waypoints/demo.toml");
@@ -31,6 +32,10 @@ pub struct Args {
     /// Where the trained model is kept between runs (default: the user's cache folder).
     #[arg(long)]
     model_dir: Option<PathBuf>,
+    /// Runs the set on another arm than the model was trained on: a shipped scenario (nominal,
+    /// tool-change, creep, twist, stiffer) or a scenario file. The model stays the nominal one.
+    #[arg(long)]
+    scenario: Option<String>,
 }
 
 fn cache_dir() -> PathBuf {
@@ -53,6 +58,11 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
     if args.executions == 0 {
         bail!("--executions must be at least 1");
     }
+    let scenario = args
+        .scenario
+        .as_deref()
+        .map(Scenario::resolve)
+        .transpose()?;
     let started = Instant::now();
     let pid = std::process::id();
     let namespace = format!("softarm/demo-{pid}");
@@ -163,6 +173,30 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
                 && r.alive.iter().any(|n| n == "learner")
         },
     )?;
+
+    // Trained (or reused) on the nominal arm; now the sim becomes the scenario's arm.
+    if let Some(s) = scenario.as_ref().filter(|s| !s.is_nominal()) {
+        say(
+            args.json,
+            &format!(
+                "softarm demo: the sim runs scenario {}: {}",
+                s.name,
+                s.describe()
+            ),
+        );
+        let arg = args.scenario.as_deref();
+        sup.restart_with("sim", up::sim_args(arg), Duration::from_secs(5))?;
+        wait_for(
+            "the scenario's sim coming up",
+            Duration::from_secs(20),
+            &mut sup,
+            &|r| {
+                r.alive.iter().any(|n| n == "sim")
+                    && r.controller
+                        .is_some_and(|s| s.state == softarm_ipc::ControllerState::Idle as u32)
+            },
+        )?;
+    }
 
     let file = WaypointFile::parse(WAYPOINTS)
         .map_err(anyhow::Error::msg)

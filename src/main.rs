@@ -11,6 +11,7 @@ use clap::{Parser, Subcommand};
 use softarm_clients::{estop, stats, status, submit, train};
 use softarm_ipc::Namespace;
 use softarm_model::config::Config;
+use softarm_model::scenario::Scenario;
 
 mod bench;
 mod demo;
@@ -71,13 +72,27 @@ enum Command {
     /// The showcase: the simulated stack, trained if needed, learning a way-point set.
     Demo(demo::Args),
     /// Controller, learner and the configured drivers as children, in the foreground.
-    Up(Stack),
+    Up {
+        #[command(flatten)]
+        stack: Stack,
+        /// Runs the sim on another arm than the config's: a shipped scenario (nominal,
+        /// tool-change, creep, twist, stiffer) or a scenario file.
+        #[arg(long)]
+        scenario: Option<String>,
+    },
     /// The fixed-rate controller process.
     Controller(Stack),
     /// The CACLA-MTL learner process.
     Learner(Stack),
     /// The simulated plant (driver process).
-    Sim(Stack),
+    Sim {
+        #[command(flatten)]
+        stack: Stack,
+        /// Overrides [arm] and [sim.realism] for this process only: a shipped scenario (nominal,
+        /// tool-change, creep, twist, stiffer) or a scenario file.
+        #[arg(long)]
+        scenario: Option<String>,
+    },
     /// Demonstrations through the running stack, then ProMPs, forward model, pre-training.
     Train {
         #[command(flatten)]
@@ -163,20 +178,32 @@ fn stop_flag() -> anyhow::Result<Arc<AtomicBool>> {
 fn run(cli: Cli) -> anyhow::Result<ExitCode> {
     match cli.command {
         Command::Demo(args) => demo::run(&args, &*stop_flag()?)?,
-        Command::Up(stack) => {
+        Command::Up { stack, scenario } => {
             let config = stack.load()?;
-            up::run(stack.args(), &config.robot.drivers, &*stop_flag()?)?
+            if let Some(s) = &scenario {
+                // Refused here, before anything starts, rather than by a restarting sim.
+                Scenario::resolve(s)?;
+            }
+            up::run(
+                stack.args(),
+                &config.robot.drivers,
+                scenario.as_deref(),
+                &*stop_flag()?,
+            )?
         }
         Command::Controller(stack) => softarm_controller::run(&stack.load()?, &*stop_flag()?)?,
         Command::Learner(stack) => softarm_learner::run(&stack.load()?, &*stop_flag()?)?,
-        Command::Sim(stack) => {
+        Command::Sim { stack, scenario } => {
             let c = stack.load()?;
-            softarm_sim::run(
-                &c.sim,
-                &c.arm,
-                Namespace::new(&c.namespace())?,
-                &*stop_flag()?,
-            )?
+            let (arm, sim) = match &scenario {
+                Some(s) => {
+                    let s = Scenario::resolve(s)?;
+                    tracing::info!(scenario = %s.name, "the sim runs another arm: {}", s.describe());
+                    s.apply(&c.arm, &c.sim)?
+                }
+                None => (c.arm, c.sim),
+            };
+            softarm_sim::run(&sim, &arm, Namespace::new(&c.namespace())?, &*stop_flag()?)?
         }
         Command::Train { stack, seed } => {
             let config = stack.load()?;

@@ -14,6 +14,8 @@ use nix::unistd::Pid;
 
 struct Process {
     role: String,
+    /// Arguments of this child only, after the common ones.
+    extra: Vec<String>,
     child: Option<Child>,
     restarts: u32,
     /// When a dead child may start again.
@@ -42,8 +44,14 @@ impl Supervisor {
 
     /// Starts `role` (`softarm <role> ...`) and keeps it running.
     pub fn add(&mut self, role: &str) -> anyhow::Result<()> {
+        self.add_with(role, Vec::new())
+    }
+
+    /// Starts `role` with arguments of its own (`softarm sim ... --scenario S`).
+    pub fn add_with(&mut self, role: &str, extra: Vec<String>) -> anyhow::Result<()> {
         let mut p = Process {
             role: role.to_string(),
+            extra,
             child: None,
             restarts: 0,
             next_start: Instant::now(),
@@ -58,6 +66,7 @@ impl Supervisor {
         let mut cmd = Command::new(&self.exe);
         cmd.arg(&p.role)
             .args(&self.common)
+            .args(&p.extra)
             .stdin(Stdio::null())
             .stderr(Stdio::piped());
         for (k, v) in &self.env {
@@ -107,6 +116,7 @@ impl Supervisor {
                     &mut self.processes[i],
                     Process {
                         role: String::new(),
+                        extra: Vec::new(),
                         child: None,
                         restarts: 0,
                         next_start: Instant::now(),
@@ -131,22 +141,42 @@ impl Supervisor {
         }
         let deadline = Instant::now() + grace;
         for p in &mut self.processes {
-            if let Some(c) = p.child.as_mut() {
-                loop {
-                    match c.try_wait() {
-                        Ok(Some(_)) | Err(_) => break,
-                        Ok(None) if Instant::now() >= deadline => {
-                            eprintln!("softarm up: {} did not stop in time: killing it", p.role);
-                            let _ = c.kill();
-                            let _ = c.wait();
-                            break;
-                        }
-                        Ok(None) => std::thread::sleep(Duration::from_millis(10)),
-                    }
-                }
-            }
-            p.child = None;
+            reap(p, deadline);
         }
+    }
+
+    /// Stops `role` (SIGTERM, SIGKILL after `grace`) and starts it again with `extra` as its
+    /// own arguments.
+    pub fn restart_with(
+        &mut self,
+        role: &str,
+        extra: Vec<String>,
+        grace: Duration,
+    ) -> anyhow::Result<()> {
+        let i = self
+            .processes
+            .iter()
+            .position(|p| p.role == role)
+            .with_context(|| format!("no {role} to restart"))?;
+        let mut p = std::mem::replace(
+            &mut self.processes[i],
+            Process {
+                role: String::new(),
+                extra: Vec::new(),
+                child: None,
+                restarts: 0,
+                next_start: Instant::now(),
+                started: Instant::now(),
+            },
+        );
+        if let Some(c) = &p.child {
+            let _ = kill(Pid::from_raw(c.id() as i32), Signal::SIGTERM);
+        }
+        reap(&mut p, Instant::now() + grace);
+        p.extra = extra;
+        let spawned = self.spawn(&mut p);
+        self.processes[i] = p;
+        spawned
     }
 
     /// Process ids of the running children, by role.
@@ -158,21 +188,58 @@ impl Supervisor {
     }
 }
 
+/// Waits for a signalled child until `deadline`, then kills it.
+fn reap(p: &mut Process, deadline: Instant) {
+    if let Some(c) = p.child.as_mut() {
+        loop {
+            match c.try_wait() {
+                Ok(Some(_)) | Err(_) => break,
+                Ok(None) if Instant::now() >= deadline => {
+                    eprintln!("softarm up: {} did not stop in time: killing it", p.role);
+                    let _ = c.kill();
+                    let _ = c.wait();
+                    break;
+                }
+                Ok(None) => std::thread::sleep(Duration::from_millis(10)),
+            }
+        }
+    }
+    p.child = None;
+}
+
 impl Drop for Supervisor {
     fn drop(&mut self) {
         self.stop(Duration::from_secs(5));
     }
 }
 
-/// Runs controller, learner and the configured drivers until SIGINT or SIGTERM.
-pub fn run(common: Vec<String>, drivers: &[String], stop: &AtomicBool) -> anyhow::Result<()> {
+/// The sim's own arguments for a scenario.
+pub fn sim_args(scenario: Option<&str>) -> Vec<String> {
+    scenario
+        .map(|s| vec!["--scenario".to_string(), s.to_string()])
+        .unwrap_or_default()
+}
+
+/// Runs controller, learner and the configured drivers until SIGINT or SIGTERM; a scenario goes
+/// to the sim only.
+pub fn run(
+    common: Vec<String>,
+    drivers: &[String],
+    scenario: Option<&str>,
+    stop: &AtomicBool,
+) -> anyhow::Result<()> {
     let mut sup = Supervisor::new(common, Vec::new())?;
     for role in drivers
         .iter()
         .map(String::as_str)
         .chain(["controller", "learner"])
     {
-        sup.add(role)?;
+        let extra = if role == "sim" {
+            sim_args(scenario)
+        } else {
+            Vec::new()
+        };
+        sup.add_with(role, extra)?;
     }
     eprintln!(
         "softarm up: {} running; Ctrl-C stops them",

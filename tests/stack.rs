@@ -247,3 +247,42 @@ fn config_check_names_the_key_and_line() {
         .unwrap();
     assert!(out.status.success());
 }
+
+#[test]
+fn a_bad_scenario_is_refused_before_anything_starts() {
+    let s = TestStack::new(BIN, "scenario", false);
+    let bad = s.dir.join("bad-scenario.toml");
+    std::fs::write(&bad, "# a typo\n[arm]\ntool_m = 0.05\ntool_mm = 0.06\n").unwrap();
+    for role in ["sim", "up"] {
+        let out = s
+            .command()
+            .arg(role)
+            .arg("--scenario")
+            .arg(&bad)
+            .arg("--config")
+            .arg(&s.config)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{role}: {err}");
+        assert!(
+            err.contains("bad-scenario.toml:4: arm.tool_mm: unknown key"),
+            "{role}: {err}"
+        );
+    }
+    let out = s
+        .command()
+        .args(["sim", "--scenario", "no-such-arm", "--config"])
+        .arg(&s.config)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("tool-change"), "names the shipped ones: {err}");
+    // Nothing was started: no node of this namespace is alive.
+    assert!(
+        s.status()["alive"].as_array().is_none_or(|a| a.is_empty()),
+        "{}",
+        s.status()
+    );
+}

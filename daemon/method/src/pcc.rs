@@ -43,6 +43,9 @@ pub struct ArmGeometry {
     /// Rigid tool after the second module (m).
     pub tool_m: f64,
     pub mount: Mount,
+    /// Added to each actuator's length (m): tendon creep, a module that is not quite the one
+    /// the model was trained on. Zero on the nominal arm.
+    pub actuator_offset_m: [f64; ACTUATORS],
 }
 
 impl Default for ArmGeometry {
@@ -55,6 +58,7 @@ impl Default for ArmGeometry {
             connector_m: 0.03,
             tool_m: 0.03,
             mount: Mount::Hanging,
+            actuator_offset_m: [0.0; ACTUATORS],
         }
     }
 }
@@ -122,6 +126,8 @@ fn sinc_terms(theta: f64) -> (f64, f64) {
 impl ArmGeometry {
     /// Longest length of the geometry (m): actuators, connector and tool.
     pub const MAX_LENGTH_M: f64 = 10.0;
+    /// Largest actuator length offset (m), either way.
+    pub const MAX_OFFSET_M: f64 = 0.05;
     /// Largest actuator radius (m).
     pub const MAX_RADIUS_M: f64 = 1.0;
 
@@ -153,6 +159,15 @@ impl ArmGeometry {
                 "arm.actuator_max_m: {} m must exceed actuator_min_m = {} m",
                 self.actuator_max_m, self.actuator_min_m
             ));
+        }
+        let o = Self::MAX_OFFSET_M;
+        for (i, v) in self.actuator_offset_m.iter().enumerate() {
+            if !(v.is_finite() && (-o..=o).contains(v)) {
+                return Err(format!(
+                    "arm.actuator_offset_m: actuator {} is {v:?}; each must be in [-{o}, {o}] m",
+                    i + 1
+                ));
+            }
         }
         for (m, v) in self.module_rotation_deg.iter().enumerate() {
             if !(v.is_finite() && (-360.0..=360.0).contains(v)) {
@@ -245,9 +260,14 @@ impl ArmGeometry {
             .then(&Pose::translation_z(self.tool_m))
     }
 
+    /// Actuator lengths (m) of a normalised actuation, offsets included.
+    pub fn lengths(&self, a: &[f64; ACTUATORS]) -> [f64; ACTUATORS] {
+        std::array::from_fn(|i| self.length_of(a[i]) + self.actuator_offset_m[i])
+    }
+
     /// End-effector pose for a normalised actuation a ∈ [0, 1]^6.
     pub fn pose(&self, a: &[f64; ACTUATORS]) -> Pose {
-        self.pose_of_lengths(&a.map(|x| self.length_of(x)))
+        self.pose_of_lengths(&self.lengths(a))
     }
 
     /// End-effector position (m) for a normalised actuation: the forward model of the plant.
@@ -308,6 +328,26 @@ mod tests {
             assert!((f - (1.0 - theta.cos()) / (theta * theta)).abs() < 1e-9);
             assert!((g - theta.sin() / theta).abs() < 1e-12);
         }
+    }
+
+    #[test]
+    fn an_actuator_offset_is_that_actuator_longer() {
+        let nominal = ArmGeometry::default();
+        let mut crept = nominal;
+        crept.actuator_offset_m[1] = 0.004;
+        crept.validate().unwrap();
+        let a = [0.3, 0.5, 0.6, 0.5, 0.4, 0.5];
+        let mut longer = a;
+        longer[1] += 0.004 / (nominal.actuator_max_m - nominal.actuator_min_m);
+        let (p, q) = (crept.position(&a), nominal.position(&longer));
+        assert!(
+            (0..3).all(|d| (p[d] - q[d]).abs() < 1e-12),
+            "{p:?} vs {q:?}"
+        );
+        assert_ne!(crept.position(&a), nominal.position(&a));
+        crept.actuator_offset_m[5] = 0.06;
+        let e = crept.validate().unwrap_err();
+        assert!(e.starts_with("arm.actuator_offset_m: actuator 6"), "{e}");
     }
 
     #[test]

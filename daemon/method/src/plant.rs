@@ -231,7 +231,7 @@ impl Plant {
                 *a = (*a + n.sample(&mut self.rng)).clamp(0.0, 1.0);
             }
         }
-        let mut lengths = actuation.map(|a| self.geometry.length_of(a));
+        let mut lengths = self.geometry.lengths(&actuation);
         if r.drift_m > 0.0 {
             let w = 2.0 * std::f64::consts::PI * self.time / r.drift_period_s;
             for (i, l) in lengths.iter_mut().enumerate() {
