@@ -23,6 +23,20 @@ struct Process {
     started: Instant,
 }
 
+impl Process {
+    /// What a slot holds while its process is taken out to be (re)started.
+    fn vacant() -> Self {
+        Self {
+            role: String::new(),
+            extra: Vec::new(),
+            child: None,
+            restarts: 0,
+            next_start: Instant::now(),
+            started: Instant::now(),
+        }
+    }
+}
+
 /// Children of one stack, all started with the same `--config` / `--namespace` arguments.
 pub struct Supervisor {
     exe: PathBuf,
@@ -112,17 +126,7 @@ impl Supervisor {
             }
             let p = &self.processes[i];
             if p.child.is_none() && Instant::now() >= p.next_start {
-                let mut p = std::mem::replace(
-                    &mut self.processes[i],
-                    Process {
-                        role: String::new(),
-                        extra: Vec::new(),
-                        child: None,
-                        restarts: 0,
-                        next_start: Instant::now(),
-                        started: Instant::now(),
-                    },
-                );
+                let mut p = std::mem::replace(&mut self.processes[i], Process::vacant());
                 if let Err(e) = self.spawn(&mut p) {
                     eprintln!("softarm up: {e}");
                     p.next_start = Instant::now() + Duration::from_secs(5);
@@ -158,17 +162,7 @@ impl Supervisor {
             .iter()
             .position(|p| p.role == role)
             .with_context(|| format!("no {role} to restart"))?;
-        let mut p = std::mem::replace(
-            &mut self.processes[i],
-            Process {
-                role: String::new(),
-                extra: Vec::new(),
-                child: None,
-                restarts: 0,
-                next_start: Instant::now(),
-                started: Instant::now(),
-            },
-        );
+        let mut p = std::mem::replace(&mut self.processes[i], Process::vacant());
         if let Some(c) = &p.child {
             let _ = kill(Pid::from_raw(c.id() as i32), Signal::SIGTERM);
         }
