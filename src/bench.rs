@@ -105,6 +105,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let warm = Training {
         basis_functions: 15,
         forward: NetworkConfig::default(),
+        kinematics: Default::default(),
         learner: LearnerConfig::default(),
         pretrain: PretrainConfig {
             max_epochs: 2_000,

@@ -1,6 +1,7 @@
 //! `softarm demo`: the one-command showcase. Brings the simulated stack up in a namespace of its
-//! own, trains if no bundle exists, submits the demo way-point set, prints the error at every
-//! conditioning point per execution, and stops everything.
+//! own, trains if no readable bundle exists, submits the demo way-point set (or `--set`), prints
+//! the error at every conditioning point per execution, optionally runs a second set once on
+//! what was learnt (`--then`), and stops everything.
 
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -9,6 +10,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, bail};
 use softarm_clients::{stats, status, submit, train};
 use softarm_ipc::{ExecutionStats, Namespace};
+use softarm_model::bundle::Model;
 use softarm_model::config::{self, Config, DEFAULT};
 use softarm_model::scenario::Scenario;
 use softarm_model::waypoints::WaypointFile;
@@ -36,6 +38,22 @@ pub struct Args {
     /// tool-change, creep, twist, stiffer) or a scenario file. The model stays the nominal one.
     #[arg(long)]
     scenario: Option<String>,
+    /// The online learner: softarm (Jacobian-directed corrections) or paper (Alg. 1 as printed).
+    #[arg(long, value_enum, default_value_t = Learner::Softarm)]
+    learner: Learner,
+    /// The way-point file to run (default: the demo set, config/waypoints/demo.toml).
+    #[arg(long, value_name = "FILE")]
+    set: Option<PathBuf>,
+    /// A second way-point file, run once after the first set's executions, on what the learner
+    /// learnt: how far it carries to points it has not visited.
+    #[arg(long, value_name = "FILE")]
+    then: Option<PathBuf>,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum Learner {
+    Softarm,
+    Paper,
 }
 
 fn cache_dir() -> PathBuf {
@@ -86,6 +104,14 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
                 run_dir.join("state").display().to_string().into(),
             ),
             ("learner.seed", seed.into()),
+            (
+                "learner.algorithm",
+                match args.learner {
+                    Learner::Softarm => "softarm",
+                    Learner::Paper => "paper",
+                }
+                .into(),
+            ),
             ("sim.realism.seed", seed.into()),
         ],
     )
@@ -140,12 +166,19 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
         },
     )?;
 
-    if !model_dir.join("model.toml").exists() {
+    // A cached model an older softarm wrote is not readable any more: trained again.
+    let train_because = match Model::read(&model_dir) {
+        Ok(_) => None,
+        Err(_) if !model_dir.join("model.toml").exists() => {
+            Some(format!("no model in {}", model_dir.display()))
+        }
+        Err(e) => Some(format!("the model is not usable ({e})")),
+    };
+    if let Some(why) = train_because {
         say(
             args.json,
             &format!(
-                "softarm demo: no model in {}: training (demonstrations, ProMPs, forward model, CACLA-MTL pre-training)",
-                model_dir.display()
+                "softarm demo: {why}: training (demonstrations, ProMPs, forward models, CACLA-MTL pre-training)"
             ),
         );
         let t = Instant::now();
@@ -198,57 +231,37 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
         )?;
     }
 
-    let file = WaypointFile::parse(WAYPOINTS)
-        .map_err(anyhow::Error::msg)
-        .context("the demo way-points")?;
-    let waypoints = file.to_set(args.executions).map_err(anyhow::Error::msg)?;
+    let file = match &args.set {
+        Some(path) => WaypointFile::load(path).map_err(anyhow::Error::msg)?,
+        None => WaypointFile::parse(WAYPOINTS)
+            .map_err(anyhow::Error::msg)
+            .context("the demo way-points")?,
+    };
+    let then = args
+        .then
+        .as_deref()
+        .map(WaypointFile::load)
+        .transpose()
+        .map_err(anyhow::Error::msg)?;
     // Subscribe before submitting: no execution's stats can be missed.
     let follower = stats::Stats::open(&ns)?;
-    let set_id = match submit::submit(&ns, waypoints, Duration::from_secs(10)) {
-        submit::Outcome::Accepted { set_id } => set_id,
-        submit::Outcome::Rejected { reason } => {
-            bail!("the demo set was rejected: {reason}");
-        }
-        submit::Outcome::Unreachable { message } => bail!(message),
+    let run_set = |file: &WaypointFile, executions: u32, sup: &mut Supervisor| {
+        run_set(
+            &ns,
+            &follower,
+            file,
+            executions,
+            config.controller.rest_s,
+            args.json,
+            sup,
+            stop,
+        )
     };
-    say(
-        args.json,
-        &format!(
-            "softarm demo: {} executions of {} conditioning points ({} s each)",
-            args.executions,
-            file.point.len(),
-            file.duration_s
-        ),
-    );
-    say(args.json, &stats::table_header(file.point.len()));
-
-    // Both bounded by validation (the set's duration, the config's rest).
-    let per_execution =
-        Duration::try_from_secs_f64(file.duration_s + config.controller.rest_s + 10.0)
-            .context("the demo set's duration")?;
-    let mut rows: Vec<ExecutionStats> = Vec::new();
-    while rows.len() < args.executions as usize {
-        if stop.load(Ordering::Relaxed) {
-            bail!("interrupted");
-        }
-        sup.poll();
-        let Some(s) = follower.next(per_execution) else {
-            bail!(
-                "no stats for execution {} within {} s",
-                rows.len() + 1,
-                per_execution.as_secs()
-            );
-        };
-        if s.set_id != set_id {
-            continue;
-        }
-        if args.json {
-            println!("{}", stats::json_line(&s));
-        } else {
-            println!("{}", stats::table_row(&s));
-        }
-        rows.push(s);
-    }
+    let rows = run_set(&file, args.executions, &mut sup)?;
+    let second = match &then {
+        Some(file) => Some(run_set(file, 1, &mut sup)?),
+        None => None,
+    };
     sup.stop(Duration::from_secs(5));
 
     let first = rows.first().expect("at least one execution");
@@ -263,7 +276,74 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
             started.elapsed().as_secs_f64()
         ),
     );
+    if let Some(s) = second.as_ref().and_then(|r| r.first()) {
+        say(
+            args.json,
+            &format!(
+                "softarm demo: the second set's first execution: {:.2} mm",
+                s.mean_m * 1e3
+            ),
+        );
+    }
     Ok(())
+}
+
+/// Submits `file` for `executions` executions and prints each execution's row as it ends.
+#[allow(clippy::too_many_arguments)]
+fn run_set(
+    ns: &Namespace,
+    follower: &stats::Stats,
+    file: &WaypointFile,
+    executions: u32,
+    rest_s: f64,
+    json: bool,
+    sup: &mut Supervisor,
+    stop: &AtomicBool,
+) -> anyhow::Result<Vec<ExecutionStats>> {
+    let waypoints = file.to_set(executions).map_err(anyhow::Error::msg)?;
+    let set_id = match submit::submit(ns, waypoints, Duration::from_secs(10)) {
+        submit::Outcome::Accepted { set_id } => set_id,
+        submit::Outcome::Rejected { reason } => {
+            bail!("the way-point set was rejected: {reason}");
+        }
+        submit::Outcome::Unreachable { message } => bail!(message),
+    };
+    say(
+        json,
+        &format!(
+            "softarm demo: {executions} executions of {} conditioning points ({} s each)",
+            file.point.len(),
+            file.duration_s
+        ),
+    );
+    say(json, &stats::table_header(file.point.len()));
+    // Both bounded by validation (the set's duration, the config's rest).
+    let per_execution = Duration::try_from_secs_f64(file.duration_s + rest_s + 10.0)
+        .context("the way-point set's duration")?;
+    let mut rows: Vec<ExecutionStats> = Vec::new();
+    while rows.len() < executions as usize {
+        if stop.load(Ordering::Relaxed) {
+            bail!("interrupted");
+        }
+        sup.poll();
+        let Some(s) = follower.next(per_execution) else {
+            bail!(
+                "no stats for execution {} within {} s",
+                rows.len() + 1,
+                per_execution.as_secs()
+            );
+        };
+        if s.set_id != set_id {
+            continue;
+        }
+        if json {
+            println!("{}", stats::json_line(&s));
+        } else {
+            println!("{}", stats::table_row(&s));
+        }
+        rows.push(s);
+    }
+    Ok(rows)
 }
 
 struct RemoveOnDrop(PathBuf);

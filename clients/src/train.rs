@@ -219,6 +219,7 @@ pub fn train(config: &Config, namespace: &Namespace, seed: u64) -> Result<Traine
         // D_fwd: what the actuators really did and where the end effector was.
         actuations: samples.iter().map(|s| s.measured).collect(),
         positions: samples.iter().map(|s| s.position).collect(),
+        demo: samples.iter().map(|s| s.demo as usize).collect(),
     };
     // The budget and the progress bar start with the pre-training, after the fits.
     let mut started: Option<(Instant, ProgressBar)> = None;

@@ -17,6 +17,7 @@ mod execution;
 mod io;
 mod latency;
 mod limiter;
+pub mod rehearsal;
 mod rt;
 mod service;
 mod tick;

@@ -1,6 +1,7 @@
-//! The learner process: CACLA-MTL at the conditioning points. An `EstimateRequest` (a set was
-//! accepted) is answered with the actor's mean for every point; each `ConditioningSample` is one
-//! visit (Alg. 1) and is answered with the `ActuationEstimate` the controller asked for next.
+//! The learner process: CACLA-MTL at the conditioning points, under `learner.algorithm`
+//! ([`softarm_method::online`]). An `EstimateRequest` (a set was accepted) is answered with the
+//! first, exploration-free estimate of every point; each `ConditioningSample` is one visit and is
+//! answered with the `ActuationEstimate` the controller asked for next.
 //! The state is checkpointed atomically after every execution and at exit, and resumed at start
 //! when it descends from the current model bundle.
 
@@ -12,11 +13,12 @@ use softarm_ipc::{
     Node, now_ns,
 };
 use softarm_method::cacla::{CaclaMtl, LearnerConfig};
+use softarm_method::online::OnlineLearner;
 use softarm_model::bundle::{BundleError, BundleWatch, Model, read_checkpoint, write_checkpoint};
 use softarm_model::config::Config;
 
 struct Loaded {
-    learner: CaclaMtl,
+    learner: OnlineLearner,
     model_id: String,
 }
 
@@ -43,12 +45,13 @@ fn load(config: &Config) -> Result<Loaded, BundleError> {
     };
     let mut state = state;
     state.config = runtime_config(state.config, config.learner);
-    let learner = CaclaMtl::restore(&state).map_err(|why| BundleError::Invalid {
+    let cacla = CaclaMtl::restore(&state).map_err(|why| BundleError::Invalid {
         path: model_dir.clone(),
         why,
     })?;
+    tracing::info!(algorithm = state.config.algorithm.name(), "online learner");
     Ok(Loaded {
-        learner,
+        learner: OnlineLearner::new(cacla, model.kinematics),
         model_id: model.id,
     })
 }
@@ -64,6 +67,8 @@ fn runtime_config(trained: LearnerConfig, configured: LearnerConfig) -> LearnerC
         sigma_mid_m: configured.sigma_mid_m,
         sigma_slope_per_m: configured.sigma_slope_per_m,
         seed: configured.seed,
+        algorithm: configured.algorithm,
+        correction: configured.correction,
         ..trained
     };
     if runtime != configured {
@@ -76,7 +81,7 @@ fn runtime_config(trained: LearnerConfig, configured: LearnerConfig) -> LearnerC
 }
 
 fn checkpoint(config: &Config, l: &Loaded) {
-    if let Err(e) = write_checkpoint(&config.state_dir(), &l.learner.state(), &l.model_id) {
+    if let Err(e) = write_checkpoint(&config.state_dir(), &l.learner.cacla().state(), &l.model_id) {
         tracing::error!("checkpoint not written: {e}");
     }
 }
@@ -115,10 +120,21 @@ fn check(s: &ConditioningSample) -> Result<(), &'static str> {
     Ok(())
 }
 
-/// One visit of Alg. 1; without a tracker position at the point there is nothing to learn.
-fn visit(learner: &mut CaclaMtl, s: &ConditioningSample) {
+/// One visit and the estimate asked for next; without a tracker position at the point there is
+/// nothing to learn, but the estimate is still due. A sample that does not fit the running set
+/// (point, target) changes nothing.
+fn visit(learner: &mut OnlineLearner, s: &ConditioningSample) -> Result<Actuation, String> {
+    if learner.points() != s.points as usize {
+        return Err(format!(
+            "the set has {} points, the sample says {}",
+            learner.points(),
+            s.points
+        ));
+    }
     if s.reached.iter().all(|v| v.is_finite()) {
-        let v = learner.observe(s.point as usize, &s.desired, &s.actuation, &s.reached);
+        let v = learner
+            .observe(s.point as usize, &s.desired, &s.actuation, &s.reached)
+            .map_err(|e| e.to_string())?;
         tracing::debug!(point = s.point, error_mm = v.error * 1e3, td = ?v.td_error, "visit");
     } else {
         tracing::warn!(
@@ -126,6 +142,11 @@ fn visit(learner: &mut CaclaMtl, s: &ConditioningSample) {
             "no tracker position at the point: visit skipped"
         );
     }
+    // The set's first execution runs without exploration.
+    let explore = s.next_execution >= 2;
+    learner
+        .estimate(s.next_point as usize, &s.next_desired, explore)
+        .map_err(|e| e.to_string())
 }
 
 /// Runs the learner until `stop` is set.
@@ -191,13 +212,21 @@ pub fn run(config: &Config, stop: &AtomicBool) -> anyhow::Result<()> {
             match m {
                 Incoming::Request(r) => {
                     // A new set: its points' histories start over, and its first execution
-                    // runs on the actor's means, without exploration.
-                    l.learner.forget_points();
-                    set_id = r.set_id;
-                    for (point, desired) in r.points().iter().enumerate() {
-                        send(r.set_id, point as u32, l.learner.act(point, desired, false));
+                    // runs without exploration.
+                    match l.learner.start_set(r.points()) {
+                        Ok(first) => {
+                            set_id = r.set_id;
+                            for (point, a) in first.into_iter().enumerate() {
+                                send(r.set_id, point as u32, a);
+                            }
+                            tracing::info!(
+                                set_id,
+                                points = r.points().len(),
+                                "first estimates sent"
+                            );
+                        }
+                        Err(e) => tracing::warn!(set_id = r.set_id, "request ignored: {e}"),
                     }
-                    tracing::info!(set_id, points = r.points().len(), "first estimates sent");
                 }
                 Incoming::Sample(s) => {
                     if let Err(why) = check(&s) {
@@ -205,15 +234,23 @@ pub fn run(config: &Config, stop: &AtomicBool) -> anyhow::Result<()> {
                         continue;
                     }
                     if s.set_id != set_id {
-                        l.learner.forget_points();
-                        set_id = s.set_id;
+                        // A set whose request this learner did not see (it restarted): its
+                        // targets are learnt from the samples.
+                        if l.learner.begin(s.points as usize).is_ok() {
+                            set_id = s.set_id;
+                        }
                     }
-                    visit(&mut l.learner, &s);
-                    let explore = s.next_execution >= 2;
-                    let next = l
-                        .learner
-                        .act(s.next_point as usize, &s.next_desired, explore);
-                    send(s.set_id, s.next_point, next);
+                    match visit(&mut l.learner, &s) {
+                        Ok(next) => send(s.set_id, s.next_point, next),
+                        Err(why) => {
+                            tracing::warn!(
+                                set_id = s.set_id,
+                                point = s.point,
+                                "sample ignored: {why}"
+                            );
+                            continue;
+                        }
+                    }
                     if s.point + 1 == s.points {
                         checkpoint(config, l);
                     }

@@ -13,6 +13,7 @@ use rand_distr::{Distribution, StandardNormal};
 use serde::{Deserialize, Serialize};
 
 use crate::forward::ForwardModel;
+use crate::online::{Algorithm, CorrectionConfig};
 use crate::rbf::{Features, Lattice, LinearRbf, RbfError};
 use crate::space::{ACTUATORS, Actuation, Position, distance};
 
@@ -55,6 +56,10 @@ pub struct LearnerConfig {
     /// The actuation an untrained actor proposes.
     pub initial_actuation: f64,
     pub seed: u64,
+    /// Which online learner runs ([`crate::online`]): `softarm` or the paper's.
+    pub algorithm: Algorithm,
+    /// `[learner.correction]`: the directed corrections of the `softarm` algorithm.
+    pub correction: CorrectionConfig,
 }
 
 impl Default for LearnerConfig {
@@ -77,6 +82,8 @@ impl Default for LearnerConfig {
             workspace_max_m: [0.45, 0.45, 0.05],
             initial_actuation: 0.5,
             seed: 1,
+            algorithm: Algorithm::default(),
+            correction: CorrectionConfig::default(),
         }
     }
 }
@@ -159,6 +166,7 @@ impl LearnerConfig {
                 );
             }
         }
+        self.correction.validate()?;
         self.lattices()
             .map(|_| ())
             .map_err(|e| format!("learner: {e}"))

@@ -64,9 +64,9 @@ fn main() -> anyhow::Result<()> {
     let held_out = TrainingData::from_plant(&arm, &recipe, seed.wrapping_add(1000))?;
 
     let t = Instant::now();
-    let (net, fifth) = forward_model(acts, positions, &NetworkConfig::default())?;
+    let (net, fifth) = forward_model(acts, positions, &data.demo, &NetworkConfig::default())?;
     println!(
-        "forward model: {} centres, fitted on {} samples in {:.2?} (with the held-out fit); every 5th sample held out: mean {:.2} mm, max {:.2} mm",
+        "forward model: {} centres, fitted on {} samples in {:.2?} (with the held-out fit); every 5th demonstration held out: mean {:.2} mm, max {:.2} mm",
         net.centres(),
         acts.len(),
         t.elapsed(),
@@ -113,6 +113,7 @@ fn main() -> anyhow::Result<()> {
     let training = Training {
         basis_functions: 15,
         forward: NetworkConfig::default(),
+        kinematics: Default::default(),
         learner: config,
         pretrain: pre,
         imitation_passes: if warm { IMITATION_PASSES } else { 0 },

@@ -18,10 +18,12 @@ use safetensors::{Dtype, SafeTensors, tensor::TensorView};
 use serde::{Deserialize, Serialize};
 
 use softarm_method::cacla::{LearnerConfig, LearnerState, Memory};
+use softarm_method::poly::Polynomial;
 use softarm_method::promp::{Basis, Primitive};
 use softarm_method::rbf::RbfNetwork;
 
-const FORMAT: u32 = 1;
+/// 2: the polynomial kinematics (`kinematics.weights`) joined the model.
+const FORMAT: u32 = 2;
 
 #[derive(Debug, thiserror::Error)]
 pub enum BundleError {
@@ -284,6 +286,8 @@ pub struct Model {
     pub actuation: Vec<Primitive>,
     pub task: Vec<Primitive>,
     pub forward: RbfNetwork,
+    /// The polynomial whose Jacobian steers the online corrections.
+    pub kinematics: Polynomial,
     pub learner: LearnerState,
     pub demo_duration_s: f64,
     /// Identity of the bundle it was read from (its tensors hash); empty before writing.
@@ -300,6 +304,9 @@ struct ModelMeta {
     basis_width: f64,
     demo_duration_s: f64,
     forward_sigma: f64,
+    /// Absent from format 1: defaulted, so the format check can say what is wrong.
+    #[serde(default)]
+    kinematics_degree: usize,
     learner: LearnerConfig,
 }
 
@@ -399,6 +406,7 @@ impl Model {
             basis_width: first.basis().width(),
             demo_duration_s: self.demo_duration_s,
             forward_sigma: sigma,
+            kinematics_degree: self.kinematics.degree(),
             learner: self.learner.config,
         };
         let mut t = Tensors::default();
@@ -412,6 +420,9 @@ impl Model {
         t.put_f64("forward.centres", &[centres.len(), 6], &c);
         let w: Vec<f64> = weights.iter().flatten().copied().collect();
         t.put_f64("forward.weights", &[weights.len(), 3], &w);
+        let k = self.kinematics.weights();
+        let kw: Vec<f64> = k.iter().flatten().copied().collect();
+        t.put_f64("kinematics.weights", &[k.len(), 3], &kw);
         put_learner(&mut t, &self.learner);
         Ok(write(dir, "model", &meta, &t)?.fnv64)
     }
@@ -449,12 +460,22 @@ impl Model {
             let (_, w) = t.f64s("forward.weights", &[Some(shape[0] + 7), Some(3)])?;
             let weights: Vec<[f64; 3]> = w.chunks_exact(3).map(|r| [r[0], r[1], r[2]]).collect();
             let forward = RbfNetwork::from_parts(centres, meta.forward_sigma, weights)?;
+            let terms = softarm_method::poly::exponents(
+                meta.kinematics_degree.min(softarm_method::poly::MAX_DEGREE),
+            )
+            .len();
+            let (_, kw) = t.f64s("kinematics.weights", &[Some(terms), Some(3)])?;
+            let kinematics = Polynomial::from_weights(
+                meta.kinematics_degree,
+                kw.chunks_exact(3).map(|r| [r[0], r[1], r[2]]).collect(),
+            )?;
             meta.learner.validate()?;
             let learner = get_learner(&t, meta.learner)?;
             Ok(Model {
                 actuation,
                 task,
                 forward,
+                kinematics,
                 learner,
                 demo_duration_s: meta.demo_duration_s,
                 id: reference.fnv64.clone(),
@@ -576,6 +597,7 @@ mod tests {
                 centres: 40,
                 ..Default::default()
             },
+            kinematics: Default::default(),
             learner: LearnerConfig::default(),
             pretrain: PretrainConfig {
                 max_epochs: 20,
@@ -684,13 +706,31 @@ mod tests {
         .unwrap();
         let e = Model::read(&dir).unwrap_err().to_string();
         assert!(e.contains("shape"), "{e}");
-        fs::write(&meta, text.replace("format = 1", "format = 7")).unwrap();
+        fs::write(&meta, text.replace("format = 2", "format = 7")).unwrap();
         assert!(
             Model::read(&dir)
                 .unwrap_err()
                 .to_string()
                 .contains("format 7")
         );
+        // A bundle an older softarm wrote: the format says so, before any missing field.
+        let old = text
+            .replace("format = 2", "format = 1")
+            .lines()
+            .filter(|l| !l.starts_with("kinematics_degree"))
+            .collect::<Vec<_>>()
+            .join("\n");
+        fs::write(&meta, old).unwrap();
+        let e = Model::read(&dir).unwrap_err().to_string();
+        assert!(e.contains("format 1") && e.contains("reads format 2"), "{e}");
+        // The polynomial's degree must match its tensor.
+        fs::write(
+            &meta,
+            text.replace("kinematics_degree = 4", "kinematics_degree = 3"),
+        )
+        .unwrap();
+        let e = Model::read(&dir).unwrap_err().to_string();
+        assert!(e.contains("kinematics.weights"), "{e}");
         fs::write(&meta, text.replace("[learner]", "surprise = 1\n[learner]")).unwrap();
         assert!(
             Model::read(&dir)

@@ -11,6 +11,7 @@ use softarm_method::space::{Actuation, Position};
 
 use softarm_method::activation::ActivationConfig;
 use softarm_method::cacla::{LearnerConfig, PretrainConfig};
+use softarm_method::poly::{MAX_DEGREE, PolynomialConfig};
 use softarm_method::rbf::NetworkConfig;
 use softarm_method::skill::DemoRecipe;
 
@@ -38,6 +39,8 @@ pub struct Config {
     pub demonstrations: DemoRecipe,
     #[serde(default)]
     pub forward_model: NetworkConfig,
+    #[serde(default)]
+    pub kinematics: PolynomialConfig,
     #[serde(default)]
     pub learner: LearnerConfig,
     #[serde(default)]
@@ -372,6 +375,9 @@ impl Config {
             "",
         )?;
         within("forward_model.ridge", f.ridge, Closed(0.0), 1.0, "")?;
+        let k = &self.kinematics;
+        count("kinematics.degree", k.degree, 1, MAX_DEGREE)?;
+        within("kinematics.ridge", k.ridge, Closed(0.0), 1.0, "")?;
 
         self.learner.validate().map_err(|e| keyed("learner", e))?;
 

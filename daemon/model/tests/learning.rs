@@ -28,6 +28,7 @@ fn pretraining_on_the_forward_model_reaches_held_out_targets_on_the_plant() {
     let (net, fit) = forward_model(
         acts,
         positions,
+        &data.demo,
         &NetworkConfig {
             centres: 200,
             ..Default::default()

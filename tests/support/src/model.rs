@@ -17,6 +17,7 @@ pub fn quick_training() -> Training {
             centres: 80,
             ..Default::default()
         },
+        kinematics: Default::default(),
         learner: LearnerConfig::default(),
         pretrain: PretrainConfig {
             max_epochs: 300,

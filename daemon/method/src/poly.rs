@@ -1,0 +1,288 @@
+//! A polynomial forward model: every monomial of degree ≤ d in the six (centred) actuations,
+//! fitted by ridge least squares on D_fwd. The RBF network fits positions to about a millimetre
+//! but its gradients between the demonstrations are poor; the arm's kinematics are smooth, so a
+//! degree-4 polynomial (210 terms) fits them as well and its Jacobian is good enough to steer
+//! the corrections of [`crate::online`] by (docs/ARCHITECTURE.md, "Adaptation").
+
+use nalgebra::DMatrix;
+use serde::{Deserialize, Serialize};
+
+use crate::forward::{ForwardModel, Jacobian};
+use crate::space::{ACTUATORS, Actuation, Position};
+
+/// The highest degree offered: 462 terms at degree 5 is already more than D_fwd supports well.
+pub const MAX_DEGREE: usize = 5;
+
+/// Monomials are of a − [`CENTRE`]: the middle of the actuation range keeps them well scaled.
+const CENTRE: f64 = 0.5;
+
+/// p(a) = Σ_m w_m Π_i (a_i − ½)^{e_{m,i}} per axis.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Polynomial {
+    degree: usize,
+    /// One exponent row per monomial, in the order [`exponents`] gives.
+    exponents: Vec<[u8; ACTUATORS]>,
+    /// One row per monomial, one column per axis.
+    weights: Vec<Position>,
+}
+
+/// How the polynomial is fitted; part of `[forward_model]`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PolynomialConfig {
+    pub degree: usize,
+    pub ridge: f64,
+}
+
+impl Default for PolynomialConfig {
+    fn default() -> Self {
+        Self {
+            degree: 4,
+            ridge: 1e-8,
+        }
+    }
+}
+
+/// The exponents of every monomial of degree ≤ `degree` in six variables, constant first.
+pub fn exponents(degree: usize) -> Vec<[u8; ACTUATORS]> {
+    let mut out = Vec::new();
+    for total in 0..=degree {
+        let mut e = [0u8; ACTUATORS];
+        compositions(total, 0, &mut e, &mut out);
+    }
+    out
+}
+
+fn compositions(left: usize, i: usize, e: &mut [u8; ACTUATORS], out: &mut Vec<[u8; ACTUATORS]>) {
+    if i == ACTUATORS - 1 {
+        e[i] = left as u8;
+        out.push(*e);
+        return;
+    }
+    for k in (0..=left).rev() {
+        e[i] = k as u8;
+        compositions(left - k, i + 1, e, out);
+    }
+}
+
+/// (a_i − ½)^k for k = 0..=degree, per actuator.
+fn powers(a: &Actuation, degree: usize) -> [[f64; MAX_DEGREE + 1]; ACTUATORS] {
+    let mut p = [[1.0; MAX_DEGREE + 1]; ACTUATORS];
+    for (i, row) in p.iter_mut().enumerate() {
+        let x = a[i] - CENTRE;
+        for k in 1..=degree {
+            row[k] = row[k - 1] * x;
+        }
+    }
+    p
+}
+
+impl Polynomial {
+    /// Fits on (actuation, position) samples.
+    pub fn fit(
+        actuations: &[Actuation],
+        positions: &[Position],
+        config: &PolynomialConfig,
+    ) -> Result<Self, String> {
+        if !(1..=MAX_DEGREE).contains(&config.degree) {
+            return Err(format!(
+                "degree must be 1 to {MAX_DEGREE}, got {}",
+                config.degree
+            ));
+        }
+        if !(config.ridge.is_finite() && config.ridge >= 0.0) {
+            return Err(format!("ridge must be ≥ 0, got {}", config.ridge));
+        }
+        if actuations.len() != positions.len() {
+            return Err(format!(
+                "{} actuations but {} positions",
+                actuations.len(),
+                positions.len()
+            ));
+        }
+        let exponents = exponents(config.degree);
+        let terms = exponents.len();
+        if actuations.len() < terms {
+            return Err(format!(
+                "{} samples are too few for the {terms} terms of degree {}",
+                actuations.len(),
+                config.degree
+            ));
+        }
+        if actuations
+            .iter()
+            .flatten()
+            .chain(positions.iter().flatten())
+            .any(|v| !v.is_finite())
+        {
+            return Err("the samples contain a non-finite value".into());
+        }
+        let mut model = Self {
+            degree: config.degree,
+            exponents,
+            weights: Vec::new(),
+        };
+        let phi = DMatrix::from_fn(actuations.len(), terms, |r, c| {
+            let p = powers(&actuations[r], model.degree);
+            model.term(&p, c)
+        });
+        let mut a = phi.tr_mul(&phi);
+        for i in 0..terms {
+            a[(i, i)] += config.ridge;
+        }
+        let y = DMatrix::from_fn(positions.len(), 3, |r, c| positions[r][c]);
+        let w = crate::promp::solve_spd(a, phi.tr_mul(&y))
+            .filter(|w| w.iter().all(|v| v.is_finite()))
+            .ok_or("the least-squares system is singular: use a ridge > 0")?;
+        model.weights = (0..terms)
+            .map(|i| [w[(i, 0)], w[(i, 1)], w[(i, 2)]])
+            .collect();
+        Ok(model)
+    }
+
+    /// A model from saved weights (one row per monomial of `degree`).
+    pub fn from_weights(degree: usize, weights: Vec<Position>) -> Result<Self, String> {
+        if !(1..=MAX_DEGREE).contains(&degree) {
+            return Err(format!(
+                "polynomial: degree must be 1 to {MAX_DEGREE}, got {degree}"
+            ));
+        }
+        let exponents = exponents(degree);
+        if weights.len() != exponents.len() {
+            return Err(format!(
+                "polynomial: degree {degree} has {} terms, got {} weight rows",
+                exponents.len(),
+                weights.len()
+            ));
+        }
+        if weights.iter().flatten().any(|v| !v.is_finite()) {
+            return Err("polynomial: a weight is not finite".into());
+        }
+        Ok(Self {
+            degree,
+            exponents,
+            weights,
+        })
+    }
+
+    pub fn degree(&self) -> usize {
+        self.degree
+    }
+
+    /// One row per monomial, for saving.
+    pub fn weights(&self) -> &[Position] {
+        &self.weights
+    }
+
+    fn term(&self, p: &[[f64; MAX_DEGREE + 1]; ACTUATORS], m: usize) -> f64 {
+        let e = &self.exponents[m];
+        (0..ACTUATORS).map(|i| p[i][e[i] as usize]).product()
+    }
+}
+
+impl ForwardModel for Polynomial {
+    fn position(&self, a: &Actuation) -> Position {
+        let p = powers(a, self.degree);
+        let mut y = [0.0; 3];
+        for (m, w) in self.weights.iter().enumerate() {
+            let t = self.term(&p, m);
+            for d in 0..3 {
+                y[d] += t * w[d];
+            }
+        }
+        y
+    }
+
+    fn jacobian(&self, a: &Actuation) -> Jacobian {
+        let p = powers(a, self.degree);
+        let mut j = Jacobian::zeros();
+        for (e, w) in self.exponents.iter().zip(&self.weights) {
+            for i in 0..ACTUATORS {
+                let k = e[i] as usize;
+                if k == 0 {
+                    continue;
+                }
+                // ∂/∂a_i of Π_j x_j^{e_j} = e_i x_i^{e_i − 1} Π_{j≠i} x_j^{e_j}
+                let mut t = k as f64 * p[i][k - 1];
+                for (j, row) in p.iter().enumerate() {
+                    if j != i {
+                        t *= row[e[j] as usize];
+                    }
+                }
+                for d in 0..3 {
+                    j[(d, i)] += t * w[d];
+                }
+            }
+        }
+        j
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::pcc::ArmGeometry;
+    use rand::rngs::StdRng;
+    use rand::{RngExt, SeedableRng};
+
+    #[test]
+    fn term_counts_are_binomial() {
+        // C(6 + d, d)
+        for (d, n) in [(1, 7), (2, 28), (3, 84), (4, 210), (5, 462)] {
+            assert_eq!(exponents(d).len(), n);
+        }
+        assert_eq!(exponents(2)[0], [0; 6]);
+    }
+
+    #[test]
+    fn fits_the_arm_and_its_jacobian_matches_finite_differences() {
+        let arm = ArmGeometry::default();
+        let mut rng = StdRng::seed_from_u64(7);
+        let sample = |rng: &mut StdRng| -> Actuation {
+            std::array::from_fn(|_| rng.random_range(0.25..0.75))
+        };
+        let a: Vec<Actuation> = (0..2000).map(|_| sample(&mut rng)).collect();
+        let p: Vec<Position> = a.iter().map(|a| arm.position(a)).collect();
+        let poly = Polynomial::fit(&a, &p, &PolynomialConfig::default()).unwrap();
+        for _ in 0..50 {
+            let x = sample(&mut rng);
+            let err = crate::space::distance(&poly.position(&x), &arm.position(&x));
+            assert!(err < 1e-3, "fit error {err} m");
+            // The analytic Jacobian of the polynomial against its own finite differences...
+            let j = poly.jacobian(&x);
+            let fd = crate::forward::finite_difference(&poly, &x);
+            assert!((j - fd).abs().max() < 1e-6, "{j} vs {fd}");
+            // ...and against the arm's.
+            let truth = crate::forward::finite_difference(&arm, &x);
+            assert!((j - truth).abs().max() < 0.02, "{j} vs {truth}");
+        }
+        let back = Polynomial::from_weights(4, poly.weights().to_vec()).unwrap();
+        assert_eq!(back, poly);
+    }
+
+    #[test]
+    fn bad_input_is_refused() {
+        let a = vec![[0.5; 6]; 300];
+        let p = vec![[0.0; 3]; 300];
+        let cfg = |degree, ridge| PolynomialConfig { degree, ridge };
+        assert!(
+            Polynomial::fit(&a, &p, &cfg(0, 0.0))
+                .unwrap_err()
+                .contains("degree")
+        );
+        assert!(Polynomial::fit(&a, &p[..10], &cfg(2, 0.0)).is_err());
+        assert!(
+            Polynomial::fit(&a[..20], &p[..20], &cfg(2, 1e-6))
+                .unwrap_err()
+                .contains("too few")
+        );
+        // Every sample at one actuation: singular without a ridge.
+        assert!(
+            Polynomial::fit(&a, &p, &cfg(2, 0.0))
+                .unwrap_err()
+                .contains("singular")
+        );
+        assert!(Polynomial::from_weights(2, vec![[0.0; 3]; 27]).is_err());
+        assert!(Polynomial::from_weights(2, vec![[f64::NAN; 3]; 28]).is_err());
+    }
+}
