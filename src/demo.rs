@@ -186,12 +186,13 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
         say(
             args.json,
             &format!(
-                "softarm demo: trained in {:.1} s: {} demonstrations ({} samples, {:.1} s), forward model {:.2} mm mean held-out error, pre-training {:.1} s ({} updates)",
+                "softarm demo: trained in {:.1} s: {} demonstrations ({} samples, {:.1} s), held-out error of the forward model {:.2} mm, of the polynomial kinematics {:.2} mm (means), pre-training {:.1} s ({} updates)",
                 t.elapsed().as_secs_f64(),
                 r.demos,
                 r.samples,
                 r.demonstrate_s,
                 r.forward_error_m.0 * 1e3,
+                r.kinematics_error_m.0 * 1e3,
                 r.pretrain_s,
                 r.pretrain_updates
             ),

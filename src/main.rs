@@ -209,8 +209,10 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             let config = stack.load()?;
             let r = train::train(&config, &stack.namespace()?, seed)?;
             println!(
-                "trained model {} in {}: {} demonstrations ({} samples, {:.1} s); forward model held-out \
-                 error {:.2} mm mean, {:.2} mm max; pre-training {:.1} s, {} updates",
+                "trained model {} in {}: {} demonstrations ({} samples, {:.1} s); on held-out \
+                 demonstrations the forward model is off by {:.2} mm mean, {:.2} mm max, the \
+                 polynomial kinematics by {:.2} mm mean, {:.2} mm max; pre-training {:.1} s, {} \
+                 updates",
                 r.model_id,
                 config.model_dir().display(),
                 r.demos,
@@ -218,6 +220,8 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 r.demonstrate_s,
                 r.forward_error_m.0 * 1e3,
                 r.forward_error_m.1 * 1e3,
+                r.kinematics_error_m.0 * 1e3,
+                r.kinematics_error_m.1 * 1e3,
                 r.pretrain_s,
                 r.pretrain_updates
             );

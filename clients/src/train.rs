@@ -20,8 +20,11 @@ pub struct Trained {
     pub demos: usize,
     pub samples: usize,
     pub demonstrate_s: f64,
-    /// Forward model error on every 5th sample, held out of its fit (m): mean, max.
+    /// The RBF forward model's error on every 5th demonstration, held out of its fit (m):
+    /// mean, max.
     pub forward_error_m: (f64, f64),
+    /// The same for the polynomial kinematics.
+    pub kinematics_error_m: (f64, f64),
     pub pretrain_s: f64,
     pub pretrain_updates: u64,
     pub model_id: String,
@@ -242,6 +245,10 @@ pub fn train(config: &Config, namespace: &Namespace, seed: u64) -> Result<Traine
         samples: samples.len(),
         demonstrate_s,
         forward_error_m: (report.forward_error.mean_m, report.forward_error.max_m),
+        kinematics_error_m: (
+            report.kinematics_error.mean_m,
+            report.kinematics_error.max_m,
+        ),
         pretrain_s,
         pretrain_updates: report.pretrain.updates,
         model_id,

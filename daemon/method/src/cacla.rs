@@ -573,6 +573,59 @@ mod tests {
         assert_eq!(v.td_error, None);
     }
 
+    /// A learner whose critic is not zero around two points with different histories.
+    fn trained_critic() -> (CaclaMtl, [Position; 2]) {
+        let mut l = CaclaMtl::new(LearnerConfig::default()).unwrap();
+        let targets = [[0.1, 0.0, -0.45], [0.02, 0.08, -0.48]];
+        let a = [0.5; 6];
+        for k in 0..6 {
+            for (n, t) in targets.iter().enumerate() {
+                let off = 0.02 / (k + 1) as f64 * (n + 1) as f64;
+                l.observe(n, t, &a, &[t[0] + off, t[1], t[2] - off]);
+            }
+        }
+        (l, targets)
+    }
+
+    #[test]
+    fn the_td_error_uses_the_points_own_previous_state_not_the_printed_mix() {
+        let (mut l, t) = trained_critic();
+        let (own, other) = (*l.memory(0).unwrap(), *l.memory(1).unwrap());
+        let reached = [t[0][0] + 0.003, t[0][1], t[0][2]];
+        let g = distance(&t[0], &reached);
+        let gamma = l.config().gamma;
+        let next = l.value(&t[0], &reached);
+        let corrected = own.error - g + gamma * next - l.value(&t[0], &own.position);
+        // As printed, V(s) is of another point's state: here point 1's.
+        let printed = own.error - g + gamma * next - l.value(&t[1], &other.position);
+        assert!(
+            l.value(&t[0], &own.position).abs() > 1e-5,
+            "the critic is not zero"
+        );
+        assert!(
+            (corrected - printed).abs() > 1e-5,
+            "{corrected} vs {printed}"
+        );
+        let v = l.observe(0, &t[0], &[0.5; 6], &reached);
+        assert!((v.td_error.unwrap() - corrected).abs() < 1e-12);
+    }
+
+    #[test]
+    fn the_actor_moves_toward_the_action_only_when_delta_is_positive() {
+        let (mut l, t) = trained_critic();
+        let before = l.actor(&t[0]);
+        let action = [0.9; 6];
+        // Much worse than last time: δ < 0, the actor stays.
+        let v = l.observe(0, &t[0], &action, &[t[0][0] + 0.08, t[0][1], t[0][2]]);
+        assert!(v.td_error.unwrap() <= 0.0 && !v.actor_updated, "{v:?}");
+        assert_eq!(l.actor(&t[0]), before);
+        // On the point: δ > 0, the actor moves toward the action.
+        let v = l.observe(0, &t[0], &action, &t[0]);
+        assert!(v.td_error.unwrap() > 0.0 && v.actor_updated, "{v:?}");
+        let after = l.actor(&t[0]);
+        assert!((0..6).all(|i| (action[i] - after[i]).abs() < (action[i] - before[i]).abs()));
+    }
+
     #[test]
     fn state_round_trips_exactly() {
         let arm = ArmGeometry::default();

@@ -178,6 +178,9 @@ struct Point {
     /// The point's own Jacobian: the model's at its first correction, then Broyden-updated
     /// from what each step really did.
     jacobian: Option<Jacobian>,
+    /// The systematic error p_d − p at the last try and its variance (m²): a Kalman filter
+    /// over the executions, so a correction follows the arm, not one noisy tracker sample.
+    bias: Option<(Vector3<f64>, f64)>,
 }
 
 /// The refitted forward model: the trained polynomial plus c + B (a − ā) fitted to the
@@ -244,6 +247,12 @@ impl ForwardModel for Refitted<'_> {
         self.kinematics.jacobian(a) + self.refit.slope
     }
 }
+
+/// How far a step's effect may differ from J Δa (a fraction of it): the filter's process noise.
+const STEP_UNCERTAINTY: f64 = 0.3;
+/// What the arm may drift between two executions, as a fraction of the measurement variance: the
+/// filter never stops listening.
+const DRIFT: f64 = 0.1;
 
 /// Δa = g Jᵀ(JJᵀ + μ²I)⁻¹ e, shortened to at most `radius`.
 fn correction(
@@ -347,6 +356,7 @@ impl OnlineLearner {
                 best: None,
                 radius: self.cacla.config().correction.trust_initial,
                 jacobian: None,
+                bias: None,
             },
         );
         Ok(())
@@ -412,6 +422,21 @@ impl OnlineLearner {
                     *j += (dp - *j * da) * da.transpose() / da.norm_squared();
                 }
             }
+            // Predict the error from the last try and the step since (J Δa), then weigh in the
+            // measurement: a large step is trusted to the measurement, small ones average.
+            let measured = error_vector(target, reached);
+            let r = c.noise_m * c.noise_m;
+            p.bias = Some(match (p.bias, p.last, p.jacobian) {
+                (Some((bias, var)), Some(last), Some(j)) => {
+                    let da = SVector::<f64, ACTUATORS>::from_fn(|i, _| action[i] - last.action[i]);
+                    let moved = j * da;
+                    let predicted = bias - moved;
+                    let var = var + (STEP_UNCERTAINTY * moved.norm()).powi(2) + DRIFT * r;
+                    let k = var / (var + r);
+                    (predicted + (measured - predicted) * k, (1.0 - k) * var)
+                }
+                _ => (measured, r),
+            });
             match p.best {
                 Some(best) if error < best.error => {
                     p.radius = (p.radius * 1.5).min(c.trust_max);
@@ -419,6 +444,9 @@ impl OnlineLearner {
                 }
                 Some(best) if error > best.error + c.noise_m => {
                     p.radius = (p.radius * 0.5).max(c.trust_min);
+                    // The next step starts from the best try, whose error is measured, not
+                    // filtered.
+                    p.bias = None;
                 }
                 Some(_) => {}
                 None => p.best = Some(now),
@@ -461,10 +489,11 @@ impl OnlineLearner {
                     j
                 }
             };
-            let e = error_vector(target, &base.reached);
-            let e2 = e.norm_squared();
-            let gain = c.gain * e2 / (e2 + c.noise_m * c.noise_m);
-            let step = correction(&j, &e, gain, &c, p.radius);
+            let e = match p.bias {
+                Some((bias, _)) if base == last => bias,
+                _ => error_vector(target, &base.reached),
+            };
+            let step = correction(&j, &e, c.gain, &c, p.radius);
             return Ok(plus(&base.action, &step));
         }
         if let Some(first) = p.first {

@@ -722,7 +722,10 @@ mod tests {
             .join("\n");
         fs::write(&meta, old).unwrap();
         let e = Model::read(&dir).unwrap_err().to_string();
-        assert!(e.contains("format 1") && e.contains("reads format 2"), "{e}");
+        assert!(
+            e.contains("format 1") && e.contains("reads format 2"),
+            "{e}"
+        );
         // The polynomial's degree must match its tensor.
         fs::write(
             &meta,
