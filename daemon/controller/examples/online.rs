@@ -68,7 +68,7 @@ fn main() -> anyhow::Result<()> {
     let mut means = Vec::new();
     for e in 1..=executions {
         for _ in 0..rest {
-            let c = lim.apply(&engine.evaluate(0));
+            let c = lim.apply(&engine.rest());
             plant.step(&c, dt);
         }
         let mut errs = vec![0.0; n];

@@ -92,7 +92,7 @@ impl Execution {
         if self.k < 0 {
             self.k += 1;
             return ExecutionTick {
-                target: set.engine.evaluate(0),
+                target: set.engine.rest(),
                 point: None,
                 finished: None,
             };
