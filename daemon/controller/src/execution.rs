@@ -157,7 +157,7 @@ impl Execution {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use nalgebra::DMatrix;
     use softarm_method::activation::ActivationConfig;
@@ -185,9 +185,9 @@ mod tests {
         .unwrap()
     }
 
-    /// A 4 s set at 50 Hz through two way-points (at 1 s and 3 s), executed twice.
-    fn ready_set() -> Box<ReadySet> {
-        let planner = Planner::<ACTUATORS>::new(
+    /// A 4 s plan at 50 Hz through two way-points (at 1 s and 3 s).
+    pub(crate) fn planner() -> Planner<ACTUATORS> {
+        Planner::<ACTUATORS>::new(
             vec![primitive(0.4), primitive(0.6)],
             &[1.0, 3.0],
             &[0, 1],
@@ -195,7 +195,12 @@ mod tests {
             ActivationConfig::default(),
             1e-6,
         )
-        .unwrap();
+        .unwrap()
+    }
+
+    /// [`planner`]'s set, executed twice.
+    fn ready_set() -> Box<ReadySet> {
+        let planner = planner();
         let mut cond_ticks = [0; MAX_WAYPOINTS];
         cond_ticks[..2].copy_from_slice(planner.conditioning_ticks());
         let (engine, _replanner) = planner.start(&[[0.5; ACTUATORS]; 2]).unwrap();
