@@ -23,7 +23,7 @@ pub(crate) struct Execution {
     set: Box<ReadySet>,
     /// 1-based.
     execution: u32,
-    /// Ticks into the execution; negative while resting before it.
+    /// Ticks into the execution, the next to play; negative while resting before it.
     k: i64,
     next_point: usize,
     errors: [f64; MAX_WAYPOINTS],
@@ -82,13 +82,24 @@ impl Execution {
         self.set
     }
 
+    /// One tick. `skipped`: the periods the clock skipped before this tick (overruns). The
+    /// execution follows the clock, so it jumps that many ticks ahead (the limiter smooths the
+    /// jump) and T_cond stays on wall time; a point whose tick was jumped over is sampled at the
+    /// first tick played at or after it, one point per tick, and the execution ends only once
+    /// every point was sampled.
     pub(crate) fn step(
         &mut self,
         reached: Option<Position>,
         rest_ticks: i64,
         now: u64,
+        skipped: u64,
     ) -> ExecutionTick {
         let set = &mut self.set;
+        let last = set.engine.timeline().ticks() as i64 - 1;
+        self.k = self
+            .k
+            .saturating_add(i64::try_from(skipped).unwrap_or(i64::MAX))
+            .min(last);
         if self.k < 0 {
             self.k += 1;
             return ExecutionTick {
@@ -100,7 +111,7 @@ impl Execution {
         let tick = self.k as usize;
         let target = set.engine.tick(tick);
         let mut point = None;
-        if self.next_point < set.points && tick == set.cond_ticks[self.next_point] {
+        if self.next_point < set.points && set.cond_ticks[self.next_point] <= tick {
             let n = self.next_point;
             let reached = reached.unwrap_or([f64::NAN; 3]);
             let desired = set.desired[n];
@@ -130,7 +141,7 @@ impl Execution {
         }
         self.k += 1;
         let mut finished = None;
-        if self.k as usize >= set.engine.timeline().ticks() {
+        if self.k > last && self.next_point == set.points {
             let errs = &self.errors[..set.points];
             finished = Some(ExecutionStats {
                 seq: 0,
@@ -226,7 +237,7 @@ pub(crate) mod tests {
         let (mut samples, mut stats) = (Vec::new(), Vec::new());
         let mut n = 0u64;
         while stats.len() < 2 {
-            let t = x.step(Some(REACHED), REST, n);
+            let t = x.step(Some(REACHED), REST, n, 0);
             assert!(t.target.iter().all(|v| v.is_finite()));
             samples.extend(t.point.map(|s| (n, s)));
             stats.extend(t.finished.map(|s| (n, s)));
@@ -262,21 +273,55 @@ pub(crate) mod tests {
         assert!((s.mean_m - 0.15).abs() < 1e-12 && (s.max_m - 0.2).abs() < 1e-12);
     }
 
+    /// The clock skips periods (overruns): the execution follows it. `jumps` are (clock of a
+    /// wake, periods skipped before the next wake).
+    #[test]
+    fn skipped_periods_advance_the_execution_and_no_point_is_lost() {
+        let set = ready_set();
+        let (cond, ticks) = (set.cond_ticks, set.engine.timeline().ticks() as u64);
+        assert_eq!((cond[0], cond[1], ticks), (50, 150, 201));
+        let mut x = Execution::new(set, REST);
+        let jumps = [
+            (1, 2),     // in the rest
+            (53, 4),    // tick 48 -> 53, over point 0 (tick 50)
+            (145, 70),  // tick 140 -> 211, past point 1 (tick 150) and the end (tick 200)
+            (262, 119), // execution 2, tick 40 -> 160, over both points
+        ];
+        let (mut samples, mut stats) = (Vec::new(), Vec::new());
+        let (mut clock, mut skipped) = (0u64, 0u64);
+        while stats.len() < 2 {
+            let t = x.step(Some(REACHED), REST, clock, skipped);
+            samples.extend(t.point.map(|s| (clock, s.execution, s.point)));
+            stats.extend(t.finished.map(|s| (clock, s.execution)));
+            skipped = jumps.iter().find(|j| j.0 == clock).map_or(0, |j| j.1);
+            clock += 1 + skipped;
+            assert!(clock < 10_000, "the executions never end");
+        }
+        // The tick played at clock c is c - REST within an execution that began at clock 0,
+        // and c - 217 - REST in the second, which began right after the first ended (216).
+        assert_eq!(
+            samples,
+            [(58, 1, 0), (216, 1, 1), (382, 2, 0), (383, 2, 1)],
+            "each point at the first tick played at or after its own"
+        );
+        assert_eq!(stats, [(216, 1), (217 + REST as u64 + 200, 2)]);
+    }
+
     #[test]
     fn a_restart_begins_the_execution_again_from_its_rest() {
         let mut x = Execution::new(ready_set(), REST);
-        x.step(None, REST, 0);
+        x.step(None, REST, 0, 0);
         x.restart(REST);
         assert!(!x.at_boundary(REST), "resting: a restart changes nothing");
         for n in 1..REST as u64 + 60 {
-            x.step(None, REST, n);
+            x.step(None, REST, n, 0);
         }
         x.restart(REST);
         assert!(x.at_boundary(REST));
         assert_eq!(x.execution(), 1);
         // The first point is sampled again, with no position: NaN reached, NaN error.
         let first = (0..1000)
-            .find_map(|n| x.step(None, REST, n).point)
+            .find_map(|n| x.step(None, REST, n, 0).point)
             .expect("the first point again");
         assert_eq!((first.execution, first.point), (1, 0));
         assert!(first.reached[0].is_nan());

@@ -181,6 +181,8 @@ struct Tick<'a> {
     /// Whether the unsafe spell now ending included an e-stop (restart) or only stale data
     /// (resume where the execution paused).
     stopped_while_unsafe: bool,
+    /// Periods the clock skipped before this tick (overruns): a playing execution follows.
+    skipped: u64,
     count: Counts,
 }
 
@@ -200,6 +202,7 @@ impl<'a> Tick<'a> {
             queued: None,
             was_safe: false,
             stopped_while_unsafe: false,
+            skipped: 0,
             count: Counts::default(),
         }
     }
@@ -236,6 +239,7 @@ impl<'a> Tick<'a> {
     fn wait(&mut self) -> u64 {
         let wake = self.ticker.wait();
         self.latency.record(wake.latency_ns);
+        self.skipped = wake.missed;
         self.count.ticks += 1;
         now_ns()
     }
@@ -354,7 +358,7 @@ impl<'a> Tick<'a> {
             Mode::Execute(x) => {
                 let execution = x.execution();
                 let reached = self.inputs.position.map(|p| p.0);
-                let t = x.step(reached, self.timing.rest_ticks, now);
+                let t = x.step(reached, self.timing.rest_ticks, now, self.skipped);
                 Step {
                     target: Some(t.target),
                     execution,
