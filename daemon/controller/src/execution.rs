@@ -27,6 +27,8 @@ pub(crate) struct Execution {
     k: i64,
     next_point: usize,
     errors: [f64; MAX_WAYPOINTS],
+    /// The engine's count of tables swapped in when the current execution's rest began.
+    applied_before: u64,
 }
 
 /// What one tick of an execution produced.
@@ -42,11 +44,12 @@ pub(crate) struct ExecutionTick {
 impl Execution {
     pub(crate) fn new(set: Box<ReadySet>, rest_ticks: i64) -> Self {
         Self {
-            set,
             execution: 1,
             k: -rest_ticks,
             next_point: 0,
             errors: [0.0; MAX_WAYPOINTS],
+            applied_before: set.engine.applied(),
+            set,
         }
     }
 
@@ -57,6 +60,17 @@ impl Execution {
     /// The execution under way (1-based); past the last once the set is through.
     pub(crate) fn execution(&self) -> u32 {
         self.execution
+    }
+
+    /// Re-conditioned tables swapped in during the current execution (its rest included: what
+    /// is swapped in there is in force for it).
+    pub(crate) fn reconditions(&self) -> u32 {
+        u32::try_from(self.set.engine.applied() - self.applied_before).unwrap_or(u32::MAX)
+    }
+
+    /// Group solves of this set that failed and were held at their last good value.
+    pub(crate) fn held_solves(&self) -> u64 {
+        self.set.engine.held_solves()
     }
 
     /// Starts the current execution over (after an e-stop).
@@ -142,6 +156,8 @@ impl Execution {
         self.k += 1;
         let mut finished = None;
         if self.k > last && self.next_point == set.points {
+            let reconditions = self.reconditions();
+            let set = &self.set;
             let errs = &self.errors[..set.points];
             finished = Some(ExecutionStats {
                 seq: 0,
@@ -150,7 +166,7 @@ impl Execution {
                 execution: self.execution,
                 executions: set.executions,
                 count: set.points as u32,
-                _pad: 0,
+                reconditions,
                 errors_m: self.errors,
                 mean_m: errs.iter().sum::<f64>() / errs.len() as f64,
                 max_m: errs.iter().cloned().fold(0.0, f64::max),
@@ -158,6 +174,7 @@ impl Execution {
             self.execution += 1;
             self.k = -rest_ticks;
             self.next_point = 0;
+            self.applied_before = set.engine.applied();
         }
         ExecutionTick {
             target,
@@ -172,7 +189,7 @@ pub(crate) mod tests {
     use super::*;
     use nalgebra::DMatrix;
     use softarm_method::activation::ActivationConfig;
-    use softarm_method::engine::{Planner, Timeline};
+    use softarm_method::engine::{Planner, Replanner, Timeline};
     use softarm_method::promp::{Basis, Demonstration, Primitive, TrainConfig};
 
     const REST: i64 = 5;
@@ -211,21 +228,55 @@ pub(crate) mod tests {
 
     /// [`planner`]'s set, executed twice.
     fn ready_set() -> Box<ReadySet> {
+        ready_set_and_replanner().0
+    }
+
+    fn ready_set_and_replanner() -> (Box<ReadySet>, Replanner<ACTUATORS>) {
         let planner = planner();
         let mut cond_ticks = [0; MAX_WAYPOINTS];
         cond_ticks[..2].copy_from_slice(planner.conditioning_ticks());
-        let (engine, _replanner) = planner.start(&[[0.5; ACTUATORS]; 2]).unwrap();
+        let (engine, replanner) = planner.start(&[[0.5; ACTUATORS]; 2]).unwrap();
         let mut desired = [[0.0; 3]; MAX_WAYPOINTS];
         desired[0] = [0.1, 0.0, -0.3];
         desired[1] = [0.0, 0.2, -0.3];
-        Box::new(ReadySet {
+        let set = Box::new(ReadySet {
             set_id: 7,
             executions: 2,
             points: 2,
             desired,
             cond_ticks,
             engine,
-        })
+        });
+        (set, replanner)
+    }
+
+    #[test]
+    fn reconditionings_are_counted_per_execution() {
+        let (set, mut replanner) = ready_set_and_replanner();
+        let ticks = set.engine.timeline().ticks() as i64;
+        let mut x = Execution::new(set, REST);
+        let mut step = |x: &mut Execution| x.step(Some(REACHED), REST, 0, 0).finished;
+        for _ in 0..REST + 10 {
+            assert!(step(&mut x).is_none());
+        }
+        // Group 1 is inactive at tick 10: swapped in on the next tick.
+        replanner.recondition(1, &[0.6; ACTUATORS]).unwrap();
+        step(&mut x);
+        assert_eq!(x.reconditions(), 1);
+        for _ in 11..ticks - 1 {
+            assert!(step(&mut x).is_none());
+        }
+        let first = step(&mut x).expect("execution 1 ends");
+        assert_eq!((first.execution, first.reconditions), (1, 1));
+        assert_eq!(x.reconditions(), 0, "execution 2 has applied nothing yet");
+
+        // Group 0's estimate after the end: the rest of execution 2 takes it in, for execution 2.
+        replanner.recondition(0, &[0.4; ACTUATORS]).unwrap();
+        step(&mut x);
+        assert_eq!(x.reconditions(), 1);
+        replanner.recondition(1, &[0.7; ACTUATORS]).unwrap();
+        let second = (0..10 * ticks).find_map(|_| step(&mut x)).unwrap();
+        assert_eq!((second.execution, second.reconditions), (2, 2));
     }
 
     #[test]

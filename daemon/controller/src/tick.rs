@@ -154,13 +154,17 @@ impl Step {
     };
 }
 
-/// Sequence numbers of what the tick publishes.
+/// Sequence numbers of what the tick publishes, and what `status` reports of past sets.
 #[derive(Default)]
 struct Counts {
     ticks: u64,
     setpoints: u64,
     samples: u64,
     stats: u64,
+    /// Re-conditionings applied during the last completed execution, whichever set it was.
+    last_reconditions: u32,
+    /// Held group solves of the sets already done.
+    held_solves: u64,
 }
 
 /// Everything the tick loop keeps between ticks.
@@ -210,6 +214,8 @@ impl<'a> Tick<'a> {
     /// One tick: read the inputs, decide the state, step the mode, limit, publish, status.
     fn tick(&mut self) {
         let now = self.wait();
+        // What waited for room goes before anything new.
+        self.links.outbox.flush();
         self.inputs.read();
         self.take_plan();
         self.start_limiter();
@@ -398,6 +404,7 @@ impl<'a> Tick<'a> {
             self.links.outbox.send(Outgoing::Sample(s));
         }
         if let Some(mut s) = step.finished {
+            self.count.last_reconditions = s.reconditions;
             self.count.stats += 1;
             s.seq = self.count.stats;
             self.links.outbox.send(Outgoing::Stats(s));
@@ -419,7 +426,10 @@ impl<'a> Tick<'a> {
         }
         match std::mem::replace(&mut self.mode, Mode::Idle) {
             Mode::Demonstrate(d) => self.retire(Retired::Demo(d.into_sequences())),
-            Mode::Execute(x) => self.retire(Retired::Set(x.into_set())),
+            Mode::Execute(x) => {
+                self.count.held_solves += x.held_solves();
+                self.retire(Retired::Set(x.into_set()))
+            }
             Mode::Idle => {}
         }
         if let Some(set) = self.queued.take() {
@@ -428,10 +438,11 @@ impl<'a> Tick<'a> {
     }
 
     fn publish_status(&mut self, state: ControllerState, now: u64, health: &Health) {
-        let (set_id, execution) = match &self.mode {
-            Mode::Execute(x) => (x.set_id(), x.execution()),
-            _ => (0, 0),
+        let (set_id, execution, reconditions, held) = match &self.mode {
+            Mode::Execute(x) => (x.set_id(), x.execution(), x.reconditions(), x.held_solves()),
+            _ => (0, 0, 0, 0),
         };
+        let drops = self.links.outbox.drops();
         let status = ControllerStatus {
             seq: self.count.ticks,
             stamp_ns: now,
@@ -445,7 +456,12 @@ impl<'a> Tick<'a> {
             tracker_age_ns: health.tracker_age_ns,
             motor_age_ns: health.motor_age_ns,
             model_loaded: self.shared.model_loaded.load(Ordering::Relaxed) as u32,
-            _pad: 0,
+            reconditions_current: reconditions,
+            reconditions_last: self.count.last_reconditions,
+            outbox_backlog: self.links.outbox.backlog() as u32,
+            outbox_dropped: drops.all,
+            samples_dropped: drops.samples,
+            held_solves: self.count.held_solves + held,
         };
         self.links.outbox.send(Outgoing::Status(status));
     }
