@@ -50,6 +50,16 @@ fn a_set_is_executed_and_stats_arrive_for_every_execution() {
         st["controller"]["latency_ns"]["p99"].as_u64().unwrap() > 0,
         "{st}"
     );
+    // Execution 2 applied the learner's estimates (one comes per conditioning sample), and
+    // status reports the last completed execution's count; no conditioning sample was lost.
+    let applied = stats[1]["reconditions"].as_u64().unwrap();
+    assert!(applied >= 1, "{}", stats[1]);
+    let st = s.wait_status(
+        "the last execution's re-conditionings",
+        Duration::from_secs(10),
+        |st| st["controller"]["reconditions"]["last"] == applied,
+    );
+    assert_eq!(st["controller"]["outbox"]["samples_dropped"], 0, "{st}");
 }
 
 #[test]

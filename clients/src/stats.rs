@@ -4,7 +4,8 @@ use std::time::Duration;
 
 use softarm_ipc::{ExecutionStats, Namespace, Node, Sub};
 
-/// One JSON object per execution: `execution`, `errors_mm`, `mean_mm`, `max_mm`, and the set.
+/// One JSON object per execution: `execution`, `errors_mm`, `mean_mm`, `max_mm`,
+/// `reconditions` (estimates applied during it), and the set.
 pub fn json_line(s: &ExecutionStats) -> String {
     serde_json::json!({
         "set_id": s.set_id,
@@ -13,6 +14,7 @@ pub fn json_line(s: &ExecutionStats) -> String {
         "errors_mm": s.errors().iter().map(|e| round3(e * 1e3)).collect::<Vec<_>>(),
         "mean_mm": round3(s.mean_m * 1e3),
         "max_mm": round3(s.max_m * 1e3),
+        "reconditions": s.reconditions,
     })
     .to_string()
 }

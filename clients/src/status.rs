@@ -1,4 +1,5 @@
-//! `softarm status`: which processes are alive, the controller's state, tick timing, data ages.
+//! `softarm status`: which processes are alive, the controller's state, tick timing, data ages,
+//! the re-conditionings applied per execution, and what the tick's outbox could not keep.
 
 use std::time::Duration;
 
@@ -65,7 +66,9 @@ pub fn text(r: &Report) -> String {
             out += &format!(
                 "controller: {state}{}, {} Hz, model {}\n\
                  tick wake-up latency µs: min {} p50 {} p99 {} p99.9 {} max {} ({} ticks, {} overruns)\n\
-                 data age: tracker {}, motors {}\n",
+                 data age: tracker {}, motors {}\n\
+                 re-conditionings applied: {} this execution, {} in the last\n\
+                 outbox: {} dropped ({} conditioning samples), {} waiting; group solves held: {}\n",
                 if s.set_id != 0 {
                     format!(" (set {}, execution {})", s.set_id, s.execution)
                 } else {
@@ -85,7 +88,13 @@ pub fn text(r: &Report) -> String {
                 s.ticks,
                 s.overruns,
                 ms(s.tracker_age_ns),
-                ms(s.motor_age_ns)
+                ms(s.motor_age_ns),
+                s.reconditions_current,
+                s.reconditions_last,
+                s.outbox_dropped,
+                s.samples_dropped,
+                s.outbox_backlog,
+                s.held_solves
             );
         }
     }
@@ -106,7 +115,56 @@ pub fn json(r: &Report) -> String {
             "latency_ns": {"min": l.min_ns, "p50": l.p50_ns, "p99": l.p99_ns, "p999": l.p999_ns, "max": l.max_ns},
             "tracker_age_ns": (s.tracker_age_ns != u64::MAX).then_some(s.tracker_age_ns),
             "motor_age_ns": (s.motor_age_ns != u64::MAX).then_some(s.motor_age_ns),
+            "reconditions": {"current": s.reconditions_current, "last": s.reconditions_last},
+            "outbox": {"dropped": s.outbox_dropped, "samples_dropped": s.samples_dropped, "backlog": s.outbox_backlog},
+            "held_solves": s.held_solves,
         })
     });
     serde_json::json!({ "alive": r.alive, "controller": controller }).to_string()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn reconditionings_drops_and_held_solves_are_shown() {
+        let r = Report {
+            alive: vec!["controller".into()],
+            controller: Some(ControllerStatus {
+                state: ControllerState::Execute as u32,
+                set_id: 9,
+                execution: 3,
+                reconditions_current: 1,
+                reconditions_last: 4,
+                outbox_backlog: 2,
+                outbox_dropped: 17,
+                samples_dropped: 5,
+                held_solves: 6,
+                ..Default::default()
+            }),
+        };
+        let t = text(&r);
+        assert!(
+            t.contains("re-conditionings applied: 1 this execution, 4 in the last"),
+            "{t}"
+        );
+        assert!(
+            t.contains(
+                "outbox: 17 dropped (5 conditioning samples), 2 waiting; group solves held: 6"
+            ),
+            "{t}"
+        );
+        let j: serde_json::Value = serde_json::from_str(&json(&r)).unwrap();
+        let c = &j["controller"];
+        assert_eq!(
+            c["reconditions"],
+            serde_json::json!({"current": 1, "last": 4})
+        );
+        assert_eq!(
+            c["outbox"],
+            serde_json::json!({"dropped": 17, "samples_dropped": 5, "backlog": 2})
+        );
+        assert_eq!(c["held_solves"], 6);
+    }
 }

@@ -16,7 +16,9 @@ pub fn now_ns() -> u64 {
 pub struct Wake {
     /// How late the thread woke after its deadline (ns).
     pub latency_ns: u64,
-    /// Whole cycles that were skipped because the deadline had long passed.
+    /// Whole cycles that were skipped because the deadline had long passed: this wake stands for
+    /// the latest deadline passed, `missed + 1` periods after the previous wake's. A loop that
+    /// keeps time in ticks advances by that much to follow the clock.
     pub missed: u64,
 }
 
@@ -56,18 +58,25 @@ impl Ticker {
     /// Sleeps until the next deadline. Allocates nothing; the only syscalls are the sleep and
     /// the clock read.
     pub fn wait(&mut self) -> Wake {
-        self.next_ns += self.period_ns;
-        let ts = TimeSpec::new(
-            (self.next_ns / 1_000_000_000) as _,
-            (self.next_ns % 1_000_000_000) as _,
-        );
+        let next = self.next_deadline();
+        let ts = TimeSpec::new((next / 1_000_000_000) as _, (next % 1_000_000_000) as _);
         // EINTR: a signal arrived; the deadline is absolute, so just sleep again.
         while let Err(nix::errno::Errno::EINTR) = clock_nanosleep(
             ClockId::CLOCK_MONOTONIC,
             ClockNanosleepFlags::TIMER_ABSTIME,
             &ts,
         ) {}
-        let now = now_ns();
+        self.woke_at(now_ns())
+    }
+
+    fn next_deadline(&mut self) -> u64 {
+        self.next_ns += self.period_ns;
+        self.next_ns
+    }
+
+    /// The accounting of a wake-up at `now` for the deadline just waited for: missed deadlines
+    /// are counted and skipped.
+    fn woke_at(&mut self, now: u64) -> Wake {
         let latency_ns = now.saturating_sub(self.next_ns);
         let missed = latency_ns / self.period_ns;
         if missed > 0 {
@@ -81,6 +90,56 @@ impl Ticker {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A controlled sequence of wake-ups: late ones skip exactly the deadlines that passed, and
+    /// the next deadline stays on the grid.
+    #[test]
+    fn late_wakes_skip_the_deadlines_that_passed() {
+        const MS: u64 = 1_000_000;
+        let mut t = Ticker::starting_at(1000.0, 10 * MS);
+        let wake = |t: &mut Ticker, now: u64| {
+            t.next_deadline();
+            let w = t.woke_at(now);
+            (w, t.next_ns)
+        };
+        // On time, and late by less than a period: nothing skipped.
+        assert_eq!(wake(&mut t, 10 * MS).0.missed, 0);
+        assert_eq!(
+            wake(&mut t, 11 * MS + MS / 2),
+            (
+                Wake {
+                    latency_ns: MS / 2,
+                    missed: 0
+                },
+                11 * MS
+            )
+        );
+        // Deadline 12 ms, woken at 15.3 ms: 13, 14 and 15 ms have passed too. This wake stands
+        // for 15 ms; the next deadline is 16 ms.
+        let (w, deadline) = wake(&mut t, 15 * MS + MS * 3 / 10);
+        assert_eq!((w.missed, deadline), (3, 15 * MS));
+        assert_eq!(
+            wake(&mut t, 16 * MS),
+            (
+                Wake {
+                    latency_ns: 0,
+                    missed: 0
+                },
+                16 * MS
+            )
+        );
+        // Exactly one period late skips one.
+        assert_eq!(wake(&mut t, 18 * MS).0.missed, 1);
+        assert_eq!(t.overruns(), 4);
+        // A clock read before the deadline (not possible after an absolute sleep) skips nothing.
+        assert_eq!(
+            wake(&mut t, 18 * MS).0,
+            Wake {
+                latency_ns: 0,
+                missed: 0
+            }
+        );
+    }
 
     // Only what holds on a loaded machine: a deadline never passes early, and the overrun
     // counter is exactly the sum of the cycles each wait reports as missed, however many that is.

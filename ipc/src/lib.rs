@@ -252,7 +252,9 @@ pub struct ExecutionStats {
     pub execution: u32,
     pub executions: u32,
     pub count: u32,
-    pub _pad: u32,
+    /// Re-conditioned tables swapped in (learner estimates applied) during this execution. It
+    /// took the place of padding: the layout, and so the type name, are unchanged.
+    pub reconditions: u32,
     /// Eq. 9: ‖P_cond[n] − p_reached[n]‖ (m).
     pub errors_m: [f64; MAX_WAYPOINTS],
     pub mean_m: f64,
@@ -280,7 +282,9 @@ pub struct Latency {
 
 /// The controller's state, ~10 Hz.
 #[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
-#[type_name("softarm::ControllerStatus")]
+// The type name changed with the layout (re-conditionings, outbox drops, held solves), so a peer
+// built before cannot connect and misread it.
+#[type_name("softarm::ControllerStatus.v2")]
 #[repr(C)]
 pub struct ControllerStatus {
     pub seq: u64,
@@ -297,7 +301,19 @@ pub struct ControllerStatus {
     pub motor_age_ns: u64,
     /// Whether the controller has a trained model loaded.
     pub model_loaded: u32,
-    pub _pad: u32,
+    /// Re-conditioned tables swapped in (learner estimates applied) during the execution under
+    /// way (0 if none), and during the last completed one.
+    pub reconditions_current: u32,
+    pub reconditions_last: u32,
+    /// Conditioning samples and stats waiting in the tick's backlog for room in its outbox.
+    pub outbox_backlog: u32,
+    /// Messages the tick's outbox dropped since the controller started (any kind), and the
+    /// conditioning samples among them (lost to the learner).
+    pub outbox_dropped: u64,
+    pub samples_dropped: u64,
+    /// Group evaluations whose solve failed since the controller started, each held at the
+    /// group's last good value.
+    pub held_solves: u64,
 }
 
 /// Latched e-stop state.
@@ -611,6 +627,30 @@ mod tests {
         assert_eq!(r.points(), &[[0.0; 3], [0.1, 0.2, 0.3]]);
         r.count = u32::MAX;
         assert_eq!(r.points().len(), MAX_WAYPOINTS);
+    }
+
+    /// Layouts peers rely on: a change needs a new type name (`.vN`).
+    #[test]
+    fn payload_sizes_and_alignments() {
+        use std::mem::{align_of, size_of};
+        assert_eq!(
+            (size_of::<ExecutionStats>(), align_of::<ExecutionStats>()),
+            (184, 8)
+        );
+        assert_eq!(
+            (
+                size_of::<ControllerStatus>(),
+                align_of::<ControllerStatus>()
+            ),
+            (160, 8)
+        );
+        assert_eq!(
+            (
+                size_of::<ConditioningSample>(),
+                align_of::<ConditioningSample>()
+            ),
+            (168, 8)
+        );
     }
 
     #[test]

@@ -23,10 +23,12 @@ pub(crate) struct Execution {
     set: Box<ReadySet>,
     /// 1-based.
     execution: u32,
-    /// Ticks into the execution; negative while resting before it.
+    /// Ticks into the execution, the next to play; negative while resting before it.
     k: i64,
     next_point: usize,
     errors: [f64; MAX_WAYPOINTS],
+    /// The engine's count of tables swapped in when the current execution's rest began.
+    applied_before: u64,
 }
 
 /// What one tick of an execution produced.
@@ -42,11 +44,12 @@ pub(crate) struct ExecutionTick {
 impl Execution {
     pub(crate) fn new(set: Box<ReadySet>, rest_ticks: i64) -> Self {
         Self {
-            set,
             execution: 1,
             k: -rest_ticks,
             next_point: 0,
             errors: [0.0; MAX_WAYPOINTS],
+            applied_before: set.engine.applied(),
+            set,
         }
     }
 
@@ -57,6 +60,17 @@ impl Execution {
     /// The execution under way (1-based); past the last once the set is through.
     pub(crate) fn execution(&self) -> u32 {
         self.execution
+    }
+
+    /// Re-conditioned tables swapped in during the current execution (its rest included: what
+    /// is swapped in there is in force for it).
+    pub(crate) fn reconditions(&self) -> u32 {
+        u32::try_from(self.set.engine.applied() - self.applied_before).unwrap_or(u32::MAX)
+    }
+
+    /// Group solves of this set that failed and were held at their last good value.
+    pub(crate) fn held_solves(&self) -> u64 {
+        self.set.engine.held_solves()
     }
 
     /// Starts the current execution over (after an e-stop).
@@ -82,17 +96,28 @@ impl Execution {
         self.set
     }
 
+    /// One tick. `skipped`: the periods the clock skipped before this tick (overruns). The
+    /// execution follows the clock, so it jumps that many ticks ahead (the limiter smooths the
+    /// jump) and T_cond stays on wall time; a point whose tick was jumped over is sampled at the
+    /// first tick played at or after it, one point per tick, and the execution ends only once
+    /// every point was sampled.
     pub(crate) fn step(
         &mut self,
         reached: Option<Position>,
         rest_ticks: i64,
         now: u64,
+        skipped: u64,
     ) -> ExecutionTick {
         let set = &mut self.set;
+        let last = set.engine.timeline().ticks() as i64 - 1;
+        self.k = self
+            .k
+            .saturating_add(i64::try_from(skipped).unwrap_or(i64::MAX))
+            .min(last);
         if self.k < 0 {
             self.k += 1;
             return ExecutionTick {
-                target: set.engine.evaluate(0),
+                target: set.engine.rest(),
                 point: None,
                 finished: None,
             };
@@ -100,7 +125,7 @@ impl Execution {
         let tick = self.k as usize;
         let target = set.engine.tick(tick);
         let mut point = None;
-        if self.next_point < set.points && tick == set.cond_ticks[self.next_point] {
+        if self.next_point < set.points && set.cond_ticks[self.next_point] <= tick {
             let n = self.next_point;
             let reached = reached.unwrap_or([f64::NAN; 3]);
             let desired = set.desired[n];
@@ -130,7 +155,9 @@ impl Execution {
         }
         self.k += 1;
         let mut finished = None;
-        if self.k as usize >= set.engine.timeline().ticks() {
+        if self.k > last && self.next_point == set.points {
+            let reconditions = self.reconditions();
+            let set = &self.set;
             let errs = &self.errors[..set.points];
             finished = Some(ExecutionStats {
                 seq: 0,
@@ -139,7 +166,7 @@ impl Execution {
                 execution: self.execution,
                 executions: set.executions,
                 count: set.points as u32,
-                _pad: 0,
+                reconditions,
                 errors_m: self.errors,
                 mean_m: errs.iter().sum::<f64>() / errs.len() as f64,
                 max_m: errs.iter().cloned().fold(0.0, f64::max),
@@ -147,6 +174,7 @@ impl Execution {
             self.execution += 1;
             self.k = -rest_ticks;
             self.next_point = 0;
+            self.applied_before = set.engine.applied();
         }
         ExecutionTick {
             target,
@@ -157,11 +185,11 @@ impl Execution {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use nalgebra::DMatrix;
     use softarm_method::activation::ActivationConfig;
-    use softarm_method::engine::{Planner, Timeline};
+    use softarm_method::engine::{Planner, Replanner, Timeline};
     use softarm_method::promp::{Basis, Demonstration, Primitive, TrainConfig};
 
     const REST: i64 = 5;
@@ -185,9 +213,9 @@ mod tests {
         .unwrap()
     }
 
-    /// A 4 s set at 50 Hz through two way-points (at 1 s and 3 s), executed twice.
-    fn ready_set() -> Box<ReadySet> {
-        let planner = Planner::<ACTUATORS>::new(
+    /// A 4 s plan at 50 Hz through two way-points (at 1 s and 3 s).
+    pub(crate) fn planner() -> Planner<ACTUATORS> {
+        Planner::<ACTUATORS>::new(
             vec![primitive(0.4), primitive(0.6)],
             &[1.0, 3.0],
             &[0, 1],
@@ -195,21 +223,60 @@ mod tests {
             ActivationConfig::default(),
             1e-6,
         )
-        .unwrap();
+        .unwrap()
+    }
+
+    /// [`planner`]'s set, executed twice.
+    fn ready_set() -> Box<ReadySet> {
+        ready_set_and_replanner().0
+    }
+
+    fn ready_set_and_replanner() -> (Box<ReadySet>, Replanner<ACTUATORS>) {
+        let planner = planner();
         let mut cond_ticks = [0; MAX_WAYPOINTS];
         cond_ticks[..2].copy_from_slice(planner.conditioning_ticks());
-        let (engine, _replanner) = planner.start(&[[0.5; ACTUATORS]; 2]).unwrap();
+        let (engine, replanner) = planner.start(&[[0.5; ACTUATORS]; 2]).unwrap();
         let mut desired = [[0.0; 3]; MAX_WAYPOINTS];
         desired[0] = [0.1, 0.0, -0.3];
         desired[1] = [0.0, 0.2, -0.3];
-        Box::new(ReadySet {
+        let set = Box::new(ReadySet {
             set_id: 7,
             executions: 2,
             points: 2,
             desired,
             cond_ticks,
             engine,
-        })
+        });
+        (set, replanner)
+    }
+
+    #[test]
+    fn reconditionings_are_counted_per_execution() {
+        let (set, mut replanner) = ready_set_and_replanner();
+        let ticks = set.engine.timeline().ticks() as i64;
+        let mut x = Execution::new(set, REST);
+        let step = |x: &mut Execution| x.step(Some(REACHED), REST, 0, 0).finished;
+        for _ in 0..REST + 10 {
+            assert!(step(&mut x).is_none());
+        }
+        // Group 1 is inactive at tick 10: swapped in on the next tick.
+        replanner.recondition(1, &[0.6; ACTUATORS]).unwrap();
+        step(&mut x);
+        assert_eq!(x.reconditions(), 1);
+        for _ in 11..ticks - 1 {
+            assert!(step(&mut x).is_none());
+        }
+        let first = step(&mut x).expect("execution 1 ends");
+        assert_eq!((first.execution, first.reconditions), (1, 1));
+        assert_eq!(x.reconditions(), 0, "execution 2 has applied nothing yet");
+
+        // Group 0's estimate after the end: the rest of execution 2 takes it in, for execution 2.
+        replanner.recondition(0, &[0.4; ACTUATORS]).unwrap();
+        step(&mut x);
+        assert_eq!(x.reconditions(), 1);
+        replanner.recondition(1, &[0.7; ACTUATORS]).unwrap();
+        let second = (0..10 * ticks).find_map(|_| step(&mut x)).unwrap();
+        assert_eq!((second.execution, second.reconditions), (2, 2));
     }
 
     #[test]
@@ -221,7 +288,7 @@ mod tests {
         let (mut samples, mut stats) = (Vec::new(), Vec::new());
         let mut n = 0u64;
         while stats.len() < 2 {
-            let t = x.step(Some(REACHED), REST, n);
+            let t = x.step(Some(REACHED), REST, n, 0);
             assert!(t.target.iter().all(|v| v.is_finite()));
             samples.extend(t.point.map(|s| (n, s)));
             stats.extend(t.finished.map(|s| (n, s)));
@@ -257,21 +324,55 @@ mod tests {
         assert!((s.mean_m - 0.15).abs() < 1e-12 && (s.max_m - 0.2).abs() < 1e-12);
     }
 
+    /// The clock skips periods (overruns): the execution follows it. `jumps` are (clock of a
+    /// wake, periods skipped before the next wake).
+    #[test]
+    fn skipped_periods_advance_the_execution_and_no_point_is_lost() {
+        let set = ready_set();
+        let (cond, ticks) = (set.cond_ticks, set.engine.timeline().ticks() as u64);
+        assert_eq!((cond[0], cond[1], ticks), (50, 150, 201));
+        let mut x = Execution::new(set, REST);
+        let jumps = [
+            (1, 2),     // in the rest
+            (53, 4),    // tick 48 -> 53, over point 0 (tick 50)
+            (145, 70),  // tick 140 -> 211, past point 1 (tick 150) and the end (tick 200)
+            (262, 119), // execution 2, tick 40 -> 160, over both points
+        ];
+        let (mut samples, mut stats) = (Vec::new(), Vec::new());
+        let (mut clock, mut skipped) = (0u64, 0u64);
+        while stats.len() < 2 {
+            let t = x.step(Some(REACHED), REST, clock, skipped);
+            samples.extend(t.point.map(|s| (clock, s.execution, s.point)));
+            stats.extend(t.finished.map(|s| (clock, s.execution)));
+            skipped = jumps.iter().find(|j| j.0 == clock).map_or(0, |j| j.1);
+            clock += 1 + skipped;
+            assert!(clock < 10_000, "the executions never end");
+        }
+        // The tick played at clock c is c - REST within an execution that began at clock 0,
+        // and c - 217 - REST in the second, which began right after the first ended (216).
+        assert_eq!(
+            samples,
+            [(58, 1, 0), (216, 1, 1), (382, 2, 0), (383, 2, 1)],
+            "each point at the first tick played at or after its own"
+        );
+        assert_eq!(stats, [(216, 1), (217 + REST as u64 + 200, 2)]);
+    }
+
     #[test]
     fn a_restart_begins_the_execution_again_from_its_rest() {
         let mut x = Execution::new(ready_set(), REST);
-        x.step(None, REST, 0);
+        x.step(None, REST, 0, 0);
         x.restart(REST);
         assert!(!x.at_boundary(REST), "resting: a restart changes nothing");
         for n in 1..REST as u64 + 60 {
-            x.step(None, REST, n);
+            x.step(None, REST, n, 0);
         }
         x.restart(REST);
         assert!(x.at_boundary(REST));
         assert_eq!(x.execution(), 1);
         // The first point is sampled again, with no position: NaN reached, NaN error.
         let first = (0..1000)
-            .find_map(|n| x.step(None, REST, n).point)
+            .find_map(|n| x.step(None, REST, n, 0).point)
             .expect("the first point again");
         assert_eq!((first.execution, first.point), (1, 0));
         assert!(first.reached[0].is_nan());

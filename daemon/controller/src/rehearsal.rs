@@ -58,7 +58,7 @@ pub fn rehearse(
     let mut errors = Vec::with_capacity(executions as usize);
     for e in 1..=executions {
         for _ in 0..rest {
-            plant.step(&limiter.apply(&engine.evaluate(0)), dt);
+            plant.step(&limiter.apply(&engine.rest()), dt);
         }
         let mut errs = vec![f64::NAN; n];
         let mut next = 0;

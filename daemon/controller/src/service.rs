@@ -15,7 +15,7 @@ use softarm_ipc::{
     WaypointSet, now_ns,
 };
 use softarm_method::classify::classify;
-use softarm_method::engine::{Planner, Replanner, Timeline};
+use softarm_method::engine::{EngineError, Planner, Replanner, Timeline};
 use softarm_model::bundle::{BundleWatch, Model};
 use softarm_model::config::Config;
 use softarm_model::waypoints::validate;
@@ -56,6 +56,41 @@ struct Admitted {
     planner: Planner<ACTUATORS>,
     q: Vec<usize>,
     fallback: Vec<Actuation>,
+}
+
+/// The replanner of every set handed to the tick (running, queued, or still in the ring), until
+/// the tick hands the set back. Each set keeps its own to its end: a set queued behind a running
+/// one never takes the running set's estimates, and its replanner is used only once it runs
+/// (estimates for it come only from its own conditioning samples).
+#[derive(Default)]
+struct Replanners {
+    sets: Vec<(u64, Replanner<ACTUATORS>)>,
+}
+
+impl Replanners {
+    fn add(&mut self, set_id: u64, replanner: Replanner<ACTUATORS>) {
+        self.sets.push((set_id, replanner));
+    }
+
+    /// Re-conditions `point` of set `set_id`; `None` if that set is not with the tick.
+    fn recondition(
+        &mut self,
+        set_id: u64,
+        point: usize,
+        actuation: &Actuation,
+    ) -> Option<Result<(), EngineError>> {
+        let (_, r) = self.sets.iter_mut().find(|(id, _)| *id == set_id)?;
+        Some(r.recondition(point, actuation))
+    }
+
+    /// The tick is done with the set: its replanner goes (here, off the tick thread).
+    fn remove(&mut self, set_id: u64) {
+        self.sets.retain(|(id, _)| *id != set_id);
+    }
+
+    fn is_empty(&self) -> bool {
+        self.sets.is_empty()
+    }
 }
 
 /// The model the controller plans with, reloaded when `softarm train` writes a new bundle.
@@ -112,8 +147,8 @@ pub(crate) struct Service {
     retired: Consumer<Retired>,
     slot: ModelSlot,
     pending: Option<PendingSet>,
-    /// The set the tick runs (or has queued) and its replanner.
-    active: Option<(u64, Replanner<ACTUATORS>)>,
+    /// The sets the tick runs, has queued or has yet to take, each with its replanner.
+    handed: Replanners,
     next_set_id: u64,
     request_seq: u64,
 }
@@ -146,7 +181,7 @@ impl Service {
             retired,
             slot,
             pending: None,
-            active: None,
+            handed: Replanners::default(),
             next_set_id: (now_ns() & 0xffff_ffff) << 16,
             request_seq: 0,
         })
@@ -236,7 +271,7 @@ impl Service {
                 seq: r.seq,
                 ..Default::default()
             };
-            let reply = if idle && self.pending.is_none() && self.active.is_none() {
+            let reply = if idle && self.pending.is_none() && self.handed.is_empty() {
                 let sequences = DemoSequences::new(&self.config, r.seed);
                 let (demos, duration_s) = (
                     sequences.sequences.len(),
@@ -277,11 +312,8 @@ impl Service {
                 if point < p.estimates.len() {
                     p.estimates[point] = Some(s.actuation);
                 }
-            } else if let Some((set_id, replanner)) =
-                self.active.as_mut().filter(|a| a.0 == s.set_id)
-                && let Err(err) = replanner.recondition(point, &s.actuation)
-            {
-                tracing::warn!(set_id = *set_id, point, "estimate not used: {err}");
+            } else if let Some(Err(err)) = self.handed.recondition(s.set_id, point, &s.actuation) {
+                tracing::warn!(set_id = s.set_id, point, "estimate not used: {err}");
             }
         }
     }
@@ -323,7 +355,7 @@ impl Service {
                     engine,
                 };
                 if self.send_to_tick(ToTick::Execute(Box::new(set))) {
-                    self.active = Some((p.set_id, replanner));
+                    self.handed.add(p.set_id, replanner);
                 }
             }
             Err(err) => tracing::error!(set_id = p.set_id, "planning failed: {err}"),
@@ -352,9 +384,7 @@ impl Service {
         while let Ok(r) = self.retired.pop() {
             match r {
                 Retired::Set(set) => {
-                    if self.active.as_ref().is_some_and(|a| a.0 == set.set_id) {
-                        self.active = None;
-                    }
+                    self.handed.remove(set.set_id);
                     tracing::info!(set_id = set.set_id, "way-point set finished");
                 }
                 Retired::Demo(d) => {
@@ -421,6 +451,44 @@ fn admit(config: &Config, slot: &ModelSlot, set: &WaypointSet) -> anyhow::Result
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::execution::tests::planner;
+
+    #[test]
+    fn a_queued_set_leaves_the_running_set_its_replanner() {
+        let (mut running, r) = planner().start(&[[0.5; ACTUATORS]; 2]).unwrap();
+        let (mut queued, q) = planner().start(&[[0.5; ACTUATORS]; 2]).unwrap();
+        let mut handed = Replanners::default();
+        handed.add(1, r);
+        handed.add(2, q);
+
+        // The running set's estimates still re-condition it, and only it.
+        assert!(matches!(
+            handed.recondition(1, 1, &[0.6; ACTUATORS]),
+            Some(Ok(()))
+        ));
+        running.rest();
+        queued.rest();
+        assert_eq!((running.applied(), queued.applied()), (1, 0));
+        // Once the queued set runs, its own.
+        assert!(matches!(
+            handed.recondition(2, 0, &[0.4; ACTUATORS]),
+            Some(Ok(()))
+        ));
+        queued.rest();
+        assert_eq!((running.applied(), queued.applied()), (1, 1));
+
+        // A queued set replaced by a newer one goes back; the running set keeps its replanner.
+        handed.remove(2);
+        assert!(handed.recondition(2, 0, &[0.4; ACTUATORS]).is_none());
+        assert!(matches!(
+            handed.recondition(1, 0, &[0.6; ACTUATORS]),
+            Some(Ok(()))
+        ));
+        running.rest();
+        assert_eq!(running.applied(), 2);
+        handed.remove(1);
+        assert!(handed.is_empty());
+    }
 
     #[test]
     fn any_estimate_timeout_gives_a_deadline_without_panicking() {

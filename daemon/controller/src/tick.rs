@@ -154,13 +154,17 @@ impl Step {
     };
 }
 
-/// Sequence numbers of what the tick publishes.
+/// Sequence numbers of what the tick publishes, and what `status` reports of past sets.
 #[derive(Default)]
 struct Counts {
     ticks: u64,
     setpoints: u64,
     samples: u64,
     stats: u64,
+    /// Re-conditionings applied during the last completed execution, whichever set it was.
+    last_reconditions: u32,
+    /// Held group solves of the sets already done.
+    held_solves: u64,
 }
 
 /// Everything the tick loop keeps between ticks.
@@ -181,6 +185,8 @@ struct Tick<'a> {
     /// Whether the unsafe spell now ending included an e-stop (restart) or only stale data
     /// (resume where the execution paused).
     stopped_while_unsafe: bool,
+    /// Periods the clock skipped before this tick (overruns): a playing execution follows.
+    skipped: u64,
     count: Counts,
 }
 
@@ -200,6 +206,7 @@ impl<'a> Tick<'a> {
             queued: None,
             was_safe: false,
             stopped_while_unsafe: false,
+            skipped: 0,
             count: Counts::default(),
         }
     }
@@ -207,6 +214,8 @@ impl<'a> Tick<'a> {
     /// One tick: read the inputs, decide the state, step the mode, limit, publish, status.
     fn tick(&mut self) {
         let now = self.wait();
+        // What waited for room goes before anything new.
+        self.links.outbox.flush();
         self.inputs.read();
         self.take_plan();
         self.start_limiter();
@@ -236,6 +245,7 @@ impl<'a> Tick<'a> {
     fn wait(&mut self) -> u64 {
         let wake = self.ticker.wait();
         self.latency.record(wake.latency_ns);
+        self.skipped = wake.missed;
         self.count.ticks += 1;
         now_ns()
     }
@@ -354,7 +364,7 @@ impl<'a> Tick<'a> {
             Mode::Execute(x) => {
                 let execution = x.execution();
                 let reached = self.inputs.position.map(|p| p.0);
-                let t = x.step(reached, self.timing.rest_ticks, now);
+                let t = x.step(reached, self.timing.rest_ticks, now, self.skipped);
                 Step {
                     target: Some(t.target),
                     execution,
@@ -394,6 +404,7 @@ impl<'a> Tick<'a> {
             self.links.outbox.send(Outgoing::Sample(s));
         }
         if let Some(mut s) = step.finished {
+            self.count.last_reconditions = s.reconditions;
             self.count.stats += 1;
             s.seq = self.count.stats;
             self.links.outbox.send(Outgoing::Stats(s));
@@ -415,7 +426,10 @@ impl<'a> Tick<'a> {
         }
         match std::mem::replace(&mut self.mode, Mode::Idle) {
             Mode::Demonstrate(d) => self.retire(Retired::Demo(d.into_sequences())),
-            Mode::Execute(x) => self.retire(Retired::Set(x.into_set())),
+            Mode::Execute(x) => {
+                self.count.held_solves += x.held_solves();
+                self.retire(Retired::Set(x.into_set()))
+            }
             Mode::Idle => {}
         }
         if let Some(set) = self.queued.take() {
@@ -424,10 +438,11 @@ impl<'a> Tick<'a> {
     }
 
     fn publish_status(&mut self, state: ControllerState, now: u64, health: &Health) {
-        let (set_id, execution) = match &self.mode {
-            Mode::Execute(x) => (x.set_id(), x.execution()),
-            _ => (0, 0),
+        let (set_id, execution, reconditions, held) = match &self.mode {
+            Mode::Execute(x) => (x.set_id(), x.execution(), x.reconditions(), x.held_solves()),
+            _ => (0, 0, 0, 0),
         };
+        let drops = self.links.outbox.drops();
         let status = ControllerStatus {
             seq: self.count.ticks,
             stamp_ns: now,
@@ -441,7 +456,12 @@ impl<'a> Tick<'a> {
             tracker_age_ns: health.tracker_age_ns,
             motor_age_ns: health.motor_age_ns,
             model_loaded: self.shared.model_loaded.load(Ordering::Relaxed) as u32,
-            _pad: 0,
+            reconditions_current: reconditions,
+            reconditions_last: self.count.last_reconditions,
+            outbox_backlog: self.links.outbox.backlog() as u32,
+            outbox_dropped: drops.all,
+            samples_dropped: drops.samples,
+            held_solves: self.count.held_solves + held,
         };
         self.links.outbox.send(Outgoing::Status(status));
     }

@@ -9,9 +9,9 @@
 //! Groups are N copies of the M primitives; in group n, primitive Q[n] is conditioned on the
 //! actuation estimate for conditioning point n (UpdatePrim). Re-conditioning runs off the tick
 //! thread in a [`Replanner`]: it fills a spare table and sends it over a bounded lock-free
-//! single-producer single-consumer ring ([`rtrb`]); the tick swaps it in only while b_n = 0, so
-//! replanning never moves the setpoint, and sends the old table back over another ring for
-//! reuse, so the tick never frees memory either.
+//! single-producer single-consumer ring ([`rtrb`]); the tick swaps it in while b_n = 0 or between
+//! executions (the rest, and tick 0), so replanning never moves a setpoint already played, and
+//! sends the old table back over another ring for reuse, so the tick never frees memory either.
 
 use rtrb::{Consumer, Producer, PushError, RingBuffer};
 
@@ -394,7 +394,7 @@ impl<const D: usize> Planner<D> {
         // ring has room for every table that can be in flight.
         let (updates_tx, updates_rx) = RingBuffer::new(n);
         let (retired_tx, retired_rx) = RingBuffer::new(4 * n);
-        let engine = TickEngine {
+        let mut engine = TickEngine {
             schedule: self.schedule,
             timeline: self.timeline,
             base,
@@ -403,7 +403,18 @@ impl<const D: usize> Planner<D> {
             pending_count: 0,
             updates: updates_rx,
             retired: retired_tx,
+            held: vec![[0.0; D]; n],
+            held_count: 0,
+            applied: 0,
         };
+        // Each group's first fallback, should its solve ever fail before one succeeded: its
+        // value at its own point. A group that cannot be solved even there is a bad plan.
+        for group in 0..n {
+            let (tick, a) = engine.activations(self.cond_ticks[group]);
+            engine.held[group] = engine
+                .group_mean(group, tick, &a)
+                .ok_or(PrimitiveError::Singular)?;
+        }
         let replanner = Replanner {
             planner: self,
             updates: updates_tx,
@@ -493,6 +504,12 @@ pub struct TickEngine<const D: usize> {
     pending_count: usize,
     updates: Consumer<Update<D>>,
     retired: Producer<Table<D>>,
+    /// Per group: its last μ*_i that solved, held when a solve fails.
+    held: Vec<[f64; D]>,
+    /// Group evaluations whose solve failed and were held.
+    held_count: u64,
+    /// Re-conditioned tables swapped in.
+    applied: u64,
 }
 
 impl<const D: usize> TickEngine<D> {
@@ -504,11 +521,22 @@ impl<const D: usize> TickEngine<D> {
         &self.schedule
     }
 
-    /// One controller tick: takes in re-conditioned groups that are inactive at this tick,
-    /// then evaluates v. Allocates nothing, locks nothing.
+    /// One controller tick of an execution: takes in re-conditioned groups that are inactive at
+    /// this tick (every waiting group at tick 0, where nothing of the execution has played yet),
+    /// then evaluates v. Allocates nothing, locks nothing, frees nothing.
     pub fn tick(&mut self, tick: usize) -> [f64; D] {
-        self.take_updates(tick);
-        self.evaluate(tick)
+        self.take_updates((tick > 0).then_some(tick));
+        self.evaluate_holding(tick)
+    }
+
+    /// One tick of the rest before an execution (or between two): takes in every waiting
+    /// re-conditioned group, whatever its b, then evaluates v(0), the rest's target. Only v(0)
+    /// can move, and the controller's slew limit smooths that. So every estimate that arrives
+    /// before its group's next execution starts is in force in that execution, even a group
+    /// active all along (a set of one point, b_0 = 1).
+    pub fn rest(&mut self) -> [f64; D] {
+        self.take_updates(None);
+        self.evaluate_holding(0)
     }
 
     /// Whether any re-conditioned group still waits for its window to pass.
@@ -516,8 +544,29 @@ impl<const D: usize> TickEngine<D> {
         self.pending_count > 0
     }
 
-    fn take_updates(&mut self, tick: usize) {
-        while let Ok(Update { group, table }) = self.updates.pop() {
+    /// Re-conditioned tables swapped in so far.
+    pub fn applied(&self) -> u64 {
+        self.applied
+    }
+
+    /// Group evaluations so far whose solve failed, so that the group's last good value was
+    /// held instead.
+    pub fn held_solves(&self) -> u64 {
+        self.held_count
+    }
+
+    /// Takes in what the replanner sent, then swaps in the waiting groups that are inactive at
+    /// `tick` (every one if `None`). A table leaves only through the retired ring, and only when
+    /// it has room: otherwise the swap waits for the next tick, so nothing is ever freed here.
+    fn take_updates(&mut self, tick: Option<usize>) {
+        while let Ok(u) = self.updates.peek() {
+            let group = u.group;
+            if self.pending[group].is_some() && self.retired.is_full() {
+                break;
+            }
+            let Ok(Update { group, table }) = self.updates.pop() else {
+                break;
+            };
             // A newer estimate for the same group supersedes one still waiting.
             match self.pending[group].replace(table) {
                 Some(old) => self.retire(old),
@@ -527,59 +576,93 @@ impl<const D: usize> TickEngine<D> {
         if self.pending_count == 0 {
             return;
         }
-        let active = self
-            .schedule
-            .groups(self.timeline.time_of(tick.min(self.timeline.ticks() - 1)));
+        let active = tick.map(|k| {
+            self.schedule
+                .groups(self.timeline.time_of(k.min(self.timeline.ticks() - 1)))
+        });
         for group in 0..self.pending.len() {
-            if active.weight_of(group) == 0.0
+            if self.retired.is_full() {
+                break;
+            }
+            if active.is_none_or(|a| a.weight_of(group) == 0.0)
                 && let Some(mut table) = self.pending[group].take()
             {
                 std::mem::swap(&mut self.conditioned[group], &mut table);
                 self.pending_count -= 1;
+                self.applied += 1;
                 self.retire(table);
             }
         }
     }
 
+    /// Only called with room in the ring (checked by the caller), which the replanner drains
+    /// to reuse the tables; once it is gone they are freed with the engine, off the tick thread.
     fn retire(&mut self, table: Table<D>) {
-        // The ring has room for every table in flight, even once the replanner is gone (its
-        // tables are then freed with the engine, off the tick thread); were it ever full, freeing
-        // here is all that is left to do.
-        let _ = self.retired.push(table);
+        let sent = self.retired.push(table).is_ok();
+        debug_assert!(sent, "the retired ring had room");
     }
 
-    /// v at a tick (Eq. 11). Ticks past the end hold the last value.
-    pub fn evaluate(&self, tick: usize) -> [f64; D] {
+    /// a_j at a tick (clamped to the timeline).
+    fn activations(&self, tick: usize) -> (usize, [f64; MAX_PRIMITIVES]) {
         let tick = tick.min(self.timeline.ticks() - 1);
-        let t = self.timeline.time_of(tick);
         let mut a = [0.0; MAX_PRIMITIVES];
-        self.schedule.a(t, &mut a);
+        self.schedule.a(self.timeline.time_of(tick), &mut a);
+        (tick, a)
+    }
+
+    /// μ*_i = (Σ_j a_j Λ_ij)⁻¹ Σ_j a_j Λ_ij μ_ij of one group; `None` if the solve fails.
+    fn group_mean(&self, group: usize, tick: usize, a: &[f64; MAX_PRIMITIVES]) -> Option<[f64; D]> {
         let q = self.schedule.assignment();
-        let mut v = [0.0; D];
-        for (group, b) in self.schedule.groups(t).iter() {
-            let mut lam = [[0.0; D]; D];
-            let mut eta = [0.0; D];
-            for (j, (&aj, base)) in a.iter().zip(&self.base).enumerate() {
-                let table = if j == q[group] {
-                    &self.conditioned[group]
-                } else {
-                    base
-                };
-                let e = &table.entries[tick];
-                for d in 0..D {
-                    // Only the lower triangle: Cholesky reads nothing else.
-                    for c in 0..=d {
-                        lam[d][c] += aj * e.precision[d][c];
-                    }
-                    eta[d] += aj * e.shifted[d];
+        let mut lam = [[0.0; D]; D];
+        let mut eta = [0.0; D];
+        for (j, (&aj, base)) in a.iter().zip(&self.base).enumerate() {
+            let table = if j == q[group] {
+                &self.conditioned[group]
+            } else {
+                base
+            };
+            let e = &table.entries[tick];
+            for d in 0..D {
+                // Only the lower triangle: Cholesky reads nothing else.
+                for c in 0..=d {
+                    lam[d][c] += aj * e.precision[d][c];
                 }
+                eta[d] += aj * e.shifted[d];
             }
-            // Σ_j a_j Λ_j is positive definite: every a_j ≥ floor > 0 and every Λ_j is.
-            if cholesky(&mut lam).is_some() {
-                let mu = cholesky_solve(&lam, eta);
-                for d in 0..D {
-                    v[d] += b * mu[d];
-                }
+        }
+        // Σ_j a_j Λ_j is positive definite in exact arithmetic (every a_j ≥ floor > 0 and every
+        // Λ_j is); rounding in a degenerate covariance can still break it.
+        cholesky(&mut lam)?;
+        let mu = cholesky_solve(&lam, eta);
+        mu.iter().all(|x| x.is_finite()).then_some(mu)
+    }
+
+    /// v at a tick (Eq. 11). Ticks past the end hold the last value. A group whose solve fails
+    /// contributes its last good value, as on the tick.
+    pub fn evaluate(&self, tick: usize) -> [f64; D] {
+        let (tick, a) = self.activations(tick);
+        let mut v = [0.0; D];
+        for (group, b) in self.schedule.groups(self.timeline.time_of(tick)).iter() {
+            let mu = self.group_mean(group, tick, &a).unwrap_or(self.held[group]);
+            for d in 0..D {
+                v[d] += b * mu[d];
+            }
+        }
+        v
+    }
+
+    /// v at a tick, keeping each group's last good value and counting the held ones: a group
+    /// whose solve fails keeps its share b_i of v at that value, instead of pulling v toward 0.
+    fn evaluate_holding(&mut self, tick: usize) -> [f64; D] {
+        let (tick, a) = self.activations(tick);
+        let mut v = [0.0; D];
+        for (group, b) in self.schedule.groups(self.timeline.time_of(tick)).iter() {
+            match self.group_mean(group, tick, &a) {
+                Some(mu) => self.held[group] = mu,
+                None => self.held_count += 1,
+            }
+            for d in 0..D {
+                v[d] += b * self.held[group][d];
             }
         }
         v
@@ -631,4 +714,146 @@ fn cholesky_solve<const D: usize>(l: &[[f64; D]; D], mut b: [f64; D]) -> [f64; D
         b[i] /= l[i][i];
     }
     b
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::promp::{Basis, Demonstration, TrainConfig};
+
+    const D: usize = 6;
+    const RATE: f64 = 50.0;
+
+    fn primitive(offset: f64) -> Primitive {
+        let demos: Vec<Demonstration> = (0..8)
+            .map(|i| {
+                let times: Vec<f64> = (0..50).map(|s| 4.0 * s as f64 / 49.0).collect();
+                let values = DMatrix::from_fn(50, D, |r, d| {
+                    offset + 0.1 * (times[r] + 0.3 * d as f64 + 0.05 * i as f64).sin()
+                });
+                Demonstration::new(times, values)
+            })
+            .collect();
+        Primitive::train(
+            Basis::new(5, None).unwrap(),
+            &demos,
+            &TrainConfig::default(),
+        )
+        .unwrap()
+    }
+
+    /// Two points (1 s and 3 s) over 4 s at 50 Hz, on two primitives.
+    fn start() -> (TickEngine<D>, Replanner<D>) {
+        Planner::<D>::new(
+            vec![primitive(0.4), primitive(0.6)],
+            &[1.0, 3.0],
+            &[0, 1],
+            Timeline::new(4.0, RATE).unwrap(),
+            ActivationConfig::default(),
+            1e-6,
+        )
+        .unwrap()
+        .start(&[[0.5; D], [0.55; D]])
+        .unwrap()
+    }
+
+    /// Makes group `group`'s solve fail from tick `from` on: its own primitive's precision turns
+    /// negative definite, as a covariance degenerate enough to break the Cholesky would.
+    fn break_group(engine: &mut TickEngine<D>, group: usize, from: usize) {
+        for e in &mut engine.conditioned[group].entries[from..] {
+            for (d, row) in e.precision.iter_mut().enumerate() {
+                *row = [0.0; D];
+                row[d] = -1e9;
+            }
+        }
+    }
+
+    fn close(a: &[f64; D], b: &[f64; D], tol: f64) -> bool {
+        a.iter().zip(b).all(|(x, y)| (x - y).abs() <= tol)
+    }
+
+    #[test]
+    fn a_group_whose_solve_fails_holds_its_last_good_value_and_is_counted() {
+        let (mut engine, _r) = start();
+        let (mut intact, _ri) = start();
+        let k1 = engine.timeline.tick_of(1.0);
+        for k in 0..=k1 {
+            assert_eq!(engine.tick(k), intact.tick(k));
+        }
+        let held = engine.held[0];
+        break_group(&mut engine, 0, k1 + 1);
+        assert_eq!(engine.held_solves(), 0);
+
+        // Inside group 0's window (b_0 = 1): v holds group 0's last good value, exactly.
+        let window_end = engine.timeline.tick_of(1.0 + 0.1);
+        for (n, k) in (k1 + 1..=window_end).enumerate() {
+            assert_eq!(engine.tick(k), held, "tick {k}");
+            assert_eq!(engine.held_solves(), n as u64 + 1);
+            intact.tick(k);
+        }
+        let before = engine.held_solves();
+
+        // Handing over to group 1: group 0 keeps its b_0 share at the held value, so v stays
+        // near the intact engine's (dropping the share would pull v up to b_0 · 0.5 toward 0;
+        // the held value is only as stale as the trajectory's drift).
+        let k3 = engine.timeline.tick_of(3.0 - 0.1);
+        let mut handing_over = 0;
+        for k in window_end + 1..k3 {
+            let b0 = engine.schedule.b(0, engine.timeline.time_of(k));
+            let (v, want) = (engine.tick(k), intact.tick(k));
+            assert!(close(&v, &want, 0.1), "tick {k}: {v:?} vs {want:?}");
+            if b0 > 0.0 {
+                handing_over += 1;
+                let one = intact.group_mean(1, k, &intact.activations(k).1).unwrap();
+                let expect: [f64; D] = std::array::from_fn(|d| b0 * held[d] + (1.0 - b0) * one[d]);
+                assert!(close(&v, &expect, 1e-12), "tick {k}");
+            }
+        }
+        assert!(handing_over > 10);
+        assert_eq!(engine.held_solves() - before, handing_over);
+        // Group 1's own solves are fine: nothing more is counted once group 0 is inactive.
+        let count = engine.held_solves();
+        engine.tick(engine.timeline.tick_of(3.0));
+        assert_eq!(engine.held_solves(), count);
+    }
+
+    #[test]
+    fn the_tick_frees_nothing_when_the_retired_ring_is_full() {
+        let (mut engine, mut replanner) = start();
+        replanner.recondition(1, &[0.7; D]).unwrap();
+        replanner.recondition(0, &[0.3; D]).unwrap();
+        // Fill the retired ring, as if the replanner had not drained it.
+        let capacity = engine.retired.buffer().capacity();
+        let fill = |engine: &mut TickEngine<D>| {
+            while !engine.retired.is_full() {
+                engine.retire(Table::zeroed(1));
+            }
+        };
+        fill(&mut engine);
+        let before = engine.evaluate(engine.timeline.tick_of(3.0));
+        // Group 1 is inactive at tick 1, but its old table has nowhere to go: nothing is
+        // swapped (nor freed); the updates wait.
+        engine.tick(1);
+        engine.rest();
+        assert_eq!(engine.applied(), 0);
+        assert_eq!(engine.evaluate(engine.timeline.tick_of(3.0)), before);
+        // A newer estimate for a waiting group waits in its ring too.
+        replanner.recondition(1, &[0.8; D]).unwrap();
+        fill(&mut engine);
+        engine.tick(1);
+        assert_eq!(engine.pending_count, 2);
+        assert_eq!(engine.updates.slots(), 1);
+
+        // Room again: the rest takes in all of them, each old table goes back.
+        for _ in 0..capacity {
+            replanner.retired.pop().unwrap();
+        }
+        engine.rest();
+        assert_eq!(engine.applied(), 2);
+        assert!(!engine.has_pending() && engine.updates.is_empty());
+        // 1 superseded + 2 replaced.
+        assert_eq!(replanner.retired.slots(), 3);
+        let v = engine.evaluate(engine.timeline.tick_of(3.0));
+        assert!(close(&v, &[0.8; D], 1e-3), "{v:?}");
+    }
 }

@@ -1,6 +1,7 @@
 //! The tick engine against a direct evaluation of Eq. 11, and the properties the controller
 //! relies on: conditioned points are reproduced, replanning never touches the past or the
-//! present, updates wait for their group to be inactive.
+//! present, updates wait for their group to be inactive or for the rest before its next
+//! execution.
 
 mod common;
 
@@ -8,7 +9,7 @@ use common::{D, primitives};
 use nalgebra::{DMatrix, DVector};
 use softarm_method::activation::{ActivationConfig, MAX_PRIMITIVES};
 use softarm_method::classify::classify;
-use softarm_method::engine::{EngineError, Planner, Timeline};
+use softarm_method::engine::{EngineError, Planner, TickEngine, Timeline};
 use softarm_method::promp::{Basis, Demonstration, Primitive, TrainConfig, ViaPoint};
 
 const FLOOR: f64 = 1e-6;
@@ -166,6 +167,102 @@ fn an_update_waits_while_its_group_is_active() {
     assert!(!engine.has_pending());
     let v = engine.evaluate(k2);
     assert!(v.iter().all(|x| (x - 0.9).abs() < 1e-3), "{v:?}");
+}
+
+/// One execution as the controller plays it: `rest` ticks of rest, then the timeline, calling
+/// `at(k)` after each tick k.
+fn play(engine: &mut TickEngine<D>, rest: usize, mut at: impl FnMut(&mut TickEngine<D>, usize)) {
+    for _ in 0..rest {
+        engine.rest();
+    }
+    for k in 0..engine.timeline().ticks() {
+        engine.tick(k);
+        at(engine, k);
+    }
+}
+
+fn near(v: &[f64; D], want: &[f64; D], tol: f64) -> bool {
+    v.iter().zip(want).all(|(x, y)| (x - y).abs() < tol)
+}
+
+#[test]
+fn a_one_point_set_applies_each_estimate_in_its_next_execution() {
+    // b_0 = 1 all along: there is no inactive stretch, only the rest between executions.
+    let planner = Planner::<D>::new(
+        primitives(3, 15),
+        &[2.0],
+        &[1],
+        Timeline::new(4.0, 100.0).unwrap(),
+        ActivationConfig::default(),
+        FLOOR,
+    )
+    .unwrap();
+    let k0 = planner.conditioning_ticks()[0];
+    let first = [0.45; D];
+    let (mut engine, mut replanner) = planner.start(&[first]).unwrap();
+    let rest = 40;
+
+    // Execution 1: the learner's answer to the point's sample arrives a few ticks later; the
+    // group is active, so it waits, and execution 1 plays on unchanged.
+    let second = [0.6; D];
+    let mut played = Vec::new();
+    play(&mut engine, rest, |e, k| {
+        played.push(e.evaluate(k));
+        if k == k0 + 3 {
+            replanner.recondition(0, &second).unwrap();
+        }
+    });
+    assert!(near(&played[k0], &first, 1e-3), "{:?}", played[k0]);
+    assert!(engine.has_pending() && engine.applied() == 0);
+    assert_eq!(
+        engine.evaluate(k0),
+        played[k0],
+        "nothing moved during execution 1"
+    );
+
+    // Execution 2 uses it; an estimate arriving after execution 2 ended is used in execution 3.
+    let third = [0.35; D];
+    let mut at_point = None;
+    play(&mut engine, rest, |e, k| {
+        if k == k0 {
+            at_point = Some(e.evaluate(k));
+        }
+    });
+    assert!(near(&at_point.unwrap(), &second, 1e-3), "{at_point:?}");
+    assert_eq!(engine.applied(), 1);
+    replanner.recondition(0, &third).unwrap();
+    play(&mut engine, rest, |e, k| {
+        if k == k0 {
+            at_point = Some(e.evaluate(k));
+        }
+    });
+    assert!(near(&at_point.unwrap(), &third, 1e-3), "{at_point:?}");
+    assert_eq!(engine.applied(), 2);
+
+    // Without a rest (controller.rest_s = 0), the execution's first tick takes it in.
+    replanner.recondition(0, &first).unwrap();
+    play(&mut engine, 0, |_, _| {});
+    assert!(near(&engine.evaluate(k0), &first, 1e-3));
+    assert_eq!(engine.applied(), 3);
+}
+
+#[test]
+fn an_estimate_for_group_0_arriving_after_the_execution_is_used_in_the_next() {
+    let (mut engine, mut replanner) = planner(100.0).start(&initial()).unwrap();
+    let tl = *engine.timeline();
+    let k0 = tl.tick_of(T_COND[0]);
+    play(&mut engine, 20, |_, _| {});
+    // The answer to the last point's sample comes once the execution is over.
+    let estimate = [0.7; D];
+    replanner.recondition(0, &estimate).unwrap();
+    let mut at_point = None;
+    play(&mut engine, 20, |e, k| {
+        if k == k0 {
+            at_point = Some(e.evaluate(k));
+        }
+    });
+    assert!(near(&at_point.unwrap(), &estimate, 1e-3), "{at_point:?}");
+    assert_eq!(engine.applied(), 1);
 }
 
 #[test]
