@@ -80,7 +80,14 @@ impl TestStack {
 
     /// Starts `softarm up` and waits until the controller is IDLE and every process is alive.
     pub fn up(&mut self) {
-        self.up = Some(self.spawn(&["up"]));
+        self.up_with(&[]);
+    }
+
+    /// [`TestStack::up`] with more arguments for `softarm up` (e.g. `--scenario NAME`).
+    pub fn up_with(&mut self, args: &[&str]) {
+        let mut all = vec!["up"];
+        all.extend_from_slice(args);
+        self.up = Some(self.spawn(&all));
         let model = self.dir.join("model/model.toml").exists();
         self.wait_status("the stack to come up", Duration::from_secs(60), |s| {
             let alive = s["alive"].as_array().map(|a| a.len()).unwrap_or(0) >= 3;
