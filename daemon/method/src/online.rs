@@ -71,8 +71,8 @@ pub struct CorrectionConfig {
     pub refit_visits: usize,
     /// Ridge of the refit's slope B: keeps B zero along directions the visits do not span.
     pub refit_ridge: f64,
-    /// A point's Jacobian learns from a step only if the end effector moved more than this (m):
-    /// smaller moves are mostly noise.
+    /// A point's Jacobian learns from a step only if the step was meant to move the end
+    /// effector more than this (m, ‖J Δa‖): the noise of smaller moves would dominate.
     pub broyden_min_m: f64,
 }
 
@@ -181,6 +181,8 @@ struct Point {
     /// The systematic error p_d − p at the last try and its variance (m²): a Kalman filter
     /// over the executions, so a correction follows the arm, not one noisy tracker sample.
     bias: Option<(Vector3<f64>, f64)>,
+    /// The pending estimate went back to the best try after a worse one.
+    retry: bool,
 }
 
 /// The refitted forward model: the trained polynomial plus c + B (a − ā) fitted to the
@@ -357,6 +359,7 @@ impl OnlineLearner {
                 radius: self.cacla.config().correction.trust_initial,
                 jacobian: None,
                 bias: None,
+                retry: false,
             },
         );
         Ok(())
@@ -418,7 +421,9 @@ impl OnlineLearner {
             if let (Some(last), Some(j)) = (p.last, p.jacobian.as_mut()) {
                 let da = SVector::<f64, ACTUATORS>::from_fn(|i, _| action[i] - last.action[i]);
                 let dp = Vector3::from_fn(|d, _| reached[d] - last.reached[d]);
-                if dp.norm() > c.broyden_min_m && da.norm_squared() > 1e-12 {
+                // Judged by what the step was meant to do: a tiny step whose Δp is mostly
+                // noise would teach J a huge slope.
+                if (*j * da).norm() > c.broyden_min_m {
                     *j += (dp - *j * da) * da.transpose() / da.norm_squared();
                 }
             }
@@ -447,6 +452,11 @@ impl OnlineLearner {
                     // The next step starts from the best try, whose error is measured, not
                     // filtered.
                     p.bias = None;
+                    // Worse again after going back to the best: that best was a lucky tracker
+                    // sample, or the arm has changed since. This try is where things stand.
+                    if p.retry {
+                        p.best = Some(now);
+                    }
                 }
                 Some(_) => {}
                 None => p.best = Some(now),
@@ -489,6 +499,7 @@ impl OnlineLearner {
                     j
                 }
             };
+            self.set[point].retry = base != last;
             let e = match p.bias {
                 Some((bias, _)) if base == last => bias,
                 _ => error_vector(target, &base.reached),
@@ -664,6 +675,20 @@ mod tests {
         let next = l.estimate(0, &t[0], true).unwrap();
         let from_good: f64 = next.iter().map(|v| (v - 0.5).powi(2)).sum::<f64>().sqrt();
         assert!(from_good <= r0 * 0.5 + 1e-12, "{next:?}");
+        // Worse than the best again from there: the best was luck, so this try becomes the
+        // base and a point is never stuck on one lucky sample.
+        let stale = [t[0][0] + 0.012, t[0][1], t[0][2]];
+        l.observe(0, &t[0], &next, &stale).unwrap();
+        assert_eq!(l.set[0].best.unwrap().reached, stale);
+        let after = l.estimate(0, &t[0], true).unwrap();
+        let from_stale: f64 = (0..6)
+            .map(|i| (after[i] - next[i]).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        assert!(
+            from_stale > 0.0 && from_stale <= r0 * 0.25 + 1e-12,
+            "{after:?}"
+        );
     }
 
     #[test]
