@@ -98,7 +98,7 @@ pub struct MotorState {
 #[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
 // The type name changed with the layout (the `executed` flag left for `EstimateRequest`), so a
 // peer built before cannot connect and misread it.
-#[type_name("softarm::ConditioningSample.v2")]
+#[type_name("softarm::ConditioningSample.v3")]
 #[repr(C)]
 pub struct ConditioningSample {
     pub seq: u64,
@@ -116,6 +116,9 @@ pub struct ConditioningSample {
     /// The execution (1-based) that will use that estimate.
     pub next_execution: u32,
     pub next_desired: Position,
+    /// What the actuators reported (`motor_state`) at the point; NaN without motor state. With
+    /// `reached` a quasi-static pair of the arm, free of the lag between setpoint and actuator.
+    pub measured: Actuation,
 }
 
 /// Sent by the controller when it accepts a way-point set: the learner answers with one
@@ -649,7 +652,7 @@ mod tests {
                 size_of::<ConditioningSample>(),
                 align_of::<ConditioningSample>()
             ),
-            (168, 8)
+            (216, 8)
         );
     }
 

@@ -150,6 +150,7 @@ impl Execution {
                 next_point: next as u32,
                 next_execution,
                 next_desired: set.desired[next],
+                measured: [f64::NAN; ACTUATORS],
             });
             self.next_point += 1;
         }

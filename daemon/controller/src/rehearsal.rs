@@ -64,10 +64,11 @@ pub fn rehearse(
         let mut next = 0;
         for k in 0..engine.timeline().ticks() {
             let setpoint: Actuation = limiter.apply(&engine.tick(k));
-            let reached = plant.step(&setpoint, dt).position;
+            let m = plant.step(&setpoint, dt);
+            let reached = m.position;
             if next < n && k == cond[next] {
                 errs[next] = distance(&reached, &p[next]);
-                learner.observe(next, &p[next], &setpoint, &reached)?;
+                learner.observe(next, &p[next], &setpoint, &reached, Some(&m.actuation))?;
                 // The estimate wanted next: the following point, or the first of the next
                 // execution, which explores from the second execution on.
                 let (np, ne) = if next + 1 < n {

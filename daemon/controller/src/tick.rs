@@ -401,6 +401,10 @@ impl<'a> Tick<'a> {
             self.count.samples += 1;
             s.seq = self.count.samples;
             s.actuation = setpoint;
+            s.measured = self
+                .inputs
+                .measured
+                .map_or([f64::NAN; softarm_ipc::ACTUATORS], |(m, _)| m);
             self.links.outbox.send(Outgoing::Sample(s));
         }
         if let Some(mut s) = step.finished {

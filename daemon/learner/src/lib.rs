@@ -133,7 +133,13 @@ fn visit(learner: &mut OnlineLearner, s: &ConditioningSample) -> Result<Actuatio
     }
     if s.reached.iter().all(|v| v.is_finite()) {
         let v = learner
-            .observe(s.point as usize, &s.desired, &s.actuation, &s.reached)
+            .observe(
+                s.point as usize,
+                &s.desired,
+                &s.actuation,
+                &s.reached,
+                Some(&s.measured),
+            )
             .map_err(|e| e.to_string())?;
         tracing::debug!(point = s.point, error_mm = v.error * 1e3, td = ?v.td_error, "visit");
     } else {

@@ -56,9 +56,13 @@ pub struct LearnerConfig {
     /// The actuation an untrained actor proposes.
     pub initial_actuation: f64,
     pub seed: u64,
-    /// Which online learner runs ([`crate::online`]): `softarm` or the paper's.
+    /// Which online learner runs ([`crate::online`]): `softarm` or the paper's. Like
+    /// `correction`, a setting of the running learner, read from the config and never written
+    /// into a model bundle or checkpoint, so changing these never invalidates a trained model.
+    #[serde(skip_serializing)]
     pub algorithm: Algorithm,
     /// `[learner.correction]`: the directed corrections of the `softarm` algorithm.
+    #[serde(skip_serializing)]
     pub correction: CorrectionConfig,
 }
 

@@ -393,15 +393,16 @@ impl OnlineLearner {
         Ok(p)
     }
 
-    /// One visit: `action` was executed for `point` and the end effector reached `reached`.
-    /// Alg. 1's update under both algorithms; under `softarm` also the refit and the point's
-    /// trust region.
+    /// One visit: `action` was executed for `point` and the end effector reached `reached`,
+    /// the actuators having reported `measured` there (if known). Alg. 1's update under both
+    /// algorithms; under `softarm` also the refit and the point's trust region.
     pub fn observe(
         &mut self,
         point: usize,
         target: &Position,
         action: &Actuation,
         reached: &Position,
+        measured: Option<&Actuation>,
     ) -> Result<Visit, OnlineError> {
         if !action.iter().chain(reached).all(|v| v.is_finite()) {
             return Err(OnlineError::NotFinite);
@@ -429,7 +430,7 @@ impl OnlineLearner {
             }
             // Predict the error from the last try and the step since (J Δa), then weigh in the
             // measurement: a large step is trusted to the measurement, small ones average.
-            let measured = error_vector(target, reached);
+            let observed = error_vector(target, reached);
             let r = c.noise_m * c.noise_m;
             p.bias = Some(match (p.bias, p.last, p.jacobian) {
                 (Some((bias, var)), Some(last), Some(j)) => {
@@ -438,9 +439,9 @@ impl OnlineLearner {
                     let predicted = bias - moved;
                     let var = var + (STEP_UNCERTAINTY * moved.norm()).powi(2) + DRIFT * r;
                     let k = var / (var + r);
-                    (predicted + (measured - predicted) * k, (1.0 - k) * var)
+                    (predicted + (observed - predicted) * k, (1.0 - k) * var)
                 }
-                _ => (measured, r),
+                _ => (observed, r),
             });
             match p.best {
                 Some(best) if error < best.error => {
@@ -462,10 +463,15 @@ impl OnlineLearner {
                 None => p.best = Some(now),
             }
             p.last = Some(now);
-            let predicted = self.kinematics.position(action);
+            // The refit learns the arm, not the lag: from what the actuators did where they
+            // are known, else from the setpoint.
+            let at = match measured {
+                Some(m) if m.iter().all(|v| v.is_finite()) => *m,
+                _ => *action,
+            };
+            let predicted = self.kinematics.position(&at);
             let residual = std::array::from_fn(|d| reached[d] - predicted[d]);
-            self.refit
-                .push(*action, residual, c.refit_visits, c.refit_ridge);
+            self.refit.push(at, residual, c.refit_visits, c.refit_ridge);
         }
         Ok(self.cacla.observe(point, target, action, reached))
     }
@@ -602,7 +608,7 @@ mod tests {
             let mut sum = 0.0;
             for n in 0..t.len() {
                 let reached = arm.position(&a[n]);
-                sum += l.observe(n, &t[n], &a[n], &reached).unwrap().error;
+                sum += l.observe(n, &t[n], &a[n], &reached, None).unwrap().error;
                 a[n] = l.estimate(n, &t[n], true).unwrap();
             }
             means.push(sum / t.len() as f64);
@@ -665,12 +671,18 @@ mod tests {
         let t = targets();
         l.start_set(&t).unwrap();
         let good = [0.5; 6];
-        l.observe(0, &t[0], &good, &[t[0][0] + 0.004, t[0][1], t[0][2]])
+        l.observe(0, &t[0], &good, &[t[0][0] + 0.004, t[0][1], t[0][2]], None)
             .unwrap();
         let r0 = l.set[0].radius;
         // Much worse than the best: the radius halves and the next step starts from the best.
-        l.observe(0, &t[0], &[0.9; 6], &[t[0][0] + 0.05, t[0][1], t[0][2]])
-            .unwrap();
+        l.observe(
+            0,
+            &t[0],
+            &[0.9; 6],
+            &[t[0][0] + 0.05, t[0][1], t[0][2]],
+            None,
+        )
+        .unwrap();
         assert_eq!(l.set[0].radius, r0 * 0.5);
         let next = l.estimate(0, &t[0], true).unwrap();
         let from_good: f64 = next.iter().map(|v| (v - 0.5).powi(2)).sum::<f64>().sqrt();
@@ -678,7 +690,7 @@ mod tests {
         // Worse than the best again from there: the best was luck, so this try becomes the
         // base and a point is never stuck on one lucky sample.
         let stale = [t[0][0] + 0.012, t[0][1], t[0][2]];
-        l.observe(0, &t[0], &next, &stale).unwrap();
+        l.observe(0, &t[0], &next, &stale, None).unwrap();
         assert_eq!(l.set[0].best.unwrap().reached, stale);
         let after = l.estimate(0, &t[0], true).unwrap();
         let from_stale: f64 = (0..6)
@@ -698,18 +710,18 @@ mod tests {
         l.start_set(&t).unwrap();
         let a = [0.5; 6];
         assert_eq!(
-            l.observe(3, &t[0], &a, &t[0]).unwrap_err(),
+            l.observe(3, &t[0], &a, &t[0], None).unwrap_err(),
             OnlineError::PointOutOfRange {
                 point: 3,
                 points: 3
             }
         );
         assert!(matches!(
-            l.observe(0, &t[1], &a, &t[0]).unwrap_err(),
+            l.observe(0, &t[1], &a, &t[0], None).unwrap_err(),
             OnlineError::TargetMismatch { point: 0, .. }
         ));
         assert_eq!(
-            l.observe(0, &t[0], &a, &[f64::NAN; 3]).unwrap_err(),
+            l.observe(0, &t[0], &a, &[f64::NAN; 3], None).unwrap_err(),
             OnlineError::NotFinite
         );
         assert_eq!(l.refit_visits(), 0);
@@ -717,7 +729,7 @@ mod tests {
         assert_eq!(l.start_set(&[]).unwrap_err(), OnlineError::SetSize(0));
         // A learner that joined a running set learns the targets from the samples.
         l.begin(2).unwrap();
-        l.observe(1, &t[2], &a, &t[2]).unwrap();
-        assert!(l.observe(1, &t[0], &a, &t[0]).is_err());
+        l.observe(1, &t[2], &a, &t[2], None).unwrap();
+        assert!(l.observe(1, &t[0], &a, &t[0], None).is_err());
     }
 }
