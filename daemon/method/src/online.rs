@@ -17,7 +17,7 @@
 
 use std::collections::VecDeque;
 
-use nalgebra::{Matrix3, SMatrix, SVector, Vector3};
+use nalgebra::{Matrix3, SVector, Vector3};
 use serde::{Deserialize, Serialize};
 
 use crate::cacla::{CaclaMtl, Visit};
@@ -69,8 +69,6 @@ pub struct CorrectionConfig {
     pub refine_steps: usize,
     /// The refit uses the residuals of this many last visits.
     pub refit_visits: usize,
-    /// Ridge of the refit's slope B: keeps B zero along directions the visits do not span.
-    pub refit_ridge: f64,
     /// A point's Jacobian learns from a step only if the step was meant to move the end
     /// effector more than this (m, ‖J Δa‖): the noise of smaller moves would dominate.
     pub broyden_min_m: f64,
@@ -87,7 +85,6 @@ impl Default for CorrectionConfig {
             noise_m: 0.002,
             refine_steps: 10,
             refit_visits: 64,
-            refit_ridge: 0.01,
             broyden_min_m: 0.005,
         }
     }
@@ -105,7 +102,6 @@ impl CorrectionConfig {
             ("trust_max", self.trust_max, 0.0, 2.5),
             ("trust_min", self.trust_min, 0.0, 2.5),
             ("noise_m", self.noise_m, 0.0, 1.0),
-            ("refit_ridge", self.refit_ridge, 0.0, 1e6),
             ("broyden_min_m", self.broyden_min_m, 0.0, 1.0),
         ];
         for (k, v, lo, hi) in ranges {
@@ -185,68 +181,47 @@ struct Point {
     retry: bool,
 }
 
-/// The refitted forward model: the trained polynomial plus c + B (a − ā) fitted to the
-/// residuals p_reached − k(a) of the last visits.
+/// The online refit: what the trained polynomial k gets wrong about the arm as it is now, as
+/// the mean c of the residuals p_reached − k(a_measured) of the last visits. Only the offset: a
+/// slope fitted to a handful of clustered points extrapolates wildly (measured: a second set
+/// started 60 % worse with one), while a changed tool, creep or twist shifts the end effector
+/// alike over a region.
 struct Refit {
-    samples: VecDeque<(Actuation, Position)>,
-    centre: Actuation,
+    residuals: VecDeque<Vector3<f64>>,
     offset: Vector3<f64>,
-    slope: Jacobian,
 }
 
 impl Refit {
     fn new() -> Self {
         Self {
-            samples: VecDeque::new(),
-            centre: [0.5; ACTUATORS],
+            residuals: VecDeque::new(),
             offset: Vector3::zeros(),
-            slope: Jacobian::zeros(),
         }
     }
 
-    fn residual(&self, a: &Actuation) -> Vector3<f64> {
-        let x = SVector::<f64, ACTUATORS>::from_fn(|i, _| a[i] - self.centre[i]);
-        self.offset + self.slope * x
-    }
-
-    /// Adds one residual and fits c and B again (a 6 × 6 solve).
-    fn push(&mut self, a: Actuation, residual: Position, keep: usize, ridge: f64) {
-        while self.samples.len() >= keep {
-            self.samples.pop_front();
+    fn push(&mut self, residual: Vector3<f64>, keep: usize) {
+        while self.residuals.len() >= keep {
+            self.residuals.pop_front();
         }
-        self.samples.push_back((a, residual));
-        let n = self.samples.len() as f64;
-        self.centre = std::array::from_fn(|i| self.samples.iter().map(|s| s.0[i]).sum::<f64>() / n);
-        self.offset = Vector3::from_fn(|d, _| self.samples.iter().map(|s| s.1[d]).sum::<f64>() / n);
-        let mut xtx = SMatrix::<f64, ACTUATORS, ACTUATORS>::identity() * ridge;
-        let mut xtr = SMatrix::<f64, ACTUATORS, 3>::zeros();
-        for (a, r) in &self.samples {
-            let x = SVector::<f64, ACTUATORS>::from_fn(|i, _| a[i] - self.centre[i]);
-            let r = Vector3::from_fn(|d, _| r[d]) - self.offset;
-            xtx += x * x.transpose();
-            xtr += x * r.transpose();
-        }
-        if let Some(inv) = xtx.try_inverse() {
-            self.slope = (inv * xtr).transpose();
-        }
+        self.residuals.push_back(residual);
+        self.offset = self.residuals.iter().sum::<Vector3<f64>>() / self.residuals.len() as f64;
     }
 }
 
-/// The trained polynomial corrected by the refit: the model the corrections are steered by.
+/// The trained polynomial shifted by the refit: the model the corrections are steered by.
 struct Refitted<'a> {
     kinematics: &'a Polynomial,
-    refit: &'a Refit,
+    offset: Vector3<f64>,
 }
 
 impl ForwardModel for Refitted<'_> {
     fn position(&self, a: &Actuation) -> Position {
         let p = self.kinematics.position(a);
-        let r = self.refit.residual(a);
-        [p[0] + r[0], p[1] + r[1], p[2] + r[2]]
+        std::array::from_fn(|d| p[d] + self.offset[d])
     }
 
     fn jacobian(&self, a: &Actuation) -> Jacobian {
-        self.kinematics.jacobian(a) + self.refit.slope
+        self.kinematics.jacobian(a)
     }
 }
 
@@ -312,7 +287,7 @@ impl OnlineLearner {
 
     /// Visits the refit holds.
     pub fn refit_visits(&self) -> usize {
-        self.refit.samples.len()
+        self.refit.residuals.len()
     }
 
     /// Where the refitted model puts the end effector for `a`.
@@ -323,7 +298,7 @@ impl OnlineLearner {
     fn model(&self) -> Refitted<'_> {
         Refitted {
             kinematics: &self.kinematics,
-            refit: &self.refit,
+            offset: self.refit.offset,
         }
     }
 
@@ -470,8 +445,8 @@ impl OnlineLearner {
                 _ => *action,
             };
             let predicted = self.kinematics.position(&at);
-            let residual = std::array::from_fn(|d| reached[d] - predicted[d]);
-            self.refit.push(at, residual, c.refit_visits, c.refit_ridge);
+            let residual = Vector3::from_fn(|d, _| reached[d] - predicted[d]);
+            self.refit.push(residual, c.refit_visits);
         }
         Ok(self.cacla.observe(point, target, action, reached))
     }
@@ -662,7 +637,8 @@ mod tests {
             distance(&tool.position(&before), &other),
             distance(&tool.position(&after), &other),
         );
-        assert!(e1 < 0.5 * e0, "unadapted {e0} m, adapted {e1} m");
+        // The offset alone: a third of the longer tool's error goes (the rest turns with the tip).
+        assert!(e1 < 0.7 * e0, "unadapted {e0} m, adapted {e1} m");
     }
 
     #[test]
