@@ -459,7 +459,7 @@ mod tests {
             RbfNetwork::fit(&data.actuations, &data.positions, &config).unwrap()
         );
         let held_out: Vec<usize> = (0..data.actuations.len())
-            .filter(|i| data.demo[*i] % HOLD_OUT_EVERY == 0)
+            .filter(|i| data.demo[*i].is_multiple_of(HOLD_OUT_EVERY))
             .collect();
         assert_eq!(held.samples, held_out.len());
         assert!(held.mean_m > 0.0 && held.mean_m <= held.max_m, "{held:?}");
