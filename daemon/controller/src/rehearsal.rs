@@ -97,44 +97,73 @@ mod tests {
         v.iter().sum::<f64>() / v.len() as f64
     }
 
-    /// A quick model from the pipeline, the demo set, and per algorithm the mean error of each
-    /// of `executions` executions on `scenario`'s arm.
-    fn run(model: &Model, scenario: &str, algorithm: Algorithm, executions: u32) -> Vec<f64> {
+    const DEMO: &str = include_str!("../../../config/waypoints/demo.toml");
+    const SECOND: &str = include_str!("../../../config/waypoints/second.toml");
+
+    /// A learner for `model` with `algorithm` and a plant of `scenario`'s arm.
+    fn setup(model: &Model, scenario: &str, algorithm: Algorithm) -> (OnlineLearner, Plant) {
         let config = Config::default_sim(".".into());
         let (arm, sim) = Scenario::resolve(scenario)
             .unwrap()
             .apply(&config.arm, &config.sim)
             .unwrap();
-        let set = WaypointFile::parse(include_str!("../../../config/waypoints/demo.toml")).unwrap();
         let mut state = model.learner.clone();
         state.config = LearnerConfig {
             algorithm,
             ..config.learner
         };
-        let mut learner =
+        let learner =
             OnlineLearner::new(CaclaMtl::restore(&state).unwrap(), model.kinematics.clone());
-        let mut plant = Plant::new(arm, sim.realism, sim.initial_actuation).unwrap();
-        rehearse(model, &config, &set, executions, &mut learner, &mut plant)
+        let plant = Plant::new(arm, sim.realism, sim.initial_actuation).unwrap();
+        (learner, plant)
+    }
+
+    /// The mean error of each of `executions` executions of `set`.
+    fn means(
+        model: &Model,
+        set: &str,
+        executions: u32,
+        learner: &mut OnlineLearner,
+        plant: &mut Plant,
+    ) -> Vec<f64> {
+        let config = Config::default_sim(".".into());
+        let set = WaypointFile::parse(set).unwrap();
+        rehearse(model, &config, &set, executions, learner, plant)
             .unwrap()
             .iter()
             .map(|e| mean(e))
             .collect()
     }
 
-    #[test]
-    fn softarm_adapts_to_a_changed_arm_where_the_paper_does_not() {
-        let dir = std::env::temp_dir().join(format!("softarm-rehearsal-{}", std::process::id()));
+    /// A quick model from the pipeline, the demo set, and per algorithm the mean error of each
+    /// of `executions` executions on `scenario`'s arm.
+    fn run(model: &Model, scenario: &str, algorithm: Algorithm, executions: u32) -> Vec<f64> {
+        let (mut learner, mut plant) = setup(model, scenario, algorithm);
+        means(model, DEMO, executions, &mut learner, &mut plant)
+    }
+
+    fn quick() -> Model {
+        let dir = std::env::temp_dir().join(format!(
+            "softarm-rehearsal-{}-{:?}",
+            std::process::id(),
+            std::thread::current().id()
+        ));
         softarm_test_support::model::quick_model(&dir);
         let model = Model::read(&dir).unwrap();
         let _ = std::fs::remove_dir_all(&dir);
+        model
+    }
+
+    fn mm(v: &[f64]) -> Vec<String> {
+        v.iter().map(|e| format!("{:.1}", e * 1e3)).collect()
+    }
+
+    #[test]
+    fn softarm_adapts_to_a_changed_arm_where_the_paper_does_not() {
+        let model = quick();
         for scenario in ["tool-change", "creep"] {
             let ours = run(&model, scenario, Algorithm::Softarm, 8);
             let paper = run(&model, scenario, Algorithm::Paper, 8);
-            let mm = |v: &[f64]| {
-                v.iter()
-                    .map(|e| format!("{:.1}", e * 1e3))
-                    .collect::<Vec<_>>()
-            };
             eprintln!(
                 "{scenario}: softarm {:?}, paper {:?}",
                 mm(&ours),
@@ -157,5 +186,26 @@ mod tests {
                 mm(&paper)
             );
         }
+    }
+
+    #[test]
+    fn what_the_demo_set_taught_carries_over_to_a_second_set() {
+        let model = quick();
+        let (mut learner, mut plant) = setup(&model, "tool-change", Algorithm::Softarm);
+        let demo = means(&model, DEMO, 8, &mut learner, &mut plant);
+        let adapted = means(&model, SECOND, 1, &mut learner, &mut plant)[0];
+        let (mut fresh, mut plant) = setup(&model, "tool-change", Algorithm::Softarm);
+        let unadapted = means(&model, SECOND, 1, &mut fresh, &mut plant)[0];
+        eprintln!(
+            "demo set {:?} mm; second set: adapted {:.1} mm, unadapted {:.1} mm",
+            mm(&demo),
+            adapted * 1e3,
+            unadapted * 1e3
+        );
+        assert!(unadapted > 0.01, "the longer tool is felt: {unadapted} m");
+        assert!(
+            adapted <= 0.5 * unadapted,
+            "second set: adapted {adapted} m, unadapted {unadapted} m"
+        );
     }
 }
