@@ -191,8 +191,8 @@ struct Point {
     /// The trust region's radius (‖Δa‖).
     radius: f64,
     /// The point's own Jacobian: the model's at its first correction, then Broyden-updated
-    /// from what each step really did.
-    jacobian: Option<Jacobian>,
+    /// from what each step really did, with its singular values kept at or above the second.
+    jacobian: Option<(Jacobian, f64)>,
     /// The systematic error p_d − p at the last try and its variance (m²): a Kalman filter
     /// over the executions, so a correction follows the arm, not one noisy tracker sample.
     bias: Option<(Vector3<f64>, f64)>,
@@ -261,10 +261,15 @@ impl Transfer {
             }
         }
         let n = self.points.len();
-        self.mean = std::array::from_fn(|i| self.points.iter().map(|p| p.1[i]).sum::<f64>() / n as f64);
+        self.mean =
+            std::array::from_fn(|i| self.points.iter().map(|p| p.1[i]).sum::<f64>() / n as f64);
         let k = DMatrix::from_fn(n, n, |i, j| {
             Self::kernel(c, &self.points[i].0, &self.points[j].0)
-                + if i == j { c.transfer_noise.powi(2) } else { 0.0 }
+                + if i == j {
+                    c.transfer_noise.powi(2)
+                } else {
+                    0.0
+                }
         });
         let r = DMatrix::from_fn(n, ACTUATORS, |i, d| self.points[i].1[d] - self.mean[d]);
         // K + σ_n² I is positive definite; should rounding say otherwise, the mean alone.
@@ -322,6 +327,22 @@ fn correction(
         step *= radius / norm;
     }
     std::array::from_fn(|i| step[i])
+}
+
+/// How far Broyden updates may shrink a point's Jacobian, as a fraction of the model's smallest
+/// singular value there. A step that moved the arm less than predicted (lag, backlash, noise)
+/// shrinks J along it, and J⁺ then turns a millimetre of error into a large step: measured with
+/// a 30 mm longer tool, a 1.7 mm error became a 0.13 step and a 17 mm error.
+const JACOBIAN_FLOOR: f64 = 0.5;
+
+/// `j` with its singular values raised to at least `floor`.
+fn with_singular_values_at_least(j: &Jacobian, floor: f64) -> Jacobian {
+    let mut svd = j.svd(true, true);
+    if svd.singular_values.min() >= floor {
+        return *j;
+    }
+    svd.singular_values.apply(|v| *v = v.max(floor));
+    svd.recompose().unwrap_or(*j)
 }
 
 /// a − b.
@@ -466,13 +487,14 @@ impl OnlineLearner {
         if softarm {
             // Broyden: J += (Δp − J Δa) Δaᵀ / ‖Δa‖², from a step large enough to stand out of
             // the noise. It learns what the model gets wrong about this arm at this point.
-            if let (Some(last), Some(j)) = (p.last, p.jacobian.as_mut()) {
+            if let (Some(last), Some((j, floor))) = (p.last, p.jacobian.as_mut()) {
                 let da = SVector::<f64, ACTUATORS>::from_fn(|i, _| action[i] - last.action[i]);
                 let dp = Vector3::from_fn(|d, _| reached[d] - last.reached[d]);
                 // Judged by what the step was meant to do: a tiny step whose Δp is mostly
                 // noise would teach J a huge slope.
                 if (*j * da).norm() > c.broyden_min_m {
                     *j += (dp - *j * da) * da.transpose() / da.norm_squared();
+                    *j = with_singular_values_at_least(j, *floor);
                 }
             }
             // Predict the error from the last try and the step since (J Δa), then weigh in the
@@ -480,7 +502,7 @@ impl OnlineLearner {
             let observed = error_vector(target, reached);
             let r = c.noise_m * c.noise_m;
             p.bias = Some(match (p.bias, p.last, p.jacobian) {
-                (Some((bias, var)), Some(last), Some(j)) => {
+                (Some((bias, var)), Some(last), Some((j, _))) => {
                     let da = SVector::<f64, ACTUATORS>::from_fn(|i, _| action[i] - last.action[i]);
                     let moved = j * da;
                     let predicted = bias - moved;
@@ -513,8 +535,7 @@ impl OnlineLearner {
             // What this point needed beyond the trained model, for the sets to come. Unknown
             // for a point whose first estimate this learner did not make (it restarted).
             if let (Some(model), Some(best)) = (p.model, p.best) {
-                self.transfer
-                    .set(&c, target, minus(&best.measured, &model));
+                self.transfer.set(&c, target, minus(&best.measured, &model));
             }
         }
         Ok(self.cacla.observe(point, target, action, reached))
@@ -542,10 +563,11 @@ impl OnlineLearner {
                 best
             };
             let j = match p.jacobian {
-                Some(j) => j,
+                Some((j, _)) => j,
                 None => {
                     let j = self.kinematics.jacobian(&base.action);
-                    self.set[point].jacobian = Some(j);
+                    let floor = JACOBIAN_FLOOR * j.singular_values().min();
+                    self.set[point].jacobian = Some((j, floor));
                     j
                 }
             };
@@ -556,7 +578,9 @@ impl OnlineLearner {
             };
             // Back toward the point's first estimate in the null space: steps that wander
             // along directions that do not move the end effector lead where no model is right.
-            let home = p.first.map_or([0.0; ACTUATORS], |f| minus(&f, &base.action));
+            let home = p
+                .first
+                .map_or([0.0; ACTUATORS], |f| minus(&f, &base.action));
             let step = correction(&j, &e, &home, c.gain, &c, p.radius);
             return Ok(plus(&base.action, &step));
         }
@@ -765,6 +789,24 @@ mod tests {
             from_stale > 0.0 && from_stale <= r0 * 0.25 + 1e-12,
             "{after:?}"
         );
+    }
+
+    #[test]
+    fn a_jacobian_never_shrinks_below_its_floor() {
+        let j = ArmGeometry::default().jacobian(&[0.5; 6]);
+        let sv = j.singular_values();
+        // Already above: untouched.
+        assert_eq!(with_singular_values_at_least(&j, 0.5 * sv.min()), j);
+        // Broyden updates that saw steps move the arm less than predicted flatten J...
+        let mut svd = j.svd(true, true);
+        let smallest = svd.singular_values.imin();
+        svd.singular_values[smallest] = 0.0;
+        let flat = svd.recompose().unwrap();
+        assert!(flat.singular_values().min() < 1e-9);
+        // ...and the floor restores it, leaving the other directions as they were.
+        let fixed = with_singular_values_at_least(&flat, 0.5 * sv.min());
+        assert!((fixed.singular_values().min() - 0.5 * sv.min()).abs() < 1e-12);
+        assert!((fixed.singular_values().max() - flat.singular_values().max()).abs() < 1e-12);
     }
 
     #[test]
