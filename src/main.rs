@@ -10,12 +10,17 @@ use anyhow::{Context, anyhow};
 use clap::{Parser, Subcommand};
 use softarm_clients::{estop, stats, status, submit, train};
 use softarm_ipc::Namespace;
-use softarm_model::config::Config;
+use softarm_model::config::{Config, ConfigError};
 use softarm_model::scenario::Scenario;
 
 mod bench;
 mod demo;
+mod install;
 mod up;
+
+/// Exit code of a process whose config is refused (EX_CONFIG of sysexits.h): starting it again
+/// cannot help, so the systemd units list it in `RestartPreventExitStatus=`.
+const EXIT_CONFIG: u8 = 78;
 
 /// Task-driven skill learning for a two-module soft continuum arm: ProMPs blended by the paper's
 /// Eq. 11, conditioning points learned online by CACLA-MTL.
@@ -124,7 +129,8 @@ enum Command {
         #[command(flatten)]
         stack: Stack,
     },
-    /// Which processes are alive, the controller's state, tick timing, data ages.
+    /// Which processes are alive, the controller's state, tick timing, data ages; exits with
+    /// 3 when the stack is not running.
     Status {
         #[arg(long)]
         json: bool,
@@ -145,6 +151,10 @@ enum Command {
     },
     /// Times the controller's hot paths on this machine (min / p50 / p99 / p99.9 / max).
     Bench(bench::Args),
+    /// Installs the stack as systemd services: binary, config, state folder, units, user.
+    Install(install::Args),
+    /// Removes the units and the binary; keeps the config, the state and the user.
+    Uninstall(install::UninstallArgs),
 }
 
 #[derive(Subcommand)]
@@ -203,7 +213,13 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 }
                 None => (c.arm, c.sim),
             };
-            softarm_sim::run(&sim, &arm, Namespace::new(&c.namespace())?, &*stop_flag()?)?
+            softarm_sim::run(
+                &sim,
+                &arm,
+                Namespace::new(&c.namespace())?,
+                &c.estop_latch(),
+                &*stop_flag()?,
+            )?
         }
         Command::Train { stack, seed } => {
             let config = stack.load()?;
@@ -305,9 +321,15 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             } else {
                 print!("{}", status::text(&r));
             }
+            if !r.running() {
+                // As `systemctl status` does for a unit that is not active: scripts and health
+                // checks can use the exit code alone.
+                return Ok(ExitCode::from(status::NOT_RUNNING));
+            }
         }
         Command::Estop { reset, stack } => {
-            let n = estop::send(&stack.namespace()?, !reset)?;
+            let c = stack.load()?;
+            let n = estop::send(&Namespace::new(&c.namespace())?, &c.estop_latch(), !reset)?;
             println!(
                 "e-stop {} ({n} receivers)",
                 if reset { "released" } else { "engaged" }
@@ -321,6 +343,8 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             ConfigCommand::Default => print!("{}", softarm_model::config::DEFAULT),
         },
         Command::Bench(args) => bench::run(&args)?,
+        Command::Install(args) => install::install(&args)?,
+        Command::Uninstall(args) => install::uninstall(&args)?,
     }
     Ok(ExitCode::SUCCESS)
 }
@@ -337,7 +361,11 @@ fn main() -> ExitCode {
         Ok(code) => code,
         Err(e) => {
             eprintln!("softarm: {e:#}");
-            ExitCode::FAILURE
+            if e.chain().any(|c| c.is::<ConfigError>()) {
+                ExitCode::from(EXIT_CONFIG)
+            } else {
+                ExitCode::FAILURE
+            }
         }
     }
 }

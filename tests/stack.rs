@@ -137,11 +137,20 @@ fn stopping_up_leaves_no_process_behind() {
     let children = s.children();
     let roles: Vec<&str> = children.iter().map(|c| c.0.as_str()).collect();
     assert_eq!(roles, vec!["controller", "learner", "sim"], "{children:?}");
+    let out = s.run(&["status"]);
+    assert_eq!(out.status.code(), Some(0), "running: {out:?}");
     let status = s.stop().unwrap();
     assert!(status.success(), "{status:?}");
     for (role, pid) in children {
         assert!(!alive(pid), "{role} ({pid}) survived");
     }
+    // As `systemctl status` does: not running, exit code 3, for scripts and health checks.
+    let out = s.run(&["status"]);
+    assert_eq!(out.status.code(), Some(3), "stopped: {out:?}");
+    assert!(
+        String::from_utf8_lossy(&out.stdout).contains("not running?"),
+        "{out:?}"
+    );
 }
 
 #[test]
@@ -244,11 +253,20 @@ fn config_check_names_the_key_and_line() {
         .position(|l| l.starts_with("rate_hz = 5000.0"))
         .unwrap()
         + 1;
-    assert_eq!(out.status.code(), Some(1));
+    // EX_CONFIG: the units do not restart a process whose config is refused.
+    assert_eq!(out.status.code(), Some(78));
     assert!(
         err.contains(&format!("bad.toml:{line}: controller.rate_hz")),
         "{err}"
     );
+    let out = s
+        .command()
+        .arg("controller")
+        .arg("--config")
+        .arg(&bad)
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(78), "{out:?}");
     let out = s
         .command()
         .args(["config", "check"])
@@ -274,7 +292,7 @@ fn a_bad_scenario_is_refused_before_anything_starts() {
             .output()
             .unwrap();
         let err = String::from_utf8_lossy(&out.stderr);
-        assert_eq!(out.status.code(), Some(1), "{role}: {err}");
+        assert_eq!(out.status.code(), Some(78), "{role}: {err}");
         assert!(
             err.contains("bad-scenario.toml:4: arm.tool_mm: unknown key"),
             "{role}: {err}"
@@ -287,7 +305,7 @@ fn a_bad_scenario_is_refused_before_anything_starts() {
         .output()
         .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert_eq!(out.status.code(), Some(78), "{err}");
     assert!(err.contains("tool-change"), "names the shipped ones: {err}");
     // Nothing was started: no node of this namespace is alive.
     assert!(

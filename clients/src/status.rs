@@ -11,6 +11,16 @@ pub struct Report {
     pub controller: Option<ControllerStatus>,
 }
 
+/// `softarm status`'s exit code when the stack is not running (`systemctl status` uses 3 too).
+pub const NOT_RUNNING: u8 = 3;
+
+impl Report {
+    /// The controller is alive and publishing its status.
+    pub fn running(&self) -> bool {
+        self.controller.is_some() && self.alive.iter().any(|n| n == "controller")
+    }
+}
+
 /// Looks at a namespace: the node list and the newest controller status (waiting up to
 /// `timeout` for it).
 pub fn status(namespace: &Namespace, timeout: Duration) -> Result<Report, softarm_ipc::Error> {

@@ -18,7 +18,9 @@ pub use softarm_method::space::{ACTUATORS, Actuation, MAX_WAYPOINTS, Position};
 pub const MAX_REASON: usize = 200;
 
 pub mod clock;
+pub mod latch;
 pub use clock::now_ns;
+pub use latch::EstopLatch;
 
 /// What the controller is doing.
 #[repr(u32)]
@@ -83,14 +85,19 @@ pub struct TrackerSample {
     pub position: Position,
 }
 
-/// What the actuators actually reached, normalised.
+/// What the actuators actually reached, normalised, and whether the driver holds them on a
+/// latched e-stop.
 #[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
-#[type_name("softarm::MotorState")]
+// v2: `stopped` added, so a peer built before cannot connect and misread it.
+#[type_name("softarm::MotorState.v2")]
 #[repr(C)]
 pub struct MotorState {
     pub seq: u64,
     pub stamp_ns: u64,
     pub actuation: Actuation,
+    /// 1 while the driver ignores setpoints because the e-stop is latched.
+    pub stopped: u32,
+    pub _pad: u32,
 }
 
 /// Sent by the controller at each conditioning point: what was executed there and where the end

@@ -73,14 +73,6 @@ impl Execution {
         self.set.engine.held_solves()
     }
 
-    /// Starts the current execution over (after an e-stop).
-    pub(crate) fn restart(&mut self, rest_ticks: i64) {
-        if self.k >= 0 {
-            self.k = -rest_ticks;
-            self.next_point = 0;
-        }
-    }
-
     /// Whether it is between executions, where the set may end or give way to the next.
     pub(crate) fn at_boundary(&self, rest_ticks: i64) -> bool {
         self.k == -rest_ticks
@@ -357,25 +349,5 @@ pub(crate) mod tests {
             "each point at the first tick played at or after its own"
         );
         assert_eq!(stats, [(216, 1), (217 + REST as u64 + 200, 2)]);
-    }
-
-    #[test]
-    fn a_restart_begins_the_execution_again_from_its_rest() {
-        let mut x = Execution::new(ready_set(), REST);
-        x.step(None, REST, 0, 0);
-        x.restart(REST);
-        assert!(!x.at_boundary(REST), "resting: a restart changes nothing");
-        for n in 1..REST as u64 + 60 {
-            x.step(None, REST, n, 0);
-        }
-        x.restart(REST);
-        assert!(x.at_boundary(REST));
-        assert_eq!(x.execution(), 1);
-        // The first point is sampled again, with no position: NaN reached, NaN error.
-        let first = (0..1000)
-            .find_map(|n| x.step(None, REST, n, 0).point)
-            .expect("the first point again");
-        assert_eq!((first.execution, first.point), (1, 0));
-        assert!(first.reached[0].is_nan());
     }
 }

@@ -1,10 +1,13 @@
 //! Real-time set-up of the tick thread (locked memory, a pinned CPU, SCHED_FIFO), each refused
 //! one a warning, and systemd's notifications: READY once the tick runs (sent by the service
-//! thread), WATCHDOG while it does.
+//! thread), WATCHDOG while it does, STATUS with its state.
 
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
 use std::thread::JoinHandle;
+use std::time::Duration;
+
+use softarm_ipc::ControllerState;
 
 use softarm_model::config::Controller;
 
@@ -47,9 +50,16 @@ pub(crate) fn notify_ready() {
     let _ = sd_notify::notify(&[sd_notify::NotifyState::Ready]);
 }
 
-/// WATCHDOG=1 to systemd only while the tick's heartbeat advances.
+/// How often STATUS= is refreshed when the watchdog does not ask for more.
+const STATUS_EVERY: Duration = Duration::from_secs(1);
+
+/// Under systemd (NOTIFY_SOCKET set), a low-priority thread that sends WATCHDOG=1 only while
+/// the tick's heartbeat advances (a frozen loop gets the controller killed and restarted), and
+/// STATUS= with the state and tick count.
 pub(crate) fn start_watchdog(shared: Arc<Shared>) -> Option<JoinHandle<()>> {
-    let period = sd_notify::watchdog_enabled()? / 2;
+    std::env::var_os("NOTIFY_SOCKET")?;
+    let watchdog = sd_notify::watchdog_enabled();
+    let period = watchdog.map_or(STATUS_EVERY, |w| (w / 2).min(STATUS_EVERY));
     std::thread::Builder::new()
         .name("controller-watchdog".into())
         .spawn(move || {
@@ -57,11 +67,34 @@ pub(crate) fn start_watchdog(shared: Arc<Shared>) -> Option<JoinHandle<()>> {
             loop {
                 std::thread::sleep(period);
                 let beat = shared.heartbeat.load(Ordering::Relaxed);
-                if beat != last {
+                let state = ControllerState::from_u32(shared.state.load(Ordering::Relaxed))
+                    .map_or("?", |s| s.name());
+                let status = if beat == last {
+                    format!("{state}, tick stalled at {beat}")
+                } else {
+                    format!("{state}, {beat} ticks")
+                };
+                let _ = sd_notify::notify(&[sd_notify::NotifyState::Status(&status)]);
+                if beat != last && watchdog.is_some() {
                     let _ = sd_notify::notify(&[sd_notify::NotifyState::Watchdog]);
                 }
                 last = beat;
             }
         })
         .ok()
+}
+
+/// Tests only (debug builds): `SOFTARM_TEST_STALL_AFTER_TICKS=N` freezes the tick thread after
+/// N ticks while the rest of the process runs, as a deadlocked or starved loop would.
+#[cfg(debug_assertions)]
+pub(crate) fn stall_after() -> Option<u64> {
+    std::env::var("SOFTARM_TEST_STALL_AFTER_TICKS")
+        .ok()?
+        .parse()
+        .ok()
+}
+
+#[cfg(not(debug_assertions))]
+pub(crate) fn stall_after() -> Option<u64> {
+    None
 }

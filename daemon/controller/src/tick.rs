@@ -38,12 +38,27 @@ pub(crate) fn run(
     links: Links,
     stop: &AtomicBool,
 ) -> anyhow::Result<()> {
-    let ports = Inputs::open(namespace).context("opening the tick's subscribers")?;
+    let latch = config.estop_latch();
+    let engaged = latch.engaged_or_safe(|e| tracing::error!("{e}; starting STOPPED"));
+    if engaged {
+        tracing::warn!(
+            "the e-stop is latched ({}): STOPPED until `softarm estop --reset`",
+            latch.path().display()
+        );
+    }
+    let ports = Inputs::open(namespace, engaged).context("opening the tick's subscribers")?;
     rt::setup(&config.controller);
     let mut tick = Tick::new(&config.controller, ports, shared, links);
     tracing::info!(rate_hz = tick.timing.rate_hz, "controller running");
+    let stall = rt::stall_after();
     while !stop.load(Ordering::Relaxed) {
         tick.tick();
+        if stall == Some(tick.count.ticks) {
+            // Tests only (debug builds): the loop freezes, the process lives on.
+            while !stop.load(Ordering::Relaxed) {
+                std::thread::park_timeout(std::time::Duration::from_millis(100));
+            }
+        }
     }
     tracing::info!(
         overruns = tick.ticker.overruns(),
@@ -98,7 +113,8 @@ struct Inputs {
 }
 
 impl Inputs {
-    fn open(namespace: Namespace) -> Result<Self, softarm_ipc::Error> {
+    /// `engaged`: the e-stop latch as the process found it on disk.
+    fn open(namespace: Namespace, engaged: bool) -> Result<Self, softarm_ipc::Error> {
         let node = Node::open(namespace, "controller")?;
         Ok(Self {
             tracker: node.subscriber(&node.tracker()?)?,
@@ -106,7 +122,7 @@ impl Inputs {
             estop: node.subscriber(&node.estop()?)?,
             position: None,
             measured: None,
-            engaged: false,
+            engaged,
             _node: node,
         })
     }
@@ -182,9 +198,6 @@ struct Tick<'a> {
     /// The next set, waiting for the running one's execution to end.
     queued: Option<Box<ReadySet>>,
     was_safe: bool,
-    /// Whether the unsafe spell now ending included an e-stop (restart) or only stale data
-    /// (resume where the execution paused).
-    stopped_while_unsafe: bool,
     /// Periods the clock skipped before this tick (overruns): a playing execution follows.
     skipped: u64,
     count: Counts,
@@ -205,7 +218,6 @@ impl<'a> Tick<'a> {
             mode: Mode::Idle,
             queued: None,
             was_safe: false,
-            stopped_while_unsafe: false,
             skipped: 0,
             count: Counts::default(),
         }
@@ -218,6 +230,9 @@ impl<'a> Tick<'a> {
         self.links.outbox.flush();
         self.inputs.read();
         self.take_plan();
+        if self.inputs.engaged {
+            self.abandon();
+        }
         self.start_limiter();
         let health = self.health(now);
         let state = self.decide_state(&health);
@@ -231,7 +246,6 @@ impl<'a> Tick<'a> {
             self.publish(state, now, setpoint, step);
         }
         self.was_safe = health.safe;
-        self.stopped_while_unsafe |= self.inputs.engaged;
         self.end_at_boundary();
         if self.count.ticks.is_multiple_of(self.timing.status_every) {
             self.publish_status(state, now, &health);
@@ -332,18 +346,31 @@ impl<'a> Tick<'a> {
         }
     }
 
-    /// Safe again after HOLD or STOPPED: start from the measured state, never jumping; after an
-    /// e-stop the execution starts over from its rest phase.
+    /// Safe again after HOLD or STOPPED: start from the measured state, never jumping. After
+    /// HOLD the execution resumes where it paused; after an e-stop there is none ([`abandon`]).
+    ///
+    /// [`abandon`]: Self::abandon
     fn resume(&mut self) {
         if let (Some(lim), Some((m, _))) = (self.limiter.as_mut(), self.inputs.measured) {
             lim.reset(m);
         }
-        if let Mode::Execute(x) = &mut self.mode
-            && self.stopped_while_unsafe
-        {
-            x.restart(self.timing.rest_ticks);
+    }
+
+    /// E-stop: the running and the queued set, or the demonstrations, are dropped, so a reset
+    /// never sets the arm moving by itself: the next motion needs a new submit. The execution
+    /// under way publishes no statistics (it did not finish).
+    fn abandon(&mut self) {
+        match std::mem::replace(&mut self.mode, Mode::Idle) {
+            Mode::Execute(x) => {
+                self.count.held_solves += x.held_solves();
+                self.retire(Retired::Set(x.into_set()));
+            }
+            Mode::Demonstrate(d) => self.retire(Retired::Demo(d.into_sequences())),
+            Mode::Idle => {}
         }
-        self.stopped_while_unsafe = false;
+        if let Some(set) = self.queued.take() {
+            self.retire(Retired::Set(set));
+        }
     }
 
     /// The mode's target for this tick; unsafe, the mode pauses and the setpoint holds.

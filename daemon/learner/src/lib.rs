@@ -180,10 +180,31 @@ pub fn run(config: &Config, stop: &AtomicBool) -> anyhow::Result<()> {
     let mut warned = false;
     let mut set_id = 0u64;
     let mut inbox: Vec<Incoming> = Vec::new();
+    // Under systemd: READY=1 now that every port is open (a model may still be missing: then
+    // the learner waits for one, and says so in STATUS=); WATCHDOG=1 while this loop turns.
+    let _ = sd_notify::notify(&[sd_notify::NotifyState::Ready]);
+    let mut watchdog = sd_notify::watchdog_enabled().map(|w| (w / 2, std::time::Instant::now()));
+    let mut told = None;
     while !stop.load(Ordering::Relaxed) {
         // An estimate is needed before the next group fades in (at least window_s / 2 after the
         // point): 2 ms is plenty.
         std::thread::sleep(Duration::from_millis(2));
+        if let Some((every, last)) = watchdog.as_mut()
+            && last.elapsed() >= *every
+        {
+            *last = std::time::Instant::now();
+            let _ = sd_notify::notify(&[sd_notify::NotifyState::Watchdog]);
+        }
+        let state = (loaded.is_some(), set_id);
+        if told != Some(state) {
+            told = Some(state);
+            let status = match state {
+                (false, _) => "waiting for a model bundle (softarm train)".to_string(),
+                (true, 0) => "model loaded, no way-point set".to_string(),
+                (true, id) => format!("learning on set {id}"),
+            };
+            let _ = sd_notify::notify(&[sd_notify::NotifyState::Status(&status)]);
+        }
         // A new bundle (after `softarm train`) replaces what the learner had.
         if watch.changed() {
             match load(config) {

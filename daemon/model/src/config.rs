@@ -211,6 +211,11 @@ impl Config {
         self.base_dir.join(&self.state.dir)
     }
 
+    /// The e-stop latch of this stack: in the state folder, so it outlives every process.
+    pub fn estop_latch(&self) -> softarm_ipc::EstopLatch {
+        softarm_ipc::EstopLatch::new(self.state_dir().join("estop"))
+    }
+
     /// Checks every value of every section. The error is the exact dotted key (array elements
     /// as `[i]`) and a message that does not repeat it.
     fn validate(&self) -> Result<(), Invalid> {

@@ -7,16 +7,18 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use anyhow::Context;
 
 use softarm_ipc::clock::Ticker;
-use softarm_ipc::{MotorState, Namespace, Node, TrackerSample, now_ns};
+use softarm_ipc::{EstopLatch, MotorState, Namespace, Node, TrackerSample, now_ns};
 
 use softarm_method::pcc::ArmGeometry;
 use softarm_method::plant::{Plant, SimConfig};
 
-/// Runs the simulated arm until `stop` is set.
+/// Runs the simulated arm until `stop` is set; starts stopped if `latch` says the e-stop is
+/// engaged.
 pub fn run(
     config: &SimConfig,
     arm: &ArmGeometry,
     namespace: Namespace,
+    latch: &EstopLatch,
     stop: &AtomicBool,
 ) -> anyhow::Result<()> {
     let mut plant = Plant::new(*arm, config.realism, config.initial_actuation)
@@ -30,7 +32,13 @@ pub fn run(
 
     let dt = 1.0 / config.rate_hz;
     let mut command = config.initial_actuation;
-    let mut stopped = false;
+    let mut stopped = latch.engaged_or_safe(|e| tracing::error!("{e}; holding the motors"));
+    if stopped {
+        tracing::warn!(
+            "the e-stop is latched ({}): holding the motors until `softarm estop --reset`",
+            latch.path().display()
+        );
+    }
     let mut seq = 0u64;
     let mut ticker = Ticker::new(config.rate_hz);
     tracing::info!(rate_hz = config.rate_hz, "sim running");
@@ -53,6 +61,8 @@ pub fn run(
             seq,
             stamp_ns,
             actuation: m.actuation,
+            stopped: stopped as u32,
+            _pad: 0,
         });
         let _ = tracker.send_copy(TrackerSample {
             seq,

@@ -1,0 +1,399 @@
+//! `softarm install` / `softarm uninstall`: the stack as a system service. The binary, a config
+//! in /etc/softarm (never overwriting an edited one), the state folder, the systemd units
+//! (`systemd/` of the repository, built in), the `softarm` user and group, and a reload of
+//! systemd. `--dry-run` prints each step and does nothing; `--root DIR` stages everything under
+//! DIR, as DESTDIR does for packagers, and leaves the running system alone.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use anyhow::{Context, bail};
+use softarm_model::config::{Config, DEFAULT};
+
+const USER: &str = "softarm";
+const ETC: &str = "etc/softarm";
+const STATE: &str = "var/lib/softarm";
+const UNITS: &str = "etc/systemd/system";
+/// Where the units in the repository start the binary; `--prefix` rewrites it.
+const UNIT_BINARY: &str = "/usr/local/bin/softarm";
+
+/// The units, as in `systemd/`.
+const UNIT_FILES: [(&str, &str); 4] = [
+    (
+        "softarm-controller.service",
+        include_str!("../systemd/softarm-controller.service"),
+    ),
+    (
+        "softarm-learner.service",
+        include_str!("../systemd/softarm-learner.service"),
+    ),
+    (
+        "softarm-driver@.service",
+        include_str!("../systemd/softarm-driver@.service"),
+    ),
+    ("softarm.target", include_str!("../systemd/softarm.target")),
+];
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// The binary goes to PREFIX/bin/softarm, and the units start it from there.
+    #[arg(long, default_value = "/usr/local")]
+    prefix: PathBuf,
+    /// Stages the install under this folder and leaves the running system alone: no user is
+    /// created and systemd is not reloaded.
+    #[arg(long, value_name = "DIR")]
+    root: Option<PathBuf>,
+    /// Prints each step without doing it.
+    #[arg(long)]
+    dry_run: bool,
+    /// The config to install (default: the embedded simulation config).
+    #[arg(long, value_name = "FILE")]
+    config: Option<PathBuf>,
+}
+
+#[derive(clap::Args)]
+pub struct UninstallArgs {
+    /// Where `install` put the binary.
+    #[arg(long, default_value = "/usr/local")]
+    prefix: PathBuf,
+    /// Where `install --root` staged it.
+    #[arg(long, value_name = "DIR")]
+    root: Option<PathBuf>,
+    /// Prints each step without doing it.
+    #[arg(long)]
+    dry_run: bool,
+}
+
+/// One thing an install or uninstall does; printed before it is done.
+enum Step {
+    CreateUser,
+    Write {
+        path: PathBuf,
+        text: Vec<u8>,
+        mode: u32,
+    },
+    /// The config: written if absent, left alone if it is what we ship, else the shipped one
+    /// goes beside it as `.new`.
+    Config {
+        path: PathBuf,
+        text: String,
+    },
+    StateDir(PathBuf),
+    Remove(PathBuf),
+    Systemctl(&'static [&'static str]),
+    /// A systemctl call whose failure is reported, not fatal (stopping what may not run).
+    SystemctlIfAny(&'static [&'static str]),
+    Skip(String),
+}
+
+impl Step {
+    fn describe(&self) -> String {
+        match self {
+            Step::CreateUser => format!(
+                "create the system user and group `{USER}` (home /{STATE}, no login) unless they exist"
+            ),
+            Step::Write { path, mode, .. } => format!("write {} (mode {mode:o})", path.display()),
+            Step::Config { path, .. } => format!(
+                "write the config {} unless it exists (an edited one is kept; the shipped one goes beside it as softarm.toml.new)",
+                path.display()
+            ),
+            Step::StateDir(p) => format!(
+                "create {} (models, checkpoints, the e-stop latch), owned by {USER}:{USER}, mode 770",
+                p.display()
+            ),
+            Step::Remove(p) => format!("remove {}", p.display()),
+            Step::Systemctl(args) | Step::SystemctlIfAny(args) => {
+                format!("systemctl {}", args.join(" "))
+            }
+            Step::Skip(why) => format!("skip: {why}"),
+        }
+    }
+
+    fn run(&self, system: bool) -> anyhow::Result<String> {
+        match self {
+            Step::CreateUser => {
+                let exists = Command::new("getent")
+                    .args(["passwd", USER])
+                    .output()
+                    .is_ok_and(|o| o.status.success());
+                if exists {
+                    return Ok("exists".into());
+                }
+                let home = format!("/{STATE}");
+                run_command(
+                    "useradd",
+                    &[
+                        "--system",
+                        "--user-group",
+                        "--home-dir",
+                        &home,
+                        "--no-create-home",
+                        "--shell",
+                        "/usr/sbin/nologin",
+                        USER,
+                    ],
+                )?;
+                Ok("created".into())
+            }
+            Step::Write { path, text, mode } => {
+                write_atomic(path, text, *mode)?;
+                Ok("done".into())
+            }
+            Step::Config { path, text } => match std::fs::read_to_string(path) {
+                Ok(old) if old == *text => Ok("unchanged".into()),
+                Ok(_) => {
+                    let new = path.with_extension("toml.new");
+                    write_atomic(&new, text.as_bytes(), 0o640)?;
+                    Ok(format!(
+                        "kept your edited config; the shipped one is {}",
+                        new.display()
+                    ))
+                }
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+                    write_atomic(path, text.as_bytes(), 0o640)?;
+                    if system {
+                        chown(path, "root")?;
+                    }
+                    Ok("done".into())
+                }
+                Err(e) => Err(e).with_context(|| format!("reading {}", path.display())),
+            },
+            Step::StateDir(p) => {
+                std::fs::create_dir_all(p).with_context(|| format!("creating {}", p.display()))?;
+                set_mode(p, 0o770)?;
+                if system {
+                    chown(p, USER)?;
+                }
+                Ok("done".into())
+            }
+            Step::Remove(p) => match std::fs::remove_file(p) {
+                Ok(()) => Ok("done".into()),
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok("not there".into()),
+                Err(e) => Err(e).with_context(|| format!("removing {}", p.display())),
+            },
+            Step::Systemctl(args) => {
+                run_command("systemctl", args)?;
+                Ok("done".into())
+            }
+            Step::SystemctlIfAny(args) => Ok(match run_command("systemctl", args) {
+                Ok(()) => "done".into(),
+                Err(e) => format!("{e:#}; going on"),
+            }),
+            Step::Skip(_) => Ok(String::new()),
+        }
+    }
+}
+
+fn run_command(program: &str, args: &[&str]) -> anyhow::Result<()> {
+    let out = Command::new(program)
+        .args(args)
+        .output()
+        .with_context(|| format!("running {program} (is it installed?)"))?;
+    if !out.status.success() {
+        bail!(
+            "{program} {} failed ({}): {}",
+            args.join(" "),
+            out.status,
+            String::from_utf8_lossy(&out.stderr).trim()
+        );
+    }
+    Ok(())
+}
+
+fn set_mode(path: &Path, mode: u32) -> anyhow::Result<()> {
+    use std::os::unix::fs::PermissionsExt;
+    std::fs::set_permissions(path, std::fs::Permissions::from_mode(mode))
+        .with_context(|| format!("setting the mode of {}", path.display()))
+}
+
+/// `chown owner:softarm path`.
+fn chown(path: &Path, owner: &str) -> anyhow::Result<()> {
+    let user = nix::unistd::User::from_name(owner)?.with_context(|| format!("no user {owner}"))?;
+    let group = nix::unistd::Group::from_name(USER)?.with_context(|| format!("no group {USER}"))?;
+    nix::unistd::chown(path, Some(user.uid), Some(group.gid))
+        .with_context(|| format!("chown {owner}:{USER} {}", path.display()))
+}
+
+/// A temp file beside `path`, written, synced, given `mode`, then renamed over it: a reader
+/// (or a crash) sees the old file or the new one, never a part.
+fn write_atomic(path: &Path, bytes: &[u8], mode: u32) -> anyhow::Result<()> {
+    use std::io::Write;
+    let dir = path.parent().context("a file has a folder")?;
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    let tmp = dir.join(format!(
+        ".{}.tmp-{}",
+        path.file_name()
+            .context("a file has a name")?
+            .to_string_lossy(),
+        std::process::id()
+    ));
+    let write = || -> anyhow::Result<()> {
+        let mut f = std::fs::File::create(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all()?;
+        set_mode(&tmp, mode)?;
+        std::fs::rename(&tmp, path)?;
+        Ok(())
+    };
+    write().map_err(|e| {
+        let _ = std::fs::remove_file(&tmp);
+        e.context(format!("writing {}", path.display()))
+    })
+}
+
+/// `path` (absolute, as on the target system) under `root`.
+fn under(root: &Path, path: &Path) -> PathBuf {
+    root.join(path.strip_prefix("/").unwrap_or(path))
+}
+
+/// The config as installed: its model and state live in /var/lib/softarm, where the services
+/// may write (the units make everything else read-only).
+fn installed_config(source: Option<&Path>) -> anyhow::Result<(String, Config)> {
+    let text = match source {
+        Some(p) => {
+            std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?
+        }
+        None => DEFAULT.to_string(),
+    };
+    let mut out = String::with_capacity(text.len());
+    let mut section = String::new();
+    let (mut model, mut state) = (false, false);
+    for line in text.lines() {
+        let t = line.trim_start();
+        if t.starts_with('[') {
+            section = t.trim_end().to_string();
+        }
+        let (key, rest) = t.split_once('=').unwrap_or(("", ""));
+        if key.trim() == "dir" && (section == "[model]" || section == "[state]") {
+            let name = if section == "[model]" {
+                model = true;
+                "model"
+            } else {
+                state = true;
+                "state"
+            };
+            let comment = rest.find('#').map(|i| &rest[i..]).unwrap_or("");
+            out += format!("dir = \"/{STATE}/{name}\"  {comment}").trim_end();
+        } else {
+            out += line;
+        }
+        out.push('\n');
+    }
+    if !(model && state) {
+        bail!(
+            "the config to install needs `dir` keys in [model] and [state], to point them at /{STATE}"
+        );
+    }
+    let config = Config::parse(&out, "the config to install", Path::new("/").join(ETC))?;
+    Ok((out, config))
+}
+
+pub fn install(args: &Args) -> anyhow::Result<()> {
+    let root = args.root.clone().unwrap_or_else(|| PathBuf::from("/"));
+    let system = args.root.is_none();
+    let (config_text, config) = installed_config(args.config.as_deref())?;
+    let binary = args.prefix.join("bin/softarm");
+    if !binary.is_absolute() {
+        bail!(
+            "--prefix must be an absolute path, got {}",
+            args.prefix.display()
+        );
+    }
+    let exe = std::env::current_exe().context("finding my own executable")?;
+    let exe_bytes = if args.dry_run {
+        Vec::new()
+    } else {
+        std::fs::read(&exe).with_context(|| format!("reading {}", exe.display()))?
+    };
+    let mut steps = vec![if system {
+        Step::CreateUser
+    } else {
+        Step::Skip(format!("the user `{USER}` (staged under --root)"))
+    }];
+    steps.push(Step::Write {
+        path: under(&root, &binary),
+        text: exe_bytes,
+        mode: 0o755,
+    });
+    steps.push(Step::Config {
+        path: under(&root, &Path::new("/").join(ETC).join("softarm.toml")),
+        text: config_text,
+    });
+    steps.push(Step::StateDir(under(&root, &Path::new("/").join(STATE))));
+    let drivers: Vec<String> = config
+        .robot
+        .drivers
+        .iter()
+        .map(|d| format!("softarm-driver@{d}.service"))
+        .collect();
+    for (name, text) in UNIT_FILES {
+        let mut text = text.replace(UNIT_BINARY, &binary.display().to_string());
+        if name == "softarm.target" {
+            text = text.replace("softarm-driver@sim.service", &drivers.join(" "));
+        }
+        steps.push(Step::Write {
+            path: under(&root, &Path::new("/").join(UNITS).join(name)),
+            text: text.into_bytes(),
+            mode: 0o644,
+        });
+    }
+    steps.push(if system {
+        Step::Systemctl(&["daemon-reload"])
+    } else {
+        Step::Skip("systemctl daemon-reload (staged under --root)".into())
+    });
+    run_steps(&steps, args.dry_run, system)?;
+    if !args.dry_run {
+        println!(
+            "installed. Start it with `systemctl enable --now softarm.target`; check it with \
+             `softarm status --config /{ETC}/softarm.toml`."
+        );
+    }
+    Ok(())
+}
+
+pub fn uninstall(args: &UninstallArgs) -> anyhow::Result<()> {
+    let root = args.root.clone().unwrap_or_else(|| PathBuf::from("/"));
+    let system = args.root.is_none();
+    let mut steps = vec![if system {
+        Step::SystemctlIfAny(&["disable", "--now", "softarm.target"])
+    } else {
+        Step::Skip("systemctl disable --now softarm.target (staged under --root)".into())
+    }];
+    for (name, _) in UNIT_FILES {
+        steps.push(Step::Remove(under(
+            &root,
+            &Path::new("/").join(UNITS).join(name),
+        )));
+    }
+    steps.push(Step::Remove(under(&root, &args.prefix.join("bin/softarm"))));
+    steps.push(if system {
+        Step::Systemctl(&["daemon-reload"])
+    } else {
+        Step::Skip("systemctl daemon-reload (staged under --root)".into())
+    });
+    steps.push(Step::Skip(format!(
+        "/{ETC} (your config), /{STATE} (models, checkpoints, the e-stop latch) and the user \
+         `{USER}` are kept; remove them by hand if you want them gone"
+    )));
+    run_steps(&steps, args.dry_run, system)
+}
+
+fn run_steps(steps: &[Step], dry_run: bool, system: bool) -> anyhow::Result<()> {
+    for (i, step) in steps.iter().enumerate() {
+        let what = step.describe();
+        if dry_run {
+            println!("{}. {what}", i + 1);
+            continue;
+        }
+        let outcome = step
+            .run(system)
+            .with_context(|| format!("step {} ({what})", i + 1))?;
+        if outcome.is_empty() {
+            println!("{}. {what}", i + 1);
+        } else {
+            println!("{}. {what}: {outcome}", i + 1);
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,94 @@
+//! End to end: `softarm install --root DIR` stages the service install (binary, config, state
+//! folder, units) without touching the running system, never overwrites an edited config, and
+//! `uninstall` removes what it put there but the config and the state.
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+const BIN: &str = env!("CARGO_BIN_EXE_softarm");
+
+fn softarm(args: &[&str], root: &Path) -> Output {
+    let out = Command::new(BIN)
+        .args(args)
+        .arg("--root")
+        .arg(root)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{args:?}: {out:?}");
+    out
+}
+
+#[test]
+fn install_stages_binary_config_state_and_units_and_keeps_an_edited_config() {
+    let root = std::env::temp_dir().join(format!("softarm-install-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&root);
+
+    // A dry run says every step and writes nothing.
+    let out = softarm(&["install", "--dry-run"], &root);
+    let text = String::from_utf8_lossy(&out.stdout);
+    for step in [
+        "usr/local/bin/softarm",
+        "etc/softarm/softarm.toml",
+        "var/lib/softarm",
+    ] {
+        assert!(text.contains(step), "{text}");
+    }
+    assert!(!root.exists(), "a dry run wrote something");
+
+    softarm(&["install"], &root);
+    let bin = root.join("usr/local/bin/softarm");
+    assert_eq!(std::fs::read(&bin).unwrap(), std::fs::read(BIN).unwrap());
+    let units = root.join("etc/systemd/system");
+    for unit in [
+        "softarm-controller.service",
+        "softarm-learner.service",
+        "softarm-driver@.service",
+        "softarm.target",
+    ] {
+        let text = std::fs::read_to_string(units.join(unit)).unwrap();
+        if unit.ends_with(".service") {
+            assert!(
+                text.contains("ExecStart=/usr/local/bin/softarm ")
+                    && text.contains("--config /etc/softarm/softarm.toml")
+                    && text.contains("RemoveIPC=no"),
+                "{unit}: {text}"
+            );
+        }
+    }
+    // The config writes where the services may: /var/lib/softarm; and it is valid.
+    let config = root.join("etc/softarm/softarm.toml");
+    let text = std::fs::read_to_string(&config).unwrap();
+    assert!(text.contains("dir = \"/var/lib/softarm/state\""), "{text}");
+    assert!(text.contains("dir = \"/var/lib/softarm/model\""), "{text}");
+    let check = Command::new(BIN)
+        .args(["config", "check"])
+        .arg(&config)
+        .output()
+        .unwrap();
+    assert!(check.status.success(), "{check:?}");
+    assert!(root.join("var/lib/softarm").is_dir());
+
+    // Again: the same config is left as it is; an edited one is kept, the shipped one beside.
+    let out = softarm(&["install"], &root);
+    assert!(String::from_utf8_lossy(&out.stdout).contains("unchanged"));
+    let edited = text.replace("rate_hz = 500.0", "rate_hz = 250.0");
+    std::fs::write(&config, &edited).unwrap();
+    let out = softarm(&["install"], &root);
+    assert!(
+        String::from_utf8_lossy(&out.stdout).contains("kept your edited config"),
+        "{out:?}"
+    );
+    assert_eq!(std::fs::read_to_string(&config).unwrap(), edited);
+    assert_eq!(
+        std::fs::read_to_string(config.with_extension("toml.new")).unwrap(),
+        text
+    );
+
+    // Uninstall: units and binary go; config and state stay.
+    softarm(&["uninstall"], &root);
+    assert!(!bin.exists());
+    assert!(!units.join("softarm.target").exists());
+    assert_eq!(std::fs::read_to_string(&config).unwrap(), edited);
+    assert!(root.join("var/lib/softarm").is_dir());
+    std::fs::remove_dir_all(&root).unwrap();
+}
