@@ -19,6 +19,53 @@ pub struct Args {
     /// Re-conditionings to time.
     #[arg(long, default_value_t = 50)]
     reconditions: usize,
+    /// Instead of the hot paths: a bare loop on absolute deadlines (clock_nanosleep, as the
+    /// controller's tick) for this many seconds, and its wake-up latency. Run it beside a
+    /// running stack to see what the controller's own latency (`softarm status`) adds.
+    #[arg(long, value_name = "SECONDS")]
+    wakeup: Option<f64>,
+    /// The bare loop's rate.
+    #[arg(long, default_value_t = 500.0)]
+    rate_hz: f64,
+    /// Runs the bare loop with SCHED_FIFO at this priority (needs CAP_SYS_NICE).
+    #[arg(long, value_name = "PRIORITY")]
+    fifo: Option<i32>,
+}
+
+/// A bare absolute-deadline loop: the wake-up latency of each period, as the tick records it.
+fn wakeup(seconds: f64, rate_hz: f64, fifo: Option<i32>) -> anyhow::Result<()> {
+    if !(seconds > 0.0 && seconds <= 3600.0 && (1.0..=10_000.0).contains(&rate_hz)) {
+        anyhow::bail!("--wakeup must be in (0, 3600] s and --rate-hz in [1, 10000]");
+    }
+    if let Some(priority) = fifo {
+        let param = nix::libc::sched_param {
+            sched_priority: priority,
+        };
+        // SAFETY: plain syscall on this thread with a valid parameter struct.
+        if unsafe { nix::libc::sched_setscheduler(0, nix::libc::SCHED_FIFO, &param) } != 0 {
+            anyhow::bail!(
+                "SCHED_FIFO priority {priority} refused: {}",
+                std::io::Error::last_os_error()
+            );
+        }
+    }
+    let periods = (seconds * rate_hz).round() as u64;
+    let mut ticker = softarm_ipc::clock::Ticker::new(rate_hz);
+    let mut ns = histogram();
+    for _ in 0..periods {
+        ns.saturating_record(ticker.wait().latency_ns.max(1));
+    }
+    summary(
+        &format!(
+            "bare loop wake-up, {rate_hz} Hz, {}",
+            fifo.map_or("normal scheduling".to_string(), |p| format!(
+                "SCHED_FIFO {p}"
+            ))
+        ),
+        &ns,
+    );
+    println!("overruns (periods skipped): {}", ticker.overruns());
+    Ok(())
 }
 
 /// Durations in ns → a min / p50 / p99 / p99.9 / max line (3 significant digits).
@@ -55,6 +102,9 @@ fn record(ns: &mut Histogram<u64>, start: Instant) {
 }
 
 pub fn run(args: &Args) -> anyhow::Result<()> {
+    if let Some(seconds) = args.wakeup {
+        return wakeup(seconds, args.rate_hz, args.fifo);
+    }
     if args.ticks == 0 || args.reconditions == 0 {
         anyhow::bail!("--ticks and --reconditions must be > 0");
     }

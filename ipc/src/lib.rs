@@ -418,7 +418,8 @@ fn node_name(namespace: &Namespace, role: &str) -> String {
 }
 
 impl Node {
-    /// Creates this process's node. Signals are left to the process (signal-hook), not iceoryx2.
+    /// Creates this process's node and cleans up the nodes of dead processes. Signals are left
+    /// to the process (signal-hook), not iceoryx2.
     pub fn open(namespace: Namespace, role: &str) -> Result<Self, Error> {
         // iceoryx2 warns on stderr that it runs on its built-in defaults, which is intended.
         set_log_level(LogLevel::Error);
@@ -430,6 +431,9 @@ impl Node {
             .signal_handling_mode(SignalHandlingMode::Disabled)
             .create::<ipc::Service>()
             .map_err(err(format!("creating the iceoryx2 node {name:?}")))?;
+        // What processes killed before left behind (their node, their ports' slots) goes now,
+        // so a restarted process never meets "exceeds max supported" ports.
+        let _ = node.try_cleanup_dead_nodes();
         Ok(Self { node, namespace })
     }
 

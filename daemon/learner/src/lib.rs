@@ -141,7 +141,15 @@ fn visit(learner: &mut OnlineLearner, s: &ConditioningSample) -> Result<Actuatio
                 Some(&s.measured),
             )
             .map_err(|e| e.to_string())?;
-        tracing::debug!(point = s.point, error_mm = v.error * 1e3, td = ?v.td_error, "visit");
+        tracing::debug!(
+            point = s.point,
+            execution = s.execution,
+            error_mm = v.error * 1e3,
+            td = ?v.td_error,
+            action = ?s.actuation,
+            measured = ?s.measured,
+            "visit"
+        );
     } else {
         tracing::warn!(
             point = s.point,
@@ -268,7 +276,10 @@ pub fn run(config: &Config, stop: &AtomicBool) -> anyhow::Result<()> {
                         }
                     }
                     match visit(&mut l.learner, &s) {
-                        Ok(next) => send(s.set_id, s.next_point, next),
+                        Ok(next) => {
+                            tracing::debug!(point = s.next_point, estimate = ?next, "estimate");
+                            send(s.set_id, s.next_point, next)
+                        }
                         Err(why) => {
                             tracing::warn!(
                                 set_id = s.set_id,
