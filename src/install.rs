@@ -34,18 +34,35 @@ const UNIT_FILES: [(&str, &str); 4] = [
     ("softarm.target", include_str!("../systemd/softarm.target")),
 ];
 
+/// Where an install goes, and whether to do it.
 #[derive(clap::Args)]
-pub struct Args {
-    /// The binary goes to PREFIX/bin/softarm, and the units start it from there.
+pub struct Target {
+    /// The binary is PREFIX/bin/softarm, and the units start it from there.
     #[arg(long, default_value = "/usr/local")]
     prefix: PathBuf,
-    /// Stages the install under this folder and leaves the running system alone: no user is
-    /// created and systemd is not reloaded.
+    /// Stages (or removes a staged install) under this folder and leaves the running system
+    /// alone: no user is created and systemd is not touched.
     #[arg(long, value_name = "DIR")]
     root: Option<PathBuf>,
     /// Prints each step without doing it.
     #[arg(long)]
     dry_run: bool,
+}
+
+impl Target {
+    /// (the folder everything goes under, whether that is the running system).
+    fn root(&self) -> (PathBuf, bool) {
+        match &self.root {
+            Some(r) => (r.clone(), false),
+            None => (PathBuf::from("/"), true),
+        }
+    }
+}
+
+#[derive(clap::Args)]
+pub struct Args {
+    #[command(flatten)]
+    target: Target,
     /// The config to install (default: the embedded simulation config).
     #[arg(long, value_name = "FILE")]
     config: Option<PathBuf>,
@@ -53,15 +70,8 @@ pub struct Args {
 
 #[derive(clap::Args)]
 pub struct UninstallArgs {
-    /// Where `install` put the binary.
-    #[arg(long, default_value = "/usr/local")]
-    prefix: PathBuf,
-    /// Where `install --root` staged it.
-    #[arg(long, value_name = "DIR")]
-    root: Option<PathBuf>,
-    /// Prints each step without doing it.
-    #[arg(long)]
-    dry_run: bool,
+    #[command(flatten)]
+    target: Target,
 }
 
 /// One thing an install or uninstall does; printed before it is done.
@@ -289,18 +299,18 @@ fn installed_config(source: Option<&Path>) -> anyhow::Result<(String, Config)> {
 }
 
 pub fn install(args: &Args) -> anyhow::Result<()> {
-    let root = args.root.clone().unwrap_or_else(|| PathBuf::from("/"));
-    let system = args.root.is_none();
+    let (root, system) = args.target.root();
+    let dry_run = args.target.dry_run;
     let (config_text, config) = installed_config(args.config.as_deref())?;
-    let binary = args.prefix.join("bin/softarm");
+    let binary = args.target.prefix.join("bin/softarm");
     if !binary.is_absolute() {
         bail!(
             "--prefix must be an absolute path, got {}",
-            args.prefix.display()
+            args.target.prefix.display()
         );
     }
     let exe = std::env::current_exe().context("finding my own executable")?;
-    let exe_bytes = if args.dry_run {
+    let exe_bytes = if dry_run {
         Vec::new()
     } else {
         std::fs::read(&exe).with_context(|| format!("reading {}", exe.display()))?
@@ -342,8 +352,8 @@ pub fn install(args: &Args) -> anyhow::Result<()> {
     } else {
         Step::Skip("systemctl daemon-reload (staged under --root)".into())
     });
-    run_steps(&steps, args.dry_run, system)?;
-    if !args.dry_run {
+    run_steps(&steps, dry_run, system)?;
+    if !dry_run {
         println!(
             "installed. Start it with `systemctl enable --now softarm.target`; check it with \
              `softarm status --config /{ETC}/softarm.toml`."
@@ -353,8 +363,7 @@ pub fn install(args: &Args) -> anyhow::Result<()> {
 }
 
 pub fn uninstall(args: &UninstallArgs) -> anyhow::Result<()> {
-    let root = args.root.clone().unwrap_or_else(|| PathBuf::from("/"));
-    let system = args.root.is_none();
+    let (root, system) = args.target.root();
     let mut steps = vec![if system {
         Step::SystemctlIfAny(&["disable", "--now", "softarm.target"])
     } else {
@@ -366,7 +375,10 @@ pub fn uninstall(args: &UninstallArgs) -> anyhow::Result<()> {
             &Path::new("/").join(UNITS).join(name),
         )));
     }
-    steps.push(Step::Remove(under(&root, &args.prefix.join("bin/softarm"))));
+    steps.push(Step::Remove(under(
+        &root,
+        &args.target.prefix.join("bin/softarm"),
+    )));
     steps.push(if system {
         Step::Systemctl(&["daemon-reload"])
     } else {
@@ -376,7 +388,7 @@ pub fn uninstall(args: &UninstallArgs) -> anyhow::Result<()> {
         "/{ETC} (your config), /{STATE} (models, checkpoints, the e-stop latch) and the user \
          `{USER}` are kept; remove them by hand if you want them gone"
     )));
-    run_steps(&steps, args.dry_run, system)
+    run_steps(&steps, args.target.dry_run, system)
 }
 
 fn run_steps(steps: &[Step], dry_run: bool, system: bool) -> anyhow::Result<()> {

@@ -20,6 +20,8 @@ struct Process {
     restarts: u32,
     /// When a dead child may start again.
     next_start: Instant,
+    /// It refused its config (exit 78): starting it again cannot help.
+    given_up: bool,
     started: Instant,
 }
 
@@ -32,6 +34,7 @@ impl Process {
             child: None,
             restarts: 0,
             next_start: Instant::now(),
+            given_up: false,
             started: Instant::now(),
         }
     }
@@ -69,6 +72,7 @@ impl Supervisor {
             child: None,
             restarts: 0,
             next_start: Instant::now(),
+            given_up: false,
             started: Instant::now(),
         };
         self.spawn(&mut p)?;
@@ -110,6 +114,17 @@ impl Supervisor {
             if let Some(child) = p.child.as_mut()
                 && let Ok(Some(status)) = child.try_wait()
             {
+                p.child = None;
+                if status.code() == Some(crate::EXIT_CONFIG.into()) {
+                    // As the systemd units' RestartPreventExitStatus=.
+                    eprintln!(
+                        "softarm up: {} refused its config ({status}); not restarting it: fix \
+                         the config and start the stack again",
+                        p.role
+                    );
+                    p.given_up = true;
+                    continue;
+                }
                 // A child that ran a minute was healthy: its back-off starts over.
                 if p.started.elapsed() > Duration::from_secs(60) {
                     p.restarts = 0;
@@ -121,11 +136,10 @@ impl Supervisor {
                     backoff.as_secs()
                 );
                 p.restarts += 1;
-                p.child = None;
                 p.next_start = Instant::now() + backoff;
             }
             let p = &self.processes[i];
-            if p.child.is_none() && Instant::now() >= p.next_start {
+            if p.child.is_none() && !p.given_up && Instant::now() >= p.next_start {
                 let mut p = std::mem::replace(&mut self.processes[i], Process::vacant());
                 if let Err(e) = self.spawn(&mut p) {
                     eprintln!("softarm up: {e}");
@@ -168,6 +182,7 @@ impl Supervisor {
         }
         reap(&mut p, Instant::now() + grace);
         p.extra = extra;
+        p.given_up = false;
         let spawned = self.spawn(&mut p);
         self.processes[i] = p;
         spawned

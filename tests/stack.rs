@@ -314,3 +314,32 @@ fn a_bad_scenario_is_refused_before_anything_starts() {
         s.status()
     );
 }
+
+#[test]
+fn shared_memory_is_for_the_owner_only() {
+    // iceoryx2 creates the shared memory of every service and its folders without permissions
+    // for others, so only the services' user (`softarm` under systemd) reaches the topics.
+    let mut s = TestStack::new(BIN, "perms", false);
+    s.up();
+    let mut checked = 0;
+    let shm = std::fs::read_dir("/dev/shm").unwrap();
+    let root = std::fs::read_dir("/tmp/iceoryx2").unwrap();
+    for entry in shm.chain(root).flatten() {
+        let name = entry.file_name().to_string_lossy().to_string();
+        if !(name.starts_with("iox2_") || ["nodes", "services"].contains(&name.as_str())) {
+            continue;
+        }
+        // The one exception, iceoryx2's own: a 16-byte counter shared by every iceoryx2 user of
+        // the machine, created world-writable (0666) by design. No topic data is in it.
+        if name.ends_with(".global_mgmt") {
+            continue;
+        }
+        let Ok(meta) = entry.metadata() else {
+            continue; // gone meanwhile (another test's process ended)
+        };
+        let mode = std::os::unix::fs::PermissionsExt::mode(&meta.permissions());
+        assert_eq!(mode & 0o007, 0, "{name}: mode {mode:o}");
+        checked += 1;
+    }
+    assert!(checked > 3, "only {checked} iceoryx2 files found");
+}

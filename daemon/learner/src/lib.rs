@@ -350,6 +350,94 @@ mod tests {
         }
     }
 
+    mod fuzz {
+        //! Arbitrary samples on `cp_sample`, as a broken or hostile peer could send them: the
+        //! learner refuses what does not fit with a reason and never panics, and what it
+        //! answers is a finite actuation in [0, 1].
+        use super::*;
+        use proptest::prelude::*;
+        use softarm_method::cacla::{CaclaMtl, LearnerConfig};
+        use softarm_method::pcc::ArmGeometry;
+        use softarm_method::poly::{Polynomial, PolynomialConfig};
+
+        fn learner() -> OnlineLearner {
+            let arm = ArmGeometry::default();
+            let a: Vec<Actuation> = (0..400)
+                .map(|i| {
+                    std::array::from_fn(|j| 0.2 + 0.6 * (((i * 7 + j * 13) % 37) as f64 / 36.0))
+                })
+                .collect();
+            let p: Vec<_> = a.iter().map(|a| arm.position(a)).collect();
+            let poly = Polynomial::fit(&a, &p, &PolynomialConfig::default()).unwrap();
+            OnlineLearner::new(CaclaMtl::new(LearnerConfig::default()).unwrap(), poly)
+        }
+
+        fn value() -> impl Strategy<Value = f64> {
+            prop_oneof![
+                -1.0f64..1.0,
+                Just(f64::NAN),
+                Just(f64::INFINITY),
+                Just(f64::NEG_INFINITY),
+                Just(1e300),
+                Just(-0.0),
+            ]
+        }
+
+        fn sample() -> impl Strategy<Value = ConditioningSample> {
+            (
+                (0u32..20, 0u32..20, 0u32..20, 0u32..4),
+                prop::array::uniform6(value()),
+                prop::array::uniform3(value()),
+                prop::array::uniform3(value()),
+                prop::array::uniform6(value()),
+                0u64..3,
+            )
+                .prop_map(|((points, point, next_point, exec), a, d, r, m, set_id)| {
+                    ConditioningSample {
+                        set_id,
+                        points,
+                        point,
+                        next_point,
+                        execution: exec,
+                        next_execution: exec + 1,
+                        actuation: a,
+                        desired: d,
+                        reached: r,
+                        next_desired: d,
+                        measured: m,
+                        ..Default::default()
+                    }
+                })
+        }
+
+        proptest! {
+            #![proptest_config(ProptestConfig::with_cases(
+                std::env::var("PROPTEST_CASES").ok().and_then(|v| v.parse().ok()).unwrap_or(256)
+            ))]
+
+            #[test]
+            fn arbitrary_samples_never_panic_and_answers_are_actuations(
+                samples in prop::collection::vec(sample(), 1..40),
+            ) {
+                let mut l = learner();
+                for s in samples {
+                    if check(&s).is_err() {
+                        continue;
+                    }
+                    if l.points() != s.points as usize {
+                        l.begin(s.points as usize).unwrap();
+                    }
+                    if let Ok(a) = visit(&mut l, &s) {
+                        prop_assert!(
+                            a.iter().all(|v| v.is_finite() && (0.0..=1.0).contains(v)),
+                            "{a:?} for {s:?}"
+                        );
+                    }
+                }
+            }
+        }
+    }
+
     #[test]
     fn the_inbox_keeps_the_order_things_were_sent_in() {
         let mut inbox = [
