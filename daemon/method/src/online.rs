@@ -244,8 +244,8 @@ impl Transfer {
         c.transfer_spread.powi(2) * (-distance(p, q).powi(2) / (2.0 * l * l)).exp()
     }
 
-    /// Records `correction` for `target` and solves for α again: a few microseconds for a
-    /// few dozen points, once per visit, off the tick.
+    /// Records `correction` for `target` and solves for α again: a Cholesky of at most
+    /// `transfer_points`² (well under a millisecond for 64), once per visit, in the learner.
     fn set(&mut self, c: &CorrectionConfig, target: &Position, correction: Actuation) {
         match self
             .points
@@ -303,10 +303,10 @@ const DRIFT: f64 = 0.1;
 
 /// Δa = g J⁺ e + (I − J⁺J) d with J⁺ = Jᵀ(JJᵀ + μ²I)⁻¹, shortened to at most `radius`. The
 /// first term moves the end effector by g e; the second moves the actuation by `d` inside the
-/// null space of J, where the end effector does not move. Six actuations for
-/// three coordinates leave three directions free, and steps that wander along them leave the
-/// demonstrated region, where the trained model is not right any more: `d`
-/// points back to an anchor there.
+/// null space of J, where the end effector does not move. Six actuations for three
+/// coordinates leave three directions free, and steps that wander along them leave the
+/// demonstrated region, where the trained model is not right any more: `d` points back to an
+/// anchor there.
 fn correction(
     j: &Jacobian,
     e: &Vector3<f64>,
