@@ -205,12 +205,17 @@ impl Plant {
         self.state
     }
 
-    /// Advances by `dt` seconds with `command` applied, and measures.
+    /// Advances by `dt` seconds with `command` applied, and measures. A command outside [0, 1]
+    /// is clamped to it; a non-finite one holds that actuator's input where it was.
     pub fn step(&mut self, command: &[f64; ACTUATORS], dt: f64) -> Measurement {
         let r = self.realism;
         self.time += dt;
         for i in 0..ACTUATORS {
-            let c = command[i].clamp(0.0, 1.0);
+            let c = if command[i].is_finite() {
+                command[i].clamp(0.0, 1.0)
+            } else {
+                self.played[i]
+            };
             // Play operator: the output follows once the input leaves the band around it.
             let half = 0.5 * r.backlash;
             self.played[i] = self.played[i].clamp(c - half, c + half);
@@ -256,6 +261,28 @@ impl Plant {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_command_that_is_not_a_number_holds_the_actuator() {
+        let mut p =
+            Plant::new(ArmGeometry::default(), Realism::default(), [0.5; ACTUATORS]).unwrap();
+        for _ in 0..50 {
+            p.step(&[0.6; ACTUATORS], 0.005);
+        }
+        let before = p.state();
+        let bad = [f64::NAN, f64::INFINITY, f64::NEG_INFINITY, 0.6, 0.6, 0.6];
+        let m = p.step(&bad, 0.005);
+        assert!(m.position.iter().chain(&m.actuation).all(|v| v.is_finite()));
+        // The three broken inputs hold where they were: those actuators only settle further.
+        for i in 0..3 {
+            assert!(
+                (p.state()[i] - before[i]).abs() < 0.01,
+                "{:?} -> {:?}",
+                before,
+                p.state()
+            );
+        }
+    }
 
     #[test]
     fn with_every_effect_off_it_is_the_kinematic_model() {

@@ -40,12 +40,26 @@ pub fn run(
         );
     }
     let mut seq = 0u64;
+    let mut refused = 0u64;
     let mut ticker = Ticker::new(config.rate_hz);
     tracing::info!(rate_hz = config.rate_hz, "sim running");
     while !stop.load(Ordering::Relaxed) {
         ticker.wait();
         while let Ok(Some(s)) = setpoints.receive() {
-            command = s.actuation;
+            // From the wire: a setpoint that is not a number is refused whole (a real driver
+            // must never pass it to a motor); the last good one stays.
+            if s.actuation.iter().all(|v| v.is_finite()) {
+                command = s.actuation;
+            } else {
+                refused += 1;
+                if refused.is_power_of_two() {
+                    tracing::error!(
+                        refused,
+                        actuation = ?s.actuation,
+                        "setpoint refused: not a number; holding the last good one"
+                    );
+                }
+            }
         }
         while let Ok(Some(s)) = estop.receive() {
             stopped = s.engaged != 0;
@@ -70,6 +84,6 @@ pub fn run(
             position: m.position,
         });
     }
-    tracing::info!(overruns = ticker.overruns(), "sim stopped");
+    tracing::info!(overruns = ticker.overruns(), refused, "sim stopped");
     Ok(())
 }
