@@ -224,31 +224,10 @@ fn chown(path: &Path, owner: &str) -> anyhow::Result<()> {
         .with_context(|| format!("chown {owner}:{USER} {}", path.display()))
 }
 
-/// A temp file beside `path`, written, synced, given `mode`, then renamed over it: a reader
-/// (or a crash) sees the old file or the new one, never a part.
+/// [`softarm_ipc::file::write_atomic`] with the mode set before the file appears.
 fn write_atomic(path: &Path, bytes: &[u8], mode: u32) -> anyhow::Result<()> {
-    use std::io::Write;
-    let dir = path.parent().context("a file has a folder")?;
-    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-    let tmp = dir.join(format!(
-        ".{}.tmp-{}",
-        path.file_name()
-            .context("a file has a name")?
-            .to_string_lossy(),
-        std::process::id()
-    ));
-    let write = || -> anyhow::Result<()> {
-        let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-        set_mode(&tmp, mode)?;
-        std::fs::rename(&tmp, path)?;
-        Ok(())
-    };
-    write().map_err(|e| {
-        let _ = std::fs::remove_file(&tmp);
-        e.context(format!("writing {}", path.display()))
-    })
+    softarm_ipc::file::write_atomic(path, bytes, Some(mode))
+        .with_context(|| format!("writing {}", path.display()))
 }
 
 /// `path` (absolute, as on the target system) under `root`.

@@ -1,15 +1,13 @@
 //! The e-stop latch on disk. An e-stop must outlive the processes that saw it: a controller or
 //! driver restarted after an e-stop (by `softarm up`, by systemd, by hand) comes back stopped
 //! until `softarm estop --reset`. The `estop` service tells the running processes; this file
-//! tells the ones that start later. `softarm estop` writes it (atomically: a temp file, fsync,
-//! rename, fsync of the folder), and every process that honours the e-stop reads it when it
-//! starts.
+//! tells the ones that start later. `softarm estop` writes it (atomically), and every process
+//! that honours the e-stop reads it when it starts.
 //!
 //! The file holds one word, `engaged` or `released`. No file: released (nothing was ever
 //! e-stopped here). A file that cannot be read or says anything else counts as engaged: a
 //! process that cannot tell must not move the arm.
 
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
 const ENGAGED: &str = "engaged";
@@ -75,32 +73,16 @@ impl EstopLatch {
         })
     }
 
-    /// Latches (`true`) or releases the e-stop. Atomic: a reader sees the old word or the new
-    /// one, never a part, also across a power cut.
+    /// Latches (`true`) or releases the e-stop. Atomic ([`crate::file::write_atomic`]): a
+    /// reader sees the old word or the new one, never a part, also across a power cut.
     pub fn set(&self, engaged: bool) -> Result<(), LatchError> {
-        let err = |source| LatchError::Write {
-            path: self.path.clone(),
-            source,
-        };
-        let dir = match self.path.parent() {
-            Some(d) if !d.as_os_str().is_empty() => d,
-            _ => Path::new("."),
-        };
-        std::fs::create_dir_all(dir).map_err(err)?;
-        let tmp = self
-            .path
-            .with_extension(format!("tmp-{}", std::process::id()));
-        let write = || -> std::io::Result<()> {
-            let mut f = std::fs::File::create(&tmp)?;
-            writeln!(f, "{}", if engaged { ENGAGED } else { RELEASED })?;
-            f.sync_all()?;
-            std::fs::rename(&tmp, &self.path)?;
-            std::fs::File::open(dir)?.sync_all()
-        };
-        write().map_err(|e| {
-            let _ = std::fs::remove_file(&tmp);
-            err(e)
-        })
+        let word = if engaged { ENGAGED } else { RELEASED };
+        crate::file::write_atomic(&self.path, format!("{word}\n").as_bytes(), None).map_err(
+            |source| LatchError::Write {
+                path: self.path.clone(),
+                source,
+            },
+        )
     }
 }
 

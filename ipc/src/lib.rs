@@ -18,6 +18,7 @@ pub use softarm_method::space::{ACTUATORS, Actuation, MAX_WAYPOINTS, Position};
 pub const MAX_REASON: usize = 200;
 
 pub mod clock;
+pub mod file;
 pub mod latch;
 pub use clock::now_ns;
 pub use latch::EstopLatch;
