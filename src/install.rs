@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use anyhow::{Context, bail};
-use softarm_model::config::{Config, DEFAULT};
+use softarm_model::config::{self, Config, DEFAULT};
 
 const USER: &str = "softarm";
 const ETC: &str = "etc/softarm";
@@ -244,37 +244,17 @@ fn installed_config(source: Option<&Path>) -> anyhow::Result<(String, Config)> {
         }
         None => DEFAULT.to_string(),
     };
-    let mut out = String::with_capacity(text.len());
-    let mut section = String::new();
-    let (mut model, mut state) = (false, false);
-    for line in text.lines() {
-        let t = line.trim_start();
-        if t.starts_with('[') {
-            section = t.trim_end().to_string();
-        }
-        let (key, rest) = t.split_once('=').unwrap_or(("", ""));
-        if key.trim() == "dir" && (section == "[model]" || section == "[state]") {
-            let name = if section == "[model]" {
-                model = true;
-                "model"
-            } else {
-                state = true;
-                "state"
-            };
-            let comment = rest.find('#').map(|i| &rest[i..]).unwrap_or("");
-            out += format!("dir = \"/{STATE}/{name}\"  {comment}").trim_end();
-        } else {
-            out += line;
-        }
-        out.push('\n');
-    }
-    if !(model && state) {
-        bail!(
-            "the config to install needs `dir` keys in [model] and [state], to point them at /{STATE}"
-        );
-    }
-    let config = Config::parse(&out, "the config to install", Path::new("/").join(ETC))?;
-    Ok((out, config))
+    let text = config::with_overrides(
+        &text,
+        &[
+            ("model.dir", format!("/{STATE}/model").into()),
+            ("state.dir", format!("/{STATE}/state").into()),
+        ],
+    )
+    .map_err(anyhow::Error::msg)
+    .context("the config to install")?;
+    let config = Config::parse(&text, "the config to install", Path::new("/").join(ETC))?;
+    Ok((text, config))
 }
 
 pub fn install(args: &Args) -> anyhow::Result<()> {

@@ -92,3 +92,39 @@ fn install_stages_binary_config_state_and_units_and_keeps_an_edited_config() {
     assert!(root.join("var/lib/softarm").is_dir());
     std::fs::remove_dir_all(&root).unwrap();
 }
+
+#[test]
+fn a_bad_config_to_install_is_refused_and_nothing_is_written() {
+    let root = std::env::temp_dir().join(format!("softarm-install-bad-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&root);
+    std::fs::create_dir_all(&root).unwrap();
+    let refused = root.join("refused.toml");
+    let shipped =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("config/softarm.toml"))
+            .unwrap();
+    std::fs::write(
+        &refused,
+        shipped.replace("rate_hz = 500.0", "rate_hz = 5000.0"),
+    )
+    .unwrap();
+    let no_state = root.join("no-state.toml");
+    std::fs::write(&no_state, "[robot]\nid = \"x\"\n").unwrap();
+    for (config, says, code) in [
+        (&refused, "controller.rate_hz", 78),
+        (&no_state, "no section [model]", 1),
+    ] {
+        let stage = root.join("stage");
+        let out = Command::new(BIN)
+            .args(["install", "--root"])
+            .arg(&stage)
+            .arg("--config")
+            .arg(config)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(code), "{err}");
+        assert!(err.contains(says), "{err}");
+        assert!(!stage.exists(), "something was staged for a refused config");
+    }
+    std::fs::remove_dir_all(&root).unwrap();
+}

@@ -130,24 +130,31 @@ pub struct StateConfig {
 }
 
 /// `text` (a config) with each `(dotted key, value)` set, e.g. `("sim.realism.seed", 3)`; the
-/// key's section must exist. For the tools that run a stack of their own (`softarm demo`, the
-/// tests). Comments do not survive.
+/// key's section must exist. For the tools that write or run a config of their own (`softarm
+/// demo`, `softarm install`, the tests). Comments and layout survive; a replaced value loses
+/// the comment after it.
 pub fn with_overrides(text: &str, overrides: &[(&str, toml::Value)]) -> Result<String, String> {
-    let mut doc: toml::Table = toml::from_str(text).map_err(|e| e.message().to_string())?;
+    let mut doc: toml_edit::DocumentMut = text
+        .parse()
+        .map_err(|e: toml_edit::TomlError| e.message().to_string())?;
     for (key, value) in overrides {
         let (path, leaf) = key
             .rsplit_once('.')
             .ok_or_else(|| format!("{key:?}: need section.key"))?;
-        let mut table = &mut doc;
+        let mut table: &mut dyn toml_edit::TableLike = doc.as_table_mut();
         for section in path.split('.') {
             table = table
                 .get_mut(section)
-                .and_then(toml::Value::as_table_mut)
+                .and_then(toml_edit::Item::as_table_like_mut)
                 .ok_or_else(|| format!("{key:?}: no section [{path}] in the config"))?;
         }
-        table.insert(leaf.into(), value.clone());
+        let value: toml_edit::Value = value
+            .to_string()
+            .parse()
+            .map_err(|e: toml_edit::TomlError| format!("{key:?}: {}", e.message()))?;
+        table.insert(leaf, toml_edit::Item::Value(value));
     }
-    toml::to_string(&doc).map_err(|e| e.to_string())
+    Ok(doc.to_string())
 }
 
 /// A config error: the message names the key; `line` is where that key stands, if found.
