@@ -41,22 +41,30 @@ fn a_setpoint_that_is_not_a_number_is_refused_by_the_driver() {
         send(bad);
         std::thread::sleep(Duration::from_millis(50));
     }
+    // Motor states from after the broken setpoints, however slow the machine: the last good
+    // setpoint still rules.
     let after = now_ns();
-    std::thread::sleep(Duration::from_millis(300));
     let mut seen = 0;
-    while let Ok(Some(m)) = motors.receive() {
-        if m.stamp_ns > after {
-            seen += 1;
-            assert!(
-                m.actuation
-                    .iter()
-                    .all(|v| v.is_finite() && (0.5..0.7).contains(v)),
-                "the sim followed a broken setpoint: {:?}",
-                m.actuation
-            );
+    let start = Instant::now();
+    while seen < 20 {
+        while let Ok(Some(m)) = motors.receive() {
+            if m.stamp_ns > after {
+                seen += 1;
+                assert!(
+                    m.actuation
+                        .iter()
+                        .all(|v| v.is_finite() && (0.5..0.7).contains(v)),
+                    "the sim followed a broken setpoint: {:?}",
+                    m.actuation
+                );
+            }
         }
+        assert!(
+            start.elapsed() < Duration::from_secs(20),
+            "no motor state after the broken setpoints"
+        );
+        std::thread::sleep(Duration::from_millis(5));
     }
-    assert!(seen > 0, "no motor state after the broken setpoints");
     assert!(alive(sim.id() as i32), "the sim died: {}", s.logs());
     let _ = nix::sys::signal::kill(
         nix::unistd::Pid::from_raw(sim.id() as i32),
