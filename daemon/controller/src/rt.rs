@@ -93,8 +93,3 @@ pub(crate) fn stall_after() -> Option<u64> {
         .parse()
         .ok()
 }
-
-#[cfg(not(debug_assertions))]
-pub(crate) fn stall_after() -> Option<u64> {
-    None
-}
