@@ -1,0 +1,1 @@
+//! What every driver process shares (being written).

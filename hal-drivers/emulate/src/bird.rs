@@ -1,0 +1,1 @@
+//! The Bird tracker emulator (being written).

@@ -1,0 +1,1 @@
+//! The Dynamixel bus emulator (being written).

@@ -1,0 +1,7 @@
+//! Emulators of softarm's hardware on pseudo-terminals, speaking the real protocols: a bus of
+//! Dynamixel Protocol 2.0 motors and an Ascension Bird tracker. Tests and `softarm emulate` run
+//! the real drivers against them.
+
+pub mod bird;
+pub mod dynamixel;
+pub mod pty;

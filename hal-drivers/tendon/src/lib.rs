@@ -1,0 +1,1 @@
+//! The `tendon` driver process (being written).

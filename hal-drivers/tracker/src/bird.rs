@@ -1,0 +1,1 @@
+//! The Ascension Bird protocol (being written).

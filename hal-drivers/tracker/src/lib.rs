@@ -1,0 +1,3 @@
+//! The `tracker` driver process.
+
+pub mod bird;
