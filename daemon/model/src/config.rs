@@ -15,6 +15,11 @@ use softarm_method::poly::{MAX_DEGREE, PolynomialConfig};
 use softarm_method::rbf::NetworkConfig;
 use softarm_method::skill::DemoRecipe;
 
+use crate::hardware::{TendonConfig, TrackerConfig};
+
+/// The drivers this build has: the simulated arm, or the real arm's motors and tracker.
+pub const DRIVERS: [&str; 3] = ["sim", "tendon", "tracker"];
+
 /// The simulation default, embedded so `softarm demo` needs no file.
 pub const DEFAULT: &str = include_str!("../../../config/softarm.toml");
 
@@ -50,6 +55,12 @@ pub struct Config {
     pub arm: ArmGeometry,
     #[serde(default)]
     pub sim: SimConfig,
+    /// The tendon motor driver; required when `robot.drivers` has "tendon".
+    #[serde(default)]
+    pub tendon: Option<TendonConfig>,
+    /// The tracker driver; required when `robot.drivers` has "tracker".
+    #[serde(default)]
+    pub tracker: Option<TrackerConfig>,
     /// Where relative paths start: the config file's folder.
     #[serde(skip)]
     pub base_dir: PathBuf,
@@ -236,14 +247,32 @@ impl Config {
             (key.to_string(), m.to_string())
         })?;
         for (i, d) in r.drivers.iter().enumerate() {
-            if !["sim"].contains(&d.as_str()) {
+            if !DRIVERS.contains(&d.as_str()) {
                 return invalid(
                     "robot.drivers",
-                    format!("unknown driver {d:?}; this build has \"sim\""),
+                    format!("unknown driver {d:?}; this build has {DRIVERS:?}"),
                 );
             }
             if r.drivers[..i].contains(d) {
                 return invalid("robot.drivers", format!("driver {d:?} is listed twice"));
+            }
+        }
+        let has = |d: &str| r.drivers.iter().any(|x| x == d);
+        if has("sim") && (has("tendon") || has("tracker")) {
+            return invalid(
+                "robot.drivers",
+                "\"sim\" is the whole arm: list it alone, or the hardware drivers".into(),
+            );
+        }
+        for (driver, present) in [
+            ("tendon", self.tendon.is_some()),
+            ("tracker", self.tracker.is_some()),
+        ] {
+            if has(driver) && !present {
+                return invalid(
+                    "robot.drivers",
+                    format!("lists \"{driver}\" but the config has no [{driver}] section"),
+                );
             }
         }
 
@@ -404,6 +433,12 @@ impl Config {
         }
         self.arm.validate().map_err(|e| keyed("arm", e))?;
         self.sim.validate().map_err(|e| keyed("sim", e))?;
+        if let Some(t) = &self.tendon {
+            t.validate(&self.arm, &c.actuator_min, &c.actuator_max)?;
+        }
+        if let Some(t) = &self.tracker {
+            t.validate()?;
+        }
         Ok(())
     }
 }
@@ -572,6 +607,36 @@ mod tests {
         assert_eq!(c.arm, ArmGeometry::default());
         assert_eq!(c.activation, ActivationConfig::default());
         assert_eq!(c.forward_model, NetworkConfig::default());
+    }
+
+    const HARDWARE: &str = include_str!("../../../config/hardware.toml");
+
+    #[test]
+    fn the_hardware_config_is_valid_and_differs_only_in_the_drivers() {
+        let c = Config::parse(HARDWARE, "hardware.toml", ".".into()).unwrap();
+        let d = Config::default_sim(".".into());
+        assert_eq!(c.robot.drivers, ["tendon", "tracker"]);
+        assert!(c.tendon.is_some() && c.tracker.is_some());
+        // The same arm and method: a model trained on either config fits the other.
+        assert_eq!((&c.arm, &c.learner, &c.controller), (&d.arm, &d.learner, &d.controller));
+    }
+
+    #[test]
+    fn hardware_drivers_need_their_sections_and_consistent_limits() {
+        let no_tendon = HARDWARE.replace("[tendon]", "[tendon_unused]");
+        assert!(Config::parse(&no_tendon, "h.toml", ".".into()).is_err());
+        let (start, end) = (HARDWARE.find("[tendon]").unwrap(), HARDWARE.find("[tracker]").unwrap());
+        let without = format!("{}{}", &HARDWARE[..start], &HARDWARE[end..]);
+        let e = Config::parse(&without, "h.toml", ".".into()).unwrap_err();
+        assert!(e.message.contains("no [tendon] section"), "{e}");
+        let mixed = HARDWARE.replace(r#"drivers = ["tendon", "tracker"]"#, r#"drivers = ["sim", "tracker"]"#);
+        assert!(Config::parse(&mixed, "h.toml", ".".into()).is_err());
+        // A motor turned the wrong way would be driven past its limit: refused, at its line.
+        let wrong = HARDWARE.replace("direction = [1, 1, 1, -1, -1, -1]", "direction = [1, 1, 1, -1, 1, -1]");
+        let e = Config::parse(&wrong, "h.toml", ".".into()).unwrap_err();
+        let line = HARDWARE.lines().position(|l| l.starts_with("zero_ticks")).unwrap() + 1;
+        assert_eq!(e.line, Some(line), "{e}");
+        assert!(e.message.starts_with("tendon.zero_ticks[4]: motor 5 (actuator 5)"), "{e}");
     }
 
     #[test]

@@ -1,0 +1,480 @@
+//! The real arm's drivers in the config: `[tendon]` (six tendon motors on a Dynamixel bus) and
+//! `[tracker]` (a Bird-protocol electromagnetic tracker), and the two conversions they define:
+//! normalised actuation ↔ motor ticks ([`Mapping`]) and tracker frame ↔ base frame ([`Frame`]).
+//! Pure: the drivers and their emulators share these, so both ends agree by construction and
+//! the config check can refuse limits that contradict each other.
+
+use std::f64::consts::TAU;
+use std::path::PathBuf;
+
+use serde::{Deserialize, Serialize};
+use softarm_method::pcc::ArmGeometry;
+use softarm_method::space::{ACTUATORS, Actuation, Position};
+
+/// Metres per inch: the Bird protocol reports inches.
+pub const METRES_PER_INCH: f64 = 0.0254;
+
+/// How the motors hold a position (the Dynamixel operating mode written at start).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum OperatingMode {
+    /// One turn, 0..=4095 ticks (mode 3).
+    Position,
+    /// Multi-turn, ±1 048 575 ticks (mode 4): a spool that turns more than once per stroke.
+    ExtendedPosition,
+}
+
+impl OperatingMode {
+    /// The value of the control table's Operating Mode.
+    pub fn register_value(self) -> u8 {
+        match self {
+            OperatingMode::Position => 3,
+            OperatingMode::ExtendedPosition => 4,
+        }
+    }
+
+    /// The ticks a goal position may take in this mode.
+    pub fn ticks_range(self) -> (i32, i32) {
+        match self {
+            OperatingMode::Position => (0, 4095),
+            OperatingMode::ExtendedPosition => (-1_048_575, 1_048_575),
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TendonConfig {
+    /// The serial device of the motor bus (a udev rule gives it a stable name).
+    pub port: PathBuf,
+    pub baud: u32,
+    /// The motor id of actuator 1..6.
+    pub ids: [u8; ACTUATORS],
+    /// Goal positions written and positions and currents read per second.
+    pub rate_hz: f64,
+    pub operating_mode: OperatingMode,
+    /// Motor ticks per spool revolution (4096 on X-series).
+    pub ticks_per_rev: u32,
+    /// Spool radius per motor (m): tendon length per radian.
+    pub spool_radius_m: [f64; ACTUATORS],
+    /// Each motor's position (ticks) with its actuator at its shortest (normalised 0).
+    pub zero_ticks: [i32; ACTUATORS],
+    /// +1 when more ticks lengthen the actuator, -1 when they shorten it.
+    pub direction: [i8; ACTUATORS],
+    /// The motors' own position limits (ticks), written to them at start: a goal outside is
+    /// refused by the motor itself. Every setpoint the controller may send maps inside.
+    pub min_ticks: [i32; ACTUATORS],
+    pub max_ticks: [i32; ACTUATORS],
+    /// Current limit written to the motors (raw units of the control table; X-series 2.69 mA).
+    pub current_limit: u16,
+    /// No setpoint for this long (ms): hold the last position...
+    pub hold_after_ms: f64,
+    /// ...and this long (ms): torque off.
+    pub torque_off_after_ms: f64,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TrackerRecord {
+    /// X, Y, Z.
+    Position,
+    /// X, Y, Z and the three angles (read, not used for control).
+    PositionAngles,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TrackerMode {
+    /// The device sends records continuously (STREAM).
+    Stream,
+    /// The driver asks for each record (POINT) at `rate_hz`.
+    Point,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrackerConfig {
+    pub port: PathBuf,
+    pub baud: u32,
+    pub record: TrackerRecord,
+    pub mode: TrackerMode,
+    /// Records per second: polled at this rate in point mode, expected at it in stream mode.
+    pub rate_hz: f64,
+    /// The device's position full scale (in): 36, or 72 with the extended range set.
+    pub full_scale_in: f64,
+    /// No record for this long (ms): the device is reported silent and asked again.
+    pub silent_after_ms: f64,
+    /// Base frame from tracker frame: p_base = R(rotation_deg) · p_tracker + translation_m.
+    pub translation_m: Position,
+    /// Roll, pitch, yaw (°) about the tracker's x, y, z: R = Rz(yaw) · Ry(pitch) · Rx(roll).
+    pub rotation_deg: [f64; 3],
+}
+
+/// A failed check: the dotted key and a message that does not repeat it.
+pub(crate) type Invalid = (String, String);
+
+fn invalid<T>(key: String, message: String) -> Result<T, Invalid> {
+    Err((key, message))
+}
+
+/// Normalised actuation ↔ motor ticks for the six tendon motors: the actuator length of `a`
+/// (from the arm's stroke), wound onto the motor's spool.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Mapping {
+    /// Ticks per normalised unit, signed by the motor's direction.
+    ticks_per_unit: [f64; ACTUATORS],
+    zero_ticks: [i32; ACTUATORS],
+}
+
+impl Mapping {
+    pub fn new(tendon: &TendonConfig, arm: &ArmGeometry) -> Self {
+        let stroke_m = arm.actuator_max_m - arm.actuator_min_m;
+        let ticks_per_unit = std::array::from_fn(|i| {
+            let radians = stroke_m / tendon.spool_radius_m[i];
+            f64::from(tendon.direction[i]) * radians / TAU * f64::from(tendon.ticks_per_rev)
+        });
+        Self {
+            ticks_per_unit,
+            zero_ticks: tendon.zero_ticks,
+        }
+    }
+
+    /// The goal position of motor `i` for actuation `a` (rounded to the nearest tick).
+    pub fn ticks(&self, i: usize, a: f64) -> i32 {
+        (f64::from(self.zero_ticks[i]) + a * self.ticks_per_unit[i]).round() as i32
+    }
+
+    /// The actuation motor `i` stands at.
+    pub fn actuation(&self, i: usize, ticks: i32) -> f64 {
+        f64::from(ticks - self.zero_ticks[i]) / self.ticks_per_unit[i]
+    }
+
+    /// Every motor's goal for `a`.
+    pub fn all_ticks(&self, a: &Actuation) -> [i32; ACTUATORS] {
+        std::array::from_fn(|i| self.ticks(i, a[i]))
+    }
+}
+
+impl TendonConfig {
+    /// Checks the section against the arm and the controller's actuator limits: every setpoint
+    /// the controller may send must map to ticks the motors accept.
+    pub(crate) fn validate(
+        &self,
+        arm: &ArmGeometry,
+        actuator_min: &Actuation,
+        actuator_max: &Actuation,
+    ) -> Result<(), Invalid> {
+        let key = |k: &str| format!("tendon.{k}");
+        if self.port.as_os_str().is_empty() {
+            return invalid(key("port"), "must name the serial device".into());
+        }
+        if !(9600..=10_500_000).contains(&self.baud) {
+            return invalid(
+                key("baud"),
+                format!("must be 9600 to 10500000 baud, got {}", self.baud),
+            );
+        }
+        for (i, &id) in self.ids.iter().enumerate() {
+            if id > 252 {
+                return invalid(
+                    format!("tendon.ids[{i}]"),
+                    format!("motor ids are 0 to 252, got {id}"),
+                );
+            }
+            if self.ids[..i].contains(&id) {
+                return invalid(
+                    format!("tendon.ids[{i}]"),
+                    format!("id {id} is given to two actuators"),
+                );
+            }
+        }
+        if !(self.rate_hz.is_finite() && (1.0..=1000.0).contains(&self.rate_hz)) {
+            return invalid(
+                key("rate_hz"),
+                format!("must be in [1, 1000] Hz, got {:?}", self.rate_hz),
+            );
+        }
+        if !(16..=1 << 20).contains(&self.ticks_per_rev) {
+            return invalid(
+                key("ticks_per_rev"),
+                format!("must be 16 to 1048576, got {}", self.ticks_per_rev),
+            );
+        }
+        let (lowest, highest) = self.operating_mode.ticks_range();
+        for i in 0..ACTUATORS {
+            let r = self.spool_radius_m[i];
+            if !(r.is_finite() && r > 0.0 && r <= 0.5) {
+                return invalid(
+                    format!("tendon.spool_radius_m[{i}]"),
+                    format!("must be in (0, 0.5] m, got {r:?}"),
+                );
+            }
+            if !matches!(self.direction[i], 1 | -1) {
+                return invalid(
+                    format!("tendon.direction[{i}]"),
+                    format!("must be 1 or -1, got {}", self.direction[i]),
+                );
+            }
+            let (lo, hi) = (self.min_ticks[i], self.max_ticks[i]);
+            for (name, v) in [("min_ticks", lo), ("max_ticks", hi)] {
+                if !(lowest..=highest).contains(&v) {
+                    return invalid(
+                        format!("tendon.{name}[{i}]"),
+                        format!(
+                            "{v} is outside what {:?} mode accepts, [{lowest}, {highest}]",
+                            self.operating_mode
+                        ),
+                    );
+                }
+            }
+            if lo >= hi {
+                return invalid(
+                    format!("tendon.max_ticks[{i}]"),
+                    format!("{hi} must exceed min_ticks[{i}] = {lo}"),
+                );
+            }
+        }
+        let mapping = Mapping::new(self, arm);
+        for i in 0..ACTUATORS {
+            let ends = [actuator_min[i], actuator_max[i]];
+            for (end, a) in ["actuator_min", "actuator_max"].into_iter().zip(ends) {
+                let t = mapping.ticks(i, a);
+                if !(self.min_ticks[i]..=self.max_ticks[i]).contains(&t) {
+                    return invalid(
+                        format!("tendon.zero_ticks[{i}]"),
+                        format!(
+                            "motor {} (actuator {}) would need {t} ticks at controller.{end} \
+                             = {a}, outside its limits [{}, {}] (min_ticks, max_ticks); check \
+                             zero_ticks, direction and spool_radius_m of this motor",
+                            self.ids[i],
+                            i + 1,
+                            self.min_ticks[i],
+                            self.max_ticks[i]
+                        ),
+                    );
+                }
+            }
+        }
+        if !(self.hold_after_ms.is_finite() && self.hold_after_ms > 0.0) {
+            return invalid(
+                key("hold_after_ms"),
+                format!("must be a positive time, got {:?}", self.hold_after_ms),
+            );
+        }
+        if !(self.torque_off_after_ms.is_finite()
+            && self.torque_off_after_ms > self.hold_after_ms
+            && self.torque_off_after_ms <= 600_000.0)
+        {
+            return invalid(
+                key("torque_off_after_ms"),
+                format!(
+                    "must be in (hold_after_ms, 600000] = ({}, 600000] ms, got {:?}",
+                    self.hold_after_ms, self.torque_off_after_ms
+                ),
+            );
+        }
+        Ok(())
+    }
+}
+
+/// Tracker frame (inches, as the device reports) ↔ base frame (metres).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Frame {
+    rotation: [[f64; 3]; 3],
+    translation_m: Position,
+}
+
+impl Frame {
+    pub fn new(tracker: &TrackerConfig) -> Self {
+        let [roll, pitch, yaw] = tracker.rotation_deg.map(f64::to_radians);
+        let (sr, cr) = roll.sin_cos();
+        let (sp, cp) = pitch.sin_cos();
+        let (sy, cy) = yaw.sin_cos();
+        // Rz(yaw) · Ry(pitch) · Rx(roll).
+        let rotation = [
+            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+            [-sp, cp * sr, cp * cr],
+        ];
+        Self {
+            rotation,
+            translation_m: tracker.translation_m,
+        }
+    }
+
+    /// A position the device reports (in, tracker frame) in the base frame (m).
+    pub fn to_base(&self, tracker_in: [f64; 3]) -> Position {
+        let p = tracker_in.map(|v| v * METRES_PER_INCH);
+        std::array::from_fn(|r| {
+            (0..3).map(|c| self.rotation[r][c] * p[c]).sum::<f64>() + self.translation_m[r]
+        })
+    }
+
+    /// Where the device sees a base-frame position (in): the inverse of [`Frame::to_base`].
+    pub fn to_tracker(&self, base_m: Position) -> [f64; 3] {
+        let d: [f64; 3] = std::array::from_fn(|i| base_m[i] - self.translation_m[i]);
+        std::array::from_fn(|c| {
+            (0..3).map(|r| self.rotation[r][c] * d[r]).sum::<f64>() / METRES_PER_INCH
+        })
+    }
+}
+
+impl TrackerConfig {
+    pub(crate) fn validate(&self) -> Result<(), Invalid> {
+        let key = |k: &str| format!("tracker.{k}");
+        if self.port.as_os_str().is_empty() {
+            return invalid(key("port"), "must name the serial device".into());
+        }
+        if !(2400..=1_000_000).contains(&self.baud) {
+            return invalid(
+                key("baud"),
+                format!("must be 2400 to 1000000 baud, got {}", self.baud),
+            );
+        }
+        if !(self.rate_hz.is_finite() && (1.0..=1000.0).contains(&self.rate_hz)) {
+            return invalid(
+                key("rate_hz"),
+                format!("must be in [1, 1000] Hz, got {:?}", self.rate_hz),
+            );
+        }
+        if !matches!(self.full_scale_in, 36.0 | 72.0) {
+            return invalid(
+                key("full_scale_in"),
+                format!(
+                    "the device's full scale is 36 or 72 in, got {:?}",
+                    self.full_scale_in
+                ),
+            );
+        }
+        let period_ms = 1000.0 / self.rate_hz;
+        if !(self.silent_after_ms.is_finite()
+            && self.silent_after_ms >= 2.0 * period_ms
+            && self.silent_after_ms <= 60_000.0)
+        {
+            return invalid(
+                key("silent_after_ms"),
+                format!(
+                    "must be in [2 record periods, 60000] = [{}, 60000] ms, got {:?}",
+                    2.0 * period_ms,
+                    self.silent_after_ms
+                ),
+            );
+        }
+        for i in 0..3 {
+            if !(self.translation_m[i].is_finite() && self.translation_m[i].abs() <= 10.0) {
+                return invalid(
+                    format!("tracker.translation_m[{i}]"),
+                    format!("must be in [-10, 10] m, got {:?}", self.translation_m[i]),
+                );
+            }
+            if !(self.rotation_deg[i].is_finite() && self.rotation_deg[i].abs() <= 360.0) {
+                return invalid(
+                    format!("tracker.rotation_deg[{i}]"),
+                    format!("must be in [-360, 360]°, got {:?}", self.rotation_deg[i]),
+                );
+            }
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    pub(crate) fn tendon() -> TendonConfig {
+        TendonConfig {
+            port: "/dev/null".into(),
+            baud: 1_000_000,
+            ids: [1, 2, 3, 4, 5, 6],
+            rate_hz: 100.0,
+            operating_mode: OperatingMode::Position,
+            ticks_per_rev: 4096,
+            spool_radius_m: [0.015; 6],
+            zero_ticks: [700, 700, 700, 3400, 3400, 3400],
+            direction: [1, 1, 1, -1, -1, -1],
+            min_ticks: [600, 600, 600, 700, 700, 700],
+            max_ticks: [3400, 3400, 3400, 3500, 3500, 3500],
+            current_limit: 1193,
+            hold_after_ms: 100.0,
+            torque_off_after_ms: 2000.0,
+        }
+    }
+
+    #[test]
+    fn mapping_winds_the_stroke_onto_the_spool_and_back() {
+        let arm = ArmGeometry::default();
+        let m = Mapping::new(&tendon(), &arm);
+        // 60 mm stroke on a 15 mm spool: 4 rad, 2607.9 ticks.
+        assert_eq!(m.ticks(0, 0.0), 700);
+        assert_eq!(m.ticks(0, 1.0), 700 + 2608);
+        assert_eq!(m.ticks(3, 1.0), 3400 - 2608);
+        for i in 0..6 {
+            for a in [0.0, 0.25, 0.5, 0.99] {
+                let back = m.actuation(i, m.ticks(i, a));
+                assert!((back - a).abs() < 0.5 / 2607.9 + 1e-12, "{i} {a} {back}");
+            }
+        }
+    }
+
+    #[test]
+    fn inconsistent_limits_are_refused_naming_the_motor() {
+        let arm = ArmGeometry::default();
+        let mut t = tendon();
+        t.validate(&arm, &[0.0; 6], &[1.0; 6]).unwrap();
+        t.direction[1] = -1; // 700 - 2608 < 600
+        let (key, message) = t.validate(&arm, &[0.0; 6], &[1.0; 6]).unwrap_err();
+        assert_eq!(key, "tendon.zero_ticks[1]");
+        assert!(message.contains("motor 2 (actuator 2)"), "{message}");
+        // ...but fine when the controller never asks for more than 0.03 of the stroke.
+        t.validate(&arm, &[0.0; 6], &[0.03; 6]).unwrap();
+
+        let mut t = tendon();
+        t.max_ticks[4] = 4096;
+        assert_eq!(
+            t.validate(&arm, &[0.0; 6], &[1.0; 6]).unwrap_err().0,
+            "tendon.max_ticks[4]"
+        );
+        let mut t = tendon();
+        t.ids[5] = 1;
+        assert_eq!(
+            t.validate(&arm, &[0.0; 6], &[1.0; 6]).unwrap_err().0,
+            "tendon.ids[5]"
+        );
+        let mut t = tendon();
+        t.torque_off_after_ms = 50.0;
+        assert_eq!(
+            t.validate(&arm, &[0.0; 6], &[1.0; 6]).unwrap_err().0,
+            "tendon.torque_off_after_ms"
+        );
+    }
+
+    #[test]
+    fn frame_round_trips_and_rotates_as_documented() {
+        let mut c = TrackerConfig {
+            port: "/dev/null".into(),
+            baud: 115_200,
+            record: TrackerRecord::Position,
+            mode: TrackerMode::Stream,
+            rate_hz: 100.0,
+            full_scale_in: 36.0,
+            silent_after_ms: 200.0,
+            translation_m: [0.1, -0.2, 0.3],
+            rotation_deg: [0.0, 0.0, 90.0],
+        };
+        let f = Frame::new(&c);
+        // Yaw 90°: the tracker's x is the base's y.
+        let p = f.to_base([1.0 / METRES_PER_INCH, 0.0, 0.0]);
+        assert!((p[0] - 0.1).abs() < 1e-12 && (p[1] - 0.8).abs() < 1e-12, "{p:?}");
+        c.rotation_deg = [10.0, -20.0, 30.0];
+        let f = Frame::new(&c);
+        let q = [0.12, -0.05, -0.4];
+        let back = f.to_base(f.to_tracker(q));
+        for i in 0..3 {
+            assert!((back[i] - q[i]).abs() < 1e-12);
+        }
+        c.validate().unwrap();
+        c.silent_after_ms = 5.0;
+        assert_eq!(c.validate().unwrap_err().0, "tracker.silent_after_ms");
+    }
+}
