@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 
 use nix::sys::signal::{Signal, kill};
 use nix::unistd::Pid;
-use softarm_ipc::{MotorState, Namespace, Node, Sub};
+use softarm_ipc::{DriverState, MotorState, Namespace, Node, Sub};
 use softarm_test_support::{DEMO_WAYPOINTS, TestStack, set_id};
 
 const BIN: &str = env!("CARGO_BIN_EXE_softarm");
@@ -46,7 +46,7 @@ fn driver_stopped(motors: &Sub<MotorState>, since_ns: u64) -> bool {
     loop {
         while let Ok(Some(m)) = motors.receive() {
             if m.stamp_ns > since_ns {
-                return m.stopped == 1;
+                return m.driver_state() == Some(DriverState::Stopped);
             }
         }
         assert!(start.elapsed() < Duration::from_secs(20), "no motor state");

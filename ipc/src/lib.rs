@@ -86,19 +86,72 @@ pub struct TrackerSample {
     pub position: Position,
 }
 
-/// What the actuators actually reached, normalised, and whether the driver holds them on a
-/// latched e-stop.
+/// What a driver does with the setpoints it receives.
+#[repr(u32)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum DriverState {
+    /// Applying each setpoint.
+    #[default]
+    Following = 0,
+    /// No setpoint for a while: the last position is held.
+    Holding = 1,
+    /// Torque off: before the first setpoint, or when setpoints stopped for too long.
+    Off = 2,
+    /// The e-stop is latched: setpoints are ignored until a reset (torque off on the tendon
+    /// driver, held in place by the sim).
+    Stopped = 3,
+    /// A motor reported a hardware error: it gets no more commands, the others hold.
+    Fault = 4,
+}
+
+impl DriverState {
+    pub fn from_u32(v: u32) -> Option<Self> {
+        use DriverState::*;
+        [Following, Holding, Off, Stopped, Fault]
+            .into_iter()
+            .find(|s| *s as u32 == v)
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            DriverState::Following => "FOLLOWING",
+            DriverState::Holding => "HOLDING",
+            DriverState::Off => "OFF",
+            DriverState::Stopped => "STOPPED",
+            DriverState::Fault => "FAULT",
+        }
+    }
+}
+
+/// What the actuators actually reached, normalised, and what the driver and the hardware say
+/// about them.
 #[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
-// v2: `stopped` added, so a peer built before cannot connect and misread it.
-#[type_name("softarm::MotorState.v2")]
+// v3: the driver's state, currents, hardware errors and fault count (v2 had only `stopped`);
+// a peer built before cannot connect and misread it.
+#[type_name("softarm::MotorState.v3")]
 #[repr(C)]
 pub struct MotorState {
     pub seq: u64,
     pub stamp_ns: u64,
     pub actuation: Actuation,
-    /// 1 while the driver ignores setpoints because the e-stop is latched.
-    pub stopped: u32,
+    /// Motor currents (A) where the driver measures them; NaN where it does not (the sim).
+    pub current_a: Actuation,
+    /// Communication faults since the driver started (time-outs, bad checksums, garbage,
+    /// a lost port).
+    pub faults: u64,
+    /// `DriverState` as u32.
+    pub state: u32,
     pub _pad: u32,
+    /// Per motor, the hardware-error status it reports (0 = none; Dynamixel bits: 0x01 input
+    /// voltage, 0x04 overheating, 0x08 encoder, 0x10 electrical shock, 0x20 overload).
+    pub hardware_error: [u8; ACTUATORS],
+    pub _pad2: [u8; 2],
+}
+
+impl MotorState {
+    pub fn driver_state(&self) -> Option<DriverState> {
+        DriverState::from_u32(self.state)
+    }
 }
 
 /// Sent by the controller at each conditioning point: what was executed there and where the end

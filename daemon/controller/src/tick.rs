@@ -10,7 +10,7 @@ use rtrb::{Consumer, Producer};
 use softarm_ipc::clock::Ticker;
 use softarm_ipc::{
     Actuation, ConditioningSample, ControllerState, ControllerStatus, EstopState, ExecutionStats,
-    MotorState, Namespace, Node, Position, Setpoint, Sub, TrackerSample, now_ns,
+    DriverState, MotorState, Namespace, Node, Position, Setpoint, Sub, TrackerSample, now_ns,
 };
 use softarm_model::config::{Config, Controller};
 
@@ -110,6 +110,9 @@ struct Inputs {
     /// The measured actuation and its stamp.
     measured: Option<(Actuation, u64)>,
     engaged: bool,
+    /// The driver reports a motor with a hardware error: the arm may not move until it is
+    /// fixed (the driver holds the others).
+    driver_fault: bool,
     /// Last, so the ports go before it.
     _node: Node,
 }
@@ -125,6 +128,7 @@ impl Inputs {
             position: None,
             measured: None,
             engaged,
+            driver_fault: false,
             _node: node,
         })
     }
@@ -136,6 +140,7 @@ impl Inputs {
         }
         while let Ok(Some(s)) = self.motors.receive() {
             self.measured = Some((s.actuation, s.stamp_ns));
+            self.driver_fault = s.state == DriverState::Fault as u32;
         }
         while let Ok(Some(s)) = self.estop.receive() {
             self.engaged = s.engaged != 0;
@@ -328,7 +333,10 @@ impl<'a> Tick<'a> {
         Health {
             tracker_age_ns,
             motor_age_ns,
-            safe: !self.inputs.engaged && tracker_age_ns <= timeout && motor_age_ns <= timeout,
+            safe: !self.inputs.engaged
+                && !self.inputs.driver_fault
+                && tracker_age_ns <= timeout
+                && motor_age_ns <= timeout,
         }
     }
 

@@ -7,7 +7,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use anyhow::Context;
 
 use softarm_ipc::clock::Ticker;
-use softarm_ipc::{EstopLatch, MotorState, Namespace, Node, TrackerSample, now_ns};
+use softarm_driver::Commands;
+use softarm_ipc::{DriverState, EstopLatch, MotorState, Namespace, Node, TrackerSample, now_ns};
 
 use softarm_method::pcc::ArmGeometry;
 use softarm_method::plant::{Plant, SimConfig};
@@ -25,46 +26,22 @@ pub fn run(
         .map_err(anyhow::Error::msg)
         .context("the simulated plant")?;
     let ipc = Node::open(namespace, "sim")?;
-    let setpoints = ipc.subscriber(&ipc.setpoint()?)?;
-    let estop = ipc.subscriber(&ipc.estop()?)?;
+    let mut commands = Commands::open(&ipc, latch)?;
     let tracker = ipc.publisher(&ipc.tracker()?)?;
     let motors = ipc.publisher(&ipc.motor_state()?)?;
 
     let dt = 1.0 / config.rate_hz;
     let mut command = config.initial_actuation;
-    let mut stopped = latch.engaged_or_safe(|e| tracing::error!("{e}; holding the motors"));
-    if stopped {
-        tracing::warn!(
-            "the e-stop is latched ({}): holding the motors until `softarm estop --reset`",
-            latch.path().display()
-        );
-    }
     let mut seq = 0u64;
-    let mut refused = 0u64;
     let mut ticker = Ticker::new(config.rate_hz);
     tracing::info!(rate_hz = config.rate_hz, "sim running");
     while !stop.load(Ordering::Relaxed) {
         ticker.wait();
-        while let Ok(Some(s)) = setpoints.receive() {
-            // From the wire: a setpoint that is not a number is refused whole (a real driver
-            // must never pass it to a motor); the last good one stays.
-            if s.actuation.iter().all(|v| v.is_finite()) {
-                command = s.actuation;
-            } else {
-                refused += 1;
-                if refused.is_power_of_two() {
-                    tracing::error!(
-                        refused,
-                        actuation = ?s.actuation,
-                        "setpoint refused: not a number; holding the last good one"
-                    );
-                }
-            }
+        let poll = commands.poll();
+        if let Some(a) = poll.setpoint {
+            command = a;
         }
-        while let Ok(Some(s)) = estop.receive() {
-            stopped = s.engaged != 0;
-        }
-        if stopped {
+        if poll.stopped {
             // E-stop: the motors hold where they are, whatever is commanded.
             command = plant.state();
         }
@@ -75,8 +52,13 @@ pub fn run(
             seq,
             stamp_ns,
             actuation: m.actuation,
-            stopped: stopped as u32,
-            _pad: 0,
+            current_a: [f64::NAN; 6],
+            state: if poll.stopped {
+                DriverState::Stopped
+            } else {
+                DriverState::Following
+            } as u32,
+            ..MotorState::default()
         });
         let _ = tracker.send_copy(TrackerSample {
             seq,
@@ -84,6 +66,7 @@ pub fn run(
             position: m.position,
         });
     }
+    let refused = commands.refused();
     tracing::info!(overruns = ticker.overruns(), refused, "sim stopped");
     Ok(())
 }
