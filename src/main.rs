@@ -98,6 +98,10 @@ enum Command {
         #[arg(long)]
         scenario: Option<String>,
     },
+    /// The tendon motors of the real arm (driver process): Dynamixel Protocol 2.0, [tendon].
+    Tendon(Stack),
+    /// The tracker of the real arm (driver process): Ascension Bird protocol, [tracker].
+    Tracker(Stack),
     /// Demonstrations through the running stack, then ProMPs, forward model, pre-training.
     Train {
         #[command(flatten)]
@@ -220,6 +224,14 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 &c.estop_latch(),
                 &*stop_flag()?,
             )?
+        }
+        Command::Tendon(stack) => {
+            let c = stack.load()?;
+            softarm_tendon::run(&c, Namespace::new(&c.namespace())?, &*stop_flag()?)?
+        }
+        Command::Tracker(stack) => {
+            let c = stack.load()?;
+            softarm_tracker::run(&c, Namespace::new(&c.namespace())?, &*stop_flag()?)?
         }
         Command::Train { stack, seed } => {
             let config = stack.load()?;

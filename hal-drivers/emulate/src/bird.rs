@@ -1,1 +1,909 @@
-//! The Bird tracker emulator (being written).
+//! An Ascension Bird tracker (trakSTAR / Flock of Birds class) on a pseudo-terminal: the device
+//! side of the RS-232 protocol in [`softarm_tracker::bird`].
+//!
+//! [`BirdDevice`] is the pure device model: it parses the bytes the host writes and produces the
+//! bytes the unit would answer. [`serve`] runs it on a [`Pty`], streams on absolute deadlines,
+//! and injects faults ([`BirdFaults`]) for tests.
+//!
+//! Commands understood: POSITION and POSITION/ANGLES (switch the record format), POINT (one
+//! record now; also ends STREAM mode, as on the real unit), STREAM, STREAM STOP, RUN and SLEEP
+//! (no output while asleep; a STREAM mode set before or during SLEEP resumes on RUN).
+//! Multi-byte commands a host commonly sends while setting up are consumed whole, so their data
+//! bytes are never taken for commands:
+//! - EXAMINE VALUE (`O` + parameter): answers BIRD STATUS (2 bytes: master, initialized,
+//!   running/sleeping, format and streaming bits) and POSITION SCALING (2 bytes); other
+//!   parameters get no answer (logged at debug).
+//! - CHANGE VALUE (`P` + parameter + data, the data length from
+//!   [`softarm_tracker::bird::change_value_len`]): POSITION SCALING 0/1 switches the position
+//!   full scale to 36/72 in; other parameters are accepted and ignored. An unknown parameter
+//!   (length unknown) consumes no data.
+//! - HEMISPHERE (`L` + 2), ANGLE ALIGN / REFERENCE FRAME (`J`/`H` + 12, `q`/`r` + 6),
+//!   BUTTON MODE (`M` + 1), NEXT TRANSMITTER (`0` + 1), SYNC (`A` + 1), super-expanded RS232 TO
+//!   FBB (`0xA0` + address): data consumed, otherwise ignored.
+//! - RS232 TO FBB prefixes (`0xE0..=0xFF`), which hosts of a flock put before every command, are
+//!   accepted silently: this unit answers whatever address is named.
+//!
+//! Any other byte is ignored (logged at debug). Only the POSITION and POSITION/ANGLES formats are
+//! modelled; the other format commands (ANGLES, MATRIX, QUATERNION, ...) are ignored, and GROUP
+//! MODE (an address byte after each record) is not modelled.
+
+use std::fs::{File, OpenOptions};
+use std::io;
+use std::os::unix::fs::OpenOptionsExt;
+use std::path::Path;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
+use std::thread;
+use std::time::{Duration, Instant};
+
+use nix::fcntl::OFlag;
+use nix::sys::termios::{FlushArg, tcflush};
+use softarm_tracker::bird::{
+    CHANGE_VALUE, EXAMINE_VALUE, FULL_SCALE_EXTENDED_IN, FULL_SCALE_STANDARD_IN, HEMISPHERE,
+    MAX_RECORD_BYTES, POINT, POSITION, POSITION_ANGLES, RUN, Record, RecordFormat, SLEEP, STREAM,
+    STREAM_STOP, change_value_len, encode, param, status,
+};
+use tracing::{debug, info, warn};
+
+use crate::pty::Pty;
+
+/// ANGLE ALIGN (6 words of sines and cosines).
+const ANGLE_ALIGN1: u8 = b'J';
+/// REFERENCE FRAME (6 words).
+const REFERENCE_FRAME1: u8 = b'H';
+/// ANGLE ALIGN, angles form (3 words).
+const ANGLE_ALIGN2: u8 = b'q';
+/// REFERENCE FRAME, angles form (3 words).
+const REFERENCE_FRAME2: u8 = b'r';
+/// BUTTON MODE (1 byte).
+const BUTTON_MODE: u8 = b'M';
+/// NEXT TRANSMITTER (1 byte: address and transmitter number).
+const NEXT_TRANSMITTER: u8 = b'0';
+/// SYNC (1 byte: sync type).
+const SYNC: u8 = b'A';
+/// RS232 TO FBB in super-expanded addressing: followed by the address byte.
+const RS232_TO_FBB_SUPER_EXPANDED: u8 = 0xA0;
+
+/// Fault injection for tests, shared with the serving thread.
+#[derive(Debug, Default)]
+pub struct BirdFaults {
+    /// Stop answering and streaming: what the host writes is read and discarded, nothing is
+    /// sent, the device keeps its state (as with the cable pulled). Clearing it resumes.
+    pub silent: AtomicBool,
+    /// 0 = never; else, about once per this many records sent, replace a byte with a garbage
+    /// byte, insert a garbage byte, or drop a byte (one of the three at random).
+    pub corrupt_one_in: AtomicU32,
+}
+
+impl BirdFaults {
+    /// No faults.
+    pub fn new() -> Self {
+        Self::default()
+    }
+}
+
+/// A command whose data bytes are still to come.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Pending {
+    /// The next byte is a command.
+    Command,
+    /// The next byte is the parameter of EXAMINE VALUE.
+    ExamineParameter,
+    /// The next byte is the parameter of CHANGE VALUE.
+    ChangeParameter,
+    /// Data of CHANGE VALUE `parameter`: `have` of `need` bytes are in `data`.
+    ChangeData {
+        parameter: u8,
+        have: usize,
+        need: usize,
+    },
+    /// Data bytes of `command` to consume and ignore.
+    Skip { command: u8, left: usize },
+}
+
+/// The longest CHANGE VALUE data (14 bytes) the device keeps.
+const MAX_CHANGE_DATA: usize = 16;
+
+/// The device: answers the single-byte commands as the real unit does.
+#[derive(Clone, Debug)]
+pub struct BirdDevice {
+    full_scale_in: f64,
+    format: RecordFormat,
+    streaming: bool,
+    asleep: bool,
+    pending: Pending,
+    change_data: [u8; MAX_CHANGE_DATA],
+    records: u64,
+}
+
+impl BirdDevice {
+    /// A unit awake, in POSITION format, not streaming (point mode), whose positions have a full
+    /// scale of `full_scale_in` inches.
+    ///
+    /// # Panics
+    ///
+    /// If `full_scale_in` is not a finite positive number.
+    pub fn new(full_scale_in: f64) -> Self {
+        assert!(
+            full_scale_in.is_finite() && full_scale_in > 0.0,
+            "full scale must be a finite positive number of inches, got {full_scale_in}"
+        );
+        Self {
+            full_scale_in,
+            format: RecordFormat::Position,
+            streaming: false,
+            asleep: false,
+            pending: Pending::Command,
+            change_data: [0; MAX_CHANGE_DATA],
+            records: 0,
+        }
+    }
+
+    /// Feeds bytes the host wrote; returns what the device answers right away (a POINT gets one
+    /// record of the current position) into `out`.
+    pub fn receive(
+        &mut self,
+        bytes: &[u8],
+        position_in: [f64; 3],
+        angles_deg: [f64; 3],
+        out: &mut Vec<u8>,
+    ) {
+        for &b in bytes {
+            self.pending = match self.pending {
+                Pending::Command => self.command(b, position_in, angles_deg, out),
+                Pending::ExamineParameter => {
+                    self.examine(b, out);
+                    Pending::Command
+                }
+                Pending::ChangeParameter => match change_value_len(b) {
+                    Some(0) => Pending::Command,
+                    Some(need) => Pending::ChangeData {
+                        parameter: b,
+                        have: 0,
+                        need,
+                    },
+                    None => {
+                        debug!(parameter = b, "bird: CHANGE VALUE of an unknown parameter");
+                        Pending::Command
+                    }
+                },
+                Pending::ChangeData {
+                    parameter,
+                    have,
+                    need,
+                } => {
+                    if have < MAX_CHANGE_DATA {
+                        self.change_data[have] = b;
+                    }
+                    if have + 1 == need {
+                        self.change(parameter, need);
+                        Pending::Command
+                    } else {
+                        Pending::ChangeData {
+                            parameter,
+                            have: have + 1,
+                            need,
+                        }
+                    }
+                }
+                Pending::Skip { command, left } => {
+                    if left <= 1 {
+                        Pending::Command
+                    } else {
+                        Pending::Skip {
+                            command,
+                            left: left - 1,
+                        }
+                    }
+                }
+            };
+        }
+    }
+
+    /// Handles a command byte; returns what the following bytes are.
+    fn command(
+        &mut self,
+        b: u8,
+        position_in: [f64; 3],
+        angles_deg: [f64; 3],
+        out: &mut Vec<u8>,
+    ) -> Pending {
+        let skip = |left| Pending::Skip { command: b, left };
+        match b {
+            POSITION | POSITION_ANGLES => {
+                if let Some(format) = RecordFormat::from_command(b) {
+                    self.format = format;
+                }
+            }
+            POINT => {
+                self.streaming = false;
+                if !self.asleep {
+                    self.record(position_in, angles_deg, out);
+                }
+            }
+            STREAM => self.streaming = true,
+            STREAM_STOP => self.streaming = false,
+            RUN => self.asleep = false,
+            SLEEP => self.asleep = true,
+            EXAMINE_VALUE => return Pending::ExamineParameter,
+            CHANGE_VALUE => return Pending::ChangeParameter,
+            HEMISPHERE => return skip(2),
+            ANGLE_ALIGN1 | REFERENCE_FRAME1 => return skip(12),
+            ANGLE_ALIGN2 | REFERENCE_FRAME2 => return skip(6),
+            BUTTON_MODE | NEXT_TRANSMITTER | SYNC | RS232_TO_FBB_SUPER_EXPANDED => return skip(1),
+            0xE0..=0xFF => {} // RS232 TO FBB prefix: this unit answers any address
+            _ => debug!(byte = b, "bird: ignored command byte"),
+        }
+        Pending::Command
+    }
+
+    /// Answers EXAMINE VALUE of `parameter`.
+    fn examine(&self, parameter: u8, out: &mut Vec<u8>) {
+        let word: u16 = match parameter {
+            param::BIRD_STATUS => {
+                let format = u16::from(self.format.command() - POSITION + 1) << 1;
+                let mut s = status::MASTER | status::INITIALIZED | format;
+                s |= if self.asleep {
+                    status::SLEEPING
+                } else {
+                    status::RUNNING
+                };
+                if self.streaming {
+                    s |= status::STREAMING;
+                }
+                s
+            }
+            param::POSITION_SCALING => u16::from(self.full_scale_in > FULL_SCALE_STANDARD_IN),
+            _ => {
+                debug!(parameter, "bird: EXAMINE VALUE not answered");
+                return;
+            }
+        };
+        out.extend_from_slice(&word.to_le_bytes());
+    }
+
+    /// Applies CHANGE VALUE of `parameter` once its `len` data bytes are in.
+    fn change(&mut self, parameter: u8, len: usize) {
+        match parameter {
+            param::POSITION_SCALING => {
+                match u16::from_le_bytes([self.change_data[0], self.change_data[1]]) {
+                    0 => self.full_scale_in = FULL_SCALE_STANDARD_IN,
+                    1 => self.full_scale_in = FULL_SCALE_EXTENDED_IN,
+                    v => debug!(value = v, "bird: unsupported POSITION SCALING ignored"),
+                }
+            }
+            _ => debug!(
+                parameter,
+                data = ?&self.change_data[..len.min(MAX_CHANGE_DATA)],
+                "bird: CHANGE VALUE accepted and ignored"
+            ),
+        }
+    }
+
+    /// Appends one record of the pose in the current format.
+    fn record(&mut self, position_in: [f64; 3], angles_deg: [f64; 3], out: &mut Vec<u8>) {
+        let record = Record {
+            position_in,
+            angles_deg: Some(angles_deg),
+        };
+        let mut buf = [0u8; MAX_RECORD_BYTES];
+        let n = encode(self.format, self.full_scale_in, &record, &mut buf);
+        out.extend_from_slice(&buf[..n]);
+        self.records += 1;
+    }
+
+    /// Whether the unit is in STREAM mode (it sends only while also awake).
+    pub fn streaming(&self) -> bool {
+        self.streaming
+    }
+
+    /// Whether the unit is asleep (SLEEP; no output until RUN).
+    pub fn asleep(&self) -> bool {
+        self.asleep
+    }
+
+    /// The current record format.
+    pub fn format(&self) -> RecordFormat {
+        self.format
+    }
+
+    /// The current position full scale, inches.
+    pub fn full_scale_in(&self) -> f64 {
+        self.full_scale_in
+    }
+
+    /// Records produced so far (POINT answers and streamed records).
+    pub fn records_sent(&self) -> u64 {
+        self.records
+    }
+
+    /// One streamed record of the given pose into `out` when streaming (nothing otherwise, or
+    /// while asleep).
+    pub fn stream(&mut self, position_in: [f64; 3], angles_deg: [f64; 3], out: &mut Vec<u8>) {
+        if self.streaming && !self.asleep {
+            self.record(position_in, angles_deg, out);
+        }
+    }
+}
+
+/// A small deterministic generator for fault injection.
+struct XorShift(u64);
+
+impl XorShift {
+    fn next(&mut self) -> u64 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 7;
+        self.0 ^= self.0 << 17;
+        self.0
+    }
+
+    /// Uniform-enough in `0..n` (`n > 0`).
+    fn below(&mut self, n: u64) -> u64 {
+        self.next() % n
+    }
+}
+
+/// Replaces a byte of `out` with garbage, inserts a garbage byte or drops a byte.
+fn corrupt(out: &mut Vec<u8>, rng: &mut XorShift) {
+    if out.is_empty() {
+        return;
+    }
+    let at = rng.below(out.len() as u64) as usize;
+    let garbage = rng.next() as u8;
+    match rng.below(3) {
+        0 => out[at] = garbage,
+        1 => out.insert(at, garbage),
+        _ => {
+            out.remove(at);
+        }
+    }
+}
+
+/// How long a write may block (the host not reading) before the unread input of the host is
+/// dropped, as a serial port does when its receive buffer overruns.
+const OVERRUN_AFTER: Duration = Duration::from_millis(100);
+/// The longest the loop waits without looking at `stop`.
+const MAX_WAIT: Duration = Duration::from_millis(50);
+
+/// Drops the host's unread input when a write has blocked for longer than [`OVERRUN_AFTER`], so
+/// a host that stops reading cannot stall the device (or its `stop`).
+fn overrun_guard(slave: File, writing_since_ms: &AtomicU64, done: &AtomicBool, epoch: Instant) {
+    while !done.load(Ordering::Acquire) {
+        thread::sleep(Duration::from_millis(20));
+        let since = writing_since_ms.load(Ordering::Acquire);
+        if since == 0 {
+            continue;
+        }
+        let now = epoch.elapsed().as_millis() as u64 + 1;
+        if now.saturating_sub(since) > OVERRUN_AFTER.as_millis() as u64 {
+            match tcflush(&slave, FlushArg::TCIFLUSH) {
+                Ok(()) => debug!("bird: host not reading; its unread input dropped"),
+                Err(e) => warn!(error = %e, "bird: could not drop the host's unread input"),
+            }
+        }
+    }
+}
+
+/// Opens the slave side once more, for [`overrun_guard`].
+fn open_slave(path: &Path) -> io::Result<File> {
+    OpenOptions::new()
+        .read(true)
+        .custom_flags((OFlag::O_NOCTTY | OFlag::O_NONBLOCK | OFlag::O_CLOEXEC).bits())
+        .open(path)
+}
+
+/// Serves a device on `pty` until `stop`: reads commands, streams at `rate_hz` on absolute
+/// deadlines, asks `pose()` for the sensor pose in the tracker frame (inches; degrees as
+/// azimuth, elevation, roll) at each record, applies `faults`. Counts records sent in `sent`
+/// (POINT answers and streamed records, counted as they are handed to the pty, before any
+/// corruption).
+///
+/// A host that stops reading cannot stall the loop: once a write has blocked for 100 ms the
+/// host's unread input is dropped, as an overrun serial port would.
+///
+/// # Errors
+///
+/// `InvalidInput` for a rate or full scale that is not a finite positive number; otherwise the
+/// first error reading or writing the pty.
+pub fn serve(
+    mut pty: Pty,
+    rate_hz: f64,
+    full_scale_in: f64,
+    mut pose: impl FnMut() -> ([f64; 3], [f64; 3]),
+    faults: Arc<BirdFaults>,
+    stop: Arc<AtomicBool>,
+    sent: Arc<AtomicU64>,
+) -> io::Result<()> {
+    if !(rate_hz.is_finite() && rate_hz > 0.0) {
+        return Err(io::Error::new(
+            io::ErrorKind::InvalidInput,
+            format!("stream rate must be a positive number of Hz, got {rate_hz}"),
+        ));
+    }
+    if !(full_scale_in.is_finite() && full_scale_in > 0.0) {
+        return Err(io::Error::new(
+            io::ErrorKind::InvalidInput,
+            format!("full scale must be a positive number of inches, got {full_scale_in}"),
+        ));
+    }
+    let period = Duration::from_secs_f64(1.0 / rate_hz);
+    let epoch = Instant::now();
+    let writing_since_ms = AtomicU64::new(0);
+    let done = AtomicBool::new(false);
+    let guard = match open_slave(pty.path()) {
+        Ok(f) => Some(f),
+        Err(e) => {
+            warn!(error = %e, "bird: no overrun guard; a host that stops reading can stall the emulator");
+            None
+        }
+    };
+    info!(path = %pty.path().display(), rate_hz, full_scale_in, "bird emulator serving");
+
+    thread::scope(|s| {
+        if let Some(slave) = guard {
+            let (w, d) = (&writing_since_ms, &done);
+            s.spawn(move || overrun_guard(slave, w, d, epoch));
+        }
+        let result = serve_loop(
+            &mut pty,
+            period,
+            full_scale_in,
+            &mut pose,
+            &faults,
+            &stop,
+            &sent,
+            &writing_since_ms,
+            epoch,
+        );
+        done.store(true, Ordering::Release);
+        result
+    })
+}
+
+/// The body of [`serve`].
+#[allow(clippy::too_many_arguments)]
+fn serve_loop(
+    pty: &mut Pty,
+    period: Duration,
+    full_scale_in: f64,
+    pose: &mut impl FnMut() -> ([f64; 3], [f64; 3]),
+    faults: &BirdFaults,
+    stop: &AtomicBool,
+    sent: &AtomicU64,
+    writing_since_ms: &AtomicU64,
+    epoch: Instant,
+) -> io::Result<()> {
+    let mut dev = BirdDevice::new(full_scale_in);
+    let mut rng = XorShift(0x9e37_79b9_7f4a_7c15);
+    let mut buf = [0u8; 256];
+    let mut out = Vec::with_capacity(64);
+    let mut next = Instant::now() + period;
+    let mut last_pose = ([0.0; 3], [0.0; 3]);
+    while !stop.load(Ordering::Acquire) {
+        out.clear();
+        let before = dev.records_sent();
+        let silent = faults.silent.load(Ordering::Acquire);
+
+        // Commands, until the next deadline (whole milliseconds; 0 just polls).
+        let wait = next.saturating_duration_since(Instant::now()).min(MAX_WAIT);
+        let n = pty.read_timeout(&mut buf, wait)?;
+        if n > 0 {
+            if !silent {
+                if buf[..n].contains(&POINT) {
+                    last_pose = pose();
+                }
+                dev.receive(&buf[..n], last_pose.0, last_pose.1, &mut out);
+            }
+        } else {
+            let rest = next.saturating_duration_since(Instant::now());
+            if rest < Duration::from_millis(1) {
+                thread::sleep(rest);
+            }
+        }
+
+        let now = Instant::now();
+        if now >= next {
+            next += period;
+            if next <= now {
+                // Fell behind (a stalled host, a loaded machine): skip, do not burst.
+                next = now + period;
+            }
+            if !silent && dev.streaming() && !dev.asleep() {
+                last_pose = pose();
+                dev.stream(last_pose.0, last_pose.1, &mut out);
+            }
+        }
+
+        if out.is_empty() {
+            continue;
+        }
+        let records = dev.records_sent() - before;
+        let one_in = u64::from(faults.corrupt_one_in.load(Ordering::Relaxed));
+        if one_in > 0 {
+            for _ in 0..records {
+                if rng.below(one_in) == 0 {
+                    corrupt(&mut out, &mut rng);
+                }
+            }
+        }
+        // Counted before the write, so a host that has read a record finds it counted.
+        sent.fetch_add(records, Ordering::Release);
+        writing_since_ms.store(epoch.elapsed().as_millis() as u64 + 1, Ordering::Release);
+        let written = pty.write_all(&out);
+        writing_since_ms.store(0, Ordering::Release);
+        written?;
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use softarm_tracker::bird::{Decoder, DecoderStats};
+
+    const FS: f64 = 36.0;
+    const POS_LSB: f64 = FS / 8192.0;
+    const ANG_LSB: f64 = 180.0 / 8192.0;
+    const P: [f64; 3] = [10.5, -7.25, 3.0];
+    const A: [f64; 3] = [30.0, -20.0, 135.5];
+
+    fn close(r: &Record, p: [f64; 3], a: Option<[f64; 3]>, fs: f64) -> bool {
+        let pos_ok = (0..3).all(|i| (r.position_in[i] - p[i]).abs() <= fs / 8192.0);
+        let ang_ok = match (r.angles_deg, a) {
+            (Some(x), Some(y)) => (0..3).all(|i| (x[i] - y[i]).abs() <= ANG_LSB),
+            (None, None) => true,
+            _ => false,
+        };
+        pos_ok && ang_ok
+    }
+
+    fn decode_all(format: RecordFormat, fs: f64, bytes: &[u8]) -> (Vec<Record>, DecoderStats) {
+        let mut d = Decoder::new(format, fs);
+        let got = bytes.iter().filter_map(|&b| d.push(b)).collect();
+        (got, d.stats())
+    }
+
+    #[test]
+    fn starts_in_point_mode_position_format() {
+        let dev = BirdDevice::new(FS);
+        assert_eq!(dev.format(), RecordFormat::Position);
+        assert!(!dev.streaming());
+        assert!(!dev.asleep());
+        assert_eq!(dev.full_scale_in(), FS);
+    }
+
+    #[test]
+    fn point_answers_one_record_of_the_pose() {
+        let mut dev = BirdDevice::new(FS);
+        let mut out = Vec::new();
+        dev.receive(&[POINT], P, A, &mut out);
+        assert_eq!(out.len(), 6);
+        let (got, stats) = decode_all(RecordFormat::Position, FS, &out);
+        assert_eq!(got.len(), 1);
+        assert!(close(&got[0], P, None, FS), "{got:?}");
+        assert_eq!(stats.malformed + stats.dropped_bytes, 0);
+        assert!(!dev.streaming());
+        assert_eq!(dev.records_sent(), 1);
+
+        // Switch format: POSITION/ANGLES then POINT in one write.
+        out.clear();
+        dev.receive(&[POSITION_ANGLES, POINT], P, A, &mut out);
+        assert_eq!(dev.format(), RecordFormat::PositionAngles);
+        assert_eq!(out.len(), 12);
+        let (got, _) = decode_all(RecordFormat::PositionAngles, FS, &out);
+        assert_eq!(got.len(), 1);
+        assert!(close(&got[0], P, Some(A), FS), "{got:?}");
+
+        // And back.
+        out.clear();
+        dev.receive(&[POSITION], P, A, &mut out);
+        assert!(out.is_empty());
+        assert_eq!(dev.format(), RecordFormat::Position);
+    }
+
+    #[test]
+    fn stream_and_stream_stop() {
+        let mut dev = BirdDevice::new(FS);
+        let mut out = Vec::new();
+        dev.stream(P, A, &mut out);
+        assert!(out.is_empty(), "point mode: nothing streamed");
+
+        dev.receive(&[POSITION_ANGLES, STREAM], P, A, &mut out);
+        assert!(out.is_empty(), "STREAM itself answers nothing");
+        assert!(dev.streaming());
+        for _ in 0..3 {
+            dev.stream(P, A, &mut out);
+        }
+        let (got, stats) = decode_all(RecordFormat::PositionAngles, FS, &out);
+        assert_eq!(got.len(), 3);
+        assert!(got.iter().all(|r| close(r, P, Some(A), FS)));
+        assert_eq!(stats.malformed + stats.dropped_bytes, 0);
+
+        out.clear();
+        dev.receive(&[STREAM_STOP], P, A, &mut out);
+        assert!(!dev.streaming());
+        dev.stream(P, A, &mut out);
+        assert!(out.is_empty());
+
+        // POINT ends streaming too, and answers one record.
+        dev.receive(&[STREAM], P, A, &mut out);
+        assert!(dev.streaming());
+        dev.receive(&[POINT], P, A, &mut out);
+        assert!(!dev.streaming());
+        assert_eq!(out.len(), 12);
+        out.clear();
+        dev.stream(P, A, &mut out);
+        assert!(out.is_empty());
+    }
+
+    #[test]
+    fn sleep_silences_until_run() {
+        let mut dev = BirdDevice::new(FS);
+        let mut out = Vec::new();
+        dev.receive(&[STREAM, SLEEP], P, A, &mut out);
+        assert!(dev.asleep() && dev.streaming());
+        dev.stream(P, A, &mut out);
+        dev.receive(&[POINT], P, A, &mut out);
+        assert!(out.is_empty(), "asleep: no records");
+        dev.receive(&[RUN, STREAM], P, A, &mut out);
+        assert!(!dev.asleep());
+        dev.stream(P, A, &mut out);
+        assert_eq!(out.len(), 6);
+    }
+
+    #[test]
+    fn multi_byte_commands_are_consumed_whole() {
+        let mut dev = BirdDevice::new(FS);
+        let mut out = Vec::new();
+        // RS232 TO FBB prefix, HEMISPHERE with data, CHANGE VALUE MEASUREMENT RATE whose data
+        // bytes are POINT and STREAM, CHANGE VALUE GROUP MODE, an ANGLE ALIGN full of POINTs.
+        let mut host = vec![0xF1, HEMISPHERE, 0x0C, 0x01];
+        host.extend_from_slice(&[CHANGE_VALUE, param::MEASUREMENT_RATE, POINT, STREAM]);
+        host.extend_from_slice(&[CHANGE_VALUE, param::GROUP_MODE, 0]);
+        host.push(ANGLE_ALIGN1);
+        host.extend_from_slice(&[POINT; 12]);
+        host.extend_from_slice(&[b'?' + 0x80, 0x13]); // junk: ignored
+        dev.receive(&host, P, A, &mut out);
+        assert!(out.is_empty(), "no data byte taken for POINT: {out:?}");
+        assert!(!dev.streaming(), "no data byte taken for STREAM");
+
+        // The byte after them is a command again.
+        dev.receive(&[0xF1, POINT], P, A, &mut out);
+        assert_eq!(out.len(), 6);
+
+        // Split across writes.
+        out.clear();
+        dev.receive(&[CHANGE_VALUE], P, A, &mut out);
+        dev.receive(&[param::MEASUREMENT_RATE, POINT], P, A, &mut out);
+        dev.receive(&[POINT], P, A, &mut out);
+        assert!(out.is_empty());
+        dev.receive(&[POINT], P, A, &mut out);
+        assert_eq!(out.len(), 6);
+    }
+
+    #[test]
+    fn position_scaling_is_examined_and_changed() {
+        let mut dev = BirdDevice::new(FS);
+        let mut out = Vec::new();
+        dev.receive(&[EXAMINE_VALUE, param::POSITION_SCALING], P, A, &mut out);
+        assert_eq!(out, [0, 0]);
+
+        out.clear();
+        dev.receive(
+            &[CHANGE_VALUE, param::POSITION_SCALING, 1, 0],
+            P,
+            A,
+            &mut out,
+        );
+        assert!(out.is_empty());
+        assert_eq!(dev.full_scale_in(), 72.0);
+        dev.receive(&[EXAMINE_VALUE, param::POSITION_SCALING], P, A, &mut out);
+        assert_eq!(out, [1, 0]);
+
+        // 40 in is beyond 36 in full scale but within 72.
+        out.clear();
+        let far = [40.0, -50.0, 60.0];
+        dev.receive(&[POINT], far, A, &mut out);
+        let (got, _) = decode_all(RecordFormat::Position, 72.0, &out);
+        assert!(close(&got[0], far, None, 72.0), "{got:?}");
+
+        dev.receive(
+            &[CHANGE_VALUE, param::POSITION_SCALING, 0, 0],
+            P,
+            A,
+            &mut out,
+        );
+        assert_eq!(dev.full_scale_in(), 36.0);
+    }
+
+    #[test]
+    fn bird_status_reflects_the_state() {
+        let mut dev = BirdDevice::new(FS);
+        let mut out = Vec::new();
+        let mut status_word = |dev: &mut BirdDevice| {
+            out.clear();
+            dev.receive(&[EXAMINE_VALUE, param::BIRD_STATUS], P, A, &mut out);
+            assert_eq!(out.len(), 2);
+            u16::from_le_bytes([out[0], out[1]])
+        };
+        let s = status_word(&mut dev);
+        assert_eq!(s & status::MASTER, status::MASTER);
+        assert_eq!(s & status::RUNNING, status::RUNNING);
+        assert_eq!(s & status::STREAMING, 0);
+        assert_eq!((s & status::FORMAT_MASK) >> 1, 1, "POSITION");
+
+        dev.receive(&[POSITION_ANGLES, STREAM, SLEEP], P, A, &mut Vec::new());
+        let s = status_word(&mut dev);
+        assert_eq!(s & status::STREAMING, status::STREAMING);
+        assert_eq!(s & status::SLEEPING, status::SLEEPING);
+        assert_eq!(s & status::RUNNING, 0);
+        assert_eq!((s & status::FORMAT_MASK) >> 1, 4, "POSITION/ANGLES");
+
+        // Unanswered parameter: nothing comes, and the next byte is a command.
+        out.clear();
+        dev.receive(
+            &[EXAMINE_VALUE, param::SOFTWARE_REVISION, RUN, POINT],
+            P,
+            A,
+            &mut out,
+        );
+        assert_eq!(out.len(), 12);
+    }
+
+    #[test]
+    fn corrupt_changes_the_bytes() {
+        let mut rng = XorShift(7);
+        let mut lens = [0usize; 3];
+        for _ in 0..300 {
+            let mut out = vec![0x80u8, 1, 2, 3, 4, 5];
+            corrupt(&mut out, &mut rng);
+            lens[out.len() - 5] += 1;
+        }
+        assert!(
+            lens.iter().all(|&n| n > 50),
+            "drop, replace and insert all happen: {lens:?}"
+        );
+        let mut empty = Vec::new();
+        corrupt(&mut empty, &mut rng);
+        assert!(empty.is_empty());
+    }
+
+    /// Reads from `port` into `decoder` until `enough` says so or `limit` passes; returns the
+    /// records and the number of bytes read.
+    fn read_until(
+        port: &serial2::SerialPort,
+        decoder: &mut Decoder,
+        limit: Duration,
+        mut enough: impl FnMut(&[Record], &Decoder) -> bool,
+    ) -> (Vec<Record>, usize) {
+        let deadline = Instant::now() + limit;
+        let mut got = Vec::new();
+        let mut bytes = 0;
+        let mut buf = [0u8; 256];
+        while Instant::now() < deadline && !enough(&got, decoder) {
+            match port.read(&mut buf) {
+                Ok(n) => {
+                    bytes += n;
+                    got.extend(buf[..n].iter().filter_map(|&b| decoder.push(b)));
+                }
+                Err(e) if e.kind() == io::ErrorKind::TimedOut => {}
+                Err(e) => panic!("read: {e}"),
+            }
+        }
+        (got, bytes)
+    }
+
+    #[test]
+    fn serves_a_stream_over_a_pty_with_faults() {
+        let pty = Pty::open().unwrap();
+        let path = pty.path().to_owned();
+        let faults = Arc::new(BirdFaults::new());
+        let stop = Arc::new(AtomicBool::new(false));
+        let sent = Arc::new(AtomicU64::new(0));
+        let server = {
+            let (faults, stop, sent) = (faults.clone(), stop.clone(), sent.clone());
+            thread::spawn(move || serve(pty, 250.0, FS, || (P, A), faults, stop, sent))
+        };
+
+        let mut port = serial2::SerialPort::open(&path, 115_200).unwrap();
+        port.set_read_timeout(Duration::from_millis(50)).unwrap();
+        port.write_all(&[POSITION_ANGLES, STREAM]).unwrap();
+
+        // Clean stream: at least ~0.3 s and a few records, every one the scripted pose.
+        let mut d = Decoder::new(RecordFormat::PositionAngles, FS);
+        let start = Instant::now();
+        let (got, _) = read_until(&port, &mut d, Duration::from_secs(10), |got, _| {
+            start.elapsed() >= Duration::from_millis(300) && got.len() >= 10
+        });
+        assert!(!got.is_empty(), "records arrive");
+        assert!(got.iter().all(|r| close(r, P, Some(A), FS)), "{got:?}");
+        assert_eq!(d.stats().malformed, 0);
+        assert_eq!(d.stats().dropped_bytes, 0);
+        assert!(sent.load(Ordering::Relaxed) >= got.len() as u64);
+
+        // Corrupted stream: the decoder resyncs, most records are still right, and the damage
+        // shows in its counts.
+        faults.corrupt_one_in.store(3, Ordering::Relaxed);
+        let mut d = Decoder::new(RecordFormat::PositionAngles, FS);
+        let (got, _) = read_until(&port, &mut d, Duration::from_secs(20), |got, d| {
+            let s = d.stats();
+            got.len() >= 60 && s.malformed + s.dropped_bytes > 0
+        });
+        let good = got.iter().filter(|r| close(r, P, Some(A), FS)).count();
+        let s = d.stats();
+        assert!(s.malformed + s.dropped_bytes > 0, "{s:?}");
+        assert!(good * 2 > got.len(), "{good} good of {}: {s:?}", got.len());
+        faults.corrupt_one_in.store(0, Ordering::Relaxed);
+
+        // Silent: once the record in flight (if any) is out, nothing more comes.
+        faults.silent.store(true, Ordering::Release);
+        let settle = Instant::now() + Duration::from_secs(10);
+        loop {
+            let before = sent.load(Ordering::Relaxed);
+            thread::sleep(Duration::from_millis(100));
+            if sent.load(Ordering::Relaxed) == before || Instant::now() > settle {
+                break;
+            }
+        }
+        port.discard_input_buffer().unwrap();
+        let quiet_from = sent.load(Ordering::Relaxed);
+        port.write_all(&[POINT, STREAM]).unwrap(); // unheard
+        let mut d = Decoder::new(RecordFormat::PositionAngles, FS);
+        let (got, bytes) = read_until(&port, &mut d, Duration::from_millis(300), |_, _| false);
+        assert_eq!((got.len(), bytes), (0, 0), "silent");
+        assert_eq!(sent.load(Ordering::Relaxed), quiet_from);
+
+        // Loud again: the stream resumes.
+        faults.silent.store(false, Ordering::Release);
+        let (got, _) = read_until(&port, &mut d, Duration::from_secs(10), |got, _| {
+            !got.is_empty()
+        });
+        assert!(!got.is_empty(), "stream resumes");
+
+        stop.store(true, Ordering::Release);
+        server.join().unwrap().unwrap();
+    }
+
+    #[test]
+    fn a_host_that_stops_reading_cannot_stall_stop() {
+        let pty = Pty::open().unwrap();
+        let path = pty.path().to_owned();
+        let faults = Arc::new(BirdFaults::new());
+        let stop = Arc::new(AtomicBool::new(false));
+        let sent = Arc::new(AtomicU64::new(0));
+        let server = {
+            let (faults, stop, sent) = (faults.clone(), stop.clone(), sent.clone());
+            thread::spawn(move || serve(pty, 5000.0, FS, || (P, A), faults, stop, sent))
+        };
+        let port = serial2::SerialPort::open(&path, 115_200).unwrap();
+        port.write_all(&[POSITION_ANGLES, STREAM]).unwrap();
+        // 5 kHz × 12 bytes fills the pty's buffers in well under a second; keep not reading
+        // until far more than they hold has been sent.
+        let deadline = Instant::now() + Duration::from_secs(20);
+        while sent.load(Ordering::Relaxed) < 10_000 && Instant::now() < deadline {
+            thread::sleep(Duration::from_millis(20));
+        }
+        assert!(
+            sent.load(Ordering::Relaxed) >= 10_000,
+            "the emulator kept going"
+        );
+        stop.store(true, Ordering::Release);
+        server.join().unwrap().unwrap();
+        drop(port);
+    }
+
+    #[test]
+    fn serve_rejects_a_bad_rate() {
+        let pty = Pty::open().unwrap();
+        let r = serve(
+            pty,
+            0.0,
+            FS,
+            || (P, A),
+            Arc::new(BirdFaults::new()),
+            Arc::new(AtomicBool::new(false)),
+            Arc::new(AtomicU64::new(0)),
+        );
+        assert_eq!(r.unwrap_err().kind(), io::ErrorKind::InvalidInput);
+    }
+}
