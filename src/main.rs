@@ -15,6 +15,7 @@ use softarm_model::scenario::Scenario;
 
 mod bench;
 mod demo;
+mod emulate;
 mod install;
 mod up;
 
@@ -102,6 +103,9 @@ enum Command {
     Tendon(Stack),
     /// The tracker of the real arm (driver process): Ascension Bird protocol, [tracker].
     Tracker(Stack),
+    /// Emulators of the motor bus and the tracker on pseudo-terminals, coupled through the
+    /// arm's model: the hardware stack without hardware.
+    Emulate(emulate::Args),
     /// Demonstrations through the running stack, then ProMPs, forward model, pre-training.
     Train {
         #[command(flatten)]
@@ -233,6 +237,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             let c = stack.load()?;
             softarm_tracker::run(&c, Namespace::new(&c.namespace())?, &*stop_flag()?)?
         }
+        Command::Emulate(args) => emulate::run(&args, &*stop_flag()?)?,
         Command::Train { stack, seed } => {
             let config = stack.load()?;
             let r = train::train(&config, &stack.namespace()?, seed)?;

@@ -9,12 +9,30 @@ pub fn with_overrides(text: &str, overrides: &[(&str, toml::Value)]) -> String {
     config::with_overrides(text, overrides).unwrap_or_else(|e| panic!("{e}"))
 }
 
-/// The embedded default with namespace `namespace`, model and state folders under `dir`, and
-/// quick training settings (3 demonstrations per class of 1.5 s, 2 s of pre-training).
-pub fn config_text(dir: &Path, namespace: &str) -> String {
+/// The shipped hardware config (`config/hardware.toml`).
+pub const HARDWARE: &str = include_str!(concat!(
+    env!("CARGO_MANIFEST_DIR"),
+    "/../../config/hardware.toml"
+));
+
+/// [`config_text`] for the real arm: the hardware config with the devices at `tendon` and
+/// `tracker` (emulators' pseudo-terminals).
+pub fn hardware_config_text(dir: &Path, namespace: &str, tendon: &Path, tracker: &Path) -> String {
+    let path = |p: &Path| toml::Value::from(p.display().to_string());
+    with_overrides(
+        &quick(HARDWARE, dir, namespace),
+        &[
+            ("tendon.port", path(tendon)),
+            ("tracker.port", path(tracker)),
+        ],
+    )
+}
+
+/// `base` with namespace `namespace`, model and state folders under `dir`, and quick training.
+fn quick(base: &str, dir: &Path, namespace: &str) -> String {
     let path = |sub: &str| toml::Value::from(dir.join(sub).display().to_string());
     with_overrides(
-        DEFAULT,
+        base,
         &[
             ("robot.namespace", namespace.into()),
             ("model.dir", path("model")),
@@ -24,6 +42,12 @@ pub fn config_text(dir: &Path, namespace: &str) -> String {
             ("pretrain.budget_s", 2.0.into()),
         ],
     )
+}
+
+/// The embedded default with namespace `namespace`, model and state folders under `dir`, and
+/// quick training settings (3 demonstrations per class of 1.5 s, 2 s of pre-training).
+pub fn config_text(dir: &Path, namespace: &str) -> String {
+    quick(DEFAULT, dir, namespace)
 }
 
 #[cfg(test)]

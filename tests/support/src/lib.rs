@@ -13,6 +13,6 @@ pub mod config;
 pub mod model;
 pub mod stack;
 
-pub use config::{config_text, with_overrides};
+pub use config::{config_text, hardware_config_text, with_overrides};
 pub use model::{quick_model, quick_training};
 pub use stack::{DEMO_WAYPOINTS, TestStack, alive, children_of, set_id};

@@ -30,13 +30,23 @@ impl TestStack {
     /// A folder, config and namespace for test `name`, run with the `softarm` binary `bin`;
     /// with a quick model bundle if asked.
     pub fn new(bin: impl AsRef<Path>, name: &str, with_model: bool) -> Self {
+        Self::with_config(bin, name, with_model, config_text)
+    }
+
+    /// [`TestStack::new`] with the config `text(dir, namespace)` gives.
+    pub fn with_config(
+        bin: impl AsRef<Path>,
+        name: &str,
+        with_model: bool,
+        text: impl FnOnce(&Path, &str) -> String,
+    ) -> Self {
         let pid = std::process::id();
         let dir = std::env::temp_dir().join(format!("softarm-test-{name}-{pid}"));
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir).unwrap();
         let namespace = format!("softarm/test-{name}-{pid}");
         let config = dir.join("softarm.toml");
-        std::fs::write(&config, config_text(&dir, &namespace)).unwrap();
+        std::fs::write(&config, text(&dir, &namespace)).unwrap();
         if with_model {
             quick_model(&dir.join("model"));
         }

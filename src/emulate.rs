@@ -1,0 +1,80 @@
+//! `softarm emulate`: the real arm's two devices, emulated on pseudo-terminals and coupled
+//! through the arm's model, so the hardware stack (`tendon` + `tracker`) runs without hardware.
+//! Prints the device paths and, with `--write-config`, writes a copy of the config pointing at
+//! them, ready for `softarm up`.
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
+
+use anyhow::Context;
+use softarm_emulate::rig::Rig;
+use softarm_model::config::{self, Config};
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// The hardware config whose [tendon] and [tracker] to emulate.
+    #[arg(long)]
+    config: PathBuf,
+    /// Writes the config here with the devices' paths (and absolute model and state folders).
+    #[arg(long, value_name = "FILE")]
+    write_config: Option<PathBuf>,
+    /// Where the motors stand at start (normalised actuation).
+    #[arg(long, default_value_t = 0.5)]
+    initial: f64,
+}
+
+fn text_of(p: &Path) -> String {
+    p.display().to_string()
+}
+
+/// `text` with the emulated devices as ports and the folders made absolute, so the copy works
+/// from wherever it is written.
+fn emulated_config(text: &str, c: &Config, rig: &Rig) -> anyhow::Result<String> {
+    let absolute = |p: PathBuf| std::path::absolute(&p).unwrap_or(p);
+    config::with_overrides(
+        text,
+        &[
+            ("tendon.port", text_of(rig.tendon_path()).into()),
+            ("tracker.port", text_of(rig.tracker_path()).into()),
+            ("model.dir", text_of(&absolute(c.model_dir())).into()),
+            ("state.dir", text_of(&absolute(c.state_dir())).into()),
+        ],
+    )
+    .map_err(anyhow::Error::msg)
+}
+
+pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
+    let c = Config::load(&args.config)?;
+    if !(0.0..=1.0).contains(&args.initial) {
+        anyhow::bail!("--initial must be in [0, 1], got {}", args.initial);
+    }
+    let text = std::fs::read_to_string(&args.config)
+        .with_context(|| format!("reading {}", args.config.display()))?;
+    let rig = Rig::start(&c, args.initial)?;
+    println!("tendon motors (Dynamixel 2.0): {}", rig.tendon_path().display());
+    println!("tracker (Bird protocol):       {}", rig.tracker_path().display());
+    match &args.write_config {
+        Some(out) => {
+            let emulated = emulated_config(&text, &c, &rig)?;
+            softarm_ipc::file::write_atomic(out, emulated.as_bytes(), None)
+                .with_context(|| format!("writing {}", out.display()))?;
+            println!("config:  {}", out.display());
+            println!("run:     softarm up --config {}", out.display());
+        }
+        None => println!(
+            "point tendon.port and tracker.port of a copy of {} at these, or rerun with \
+             --write-config FILE",
+            args.config.display()
+        ),
+    }
+    println!("Ctrl-C stops the emulators");
+    while !stop.load(Ordering::Relaxed) {
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let records = rig.records.load(Ordering::Relaxed);
+    let counters = rig.bus.lock().map(|b| b.counters()).ok();
+    rig.stop().context("an emulator failed")?;
+    eprintln!("softarm emulate: {records} tracker records sent; motor bus {counters:?}");
+    Ok(())
+}

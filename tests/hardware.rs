@@ -1,0 +1,344 @@
+//! End to end on the real arm's code path, without the arm: the `tendon` and `tracker` driver
+//! processes against emulators of their devices on pseudo-terminals (Dynamixel Protocol 2.0
+//! motors, an Ascension Bird tracker), and the whole hardware stack (`softarm emulate` +
+//! `softarm up` with the hardware config) closing the loop through them.
+
+use std::path::Path;
+use std::process::{Child, Stdio};
+use std::sync::atomic::Ordering;
+use std::time::{Duration, Instant};
+
+use nix::sys::signal::{Signal, kill};
+use nix::unistd::Pid;
+use softarm_emulate::dynamixel::BusFaults;
+use softarm_emulate::rig::Rig;
+use softarm_ipc::{
+    DriverState, MotorState, Namespace, Node, Pub, Setpoint, Sub, TrackerSample, now_ns,
+};
+use softarm_model::config::Config;
+use softarm_model::hardware::Mapping;
+use softarm_test_support::{DEMO_WAYPOINTS, TestStack, alive, hardware_config_text, set_id};
+
+const BIN: &str = env!("CARGO_BIN_EXE_softarm");
+const LIMIT: Duration = Duration::from_secs(20);
+
+/// A test's folder and namespace with the hardware config, quick time-outs, and the
+/// emulators running for it.
+fn rig(name: &str) -> (TestStack, Config, Rig) {
+    // The emulators need the config's [tendon] and [tracker]; the ports are filled in after.
+    let probe = TestStack::with_config(BIN, name, false, |dir, ns| {
+        hardware_config_text(dir, ns, Path::new("/dev/null"), Path::new("/dev/null"))
+    });
+    let c = Config::load(&probe.config).unwrap();
+    let rig = Rig::start(&c, 0.5).unwrap();
+    drop(probe);
+    let s = TestStack::with_config(BIN, name, false, |dir, ns| {
+        let text = hardware_config_text(dir, ns, rig.tendon_path(), rig.tracker_path());
+        softarm_test_support::with_overrides(
+            &text,
+            &[
+                ("tendon.hold_after_ms", 150.0.into()),
+                ("tendon.torque_off_after_ms", 1000.0.into()),
+            ],
+        )
+    });
+    let c = Config::load(&s.config).unwrap();
+    (s, c, rig)
+}
+
+fn node(s: &TestStack) -> Node {
+    Node::open(Namespace::new(&s.namespace).unwrap(), "test").unwrap()
+}
+
+/// Polls `f` every 20 ms until it gives `Some`, at most [`LIMIT`].
+fn eventually<T>(what: &str, mut f: impl FnMut() -> Option<T>) -> T {
+    let start = Instant::now();
+    loop {
+        if let Some(v) = f() {
+            return v;
+        }
+        assert!(start.elapsed() < LIMIT, "waited {LIMIT:?} for {what}");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// The newest motor state that arrived, if any.
+fn newest<T: Copy + std::fmt::Debug>(sub: &Sub<T>) -> Option<T> {
+    let mut last = None;
+    while let Ok(Some(m)) = sub.receive() {
+        last = Some(*m);
+    }
+    last
+}
+
+fn send(setpoints: &Pub<Setpoint>, a: f64) {
+    setpoints
+        .send_copy(Setpoint {
+            stamp_ns: now_ns(),
+            actuation: [a; 6],
+            ..Setpoint::default()
+        })
+        .unwrap();
+}
+
+/// Sends `a` at about 100 Hz for `d`.
+fn follow(setpoints: &Pub<Setpoint>, a: f64, d: Duration) {
+    let start = Instant::now();
+    while start.elapsed() < d {
+        send(setpoints, a);
+        std::thread::sleep(Duration::from_millis(10));
+    }
+}
+
+fn stop(mut child: Child) -> std::process::ExitStatus {
+    kill(Pid::from_raw(child.id() as i32), Signal::SIGTERM).unwrap();
+    let start = Instant::now();
+    loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            return status;
+        }
+        if start.elapsed() > LIMIT {
+            let _ = child.kill();
+            panic!("the driver did not stop on SIGTERM");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+fn torque(rig: &Rig, ids: &[u8]) -> Vec<bool> {
+    let bus = rig.bus.lock().unwrap();
+    ids.iter()
+        .map(|&id| bus.motor(id).unwrap().torque_enabled())
+        .collect()
+}
+
+fn goals(rig: &Rig, ids: &[u8]) -> Vec<i32> {
+    let bus = rig.bus.lock().unwrap();
+    ids.iter()
+        .map(|&id| bus.motor(id).unwrap().goal_position())
+        .collect()
+}
+
+#[test]
+fn tendon_follows_then_holds_then_turns_the_torque_off_and_obeys_the_estop() {
+    let (s, c, rig) = rig("hw-tendon");
+    let t = c.tendon.clone().unwrap();
+    let mapping = Mapping::new(&t, &c.arm);
+    let n = node(&s);
+    let setpoints = n.publisher(&n.setpoint().unwrap()).unwrap();
+    let motors = n.subscriber(&n.motor_state().unwrap()).unwrap();
+    let driver = s.spawn(&["tendon"]);
+
+    // Torque off until the first setpoint.
+    let m: MotorState = eventually("motor state", || newest(&motors));
+    assert_eq!(m.driver_state(), Some(DriverState::Off));
+    assert_eq!(torque(&rig, &t.ids), [false; 6]);
+    for i in 0..6 {
+        assert!((m.actuation[i] - 0.5).abs() < 1e-3, "{:?}", m.actuation);
+    }
+
+    // Following: goals are the mapping's ticks, the motors get there.
+    follow(&setpoints, 0.3, Duration::from_millis(300));
+    let want: Vec<i32> = (0..6).map(|i| mapping.ticks(i, 0.3)).collect();
+    eventually("the goals of 0.3", || {
+        send(&setpoints, 0.3);
+        (goals(&rig, &t.ids) == want).then_some(())
+    });
+    assert_eq!(torque(&rig, &t.ids), [true; 6]);
+    let m = eventually("the motors at 0.3", || {
+        send(&setpoints, 0.3);
+        newest(&motors).filter(|m| m.actuation.iter().all(|a| (a - 0.3).abs() < 2e-3))
+    });
+    assert_eq!(m.driver_state(), Some(DriverState::Following));
+    assert!(m.current_a.iter().all(|a| a.is_finite()), "{:?}", m.current_a);
+
+    // Silence: hold (torque on), then torque off.
+    let silent_from = now_ns();
+    eventually("HOLDING", || {
+        newest(&motors).filter(|m| m.driver_state() == Some(DriverState::Holding))
+    });
+    assert_eq!(torque(&rig, &t.ids), [true; 6], "holding keeps the torque");
+    eventually("OFF", || {
+        newest(&motors).filter(|m| m.driver_state() == Some(DriverState::Off))
+    });
+    assert!(now_ns() - silent_from >= 1_000_000_000, "off before its time-out");
+    assert_eq!(torque(&rig, &t.ids), [false; 6]);
+
+    // A controller that comes back is followed again.
+    eventually("torque on again", || {
+        send(&setpoints, 0.4);
+        (torque(&rig, &t.ids) == [true; 6]).then_some(())
+    });
+
+    // E-stop: torque off at once, setpoints ignored until the reset.
+    let out = s.run(&["estop"]);
+    assert!(out.status.success(), "{out:?}");
+    eventually("torque off on e-stop", || {
+        send(&setpoints, 0.4);
+        (torque(&rig, &t.ids) == [false; 6]).then_some(())
+    });
+    follow(&setpoints, 0.6, Duration::from_millis(300));
+    assert_eq!(torque(&rig, &t.ids), [false; 6], "setpoints obeyed under e-stop");
+    let m = newest(&motors).unwrap();
+    assert_eq!(m.driver_state(), Some(DriverState::Stopped));
+    let out = s.run(&["estop", "--reset"]);
+    assert!(out.status.success(), "{out:?}");
+    eventually("torque on after the reset", || {
+        send(&setpoints, 0.45);
+        (torque(&rig, &t.ids) == [true; 6]).then_some(())
+    });
+
+    // Leaving, the driver turns the torque off: nothing stays driven by a process that is gone.
+    assert!(stop(driver).success());
+    assert_eq!(torque(&rig, &t.ids), [false; 6]);
+}
+
+#[test]
+fn tendon_survives_a_noisy_and_a_silent_bus_and_stops_commanding_a_faulted_motor() {
+    let (s, c, rig) = rig("hw-faults");
+    let t = c.tendon.clone().unwrap();
+    let n = node(&s);
+    let setpoints = n.publisher(&n.setpoint().unwrap()).unwrap();
+    let motors = n.subscriber(&n.motor_state().unwrap()).unwrap();
+    let driver = s.spawn(&["tendon"]);
+    let pid = driver.id() as i32;
+    eventually("following", || {
+        send(&setpoints, 0.5);
+        newest(&motors).filter(|m| m.driver_state() == Some(DriverState::Following))
+    });
+
+    // Bad checksums and garbage: counted, and the motors are still read and driven.
+    rig.bus.lock().unwrap().set_faults(BusFaults {
+        corrupt_crc_one_in: 4,
+        garbage_one_in: 3,
+        ..BusFaults::default()
+    });
+    follow(&setpoints, 0.5, Duration::from_millis(1000));
+    rig.bus.lock().unwrap().set_faults(BusFaults::default());
+    let m = eventually("fresh motor state after the noise", || {
+        send(&setpoints, 0.55);
+        newest(&motors).filter(|m| now_ns() - m.stamp_ns < 100_000_000 && m.faults > 0)
+    });
+    assert_eq!(m.driver_state(), Some(DriverState::Following));
+    assert!(alive(pid));
+
+    // A bus that stops answering: the state goes stale (the controller would hold), the faults
+    // count, the process lives, and it picks up again.
+    let before = newest(&motors).map_or(m.faults, |m| m.faults);
+    rig.bus.lock().unwrap().set_faults(BusFaults {
+        silent: true,
+        ..BusFaults::default()
+    });
+    follow(&setpoints, 0.55, Duration::from_millis(800));
+    let m = newest(&motors).expect("motor state keeps coming, stamped when last read");
+    assert!(now_ns() - m.stamp_ns > 300_000_000, "stale data looks fresh");
+    assert!(m.faults > before, "{} -> {}", before, m.faults);
+    assert!(alive(pid));
+    rig.bus.lock().unwrap().set_faults(BusFaults::default());
+    eventually("fresh motor state after the silence", || {
+        send(&setpoints, 0.55);
+        newest(&motors).filter(|m| now_ns() - m.stamp_ns < 100_000_000)
+    });
+
+    // A motor with a hardware error: reported, and no command reaches any motor after it.
+    rig.bus.lock().unwrap().set_hardware_error(t.ids[2], 0x20);
+    let m = eventually("the fault reported", || {
+        send(&setpoints, 0.55);
+        newest(&motors).filter(|m| m.driver_state() == Some(DriverState::Fault))
+    });
+    assert_eq!(m.hardware_error[2], 0x20, "{:?}", m.hardware_error);
+    assert_eq!(m.hardware_error.iter().filter(|&&e| e != 0).count(), 1);
+    let held = goals(&rig, &t.ids);
+    follow(&setpoints, 0.65, Duration::from_millis(500));
+    assert_eq!(goals(&rig, &t.ids), held, "goals written after a motor fault");
+    let on = torque(&rig, &t.ids);
+    assert!(!on[2], "the faulted motor is off");
+    assert_eq!(on.iter().filter(|&&v| v).count(), 5, "the others hold: {on:?}");
+    assert!(stop(driver).success());
+}
+
+#[test]
+fn tracker_publishes_the_arm_in_the_base_frame_resyncs_and_survives_silence() {
+    let (s, c, rig) = rig("hw-tracker");
+    let n = node(&s);
+    let samples = n.subscriber(&n.tracker().unwrap()).unwrap();
+    let driver = s.spawn(&["tracker"]);
+    let pid = driver.id() as i32;
+
+    let want = c.arm.position(&[0.5; 6]);
+    let close = |p: &TrackerSample| (0..3).all(|i| (p.position[i] - want[i]).abs() < 1e-4);
+    let p = eventually("tracker samples", || newest(&samples));
+    assert!(close(&p), "{:?} vs {want:?}", p.position);
+
+    // Garbled and lost bytes: records keep coming between them.
+    rig.tracker_faults.corrupt_one_in.store(3, Ordering::Relaxed);
+    std::thread::sleep(Duration::from_millis(500));
+    rig.tracker_faults.corrupt_one_in.store(0, Ordering::Relaxed);
+    let p = eventually("good samples after the noise", || {
+        newest(&samples).filter(|p| now_ns() - p.stamp_ns < 50_000_000 && close(p))
+    });
+    assert!(p.seq > 20, "{}", p.seq);
+
+    // A silent device: no samples (so the controller holds), the process lives and asks again.
+    rig.tracker_faults.silent.store(true, Ordering::Relaxed);
+    std::thread::sleep(Duration::from_millis(100));
+    newest(&samples);
+    std::thread::sleep(Duration::from_millis(600));
+    assert!(newest(&samples).is_none(), "samples from a silent device");
+    assert!(alive(pid));
+    rig.tracker_faults.silent.store(false, Ordering::Relaxed);
+    eventually("samples after the silence", || {
+        newest(&samples).filter(|p| now_ns() - p.stamp_ns < 50_000_000 && close(p))
+    });
+    assert!(stop(driver).success());
+    let log = std::fs::read_to_string(s.dir.join("tracker.log")).unwrap();
+    assert!(log.contains("the tracker sends nothing"), "{log}");
+    assert!(log.contains("the tracker answers again"), "{log}");
+}
+
+#[test]
+fn the_hardware_stack_executes_a_set_through_softarm_emulate() {
+    // The emulators as a user runs them, from the hardware config; the stack from the config
+    // `softarm emulate` writes.
+    let mut s = TestStack::with_config(BIN, "hw-stack", true, |dir, ns| {
+        hardware_config_text(dir, ns, Path::new("/dev/null"), Path::new("/dev/null"))
+    });
+    let emulated = s.dir.join("emulated.toml");
+    let mut emulate = s
+        .command()
+        .args(["emulate", "--config"])
+        .arg(&s.config)
+        .arg("--write-config")
+        .arg(&emulated)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    eventually("the emulated config", || emulated.exists().then_some(()));
+    let c = Config::load(&emulated).unwrap();
+    assert!(c.tendon.unwrap().port.starts_with("/dev/pts"));
+    s.config = emulated;
+    s.up();
+    let alive_roles = s.status()["alive"].clone();
+    for role in ["controller", "learner", "tendon", "tracker"] {
+        assert!(
+            alive_roles.as_array().unwrap().iter().any(|r| r == role),
+            "{role} not alive: {alive_roles}"
+        );
+    }
+    let (code, out, err) = s.submit(Path::new(DEMO_WAYPOINTS), 2);
+    assert_eq!(code, 0, "{out}{err}");
+    let stats = s.wait_stats(set_id(&out), 2, Duration::from_secs(90));
+    for e in &stats {
+        let mean_mm = e["mean_mm"].as_f64().unwrap();
+        // The emulated arm is the model's arm: the way-points are reached.
+        assert!(mean_mm < 20.0, "{e}");
+    }
+    s.stop();
+    kill(Pid::from_raw(emulate.id() as i32), Signal::SIGTERM).unwrap();
+    let out = eventually("softarm emulate to stop", || emulate.try_wait().unwrap());
+    assert!(out.success());
+    let mut text = String::new();
+    std::io::Read::read_to_string(&mut emulate.stdout.take().unwrap(), &mut text).unwrap();
+    assert!(text.contains("tendon motors (Dynamixel 2.0): /dev/pts/"), "{text}");
+}
