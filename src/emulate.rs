@@ -52,8 +52,14 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
     let text = std::fs::read_to_string(&args.config)
         .with_context(|| format!("reading {}", args.config.display()))?;
     let rig = Rig::start(&c, args.initial)?;
-    println!("tendon motors (Dynamixel 2.0): {}", rig.tendon_path().display());
-    println!("tracker (Bird protocol):       {}", rig.tracker_path().display());
+    println!(
+        "tendon motors (Dynamixel 2.0): {}",
+        rig.tendon_path().display()
+    );
+    println!(
+        "tracker (Bird protocol):       {}",
+        rig.tracker_path().display()
+    );
     match &args.write_config {
         Some(out) => {
             let emulated = emulated_config(&text, &c, &rig)?;

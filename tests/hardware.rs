@@ -12,6 +12,7 @@ use nix::sys::signal::{Signal, kill};
 use nix::unistd::Pid;
 use softarm_emulate::dynamixel::BusFaults;
 use softarm_emulate::rig::Rig;
+use softarm_ipc::iceoryx2::prelude::ZeroCopySend;
 use softarm_ipc::{
     DriverState, MotorState, Namespace, Node, Pub, Setpoint, Sub, TrackerSample, now_ns,
 };
@@ -63,7 +64,7 @@ fn eventually<T>(what: &str, mut f: impl FnMut() -> Option<T>) -> T {
 }
 
 /// The newest motor state that arrived, if any.
-fn newest<T: Copy + std::fmt::Debug>(sub: &Sub<T>) -> Option<T> {
+fn newest<T: Copy + std::fmt::Debug + ZeroCopySend>(sub: &Sub<T>) -> Option<T> {
     let mut last = None;
     while let Ok(Some(m)) = sub.receive() {
         last = Some(*m);
@@ -150,7 +151,11 @@ fn tendon_follows_then_holds_then_turns_the_torque_off_and_obeys_the_estop() {
         newest(&motors).filter(|m| m.actuation.iter().all(|a| (a - 0.3).abs() < 2e-3))
     });
     assert_eq!(m.driver_state(), Some(DriverState::Following));
-    assert!(m.current_a.iter().all(|a| a.is_finite()), "{:?}", m.current_a);
+    assert!(
+        m.current_a.iter().all(|a| a.is_finite()),
+        "{:?}",
+        m.current_a
+    );
 
     // Silence: hold (torque on), then torque off.
     let silent_from = now_ns();
@@ -161,7 +166,10 @@ fn tendon_follows_then_holds_then_turns_the_torque_off_and_obeys_the_estop() {
     eventually("OFF", || {
         newest(&motors).filter(|m| m.driver_state() == Some(DriverState::Off))
     });
-    assert!(now_ns() - silent_from >= 1_000_000_000, "off before its time-out");
+    assert!(
+        now_ns() - silent_from >= 1_000_000_000,
+        "off before its time-out"
+    );
     assert_eq!(torque(&rig, &t.ids), [false; 6]);
 
     // A controller that comes back is followed again.
@@ -178,7 +186,11 @@ fn tendon_follows_then_holds_then_turns_the_torque_off_and_obeys_the_estop() {
         (torque(&rig, &t.ids) == [false; 6]).then_some(())
     });
     follow(&setpoints, 0.6, Duration::from_millis(300));
-    assert_eq!(torque(&rig, &t.ids), [false; 6], "setpoints obeyed under e-stop");
+    assert_eq!(
+        torque(&rig, &t.ids),
+        [false; 6],
+        "setpoints obeyed under e-stop"
+    );
     let m = newest(&motors).unwrap();
     assert_eq!(m.driver_state(), Some(DriverState::Stopped));
     let out = s.run(&["estop", "--reset"]);
@@ -231,7 +243,10 @@ fn tendon_survives_a_noisy_and_a_silent_bus_and_stops_commanding_a_faulted_motor
     });
     follow(&setpoints, 0.55, Duration::from_millis(800));
     let m = newest(&motors).expect("motor state keeps coming, stamped when last read");
-    assert!(now_ns() - m.stamp_ns > 300_000_000, "stale data looks fresh");
+    assert!(
+        now_ns() - m.stamp_ns > 300_000_000,
+        "stale data looks fresh"
+    );
     assert!(m.faults > before, "{} -> {}", before, m.faults);
     assert!(alive(pid));
     rig.bus.lock().unwrap().set_faults(BusFaults::default());
@@ -250,10 +265,18 @@ fn tendon_survives_a_noisy_and_a_silent_bus_and_stops_commanding_a_faulted_motor
     assert_eq!(m.hardware_error.iter().filter(|&&e| e != 0).count(), 1);
     let held = goals(&rig, &t.ids);
     follow(&setpoints, 0.65, Duration::from_millis(500));
-    assert_eq!(goals(&rig, &t.ids), held, "goals written after a motor fault");
+    assert_eq!(
+        goals(&rig, &t.ids),
+        held,
+        "goals written after a motor fault"
+    );
     let on = torque(&rig, &t.ids);
     assert!(!on[2], "the faulted motor is off");
-    assert_eq!(on.iter().filter(|&&v| v).count(), 5, "the others hold: {on:?}");
+    assert_eq!(
+        on.iter().filter(|&&v| v).count(),
+        5,
+        "the others hold: {on:?}"
+    );
     assert!(stop(driver).success());
 }
 
@@ -271,9 +294,13 @@ fn tracker_publishes_the_arm_in_the_base_frame_resyncs_and_survives_silence() {
     assert!(close(&p), "{:?} vs {want:?}", p.position);
 
     // Garbled and lost bytes: records keep coming between them.
-    rig.tracker_faults.corrupt_one_in.store(3, Ordering::Relaxed);
+    rig.tracker_faults
+        .corrupt_one_in
+        .store(3, Ordering::Relaxed);
     std::thread::sleep(Duration::from_millis(500));
-    rig.tracker_faults.corrupt_one_in.store(0, Ordering::Relaxed);
+    rig.tracker_faults
+        .corrupt_one_in
+        .store(0, Ordering::Relaxed);
     let p = eventually("good samples after the noise", || {
         newest(&samples).filter(|p| now_ns() - p.stamp_ns < 50_000_000 && close(p))
     });
@@ -340,5 +367,8 @@ fn the_hardware_stack_executes_a_set_through_softarm_emulate() {
     assert!(out.success());
     let mut text = String::new();
     std::io::Read::read_to_string(&mut emulate.stdout.take().unwrap(), &mut text).unwrap();
-    assert!(text.contains("tendon motors (Dynamixel 2.0): /dev/pts/"), "{text}");
+    assert!(
+        text.contains("tendon motors (Dynamixel 2.0): /dev/pts/"),
+        "{text}"
+    );
 }

@@ -9,8 +9,8 @@ use anyhow::Context;
 use rtrb::{Consumer, Producer};
 use softarm_ipc::clock::Ticker;
 use softarm_ipc::{
-    Actuation, ConditioningSample, ControllerState, ControllerStatus, EstopState, ExecutionStats,
-    DriverState, MotorState, Namespace, Node, Position, Setpoint, Sub, TrackerSample, now_ns,
+    Actuation, ConditioningSample, ControllerState, ControllerStatus, DriverState, EstopState,
+    ExecutionStats, MotorState, Namespace, Node, Position, Setpoint, Sub, TrackerSample, now_ns,
 };
 use softarm_model::config::{Config, Controller};
 

@@ -618,25 +618,45 @@ mod tests {
         assert_eq!(c.robot.drivers, ["tendon", "tracker"]);
         assert!(c.tendon.is_some() && c.tracker.is_some());
         // The same arm and method: a model trained on either config fits the other.
-        assert_eq!((&c.arm, &c.learner, &c.controller), (&d.arm, &d.learner, &d.controller));
+        assert_eq!(
+            (&c.arm, &c.learner, &c.controller),
+            (&d.arm, &d.learner, &d.controller)
+        );
     }
 
     #[test]
     fn hardware_drivers_need_their_sections_and_consistent_limits() {
         let no_tendon = HARDWARE.replace("[tendon]", "[tendon_unused]");
         assert!(Config::parse(&no_tendon, "h.toml", ".".into()).is_err());
-        let (start, end) = (HARDWARE.find("[tendon]").unwrap(), HARDWARE.find("[tracker]").unwrap());
+        let (start, end) = (
+            HARDWARE.find("[tendon]").unwrap(),
+            HARDWARE.find("[tracker]").unwrap(),
+        );
         let without = format!("{}{}", &HARDWARE[..start], &HARDWARE[end..]);
         let e = Config::parse(&without, "h.toml", ".".into()).unwrap_err();
         assert!(e.message.contains("no [tendon] section"), "{e}");
-        let mixed = HARDWARE.replace(r#"drivers = ["tendon", "tracker"]"#, r#"drivers = ["sim", "tracker"]"#);
+        let mixed = HARDWARE.replace(
+            r#"drivers = ["tendon", "tracker"]"#,
+            r#"drivers = ["sim", "tracker"]"#,
+        );
         assert!(Config::parse(&mixed, "h.toml", ".".into()).is_err());
         // A motor turned the wrong way would be driven past its limit: refused, at its line.
-        let wrong = HARDWARE.replace("direction = [1, 1, 1, -1, -1, -1]", "direction = [1, 1, 1, -1, 1, -1]");
+        let wrong = HARDWARE.replace(
+            "direction = [1, 1, 1, -1, -1, -1]",
+            "direction = [1, 1, 1, -1, 1, -1]",
+        );
         let e = Config::parse(&wrong, "h.toml", ".".into()).unwrap_err();
-        let line = HARDWARE.lines().position(|l| l.starts_with("zero_ticks")).unwrap() + 1;
+        let line = HARDWARE
+            .lines()
+            .position(|l| l.starts_with("zero_ticks"))
+            .unwrap()
+            + 1;
         assert_eq!(e.line, Some(line), "{e}");
-        assert!(e.message.starts_with("tendon.zero_ticks[4]: motor 5 (actuator 5)"), "{e}");
+        assert!(
+            e.message
+                .starts_with("tendon.zero_ticks[4]: motor 5 (actuator 5)"),
+            "{e}"
+        );
     }
 
     #[test]

@@ -104,6 +104,9 @@ pub struct TrackerConfig {
     pub full_scale_in: f64,
     /// No record for this long (ms): the device is reported silent and asked again.
     pub silent_after_ms: f64,
+    /// Fastest the end effector can move (m/s). Records carry no checksum: one farther from
+    /// the last than this allows (plus 5 mm) is held back until the next confirms it.
+    pub max_speed_m_per_s: f64,
     /// Base frame from tracker frame: p_base = R(rotation_deg) · p_tracker + translation_m.
     pub translation_m: Position,
     /// Roll, pitch, yaw (°) about the tracker's x, y, z: R = Rz(yaw) · Ry(pitch) · Rx(roll).
@@ -360,6 +363,15 @@ impl TrackerConfig {
                 ),
             );
         }
+        if !(self.max_speed_m_per_s.is_finite()
+            && self.max_speed_m_per_s > 0.0
+            && self.max_speed_m_per_s <= 100.0)
+        {
+            return invalid(
+                key("max_speed_m_per_s"),
+                format!("must be in (0, 100] m/s, got {:?}", self.max_speed_m_per_s),
+            );
+        }
         for i in 0..3 {
             if !(self.translation_m[i].is_finite() && self.translation_m[i].abs() <= 10.0) {
                 return invalid(
@@ -459,13 +471,17 @@ mod tests {
             rate_hz: 100.0,
             full_scale_in: 36.0,
             silent_after_ms: 200.0,
+            max_speed_m_per_s: 2.0,
             translation_m: [0.1, -0.2, 0.3],
             rotation_deg: [0.0, 0.0, 90.0],
         };
         let f = Frame::new(&c);
         // Yaw 90°: the tracker's x is the base's y.
         let p = f.to_base([1.0 / METRES_PER_INCH, 0.0, 0.0]);
-        assert!((p[0] - 0.1).abs() < 1e-12 && (p[1] - 0.8).abs() < 1e-12, "{p:?}");
+        assert!(
+            (p[0] - 0.1).abs() < 1e-12 && (p[1] - 0.8).abs() < 1e-12,
+            "{p:?}"
+        );
         c.rotation_deg = [10.0, -20.0, 30.0];
         let f = Frame::new(&c);
         let q = [0.12, -0.05, -0.4];

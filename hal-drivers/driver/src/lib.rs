@@ -188,7 +188,10 @@ mod tests {
         let mut s = supervisor();
         assert_eq!(s.update(0, &poll(None, false), false), Action::Off);
         assert_eq!(s.state(), DriverState::Off);
-        assert_eq!(s.update(MS, &poll(Some(0.4), false), false), Action::Follow([0.4; 6]));
+        assert_eq!(
+            s.update(MS, &poll(Some(0.4), false), false),
+            Action::Follow([0.4; 6])
+        );
         assert_eq!(s.state(), DriverState::Following);
         // Between setpoints the goal stands and the state stays.
         assert_eq!(s.update(5 * MS, &poll(None, false), false), Action::Hold);
@@ -222,7 +225,10 @@ mod tests {
         // Reset: nothing moves until the controller speaks.
         assert_eq!(s.update(3 * MS, &poll(None, false), false), Action::Off);
         assert_eq!(s.state(), DriverState::Off);
-        assert_eq!(s.update(4 * MS, &poll(Some(0.5), false), false), Action::Follow([0.5; 6]));
+        assert_eq!(
+            s.update(4 * MS, &poll(Some(0.5), false), false),
+            Action::Follow([0.5; 6])
+        );
     }
 
     #[test]

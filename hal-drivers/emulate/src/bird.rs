@@ -97,8 +97,8 @@ enum Pending {
         have: usize,
         need: usize,
     },
-    /// Data bytes of `command` to consume and ignore.
-    Skip { command: u8, left: usize },
+    /// `left` data bytes of a command to consume and ignore.
+    Skip { left: usize },
 }
 
 /// The longest CHANGE VALUE data (14 bytes) the device keeps.
@@ -186,14 +186,11 @@ impl BirdDevice {
                         }
                     }
                 }
-                Pending::Skip { command, left } => {
+                Pending::Skip { left } => {
                     if left <= 1 {
                         Pending::Command
                     } else {
-                        Pending::Skip {
-                            command,
-                            left: left - 1,
-                        }
+                        Pending::Skip { left: left - 1 }
                     }
                 }
             };
@@ -208,7 +205,7 @@ impl BirdDevice {
         angles_deg: [f64; 3],
         out: &mut Vec<u8>,
     ) -> Pending {
-        let skip = |left| Pending::Skip { command: b, left };
+        let skip = |left| Pending::Skip { left };
         match b {
             POSITION | POSITION_ANGLES => {
                 if let Some(format) = RecordFormat::from_command(b) {
@@ -426,7 +423,12 @@ pub fn serve(
             format!("full scale must be a positive number of inches, got {full_scale_in}"),
         ));
     }
-    let period = Duration::from_secs_f64(1.0 / rate_hz);
+    let period = Duration::try_from_secs_f64(1.0 / rate_hz).map_err(|_| {
+        io::Error::new(
+            io::ErrorKind::InvalidInput,
+            format!("stream rate {rate_hz} Hz is too low"),
+        )
+    })?;
     let epoch = Instant::now();
     let writing_since_ms = AtomicU64::new(0);
     let done = AtomicBool::new(false);
@@ -542,7 +544,6 @@ mod tests {
     use softarm_tracker::bird::{Decoder, DecoderStats};
 
     const FS: f64 = 36.0;
-    const POS_LSB: f64 = FS / 8192.0;
     const ANG_LSB: f64 = 180.0 / 8192.0;
     const P: [f64; 3] = [10.5, -7.25, 3.0];
     const A: [f64; 3] = [30.0, -20.0, 135.5];
@@ -893,17 +894,22 @@ mod tests {
     }
 
     #[test]
-    fn serve_rejects_a_bad_rate() {
-        let pty = Pty::open().unwrap();
-        let r = serve(
-            pty,
-            0.0,
-            FS,
-            || (P, A),
-            Arc::new(BirdFaults::new()),
-            Arc::new(AtomicBool::new(false)),
-            Arc::new(AtomicU64::new(0)),
-        );
-        assert_eq!(r.unwrap_err().kind(), io::ErrorKind::InvalidInput);
+    fn serve_rejects_a_bad_rate_or_scale() {
+        for (rate, scale) in [(0.0, FS), (f64::NAN, FS), (1e-300, FS), (100.0, 0.0)] {
+            let r = serve(
+                Pty::open().unwrap(),
+                rate,
+                scale,
+                || (P, A),
+                Arc::new(BirdFaults::new()),
+                Arc::new(AtomicBool::new(false)),
+                Arc::new(AtomicU64::new(0)),
+            );
+            assert_eq!(
+                r.unwrap_err().kind(),
+                io::ErrorKind::InvalidInput,
+                "{rate} Hz, {scale} in"
+            );
+        }
     }
 }

@@ -5,3 +5,4 @@
 pub mod bird;
 pub mod dynamixel;
 pub mod pty;
+pub mod rig;

@@ -77,14 +77,24 @@ mod tests {
         pty.write_all(&[0x00, 0xff, 0x0d, 0x0a, 0x11]).unwrap();
         let mut got = [0u8; 5];
         port.read_exact(&mut got).unwrap();
-        assert_eq!(got, [0x00, 0xff, 0x0d, 0x0a, 0x11], "raw: no byte translated");
+        assert_eq!(
+            got,
+            [0x00, 0xff, 0x0d, 0x0a, 0x11],
+            "raw: no byte translated"
+        );
         port.write_all(&[0x42, 0x0d]).unwrap();
         let mut buf = [0u8; 8];
         let mut n = 0;
         while n < 2 {
-            n += pty.read_timeout(&mut buf[n..], Duration::from_secs(5)).unwrap();
+            n += pty
+                .read_timeout(&mut buf[n..], Duration::from_secs(5))
+                .unwrap();
         }
         assert_eq!(&buf[..2], &[0x42, 0x0d]);
-        assert_eq!(pty.read_timeout(&mut buf, Duration::from_millis(10)).unwrap(), 0);
+        assert_eq!(
+            pty.read_timeout(&mut buf, Duration::from_millis(10))
+                .unwrap(),
+            0
+        );
     }
 }

@@ -46,14 +46,10 @@ impl Rig {
         let frame = Frame::new(tracker);
         let arm = config.arm;
 
-        let bus = dynamixel::Bus::new(&tendon.ids, 0);
-        let bus = Arc::new(Mutex::new(bus));
-        {
-            let mut b = bus.lock().unwrap();
-            for (i, &id) in tendon.ids.iter().enumerate() {
-                b.set_present_position(id, mapping.ticks(i, initial));
-            }
-        }
+        let motors = (0..ACTUATORS)
+            .map(|i| dynamixel::Motor::new(tendon.ids[i], mapping.ticks(i, initial)))
+            .collect();
+        let bus = Arc::new(Mutex::new(dynamixel::Bus::with_motors(motors)));
         let stop = Arc::new(AtomicBool::new(false));
         let tendon_pty = Pty::open().context("opening a pseudo-terminal for the motor bus")?;
         let tracker_pty = Pty::open().context("opening a pseudo-terminal for the tracker")?;
@@ -91,7 +87,9 @@ impl Rig {
             threads.push(
                 std::thread::Builder::new()
                     .name("emulated tracker".into())
-                    .spawn(move || bird::serve(tracker_pty, rate, scale, pose, faults, stop, records))?,
+                    .spawn(move || {
+                        bird::serve(tracker_pty, rate, scale, pose, faults, stop, records)
+                    })?,
             );
         }
         Ok(Self {

@@ -6,8 +6,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use anyhow::Context;
 
-use softarm_ipc::clock::Ticker;
 use softarm_driver::Commands;
+use softarm_ipc::clock::Ticker;
 use softarm_ipc::{DriverState, EstopLatch, MotorState, Namespace, Node, TrackerSample, now_ns};
 
 use softarm_method::pcc::ArmGeometry;

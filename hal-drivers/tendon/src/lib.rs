@@ -217,8 +217,8 @@ impl Link {
         for (ok, (address, value)) in limits_ok.iter_mut().zip(limits) {
             *ok = guarded(|| Ok(b.read_u32(id, address)?.data)).map_err(fail)? == value;
         }
-        let current_ok = guarded(|| Ok(b.read_u16(id, CURRENT_LIMIT)?.data)).map_err(fail)?
-            == t.current_limit;
+        let current_ok =
+            guarded(|| Ok(b.read_u16(id, CURRENT_LIMIT)?.data)).map_err(fail)? == t.current_limit;
         if mode_ok && limits_ok == [true; 2] && current_ok {
             return Ok(guarded(|| Ok(b.read_u8(id, TORQUE_ENABLE)?.data)).map_err(fail)? != 0);
         }
@@ -258,12 +258,7 @@ impl Link {
 
     /// What the safety logic decided, on the bus. An e-stop's torque-off goes out even to
     /// motors with a hardware error (turning a motor off is never a command to move).
-    fn apply(
-        &mut self,
-        action: Action,
-        mapping: &Mapping,
-        reading: &Reading,
-    ) -> Result<(), Fault> {
+    fn apply(&mut self, action: Action, mapping: &Mapping, reading: &Reading) -> Result<(), Fault> {
         match action {
             Action::Off if self.torque => self.set_torque(false, reading),
             Action::Off | Action::Hold => Ok(()),
@@ -394,9 +389,9 @@ pub fn run(config: &Config, namespace: Namespace, stop: &AtomicBool) -> anyhow::
         if let Some(l) = link.as_mut()
             && (backoff.ready(now) || urgent)
         {
-            let result = l.apply(action, &mapping, &reading).and_then(|()| {
-                l.read(&mut reading, cycle.is_multiple_of(errors_every))
-            });
+            let result = l
+                .apply(action, &mapping, &reading)
+                .and_then(|()| l.read(&mut reading, cycle.is_multiple_of(errors_every)));
             match result {
                 Ok(0) => {
                     reading.stamp_ns = Some(now_ns());

@@ -12,7 +12,7 @@ use std::time::Duration;
 use anyhow::Context;
 use serial2::SerialPort;
 
-use softarm_ipc::{Namespace, Node, TrackerSample, now_ns};
+use softarm_ipc::{Namespace, Node, Position, TrackerSample, now_ns};
 use softarm_model::config::Config;
 use softarm_model::hardware::{Frame, TrackerConfig, TrackerMode, TrackerRecord};
 
@@ -55,6 +55,60 @@ fn start(port: &mut SerialPort, t: &TrackerConfig) -> std::io::Result<()> {
     Ok(())
 }
 
+/// Bird records carry no checksum: a garbled data byte decodes to a wrong position. A record
+/// farther from the last accepted one than the arm can move in the time between (plus a margin
+/// for noise) is held back; the next record decides: close to the held one, the arm did move
+/// and it is accepted; close to the last, the held one was garbage.
+#[derive(Debug)]
+struct Plausibility {
+    max_speed_m_per_s: f64,
+    last: Option<(Position, u64)>,
+    held: Option<(Position, u64)>,
+    rejected: u64,
+}
+
+impl Plausibility {
+    /// Noise and quantisation the bound allows beyond the speed (m).
+    const MARGIN_M: f64 = 0.005;
+
+    fn new(max_speed_m_per_s: f64) -> Self {
+        Self {
+            max_speed_m_per_s,
+            last: None,
+            held: None,
+            rejected: 0,
+        }
+    }
+
+    fn near(&self, from: (Position, u64), p: Position, t: u64) -> bool {
+        let dt = t.saturating_sub(from.1) as f64 * 1e-9;
+        let d = (0..3)
+            .map(|i| (p[i] - from.0[i]).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        d <= self.max_speed_m_per_s * dt + Self::MARGIN_M
+    }
+
+    /// Whether to publish `p`, arrived at `t`.
+    fn accept(&mut self, p: Position, t: u64) -> bool {
+        let ok = match self.last {
+            None => true,
+            Some(last) if self.near(last, p, t) => true,
+            // Two records that agree with each other: the arm did move (a knock, a jump
+            // after a silence).
+            _ => self.held.is_some_and(|h| self.near(h, p, t)),
+        };
+        if ok {
+            self.last = Some((p, t));
+            self.held = None;
+        } else {
+            self.held = Some((p, t));
+            self.rejected += 1;
+        }
+        ok
+    }
+}
+
 /// One read: at most [`READ_TIMEOUT`]; 0 bytes when nothing came.
 fn read(port: &mut SerialPort, buf: &mut [u8]) -> std::io::Result<usize> {
     match port.read(buf) {
@@ -85,6 +139,7 @@ pub fn run(config: &Config, namespace: Namespace, stop: &AtomicBool) -> anyhow::
 
     let format = format_of(t);
     let mut decoder = Decoder::new(format, t.full_scale_in);
+    let mut plausible = Plausibility::new(t.max_speed_m_per_s);
     let period_ns = (1e9 / t.rate_hz) as u64;
     let silent_ns = (t.silent_after_ms * 1e6) as u64;
     let mut buf = [0u8; 256];
@@ -143,12 +198,24 @@ pub fn run(config: &Config, namespace: Namespace, stop: &AtomicBool) -> anyhow::
         let arrived = now_ns();
         for &byte in &buf[..n] {
             if let Some(record) = decoder.push(byte) {
-                seq += 1;
                 last_record = arrived;
+                let position = frame.to_base(record.position_in);
+                if !plausible.accept(position, arrived) {
+                    if plausible.rejected.is_power_of_two() {
+                        tracing::warn!(
+                            rejected = plausible.rejected,
+                            ?position,
+                            "tracker record too far from the last: held back until the next \
+                             confirms it"
+                        );
+                    }
+                    continue;
+                }
+                seq += 1;
                 let _ = publisher.send_copy(TrackerSample {
                     seq,
                     stamp_ns: arrived,
-                    position: frame.to_base(record.position_in),
+                    position,
                 });
             }
         }
@@ -202,9 +269,35 @@ pub fn run(config: &Config, namespace: Namespace, stop: &AtomicBool) -> anyhow::
         records = s.records,
         malformed = s.malformed,
         dropped_bytes = s.dropped_bytes,
+        implausible = plausible.rejected,
         silent_episodes,
         port_faults,
         "tracker driver stopped"
     );
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const MS: u64 = 1_000_000;
+
+    #[test]
+    fn a_garbled_record_is_held_back_and_a_real_move_is_not() {
+        let mut p = Plausibility::new(2.0);
+        assert!(p.accept([0.0, 0.0, -0.4], 0));
+        // 10 ms later: 2 m/s allows 20 mm + 5 mm.
+        assert!(p.accept([0.02, 0.0, -0.4], 10 * MS));
+        // A garbled word: 0.3 m off for one record.
+        assert!(!p.accept([0.32, 0.0, -0.4], 20 * MS));
+        assert!(p.accept([0.03, 0.0, -0.4], 30 * MS));
+        assert_eq!(p.rejected, 1);
+        // The arm knocked 0.1 m away: held once, confirmed by the next.
+        assert!(!p.accept([0.13, 0.0, -0.4], 40 * MS));
+        assert!(p.accept([0.131, 0.0, -0.4], 50 * MS));
+        assert!(p.accept([0.132, 0.0, -0.4], 60 * MS));
+        // After a long silence the arm may be anywhere within reach of the speed.
+        assert!(p.accept([0.3, 0.0, -0.4], 2000 * MS));
+    }
 }
