@@ -349,6 +349,10 @@ pub fn run(config: &Config, namespace: Namespace, stop: &AtomicBool) -> anyhow::
     );
 
     let mut reading = Reading::default();
+    // A bus silent this long is reopened: an adapter unplugged and plugged in again is a new
+    // device behind the same name, and the old descriptor never hears from it.
+    const REOPEN_AFTER_NS: u64 = 1_000_000_000;
+    let mut last_answer = now_ns();
     let mut backoff = Backoff::default();
     let mut faults = 0u64;
     let mut seq = 0u64;
@@ -376,6 +380,7 @@ pub fn run(config: &Config, namespace: Namespace, stop: &AtomicBool) -> anyhow::
                     tracing::warn!("motor bus back");
                     link = Some(l);
                     backoff.succeeded();
+                    last_answer = now;
                 }
                 Err(e) => {
                     faults += 1;
@@ -396,6 +401,7 @@ pub fn run(config: &Config, namespace: Namespace, stop: &AtomicBool) -> anyhow::
                 Ok(0) => {
                     reading.stamp_ns = Some(now_ns());
                     backoff.succeeded();
+                    last_answer = now;
                 }
                 Ok(missing) => {
                     faults += missing as u64;
@@ -414,6 +420,15 @@ pub fn run(config: &Config, namespace: Namespace, stop: &AtomicBool) -> anyhow::
                         link = None;
                     }
                 }
+            }
+            if link.is_some() && now.saturating_sub(last_answer) > REOPEN_AFTER_NS {
+                tracing::error!(
+                    faults,
+                    "no answer from the motors for 1 s: reopening the port"
+                );
+                link = None;
+                // At once: it has waited long enough.
+                backoff.succeeded();
             }
             for (i, &e) in reading.hardware_error.iter().enumerate() {
                 if e != 0 && !fault {
@@ -447,10 +462,9 @@ pub fn run(config: &Config, namespace: Namespace, stop: &AtomicBool) -> anyhow::
     // Leaving: the arm must not stay driven by a process that is gone.
     if let Some(l) = link.as_mut()
         && l.torque
+        && let Err(e) = l.set_torque(false, &reading)
     {
-        if let Err(e) = l.set_torque(false, &reading) {
-            tracing::error!("could not turn the torque off on the way out: {e}");
-        }
+        tracing::error!("could not turn the torque off on the way out: {e}");
     }
     tracing::info!(
         faults,

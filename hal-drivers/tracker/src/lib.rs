@@ -165,7 +165,7 @@ pub fn run(config: &Config, namespace: Namespace, stop: &AtomicBool) -> anyhow::
             }
             match open(t) {
                 Ok(p) => {
-                    tracing::warn!("tracker port back");
+                    tracing::info!("tracker port opened");
                     decoder.reset();
                     port = Some(p);
                     reopen_every = 10_000_000;
@@ -248,13 +248,13 @@ pub fn run(config: &Config, namespace: Namespace, stop: &AtomicBool) -> anyhow::
                 tracing::error!(
                     silent_ms = arrived.saturating_sub(last_record) / 1_000_000,
                     silent_episodes,
-                    "the tracker sends nothing; asking again"
+                    "the tracker sends nothing; reopening the port and asking again"
                 );
-                decoder.reset();
-                if let Err(e) = start(p, t) {
-                    tracing::error!("tracker port lost: {e}; reopening");
-                    port = None;
-                }
+                // Asked again through a freshly opened port: an adapter unplugged and
+                // plugged in again is a new device behind the same name, which the old
+                // descriptor never hears from.
+                port = None;
+                reopen_at = arrived;
                 next_ask = arrived + ask_every;
                 ask_every = (ask_every * 2).min(2_000_000_000);
             }
