@@ -56,6 +56,27 @@ impl Stack {
         Ok(c)
     }
 
+    /// [`Stack::load`] for a process that needs config section `[section]`: without it the
+    /// config is refused (exit 78, not restarted).
+    fn load_with(&self, section: &str, has: impl Fn(&Config) -> bool) -> anyhow::Result<Config> {
+        let c = self.load()?;
+        if has(&c) {
+            return Ok(c);
+        }
+        Err(ConfigError {
+            origin: self
+                .config
+                .as_ref()
+                .map_or("the embedded config".into(), |p| p.display().to_string()),
+            line: None,
+            message: format!(
+                "no [{section}] section: the {section} driver needs one (config/hardware.toml \
+                 has an example)"
+            ),
+        }
+        .into())
+    }
+
     fn namespace(&self) -> anyhow::Result<Namespace> {
         Ok(Namespace::new(&self.load()?.namespace())?)
     }
@@ -230,11 +251,11 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             )?
         }
         Command::Tendon(stack) => {
-            let c = stack.load()?;
+            let c = stack.load_with("tendon", |c| c.tendon.is_some())?;
             softarm_tendon::run(&c, Namespace::new(&c.namespace())?, &*stop_flag()?)?
         }
         Command::Tracker(stack) => {
-            let c = stack.load()?;
+            let c = stack.load_with("tracker", |c| c.tracker.is_some())?;
             softarm_tracker::run(&c, Namespace::new(&c.namespace())?, &*stop_flag()?)?
         }
         Command::Emulate(args) => emulate::run(&args, &*stop_flag()?)?,
