@@ -419,6 +419,55 @@ fn both_drivers_survive_an_unplugged_adapter_and_pick_up_when_it_is_back() {
 }
 
 #[test]
+fn tracker_polls_in_point_mode_with_angles() {
+    let (s, c, _rig) = rig("hw-point");
+    let text = std::fs::read_to_string(&s.config).unwrap();
+    let text = softarm_test_support::with_overrides(
+        &text,
+        &[
+            ("tracker.mode", "point".into()),
+            ("tracker.record", "position_angles".into()),
+        ],
+    );
+    std::fs::write(&s.config, text).unwrap();
+    let n = node(&s);
+    let samples = n.subscriber(&n.tracker().unwrap()).unwrap();
+    let driver = s.spawn(&["tracker"]);
+    let want = c.arm.position(&[0.5; 6]);
+    let p = eventually("20 polled samples", || {
+        newest(&samples).filter(|p| p.seq >= 20)
+    });
+    assert!(
+        (0..3).all(|i| (p.position[i] - want[i]).abs() < 1e-4),
+        "{:?} vs {want:?}",
+        p.position
+    );
+    assert!(stop(driver).success());
+}
+
+#[test]
+fn a_motor_fault_holds_the_controller_and_shows_in_status() {
+    let (s, c, rig) = rig("hw-fault-stack");
+    softarm_test_support::quick_model(&s.dir.join("model"));
+    let mut s = s;
+    s.up();
+    s.wait_status("the driver following", LIMIT, |st| {
+        st["driver"]["state"] == "FOLLOWING"
+    });
+    let id = c.tendon.unwrap().ids[4];
+    rig.bus.lock().unwrap().set_hardware_error(id, 0x04);
+    let st = s.wait_status("HOLD on the fault", LIMIT, |st| {
+        st["controller"]["state"] == "HOLD" && st["driver"]["state"] == "FAULT"
+    });
+    assert_eq!(st["driver"]["hardware_error"][4], 0x04, "{st}");
+    // A set is not executed on a faulted arm.
+    let (code, out, err) = s.submit(Path::new(DEMO_WAYPOINTS), 1);
+    assert_eq!(code, 0, "{out}{err}");
+    std::thread::sleep(Duration::from_secs(1));
+    assert_eq!(s.status()["controller"]["state"], "HOLD");
+}
+
+#[test]
 fn the_hardware_stack_executes_a_set_through_softarm_emulate() {
     // The emulators as a user runs them, from the hardware config; the stack from the config
     // `softarm emulate` writes.

@@ -3,12 +3,14 @@
 
 use std::time::Duration;
 
-use softarm_ipc::{ControllerState, ControllerStatus, Namespace, Node};
+use softarm_ipc::{ControllerState, ControllerStatus, DriverState, MotorState, Namespace, Node};
 
 pub struct Report {
     /// The stack's processes with a live iceoryx2 node (this client excluded).
     pub alive: Vec<String>,
     pub controller: Option<ControllerStatus>,
+    /// The newest `motor_state` of the driver (sim or tendon), if one is publishing.
+    pub motors: Option<MotorState>,
 }
 
 /// `softarm status`'s exit code when the stack is not running (`systemctl status` uses 3 too).
@@ -26,10 +28,15 @@ impl Report {
 pub fn status(namespace: &Namespace, timeout: Duration) -> Result<Report, softarm_ipc::Error> {
     let ipc = Node::open(namespace.clone(), "status")?;
     let sub = ipc.subscriber(&ipc.status()?)?;
+    let motor_sub = ipc.subscriber(&ipc.motor_state()?)?;
     let mut newest = None;
+    let mut motors = None;
     crate::poll(timeout, || {
         while let Ok(Some(s)) = sub.receive() {
             newest = Some(*s);
+        }
+        while let Ok(Some(m)) = motor_sub.receive() {
+            motors = Some(*m);
         }
         newest.map(|_| ())
     });
@@ -44,6 +51,7 @@ pub fn status(namespace: &Namespace, timeout: Duration) -> Result<Report, softar
     Ok(Report {
         alive,
         controller: newest,
+        motors,
     })
 }
 
@@ -108,6 +116,25 @@ pub fn text(r: &Report) -> String {
             );
         }
     }
+    if let Some(m) = &r.motors {
+        let state = DriverState::from_u32(m.state).map_or("?", |s| s.name());
+        let errors: Vec<String> = m
+            .hardware_error
+            .iter()
+            .enumerate()
+            .filter(|(_, e)| **e != 0)
+            .map(|(i, e)| format!("actuator {} {e:#04x}", i + 1))
+            .collect();
+        out += &format!(
+            "driver: {state}, {} communication faults, hardware errors: {}\n",
+            m.faults,
+            if errors.is_empty() {
+                "none".into()
+            } else {
+                errors.join(", ")
+            }
+        );
+    }
     out
 }
 
@@ -130,7 +157,15 @@ pub fn json(r: &Report) -> String {
             "held_solves": s.held_solves,
         })
     });
-    serde_json::json!({ "alive": r.alive, "controller": controller }).to_string()
+    let driver = r.motors.map(|m| {
+        serde_json::json!({
+            "state": DriverState::from_u32(m.state).map_or("?", |s| s.name()),
+            "faults": m.faults,
+            "hardware_error": m.hardware_error,
+            "current_a": m.current_a.iter().map(|c| c.is_finite().then_some(*c)).collect::<Vec<_>>(),
+        })
+    });
+    serde_json::json!({ "alive": r.alive, "controller": controller, "driver": driver }).to_string()
 }
 
 #[cfg(test)]
@@ -151,6 +186,12 @@ mod tests {
                 outbox_dropped: 17,
                 samples_dropped: 5,
                 held_solves: 6,
+                ..Default::default()
+            }),
+            motors: Some(MotorState {
+                state: DriverState::Fault as u32,
+                faults: 12,
+                hardware_error: [0, 0, 0x20, 0, 0, 0],
                 ..Default::default()
             }),
         };
@@ -176,5 +217,11 @@ mod tests {
             serde_json::json!({"dropped": 17, "samples_dropped": 5, "backlog": 2})
         );
         assert_eq!(c["held_solves"], 6);
+        assert!(
+            t.contains("driver: FAULT, 12 communication faults, hardware errors: actuator 3 0x20"),
+            "{t}"
+        );
+        assert_eq!(j["driver"]["state"], "FAULT");
+        assert_eq!(j["driver"]["hardware_error"][2], 0x20);
     }
 }
