@@ -434,7 +434,7 @@ impl Config {
         self.arm.validate().map_err(|e| keyed("arm", e))?;
         self.sim.validate().map_err(|e| keyed("sim", e))?;
         if let Some(t) = &self.tendon {
-            t.validate(&self.arm, &c.actuator_min, &c.actuator_max)?;
+            t.validate(&self.arm, &c.actuator_min, &c.actuator_max, c.rate_hz)?;
         }
         if let Some(t) = &self.tracker {
             t.validate()?;

@@ -14,33 +14,10 @@ use softarm_method::space::{ACTUATORS, Actuation, Position};
 /// Metres per inch: the Bird protocol reports inches.
 pub const METRES_PER_INCH: f64 = 0.0254;
 
-/// How the motors hold a position (the Dynamixel operating mode written at start).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum OperatingMode {
-    /// One turn, 0..=4095 ticks (mode 3).
-    Position,
-    /// Multi-turn, ±1 048 575 ticks (mode 4): a spool that turns more than once per stroke.
-    ExtendedPosition,
-}
-
-impl OperatingMode {
-    /// The value of the control table's Operating Mode.
-    pub fn register_value(self) -> u8 {
-        match self {
-            OperatingMode::Position => 3,
-            OperatingMode::ExtendedPosition => 4,
-        }
-    }
-
-    /// The ticks a goal position may take in this mode.
-    pub fn ticks_range(self) -> (i32, i32) {
-        match self {
-            OperatingMode::Position => (0, 4095),
-            OperatingMode::ExtendedPosition => (-1_048_575, 1_048_575),
-        }
-    }
-}
+/// The ticks a goal position may take: the motors run in position control (operating mode 3,
+/// one turn). Multi-turn (extended position) mode is not offered: the motor forgets its turn
+/// count on a power cycle, so `zero_ticks` would no longer hold, and it ignores the limits.
+pub const TICKS_RANGE: (i32, i32) = (0, 4095);
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -52,7 +29,6 @@ pub struct TendonConfig {
     pub ids: [u8; ACTUATORS],
     /// Goal positions written and positions and currents read per second.
     pub rate_hz: f64,
-    pub operating_mode: OperatingMode,
     /// Motor ticks per spool revolution (4096 on X-series).
     pub ticks_per_rev: u32,
     /// Spool radius per motor (m): tendon length per radian.
@@ -65,8 +41,13 @@ pub struct TendonConfig {
     /// refused by the motor itself. Every setpoint the controller may send maps inside.
     pub min_ticks: [i32; ACTUATORS],
     pub max_ticks: [i32; ACTUATORS],
-    /// Current limit written to the motors (raw units of the control table; X-series 2.69 mA).
-    pub current_limit: u16,
+    /// Profile Velocity written to the motors (units of 0.229 rev/min; 0 = as fast as they
+    /// go): how fast a motor may move to a new goal, so one that gets its torque back after a
+    /// pause or a reconnection moves at a bounded speed.
+    pub profile_velocity: u32,
+    /// Torque comes on only for a first setpoint this close (normalised) to where each motor
+    /// stands: the controller starts from the measured state, anything else is a wrong command.
+    pub max_engage_step: f64,
     /// No setpoint for this long (ms): hold the last position...
     pub hold_after_ms: f64,
     /// ...and this long (ms): torque off.
@@ -144,12 +125,13 @@ impl Mapping {
 
     /// The goal position of motor `i` for actuation `a` (rounded to the nearest tick).
     pub fn ticks(&self, i: usize, a: f64) -> i32 {
+        // `as` saturates: no actuation, however wild, wraps around.
         (f64::from(self.zero_ticks[i]) + a * self.ticks_per_unit[i]).round() as i32
     }
 
-    /// The actuation motor `i` stands at.
+    /// The actuation motor `i` stands at (ticks from the wire: any i32).
     pub fn actuation(&self, i: usize, ticks: i32) -> f64 {
-        f64::from(ticks - self.zero_ticks[i]) / self.ticks_per_unit[i]
+        (f64::from(ticks) - f64::from(self.zero_ticks[i])) / self.ticks_per_unit[i]
     }
 
     /// Every motor's goal for `a`.
@@ -161,11 +143,13 @@ impl Mapping {
 impl TendonConfig {
     /// Checks the section against the arm and the controller's actuator limits: every setpoint
     /// the controller may send must map to ticks the motors accept.
+    /// `controller_rate_hz`: the time-outs must span several of the controller's periods.
     pub(crate) fn validate(
         &self,
         arm: &ArmGeometry,
         actuator_min: &Actuation,
         actuator_max: &Actuation,
+        controller_rate_hz: f64,
     ) -> Result<(), Invalid> {
         let key = |k: &str| format!("tendon.{k}");
         if self.port.as_os_str().is_empty() {
@@ -203,7 +187,7 @@ impl TendonConfig {
                 format!("must be 16 to 1048576, got {}", self.ticks_per_rev),
             );
         }
-        let (lowest, highest) = self.operating_mode.ticks_range();
+        let (lowest, highest) = TICKS_RANGE;
         for i in 0..ACTUATORS {
             let r = self.spool_radius_m[i];
             if !(r.is_finite() && r > 0.0 && r <= 0.5) {
@@ -224,8 +208,8 @@ impl TendonConfig {
                     return invalid(
                         format!("tendon.{name}[{i}]"),
                         format!(
-                            "{v} is outside what {:?} mode accepts, [{lowest}, {highest}]",
-                            self.operating_mode
+                            "{v} is outside what position control accepts, [{lowest}, \
+                             {highest}]"
                         ),
                     );
                 }
@@ -258,10 +242,32 @@ impl TendonConfig {
                 }
             }
         }
-        if !(self.hold_after_ms.is_finite() && self.hold_after_ms > 0.0) {
+        if self.profile_velocity > 32767 {
+            return invalid(
+                key("profile_velocity"),
+                format!("must be 0 to 32767, got {}", self.profile_velocity),
+            );
+        }
+        if !(self.max_engage_step.is_finite()
+            && self.max_engage_step > 0.0
+            && self.max_engage_step <= 1.0)
+        {
+            return invalid(
+                key("max_engage_step"),
+                format!("must be in (0, 1], got {:?}", self.max_engage_step),
+            );
+        }
+        // A setpoint must be missed for several periods of both loops before the driver
+        // stops following, or it would hold between two of them.
+        let periods_ms = 3.0 * (1000.0 / self.rate_hz).max(1000.0 / controller_rate_hz);
+        if !(self.hold_after_ms.is_finite() && self.hold_after_ms >= periods_ms) {
             return invalid(
                 key("hold_after_ms"),
-                format!("must be a positive time, got {:?}", self.hold_after_ms),
+                format!(
+                    "must be at least 3 periods of tendon.rate_hz and controller.rate_hz, \
+                     {periods_ms} ms, got {:?}",
+                    self.hold_after_ms
+                ),
             );
         }
         if !(self.torque_off_after_ms.is_finite()
@@ -400,14 +406,14 @@ mod tests {
             baud: 1_000_000,
             ids: [1, 2, 3, 4, 5, 6],
             rate_hz: 100.0,
-            operating_mode: OperatingMode::Position,
             ticks_per_rev: 4096,
             spool_radius_m: [0.015; 6],
             zero_ticks: [700, 700, 700, 3400, 3400, 3400],
             direction: [1, 1, 1, -1, -1, -1],
             min_ticks: [600, 600, 600, 700, 700, 700],
             max_ticks: [3400, 3400, 3400, 3500, 3500, 3500],
-            current_limit: 1193,
+            profile_velocity: 200,
+            max_engage_step: 0.05,
             hold_after_ms: 100.0,
             torque_off_after_ms: 2000.0,
         }
@@ -433,30 +439,36 @@ mod tests {
     fn inconsistent_limits_are_refused_naming_the_motor() {
         let arm = ArmGeometry::default();
         let mut t = tendon();
-        t.validate(&arm, &[0.0; 6], &[1.0; 6]).unwrap();
+        t.validate(&arm, &[0.0; 6], &[1.0; 6], 500.0).unwrap();
         t.direction[1] = -1; // 700 - 2608 < 600
-        let (key, message) = t.validate(&arm, &[0.0; 6], &[1.0; 6]).unwrap_err();
+        let (key, message) = t.validate(&arm, &[0.0; 6], &[1.0; 6], 500.0).unwrap_err();
         assert_eq!(key, "tendon.zero_ticks[1]");
         assert!(message.contains("motor 2 (actuator 2)"), "{message}");
         // ...but fine when the controller never asks for more than 0.03 of the stroke.
-        t.validate(&arm, &[0.0; 6], &[0.03; 6]).unwrap();
+        t.validate(&arm, &[0.0; 6], &[0.03; 6], 500.0).unwrap();
 
         let mut t = tendon();
         t.max_ticks[4] = 4096;
         assert_eq!(
-            t.validate(&arm, &[0.0; 6], &[1.0; 6]).unwrap_err().0,
+            t.validate(&arm, &[0.0; 6], &[1.0; 6], 500.0).unwrap_err().0,
             "tendon.max_ticks[4]"
         );
         let mut t = tendon();
         t.ids[5] = 1;
         assert_eq!(
-            t.validate(&arm, &[0.0; 6], &[1.0; 6]).unwrap_err().0,
+            t.validate(&arm, &[0.0; 6], &[1.0; 6], 500.0).unwrap_err().0,
             "tendon.ids[5]"
+        );
+        let mut t = tendon();
+        t.hold_after_ms = 20.0; // two periods at 100 Hz
+        assert_eq!(
+            t.validate(&arm, &[0.0; 6], &[1.0; 6], 500.0).unwrap_err().0,
+            "tendon.hold_after_ms"
         );
         let mut t = tendon();
         t.torque_off_after_ms = 50.0;
         assert_eq!(
-            t.validate(&arm, &[0.0; 6], &[1.0; 6]).unwrap_err().0,
+            t.validate(&arm, &[0.0; 6], &[1.0; 6], 500.0).unwrap_err().0,
             "tendon.torque_off_after_ms"
         );
     }

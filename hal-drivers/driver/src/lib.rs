@@ -2,30 +2,42 @@
 //! services ([`Commands`]), and deciding, alone, what is safe to do with them ([`Supervisor`]),
 //! whatever the controller does. The sim and the tendon driver are built on these.
 
-use softarm_ipc::{Actuation, DriverState, EstopLatch, EstopState, Node, Setpoint, Sub};
+use softarm_ipc::{
+    Actuation, ControllerState, DriverState, EstopLatch, EstopState, Node, Setpoint, Sub, now_ns,
+};
 
 /// The setpoint and e-stop subscriptions of a driver, and what arrived on them.
 pub struct Commands {
     setpoints: Sub<Setpoint>,
     estop: Sub<EstopState>,
-    stopped: bool,
+    latch: EstopLatch,
+    /// The newest `estop` sample said engaged.
+    heard_engaged: bool,
+    /// The latch file said engaged (or could not be read) when last looked at.
+    latched: bool,
+    latch_read_ns: u64,
     refused: u64,
 }
 
 /// What arrived since the last [`Commands::poll`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Poll {
-    /// The newest setpoint whose every value is a number, if one came.
+    /// The newest setpoint to follow, if one came: its every value a number, fresh, sent by a
+    /// controller that is not stopped, and not in a poll that saw the e-stop engaged.
     pub setpoint: Option<Actuation>,
     /// The e-stop is latched.
     pub stopped: bool,
 }
 
+/// How often the latch file is read besides the `estop` service (ns): an `estop` sample can
+/// be missed (its publisher gone before a blocked driver looked), the file cannot.
+const LATCH_EVERY_NS: u64 = 50_000_000;
+
 impl Commands {
     /// Subscribes; starts stopped when `latch` says the e-stop is engaged (or cannot be read).
     pub fn open(node: &Node, latch: &EstopLatch) -> Result<Self, softarm_ipc::Error> {
-        let stopped = latch.engaged_or_safe(|e| tracing::error!("{e}; holding the motors"));
-        if stopped {
+        let latched = latch.engaged_or_safe(|e| tracing::error!("{e}; holding the motors"));
+        if latched {
             tracing::warn!(
                 "the e-stop is latched ({}): setpoints are ignored until `softarm estop --reset`",
                 latch.path().display()
@@ -34,20 +46,47 @@ impl Commands {
         Ok(Self {
             setpoints: node.subscriber(&node.setpoint()?)?,
             estop: node.subscriber(&node.estop()?)?,
-            stopped,
+            latch: latch.clone(),
+            heard_engaged: false,
+            latched,
+            latch_read_ns: now_ns(),
             refused: 0,
         })
     }
 
-    /// Takes everything that arrived.
-    pub fn poll(&mut self) -> Poll {
+    fn stopped(&self) -> bool {
+        self.heard_engaged || self.latched
+    }
+
+    /// Takes everything that arrived; setpoints stamped more than `max_age_ns` before `now_ns`
+    /// are not followed (a controller's last word kept by the service is not a command).
+    pub fn poll(&mut self, now_ns: u64, max_age_ns: u64) -> Poll {
+        let mut saw_stop = self.stopped();
+        while let Ok(Some(s)) = self.estop.receive() {
+            self.heard_engaged = s.engaged != 0;
+            saw_stop |= self.heard_engaged;
+        }
+        if now_ns.saturating_sub(self.latch_read_ns) >= LATCH_EVERY_NS {
+            self.latch_read_ns = now_ns;
+            let latched = self
+                .latch
+                .engaged_or_safe(|e| tracing::error!("{e}; holding the motors"));
+            if self.latched && !latched {
+                // A reset writes the file before it publishes: the file is the authority
+                // that one happened, even if its sample was missed.
+                self.heard_engaged = false;
+            }
+            if latched && !self.stopped() {
+                tracing::warn!("the e-stop latch is engaged: stopping");
+            }
+            self.latched = latched;
+            saw_stop |= latched;
+        }
         let mut setpoint = None;
         while let Ok(Some(s)) = self.setpoints.receive() {
             // From the wire: a setpoint that is not a number is refused whole (it must never
             // reach a motor); the last good one stays.
-            if s.actuation.iter().all(|v| v.is_finite()) {
-                setpoint = Some(s.actuation);
-            } else {
+            if !s.actuation.iter().all(|v| v.is_finite()) {
                 self.refused += 1;
                 if self.refused.is_power_of_two() {
                     tracing::error!(
@@ -56,14 +95,19 @@ impl Commands {
                         "setpoint refused: not a number; holding the last good one"
                     );
                 }
+                continue;
             }
-        }
-        while let Ok(Some(s)) = self.estop.receive() {
-            self.stopped = s.engaged != 0;
+            // A stopped controller's setpoint is its held target from before the e-stop, and
+            // one from a poll that saw the e-stop (or its reset) may be too: the first to be
+            // followed after a reset is one the controller sent after it.
+            let stale = now_ns.saturating_sub(s.stamp_ns) > max_age_ns;
+            if !saw_stop && !stale && s.state != ControllerState::Stopped as u32 {
+                setpoint = Some(s.actuation);
+            }
         }
         Poll {
             setpoint,
-            stopped: self.stopped,
+            stopped: saw_stop || self.stopped(),
         }
     }
 
@@ -166,6 +210,110 @@ impl Supervisor {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use softarm_ipc::Namespace;
+
+    /// `Commands` over real services, in a namespace of this test's own; the driver's node is
+    /// the last element, to be dropped after its ports.
+    fn commands(name: &str) -> (Commands, Node, EstopLatch, std::path::PathBuf, Node) {
+        let ns = format!("softarm/test-driver-{name}-{}", std::process::id());
+        let dir = std::env::temp_dir().join(ns.replace('/', "-"));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let latch = EstopLatch::new(dir.join("estop"));
+        let ns = Namespace::new(&ns).unwrap();
+        let driver = Node::open(ns.clone(), "driver").unwrap();
+        let c = Commands::open(&driver, &latch).unwrap();
+        (c, Node::open(ns, "peer").unwrap(), latch, dir, driver)
+    }
+
+    fn setpoint(v: f64, state: ControllerState, stamp_ns: u64) -> Setpoint {
+        Setpoint {
+            stamp_ns,
+            actuation: [v; 6],
+            state: state as u32,
+            ..Setpoint::default()
+        }
+    }
+
+    #[test]
+    fn only_fresh_numbers_from_a_running_controller_are_followed() {
+        let (mut c, peer, _latch, dir, _driver) = commands("fresh");
+        let setpoints = peer.publisher(&peer.setpoint().unwrap()).unwrap();
+        let now = now_ns();
+        let max_age = 100 * MS;
+        setpoints
+            .send_copy(setpoint(0.4, ControllerState::Idle, now))
+            .unwrap();
+        assert_eq!(c.poll(now, max_age).setpoint, Some([0.4; 6]));
+        setpoints
+            .send_copy(setpoint(f64::NAN, ControllerState::Execute, now))
+            .unwrap();
+        assert_eq!(c.poll(now, max_age).setpoint, None);
+        assert_eq!(c.refused(), 1);
+        // The held target a stopped controller keeps sending is not a command.
+        setpoints
+            .send_copy(setpoint(0.6, ControllerState::Stopped, now))
+            .unwrap();
+        assert_eq!(c.poll(now, max_age).setpoint, None);
+        // Nor is a controller's last word from long ago.
+        setpoints
+            .send_copy(setpoint(0.6, ControllerState::Hold, now - 2 * max_age))
+            .unwrap();
+        assert_eq!(c.poll(now, max_age).setpoint, None);
+        std::fs::remove_dir_all(dir).unwrap();
+    }
+
+    #[test]
+    fn a_poll_that_sees_the_estop_follows_nothing_and_the_latch_file_is_heard() {
+        let (mut c, peer, latch, dir, _driver) = commands("estop");
+        let setpoints = peer.publisher(&peer.setpoint().unwrap()).unwrap();
+        let estop = peer.publisher(&peer.estop().unwrap()).unwrap();
+        let max_age = 100 * MS;
+        // Engaged and released within one poll: stopped this poll, its setpoints dropped.
+        estop
+            .send_copy(EstopState {
+                engaged: 1,
+                ..Default::default()
+            })
+            .unwrap();
+        estop
+            .send_copy(EstopState {
+                engaged: 0,
+                ..Default::default()
+            })
+            .unwrap();
+        setpoints
+            .send_copy(setpoint(0.4, ControllerState::Idle, now_ns()))
+            .unwrap();
+        let p = c.poll(now_ns(), max_age);
+        assert!(p.stopped);
+        assert_eq!(p.setpoint, None);
+        // The next poll follows again.
+        setpoints
+            .send_copy(setpoint(0.4, ControllerState::Idle, now_ns()))
+            .unwrap();
+        let p = c.poll(now_ns(), max_age);
+        assert!(!p.stopped);
+        assert_eq!(p.setpoint, Some([0.4; 6]));
+        // Engaged on disk only (its sample missed): heard at the next look at the file.
+        latch.set(true).unwrap();
+        let later = now_ns() + LATCH_EVERY_NS;
+        assert!(c.poll(later, u64::MAX).stopped);
+        // An engage heard on the service, then a reset written to the file whose sample is
+        // missed: the file says a reset happened.
+        estop
+            .send_copy(EstopState {
+                engaged: 1,
+                ..Default::default()
+            })
+            .unwrap();
+        assert!(c.poll(later + 1, u64::MAX).stopped);
+        latch.set(false).unwrap();
+        // The poll that notices the reset still counts as stopped; the next is released.
+        assert!(c.poll(later + 2 * LATCH_EVERY_NS, u64::MAX).stopped);
+        assert!(!c.poll(later + 2 * LATCH_EVERY_NS + 1, u64::MAX).stopped);
+        std::fs::remove_dir_all(dir).unwrap();
+    }
 
     const MS: u64 = 1_000_000;
 

@@ -940,12 +940,16 @@ impl Bus {
     }
 
     /// Sets a motor's Hardware Error Status (see [`hardware_error`]) and, as the real motor does
-    /// on a shutdown, turns its torque off; every later status packet of that motor carries the
-    /// alert bit until a REBOOT. Bits 0 clear it without touching the torque.
+    /// when the Shutdown item selects one of those errors, turns its torque off; every later
+    /// status packet of that motor carries the alert bit until a REBOOT. Bits 0 clear it
+    /// without touching the torque.
     pub fn set_hardware_error(&mut self, id: u8, bits: u8) {
         for m in self.motors.iter_mut().filter(|m| m.id() == id) {
             m.table[usize::from(HARDWARE_ERROR_STATUS)] = bits;
-            if bits != 0 {
+            // Only the errors the Shutdown item selects turn the torque off (default 0x34:
+            // overheating, electrical shock, overload); input voltage and encoder errors leave
+            // the motor driven.
+            if bits & m.table[usize::from(SHUTDOWN)] != 0 {
                 m.table[usize::from(TORQUE_ENABLE)] = 0;
                 m.velocity = 0.0;
                 m.current_ma = 0.0;

@@ -37,7 +37,8 @@ pub fn run(
     tracing::info!(rate_hz = config.rate_hz, "sim running");
     while !stop.load(Ordering::Relaxed) {
         ticker.wait();
-        let poll = commands.poll();
+        // The sim follows whatever is fresh; a stale setpoint only at its start.
+        let poll = commands.poll(now_ns(), 1_000_000_000);
         if let Some(a) = poll.setpoint {
             command = a;
         }

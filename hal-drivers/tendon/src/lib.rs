@@ -1,16 +1,19 @@
 //! The `tendon` driver process: the arm's six tendon motors on a Dynamixel Protocol 2.0 bus
 //! (X-series), through the `dynamixel2` crate. Consumes `setpoint` and `estop`, publishes
-//! `motor_state`, and is safe on its own: torque comes on only with a valid setpoint, an e-stop
-//! turns it off at once, setpoints that stop arriving lead to hold and then torque off
-//! ([`softarm_driver::Supervisor`]), a motor reporting a hardware error gets no more commands.
-//! Serial faults are counted, reported and retried with back-off; a panic of the protocol code
-//! on bytes from the wire is caught and counted like any other fault.
+//! `motor_state`, and is safe on its own: torque comes on only with a valid setpoint close to
+//! where the motors stand, an e-stop turns it off at once, setpoints that stop arriving lead to
+//! hold and then torque off ([`softarm_driver::Supervisor`]), a motor reporting a hardware
+//! error is turned off and gets no other command. Torque-off is written every cycle while it
+//! is wanted (a sync write has no reply, so a lost one is simply sent again). Serial faults
+//! are counted, reported and retried with back-off; a panic of the protocol code on bytes from
+//! the wire is caught and counted like any other fault.
 
 use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use anyhow::{Context, bail};
 use dynamixel2::instructions::SyncWriteData;
+use dynamixel2::serial2::SerialPort;
 use dynamixel2::{Bus, ReadError, TransferError, WriteError};
 
 use softarm_driver::{Action, Commands, Supervisor, Timeouts};
@@ -143,144 +146,163 @@ fn for_motors<T: Copy + Default>(
     (data, n)
 }
 
-/// An open bus whose motors answered and are configured.
+/// An open bus and what the driver knows of its motors.
 struct Link {
     bus: Bus<Vec<u8>, Vec<u8>>,
     ids: [u8; ACTUATORS],
-    /// Whether the driver has turned the torque on (as far as it knows).
+    /// The torque may be on somewhere: the driver turned it on, or found it on, or could not
+    /// ask a motor. While set, an `Off` writes torque-off.
     torque: bool,
 }
 
 impl Link {
-    /// Opens the port, pings every motor (a missing one is named), and writes the operating
-    /// mode and limits where they differ.
-    fn open(t: &TendonConfig) -> anyhow::Result<Self> {
+    /// Opens the port, pings every motor and writes mode and limits where they differ. At start
+    /// (`strict`) a motor that does not answer is an error naming it; on a reopen the link is
+    /// kept with what answers, so torque-off can always go out.
+    fn open(t: &TendonConfig, strict: bool) -> anyhow::Result<Self> {
         let port = t.port.display();
-        let mut bus = Bus::open(&t.port, t.baud).with_context(|| {
+        let mut serial = SerialPort::open(&t.port, t.baud).with_context(|| {
             format!(
                 "cannot open the motor bus {port} (tendon.port); is the adapter plugged in and \
                  are you in the `dialout` group?"
             )
         })?;
-        let mut missing = Vec::new();
-        for (i, &id) in t.ids.iter().enumerate() {
-            // Twice: one lost reply is not a missing motor.
-            let answered = (0..2).any(|_| guarded(|| Ok(bus.ping(id)?)).is_ok());
-            if !answered {
-                missing.push(format!("id {id} (actuator {})", i + 1));
-            }
-        }
-        if !missing.is_empty() {
-            bail!(
-                "no answer on {port} at {} baud from motor {}: check the motors' power and \
-                 wiring, and tendon.ids and tendon.baud against the motors' settings",
-                t.baud,
-                missing.join(", ")
-            );
-        }
+        // A write that cannot go out must not stall the loop (serial2's default is 3 s).
+        serial.set_write_timeout(std::time::Duration::from_millis(50))?;
+        let bus = Bus::new(serial).map_err(|e| anyhow::anyhow!("{e}"))?;
         let mut link = Self {
             bus,
             ids: t.ids,
             torque: false,
         };
-        let mut torque = [false; ACTUATORS];
+        let mut missing = Vec::new();
         for i in 0..ACTUATORS {
-            torque[i] = link.configure(t, i).with_context(|| {
-                format!(
-                    "configuring motor id {} (actuator {}) on {port}",
-                    t.ids[i],
-                    i + 1
-                )
-            })?;
+            let id = t.ids[i];
+            // Twice: one lost reply is not a missing motor.
+            let answered = (0..2).any(|_| guarded(|| Ok(link.bus.ping(id)?)).is_ok());
+            if !answered {
+                missing.push(format!("id {id} (actuator {})", i + 1));
+                // Unknown: assume it is driven, so that an `Off` reaches it.
+                link.torque = true;
+                continue;
+            }
+            let on = link.configure(t, i).with_context(|| {
+                format!("configuring motor id {id} (actuator {}) on {port}", i + 1)
+            });
+            match on {
+                Ok(on) => link.torque |= on,
+                Err(e) if strict => return Err(e),
+                Err(e) => {
+                    tracing::error!("{e:#}");
+                    link.torque = true;
+                }
+            }
         }
-        // Any motor on counts as on: the first `Off` then turns them all off.
-        link.torque = torque.iter().any(|&on| on);
+        if !missing.is_empty() {
+            let message = format!(
+                "no answer on {port} at {} baud from motor {}: check the motors' power and \
+                 wiring, and tendon.ids and tendon.baud against the motors' settings",
+                t.baud,
+                missing.join(", ")
+            );
+            if strict {
+                bail!(message);
+            }
+            tracing::error!("{message}");
+        }
         Ok(link)
     }
 
-    /// Writes the operating mode and limits where they differ from the config (they live in
-    /// EEPROM, which wears, and can be written only with the torque off). Returns whether the
-    /// motor's torque is on: a driver restarted beside a running controller leaves a holding
-    /// motor holding, so the arm does not drop.
+    /// Writes position control and the limits where they differ from the config (they live in
+    /// EEPROM, which wears, and can be written only with the torque off), and the profile
+    /// velocity (RAM). Returns whether the motor's torque is on: a driver restarted beside a
+    /// running controller leaves a holding motor holding, so the arm does not drop.
     fn configure(&mut self, t: &TendonConfig, i: usize) -> anyhow::Result<bool> {
         use table::*;
         let id = self.ids[i];
         let b = &mut self.bus;
         let fail = anyhow::Error::msg;
-        let mode = t.operating_mode.register_value();
         let limits = [
             (MAX_POSITION_LIMIT, t.max_ticks[i] as u32),
             (MIN_POSITION_LIMIT, t.min_ticks[i] as u32),
         ];
-        let mode_ok = guarded(|| Ok(b.read_u8(id, OPERATING_MODE)?.data)).map_err(fail)? == mode;
+        let mode_ok =
+            guarded(|| Ok(b.read_u8(id, OPERATING_MODE)?.data)).map_err(fail)? == POSITION_CONTROL;
         let mut limits_ok = [true; 2];
         for (ok, (address, value)) in limits_ok.iter_mut().zip(limits) {
             *ok = guarded(|| Ok(b.read_u32(id, address)?.data)).map_err(fail)? == value;
         }
-        let current_ok =
-            guarded(|| Ok(b.read_u16(id, CURRENT_LIMIT)?.data)).map_err(fail)? == t.current_limit;
-        if mode_ok && limits_ok == [true; 2] && current_ok {
-            return Ok(guarded(|| Ok(b.read_u8(id, TORQUE_ENABLE)?.data)).map_err(fail)? != 0);
-        }
-        tracing::info!(id, "writing operating mode and limits (torque off)");
-        guarded(|| Ok(b.write_u8(id, TORQUE_ENABLE, 0)?)).map_err(fail)?;
-        if !mode_ok {
-            guarded(|| Ok(b.write_u8(id, OPERATING_MODE, mode)?)).map_err(fail)?;
-        }
-        for (ok, (address, value)) in limits_ok.into_iter().zip(limits) {
-            if !ok {
-                guarded(|| Ok(b.write_u32(id, address, value)?)).map_err(fail)?;
+        let on = if mode_ok && limits_ok == [true; 2] {
+            guarded(|| Ok(b.read_u8(id, TORQUE_ENABLE)?.data)).map_err(fail)? != 0
+        } else {
+            tracing::info!(id, "writing operating mode and limits (torque off)");
+            guarded(|| Ok(b.write_u8(id, TORQUE_ENABLE, 0)?)).map_err(fail)?;
+            if !mode_ok {
+                guarded(|| Ok(b.write_u8(id, OPERATING_MODE, POSITION_CONTROL)?)).map_err(fail)?;
             }
-        }
-        if !current_ok {
-            guarded(|| Ok(b.write_u16(id, CURRENT_LIMIT, t.current_limit)?)).map_err(fail)?;
-        }
-        Ok(false)
+            for (ok, (address, value)) in limits_ok.into_iter().zip(limits) {
+                if !ok {
+                    guarded(|| Ok(b.write_u32(id, address, value)?)).map_err(fail)?;
+                }
+            }
+            false
+        };
+        guarded(|| Ok(b.write_u32(id, PROFILE_VELOCITY, t.profile_velocity)?)).map_err(fail)?;
+        Ok(on)
     }
 
-    /// Writes torque enable to every motor that may be commanded.
-    fn set_torque(&mut self, on: bool, reading: &Reading) -> Result<(), Fault> {
+    /// Torque off for every motor (no reply: sent again each cycle while it is wanted).
+    fn torque_off(&mut self) -> Result<(), Fault> {
         let ids = self.ids;
+        let (data, n) = for_motors(&ids, |_| Some(0u8));
         let bus = &mut self.bus;
-        let (data, n) = for_motors(&ids, |i| (!on || !reading.faulted(i)).then_some(on as u8));
         guarded(|| Ok(bus.sync_write_u8(table::TORQUE_ENABLE, &data[..n])?))?;
-        self.torque = on;
+        self.torque = false;
         Ok(())
     }
 
-    /// Goal positions for every motor that may be commanded.
-    fn write_goals(&mut self, goals: &[i32; ACTUATORS], reading: &Reading) -> Result<(), Fault> {
+    /// What the safety logic decided, on the bus. A motor with a hardware error gets torque-off
+    /// every cycle and nothing else (its Shutdown setting may not have turned it off).
+    fn apply(
+        &mut self,
+        action: Action,
+        goals: &[i32; ACTUATORS],
+        engage: bool,
+        reading: &Reading,
+    ) -> Result<(), Fault> {
         let ids = self.ids;
         let bus = &mut self.bus;
-        let (data, n) = for_motors(&ids, |i| (!reading.faulted(i)).then_some(goals[i] as u32));
-        guarded(|| Ok(bus.sync_write_u32(table::GOAL_POSITION, &data[..n])?))
-    }
-
-    /// What the safety logic decided, on the bus. An e-stop's torque-off goes out even to
-    /// motors with a hardware error (turning a motor off is never a command to move).
-    fn apply(&mut self, action: Action, mapping: &Mapping, reading: &Reading) -> Result<(), Fault> {
+        if reading.hardware_error.iter().any(|&e| e != 0) {
+            let (data, n) = for_motors(&ids, |i| reading.faulted(i).then_some(0u8));
+            guarded(|| Ok(bus.sync_write_u8(table::TORQUE_ENABLE, &data[..n])?))?;
+        }
         match action {
-            Action::Off if self.torque => self.set_torque(false, reading),
-            Action::Off | Action::Hold => Ok(()),
-            Action::Follow(a) => {
+            Action::Off => self.torque_off(),
+            Action::Hold => Ok(()),
+            Action::Follow(_) if !self.torque && !engage => Ok(()),
+            Action::Follow(_) => {
                 // The goal first: the torque then holds where the controller wants, not
                 // wherever the goal register was left.
-                self.write_goals(&mapping.all_ticks(&a), reading)?;
+                let (data, n) =
+                    for_motors(&ids, |i| (!reading.faulted(i)).then_some(goals[i] as u32));
+                guarded(|| Ok(bus.sync_write_u32(table::GOAL_POSITION, &data[..n])?))?;
                 if !self.torque {
-                    self.set_torque(true, reading)?;
+                    let (data, n) = for_motors(&ids, |i| (!reading.faulted(i)).then_some(1u8));
+                    guarded(|| Ok(bus.sync_write_u8(table::TORQUE_ENABLE, &data[..n])?))?;
+                    self.torque = true;
                 }
                 Ok(())
             }
         }
     }
 
-    /// Present current and position of every motor in one sync read (126..136), and the
-    /// hardware-error status when a motor raises its alert bit or `errors` asks for it.
-    /// Returns the number of motors that did not answer.
-    fn read(&mut self, reading: &mut Reading, errors: bool) -> Result<usize, Fault> {
+    /// Present current and position of every motor in one sync read (126..136), and, when
+    /// `status` asks or a reply raises its alert bit, torque enable and hardware-error status
+    /// in another (64..71). Returns the number of motors that did not answer.
+    fn read(&mut self, reading: &mut Reading, status: bool) -> Result<usize, Fault> {
         let ids = self.ids;
         let bus = &mut self.bus;
-        let mut alert = errors;
+        let mut alert = status;
         let mut missing = 0;
         let mut first_fault = None;
         guarded(|| {
@@ -304,17 +326,23 @@ impl Link {
             Ok(())
         })?;
         if alert {
+            let mut on = false;
             guarded(|| {
-                bus.sync_read_u8_cb(&ids, table::HARDWARE_ERROR_STATUS, |r| match r {
+                bus.sync_read_cb(&ids, table::TORQUE_ENABLE, 7, |r| match r {
                     Ok(r) => {
                         if let Some(i) = ids.iter().position(|&id| id == r.motor_id) {
-                            reading.hardware_error[i] |= r.data;
+                            on |= r.data[0] != 0;
+                            // Sticky: cleared only by restarting the driver, once the cause
+                            // is fixed.
+                            reading.hardware_error[i] |= r.data[6];
                         }
                     }
                     Err(_) => missing += 1,
                 })?;
                 Ok(())
             })?;
+            // A motor found on while the driver thinks all are off: the next `Off` resends.
+            self.torque |= on;
         }
         match first_fault {
             Some(Fault::Port(m)) => Err(Fault::Port(m)),
@@ -334,13 +362,19 @@ pub fn run(config: &Config, namespace: Namespace, stop: &AtomicBool) -> anyhow::
     let mut commands = Commands::open(&node, &config.estop_latch())?;
     let publisher = node.publisher(&node.motor_state()?)?;
     let ms = |v: f64| (v * 1e6) as u64;
-    let mut supervisor = Supervisor::new(Timeouts {
+    let timeouts = Timeouts {
         hold_after_ns: ms(t.hold_after_ms),
         off_after_ns: ms(t.torque_off_after_ms),
-    });
+    };
+    let mut supervisor = Supervisor::new(timeouts);
+    // Setpoints are clamped to what the controller may send, then to the motors' limits.
+    let (lo, hi) = (
+        config.controller.actuator_min,
+        config.controller.actuator_max,
+    );
 
     // At start a missing motor is an error the user must fix; later the driver keeps trying.
-    let mut link = Some(Link::open(t)?);
+    let mut link = Some(Link::open(t, true)?);
     tracing::info!(
         port = %t.port.display(),
         baud = t.baud,
@@ -349,23 +383,27 @@ pub fn run(config: &Config, namespace: Namespace, stop: &AtomicBool) -> anyhow::
     );
 
     let mut reading = Reading::default();
+    let mut backoff = Backoff::default();
     // A bus silent this long is reopened: an adapter unplugged and plugged in again is a new
     // device behind the same name, and the old descriptor never hears from it.
     const REOPEN_AFTER_NS: u64 = 1_000_000_000;
     let mut last_answer = now_ns();
-    let mut backoff = Backoff::default();
     let mut faults = 0u64;
+    let mut clamped = 0u64;
+    let mut refused_engage = 0u64;
     let mut seq = 0u64;
     let mut cycle = 0u64;
     let mut last_state = DriverState::Off;
-    // The hardware-error status is read at about 5 Hz besides whenever a motor raises its alert.
-    let errors_every = ((t.rate_hz / 5.0).round() as u64).max(1);
+    let mut reported_errors = [0u8; ACTUATORS];
+    // Torque and hardware-error status are read at about 5 Hz, and whenever a reply raises
+    // its alert bit.
+    let status_every = ((t.rate_hz / 5.0).round() as u64).max(1);
     let mut ticker = Ticker::new(t.rate_hz);
     while !stop.load(Ordering::Relaxed) {
         ticker.wait();
         cycle += 1;
         let now = now_ns();
-        let poll = commands.poll();
+        let poll = commands.poll(now, timeouts.hold_after_ns);
         let fault = reading.hardware_error.iter().any(|&e| e != 0);
         let action = supervisor.update(now, &poll, fault);
         let state = supervisor.state();
@@ -375,9 +413,9 @@ pub fn run(config: &Config, namespace: Namespace, stop: &AtomicBool) -> anyhow::
         }
 
         if link.is_none() && backoff.ready(now) {
-            match Link::open(t) {
+            match Link::open(t, false) {
                 Ok(l) => {
-                    tracing::warn!("motor bus back");
+                    tracing::warn!("motor bus open again");
                     link = Some(l);
                     backoff.succeeded();
                     last_answer = now;
@@ -389,14 +427,50 @@ pub fn run(config: &Config, namespace: Namespace, stop: &AtomicBool) -> anyhow::
                 }
             }
         }
-        // An e-stop's torque-off goes out at once, back-off or not.
-        let urgent = matches!(action, Action::Off) && poll.stopped;
+        let mut goals = [0i32; ACTUATORS];
+        let mut engage = false;
+        if let Action::Follow(a) = action {
+            let mut wild = false;
+            for i in 0..ACTUATORS {
+                let v = a[i].clamp(lo[i], hi[i]);
+                let g = mapping.ticks(i, v).clamp(t.min_ticks[i], t.max_ticks[i]);
+                wild |= v != a[i] || mapping.ticks(i, v) != g;
+                goals[i] = g;
+            }
+            if wild {
+                clamped += 1;
+                if clamped.is_power_of_two() {
+                    tracing::warn!(clamped, setpoint = ?a, "setpoint beyond the limits, clamped");
+                }
+            }
+            // Torque comes on only for a setpoint where the motors already are.
+            let known = reading.stamp_ns.is_some();
+            engage = known
+                && (0..ACTUATORS).all(|i| {
+                    (mapping.actuation(i, goals[i]) - mapping.actuation(i, reading.ticks[i])).abs()
+                        <= t.max_engage_step
+                });
+            let off = link.as_ref().is_some_and(|l| !l.torque);
+            if off && known && !engage {
+                refused_engage += 1;
+                if refused_engage.is_power_of_two() {
+                    tracing::error!(
+                        refused_engage,
+                        setpoint = ?a,
+                        "first setpoint is farther than tendon.max_engage_step from where \
+                         the motors stand: the torque stays off"
+                    );
+                }
+            }
+        }
+        // Torque-off goes out at once, back-off or not.
+        let urgent = matches!(action, Action::Off) || fault;
         if let Some(l) = link.as_mut()
             && (backoff.ready(now) || urgent)
         {
             let result = l
-                .apply(action, &mapping, &reading)
-                .and_then(|()| l.read(&mut reading, cycle.is_multiple_of(errors_every)));
+                .apply(action, &goals, engage, &reading)
+                .and_then(|()| l.read(&mut reading, cycle.is_multiple_of(status_every)));
             match result {
                 Ok(0) => {
                     reading.stamp_ns = Some(now_ns());
@@ -427,19 +501,20 @@ pub fn run(config: &Config, namespace: Namespace, stop: &AtomicBool) -> anyhow::
                     "no answer from the motors for 1 s: reopening the port"
                 );
                 link = None;
-                // At once: it has waited long enough.
                 backoff.succeeded();
+                last_answer = now;
             }
-            for (i, &e) in reading.hardware_error.iter().enumerate() {
-                if e != 0 && !fault {
-                    tracing::error!(
-                        id = t.ids[i],
-                        actuator = i + 1,
-                        hardware_error = format!("{e:#04x}"),
-                        "motor reports a hardware error: no more commands to it, the others \
-                         hold; restart the driver once the cause is fixed"
-                    );
-                }
+        }
+        for (i, &e) in reading.hardware_error.iter().enumerate() {
+            if e != reported_errors[i] {
+                reported_errors[i] = e;
+                tracing::error!(
+                    id = t.ids[i],
+                    actuator = i + 1,
+                    hardware_error = format!("{e:#04x}"),
+                    "motor reports a hardware error: turned off, the others hold; restart the \
+                     driver once the cause is fixed"
+                );
             }
         }
 
@@ -461,13 +536,14 @@ pub fn run(config: &Config, namespace: Namespace, stop: &AtomicBool) -> anyhow::
     }
     // Leaving: the arm must not stay driven by a process that is gone.
     if let Some(l) = link.as_mut()
-        && l.torque
-        && let Err(e) = l.set_torque(false, &reading)
+        && let Err(e) = l.torque_off()
     {
         tracing::error!("could not turn the torque off on the way out: {e}");
     }
     tracing::info!(
         faults,
+        clamped,
+        refused_engage,
         refused = commands.refused(),
         overruns = ticker.overruns(),
         "tendon driver stopped"

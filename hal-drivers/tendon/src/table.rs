@@ -2,17 +2,20 @@
 //! driver reads and writes. EEPROM items (below 64) are writable only with the torque off.
 
 pub const OPERATING_MODE: u16 = 11;
-/// 2 bytes, in units of [`CURRENT_UNIT_A`].
-pub const CURRENT_LIMIT: u16 = 38;
+/// Operating Mode's value for position control (one turn, within the position limits).
+pub const POSITION_CONTROL: u8 = 3;
 /// 4 bytes each, ticks; the motor refuses goal positions outside.
 pub const MAX_POSITION_LIMIT: u16 = 48;
 pub const MIN_POSITION_LIMIT: u16 = 52;
+/// Followed by LED (65), Status Return Level (68), Registered Instruction (69) and Hardware
+/// Error Status (70): one read of 7 bytes from here gets torque and errors.
 pub const TORQUE_ENABLE: u16 = 64;
-pub const HARDWARE_ERROR_STATUS: u16 = 70;
+/// 4 bytes, units of 0.229 rev/min; 0 = no limit.
+pub const PROFILE_VELOCITY: u16 = 112;
 /// 4 bytes, ticks.
 pub const GOAL_POSITION: u16 = 116;
 /// 2 bytes signed; followed by Present Velocity (4 bytes) and Present Position (4 bytes,
 /// signed, ticks), so one read of 10 bytes from here gets current and position.
 pub const PRESENT_CURRENT: u16 = 126;
-/// Amperes per unit of the current items.
+/// Amperes per unit of Present Current.
 pub const CURRENT_UNIT_A: f64 = 0.00269;

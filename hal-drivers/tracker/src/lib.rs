@@ -46,8 +46,18 @@ fn open(t: &TrackerConfig) -> anyhow::Result<SerialPort> {
     Ok(port)
 }
 
-/// Asks for the configured record format and, in stream mode, starts the stream.
+/// Sets the position scaling the config expects (a device left at the other one would
+/// report every position off by a factor of two), asks for the configured record format and,
+/// in stream mode, starts the stream.
 fn start(port: &mut SerialPort, t: &TrackerConfig) -> std::io::Result<()> {
+    // POSITION SCALING: 0 = 36 in, 1 = 72 in, a little-endian word.
+    let scaling = u8::from(t.full_scale_in == bird::FULL_SCALE_EXTENDED_IN);
+    port.write_all(&[
+        bird::CHANGE_VALUE,
+        bird::param::POSITION_SCALING,
+        scaling,
+        0,
+    ])?;
     port.write_all(&[format_of(t).command()])?;
     if t.mode == TrackerMode::Stream {
         port.write_all(&[bird::STREAM])?;
@@ -112,6 +122,11 @@ impl Plausibility {
 /// One read: at most [`READ_TIMEOUT`]; 0 bytes when nothing came.
 fn read(port: &mut SerialPort, buf: &mut [u8]) -> std::io::Result<usize> {
     match port.read(buf) {
+        Ok(0) => {
+            // End of file: a hung-up line answers at once; wait as a time-out would.
+            std::thread::sleep(READ_TIMEOUT);
+            Ok(0)
+        }
         Ok(n) => Ok(n),
         Err(e) if matches!(e.kind(), ErrorKind::TimedOut | ErrorKind::WouldBlock) => Ok(0),
         Err(e) if e.kind() == ErrorKind::Interrupted => Ok(0),
@@ -196,9 +211,16 @@ pub fn run(config: &Config, namespace: Namespace, stop: &AtomicBool) -> anyhow::
             }
         };
         let arrived = now_ns();
+        // Several records in one read waited in the line: the k-th of the last m arrived
+        // (m - 1 - k) record periods earlier, as far as anyone can tell.
+        let mut got_record = false;
+        let mut behind = (decoder.pending() + n) / format.bytes();
         for &byte in &buf[..n] {
             if let Some(record) = decoder.push(byte) {
+                behind = behind.saturating_sub(1);
+                let arrived = arrived.saturating_sub(behind as u64 * period_ns);
                 last_record = arrived;
+                got_record = true;
                 let position = frame.to_base(record.position_in);
                 if !plausible.accept(position, arrived) {
                     if plausible.rejected.is_power_of_two() {
@@ -233,7 +255,7 @@ pub fn run(config: &Config, namespace: Namespace, stop: &AtomicBool) -> anyhow::
             }
             reported = stats;
         }
-        if last_record == arrived && silent {
+        if got_record && silent {
             tracing::warn!("the tracker answers again");
             silent = false;
             ask_every = silent_ns;
