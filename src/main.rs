@@ -8,7 +8,7 @@ use std::time::Duration;
 
 use anyhow::{Context, anyhow};
 use clap::{Parser, Subcommand};
-use softarm_clients::{estop, stats, status, submit, train};
+use softarm_clients::{estop, record, stats, status, submit, train};
 use softarm_ipc::Namespace;
 use softarm_model::config::{Config, ConfigError};
 use softarm_model::scenario::Scenario;
@@ -177,6 +177,32 @@ enum Command {
     Config {
         #[command(subcommand)]
         command: ConfigCommand,
+    },
+    /// Records every service of the stack into an MCAP file (Foxglove, the `mcap` Python
+    /// package) until Ctrl-C or --duration.
+    Record {
+        /// The recording (.mcap).
+        #[arg(short, long)]
+        output: PathBuf,
+        /// Stop after this many seconds.
+        #[arg(long)]
+        duration: Option<f64>,
+        #[command(flatten)]
+        stack: Stack,
+    },
+    /// The per-execution statistics and a timing summary from a recording.
+    Replay {
+        recording: PathBuf,
+        /// One JSON object.
+        #[arg(long)]
+        json: bool,
+    },
+    /// The paper's Fig. 4 view of a recording: paths and way-points in three projections,
+    /// and the error at each conditioning point per execution (PNG, or SVG by extension).
+    Plot {
+        recording: PathBuf,
+        #[arg(short, long)]
+        output: PathBuf,
     },
     /// Times the controller's hot paths on this machine (min / p50 / p99 / p99.9 / max).
     Bench(bench::Args),
@@ -380,6 +406,37 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             }
             ConfigCommand::Default => print!("{}", softarm_model::config::DEFAULT),
         },
+        Command::Record {
+            output,
+            duration,
+            stack,
+        } => {
+            let duration = match duration {
+                Some(d) if !(d.is_finite() && d > 0.0) => {
+                    return Err(anyhow!(
+                        "--duration must be a positive number of seconds, got {d}"
+                    ));
+                }
+                d => d.map(std::time::Duration::from_secs_f64),
+            };
+            let counts = record::record(&stack.namespace()?, &output, duration, &*stop_flag()?)?;
+            record::summary(&output, &counts, &mut std::io::stdout())?;
+        }
+        Command::Replay { recording, json } => {
+            let messages = record::read(&recording)?;
+            let r = record::replay(&messages);
+            if json {
+                println!("{}", serde_json::to_string(&r)?);
+            } else {
+                print!("{}", record::replay_text(&r, &messages));
+            }
+        }
+        Command::Plot { recording, output } => {
+            let messages = record::read(&recording)?;
+            let data = record::plot_data(&messages, &recording.display().to_string())?;
+            softarm_clients::plot::render(&data, &output)?;
+            println!("wrote {}", output.display());
+        }
         Command::Bench(args) => bench::run(&args)?,
         Command::Install(args) => install::install(&args)?,
         Command::Uninstall(args) => install::uninstall(&args)?,

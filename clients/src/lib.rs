@@ -2,6 +2,8 @@
 //! `train`. Each is a short-lived iceoryx2 node in the stack's namespace.
 
 pub mod estop;
+pub mod plot;
+pub mod record;
 pub mod stats;
 pub mod status;
 pub mod submit;

@@ -19,6 +19,32 @@ pub fn json_line(s: &ExecutionStats) -> String {
     .to_string()
 }
 
+/// An `ExecutionStats` as the recorder writes it (its fields as JSON), back as a payload.
+pub fn from_json(v: &serde_json::Value) -> Option<ExecutionStats> {
+    let u = |k: &str| v[k].as_u64();
+    let mut s = ExecutionStats {
+        seq: u("seq")?,
+        stamp_ns: u("stamp_ns")?,
+        set_id: u("set_id")?,
+        execution: u("execution")? as u32,
+        executions: u("executions")? as u32,
+        count: u("count")? as u32,
+        reconditions: u("reconditions")? as u32,
+        mean_m: v["mean_m"].as_f64().unwrap_or(f64::NAN),
+        max_m: v["max_m"].as_f64().unwrap_or(f64::NAN),
+        ..Default::default()
+    };
+    for (i, e) in v["errors_m"]
+        .as_array()?
+        .iter()
+        .take(s.errors_m.len())
+        .enumerate()
+    {
+        s.errors_m[i] = e.as_f64().unwrap_or(f64::NAN);
+    }
+    Some(s)
+}
+
 fn round3(v: f64) -> f64 {
     (v * 1e3).round() / 1e3
 }

@@ -61,7 +61,7 @@ impl ControllerState {
 }
 
 /// One per controller tick: the actuation to apply.
-#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, Default, ZeroCopySend, serde::Serialize)]
 #[type_name("softarm::Setpoint")]
 #[repr(C)]
 pub struct Setpoint {
@@ -77,7 +77,7 @@ pub struct Setpoint {
 }
 
 /// An end-effector position from the tracker (or the simulated plant).
-#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, Default, ZeroCopySend, serde::Serialize)]
 #[type_name("softarm::TrackerSample")]
 #[repr(C)]
 pub struct TrackerSample {
@@ -125,7 +125,7 @@ impl DriverState {
 
 /// What the actuators actually reached, normalised, and what the driver and the hardware say
 /// about them.
-#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, Default, ZeroCopySend, serde::Serialize)]
 // v3: the driver's state, currents, hardware errors and fault count (v2 had only `stopped`);
 // a peer built before cannot connect and misread it.
 #[type_name("softarm::MotorState.v3")]
@@ -156,7 +156,7 @@ impl MotorState {
 
 /// Sent by the controller at each conditioning point: what was executed there and where the end
 /// effector was (one visit of Alg. 1), and which estimate it wants next.
-#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, Default, ZeroCopySend, serde::Serialize)]
 // The type name changed with the layout (the `executed` flag left for `EstimateRequest`), so a
 // peer built before cannot connect and misread it.
 #[type_name("softarm::ConditioningSample.v3")]
@@ -184,7 +184,7 @@ pub struct ConditioningSample {
 
 /// Sent by the controller when it accepts a way-point set: the learner answers with one
 /// `ActuationEstimate` per point, the first estimates the set is planned with.
-#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, Default, ZeroCopySend, serde::Serialize)]
 #[type_name("softarm::EstimateRequest")]
 #[repr(C)]
 pub struct EstimateRequest {
@@ -204,7 +204,7 @@ impl EstimateRequest {
 
 /// The learner's actuation for a conditioning point: the controller conditions group `point`
 /// on it.
-#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, Default, ZeroCopySend, serde::Serialize)]
 #[type_name("softarm::ActuationEstimate")]
 #[repr(C)]
 pub struct ActuationEstimate {
@@ -217,7 +217,7 @@ pub struct ActuationEstimate {
 }
 
 /// A way-point set to execute (request of `waypoints`).
-#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, Default, ZeroCopySend, serde::Serialize)]
 #[type_name("softarm::WaypointSet")]
 #[repr(C)]
 pub struct WaypointSet {
@@ -281,7 +281,7 @@ impl WaypointReply {
 }
 
 /// Asks the controller to play the demonstration sequences (request of `demonstrate`).
-#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, Default, ZeroCopySend, serde::Serialize)]
 #[type_name("softarm::DemonstrateRequest")]
 #[repr(C)]
 pub struct DemonstrateRequest {
@@ -291,7 +291,7 @@ pub struct DemonstrateRequest {
 }
 
 /// Answer to a `DemonstrateRequest`.
-#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, Default, ZeroCopySend, serde::Serialize)]
 #[type_name("softarm::DemonstrateReply")]
 #[repr(C)]
 pub struct DemonstrateReply {
@@ -305,7 +305,7 @@ pub struct DemonstrateReply {
 }
 
 /// One per finished execution.
-#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, Default, ZeroCopySend, serde::Serialize)]
 #[type_name("softarm::ExecutionStats")]
 #[repr(C)]
 pub struct ExecutionStats {
@@ -332,7 +332,7 @@ impl ExecutionStats {
 }
 
 /// Min / p50 / p99 / p99.9 / max of the tick wake-up latency (ns).
-#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, Default, ZeroCopySend, serde::Serialize)]
 #[type_name("softarm::Latency")]
 #[repr(C)]
 pub struct Latency {
@@ -345,7 +345,7 @@ pub struct Latency {
 }
 
 /// The controller's state, ~10 Hz.
-#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, Default, ZeroCopySend, serde::Serialize)]
 // The type name changed with the layout (re-conditionings, outbox drops, held solves), so a peer
 // built before cannot connect and misread it.
 #[type_name("softarm::ControllerStatus.v2")]
@@ -381,7 +381,7 @@ pub struct ControllerStatus {
 }
 
 /// Latched e-stop state.
-#[derive(Debug, Clone, Copy, Default, ZeroCopySend)]
+#[derive(Debug, Clone, Copy, Default, ZeroCopySend, serde::Serialize)]
 #[type_name("softarm::EstopState")]
 #[repr(C)]
 pub struct EstopState {

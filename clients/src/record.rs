@@ -1,0 +1,539 @@
+//! `softarm record` and `softarm replay`: every pub/sub service of a namespace into an MCAP file,
+//! and the file back into the per-execution statistics and a timing summary.
+//!
+//! The file: one channel per service, its topic the service's name (`setpoint`, `tracker`, ...).
+//! Messages are JSON (`message_encoding = "json"`), one object per sample with the payload's
+//! field names (`ipc/src/lib.rs`), NaN as `null`; each channel's schema is a JSON Schema
+//! (`encoding = "jsonschema"`) named after the payload's iceoryx2 type name
+//! (`softarm::Setpoint`, ...). `log_time` is when the recorder received the sample
+//! (CLOCK_REALTIME, ns since the epoch, as viewers expect); `publish_time` is the sample's own
+//! `stamp_ns` (CLOCK_MONOTONIC of the machine that ran the stack). Foxglove and the `mcap`
+//! Python package read it as it is.
+//!
+//! The recorder is one more subscriber: it never publishes, so the controller does not notice
+//! it. It writes to `<file>.partial` and renames it once complete: a file named `run.mcap` is
+//! always whole.
+
+use std::collections::BTreeMap;
+use std::fs::File;
+use std::io::{BufWriter, Write};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+use anyhow::{Context, bail};
+use mcap::records::MessageHeader;
+use serde::Serialize;
+use serde_json::{Value, json};
+use softarm_ipc::iceoryx2::prelude::ZeroCopySend;
+use softarm_ipc::{Namespace, Node, Sub};
+
+/// The topics a recording has, in the order they are opened.
+pub const TOPICS: [&str; 9] = [
+    "setpoint",
+    "tracker",
+    "motor_state",
+    "cp_sample",
+    "estimate_request",
+    "estimate",
+    "stats",
+    "status",
+    "estop",
+];
+
+type Writer = mcap::Writer<BufWriter<File>>;
+
+/// One subscription and its channel in the file (made with the first sample, whose JSON gives
+/// the schema).
+struct Source<T: std::fmt::Debug + ZeroCopySend + 'static> {
+    topic: &'static str,
+    sub: Sub<T>,
+    channel: Option<u16>,
+    count: u64,
+}
+
+/// What the recorder does with any of its sources.
+trait Drain {
+    fn topic(&self) -> &'static str;
+    fn count(&self) -> u64;
+    /// Writes every sample waiting; returns how many.
+    fn drain(&mut self, w: &mut Writer) -> anyhow::Result<u64>;
+}
+
+impl<T> Drain for Source<T>
+where
+    T: std::fmt::Debug + ZeroCopySend + Serialize + Copy + 'static,
+{
+    fn topic(&self) -> &'static str {
+        self.topic
+    }
+
+    fn count(&self) -> u64 {
+        self.count
+    }
+
+    fn drain(&mut self, w: &mut Writer) -> anyhow::Result<u64> {
+        let mut n = 0;
+        while let Ok(Some(sample)) = self.sub.receive() {
+            let payload: T = *sample;
+            drop(sample);
+            let value = serde_json::to_value(payload)?;
+            let channel = match self.channel {
+                Some(c) => c,
+                None => {
+                    // SAFETY: only reads the name the payload declares (`#[type_name]`).
+                    let name = unsafe { <T as ZeroCopySend>::type_name() };
+                    let schema = json!({
+                        "$schema": "https://json-schema.org/draft/2020-12/schema",
+                        "title": name,
+                        "description": format!("softarm service `{}`: {name} (ipc/src/lib.rs)", self.topic),
+                    });
+                    let mut schema = schema;
+                    merge(&mut schema, schema_of(&value));
+                    let id = w.add_schema(name, "jsonschema", schema.to_string().as_bytes())?;
+                    let c = w.add_channel(id, self.topic, "json", &BTreeMap::new())?;
+                    self.channel = Some(c);
+                    c
+                }
+            };
+            let stamp = value["stamp_ns"].as_u64().unwrap_or(0);
+            w.write_to_known_channel(
+                &MessageHeader {
+                    channel_id: channel,
+                    sequence: self.count as u32,
+                    log_time: realtime_ns(),
+                    publish_time: stamp,
+                },
+                value.to_string().as_bytes(),
+            )?;
+            self.count += 1;
+            n += 1;
+        }
+        Ok(n)
+    }
+}
+
+fn merge(into: &mut Value, from: Value) {
+    if let (Value::Object(a), Value::Object(b)) = (into, from) {
+        a.extend(b);
+    }
+}
+
+/// A JSON Schema for values shaped like `v`: numbers that are not integers may be `null`
+/// (a NaN on the wire).
+fn schema_of(v: &Value) -> Value {
+    match v {
+        Value::Number(n) if n.is_u64() || n.is_i64() => json!({"type": "integer"}),
+        Value::Number(_) | Value::Null => json!({"type": ["number", "null"]}),
+        Value::Bool(_) => json!({"type": "boolean"}),
+        Value::String(_) => json!({"type": "string"}),
+        Value::Array(items) => json!({
+            "type": "array",
+            "minItems": items.len(),
+            "maxItems": items.len(),
+            "items": items.first().map_or(json!({}), schema_of),
+        }),
+        Value::Object(fields) => json!({
+            "type": "object",
+            "properties": fields.iter().map(|(k, v)| (k.clone(), schema_of(v))).collect::<serde_json::Map<_, _>>(),
+            "required": fields.keys().collect::<Vec<_>>(),
+        }),
+    }
+}
+
+fn realtime_ns() -> u64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos() as u64)
+}
+
+fn source<T>(node: &Node, topic: &'static str, sub: Sub<T>) -> Box<dyn Drain>
+where
+    T: std::fmt::Debug + ZeroCopySend + Serialize + Copy + 'static,
+{
+    let _ = node;
+    Box::new(Source {
+        topic,
+        sub,
+        channel: None,
+        count: 0,
+    })
+}
+
+/// Where a recording is written until it is complete.
+fn partial(out: &Path) -> PathBuf {
+    let mut name = out.as_os_str().to_owned();
+    name.push(".partial");
+    PathBuf::from(name)
+}
+
+/// Records every pub/sub service of `namespace` into `out` until `stop` is set or `duration`
+/// has passed; returns the samples written per topic.
+pub fn record(
+    namespace: &Namespace,
+    out: &Path,
+    duration: Option<Duration>,
+    stop: &AtomicBool,
+) -> anyhow::Result<BTreeMap<String, u64>> {
+    match out.extension().and_then(|e| e.to_str()) {
+        Some("mcap") => {}
+        _ => bail!("{}: a recording's name must end in .mcap", out.display()),
+    }
+    let node = Node::open(namespace.clone(), "record")?;
+    let mut sources: Vec<Box<dyn Drain>> = vec![
+        source(&node, "setpoint", node.subscriber(&node.setpoint()?)?),
+        source(&node, "tracker", node.subscriber(&node.tracker()?)?),
+        source(&node, "motor_state", node.subscriber(&node.motor_state()?)?),
+        source(&node, "cp_sample", node.subscriber(&node.cp_sample()?)?),
+        source(
+            &node,
+            "estimate_request",
+            node.subscriber(&node.estimate_request()?)?,
+        ),
+        source(&node, "estimate", node.subscriber(&node.estimate()?)?),
+        source(&node, "stats", node.subscriber(&node.stats()?)?),
+        source(&node, "status", node.subscriber(&node.status()?)?),
+        source(&node, "estop", node.subscriber(&node.estop()?)?),
+    ];
+    let tmp = partial(out);
+    let file = File::create(&tmp).with_context(|| format!("creating {}", tmp.display()))?;
+    let mut w = mcap::WriteOptions::new()
+        .profile("")
+        .library(concat!("softarm ", env!("CARGO_PKG_VERSION")))
+        .create(BufWriter::new(file))
+        .with_context(|| format!("starting the recording {}", tmp.display()))?;
+    let start = Instant::now();
+    let result = (|| -> anyhow::Result<()> {
+        while !stop.load(Ordering::Relaxed) && duration.is_none_or(|d| start.elapsed() < d) {
+            let mut n = 0;
+            for s in sources.iter_mut() {
+                n += s.drain(&mut w)?;
+            }
+            if n == 0 {
+                // Sensor topics arrive at up to 1 kHz into buffers of 4 or more.
+                std::thread::sleep(Duration::from_micros(500));
+            }
+        }
+        // What arrived during the last pause.
+        for s in sources.iter_mut() {
+            s.drain(&mut w)?;
+        }
+        Ok(())
+    })();
+    let finished = result.and_then(|()| {
+        w.finish()?;
+        let file = w
+            .into_inner()
+            .into_inner()
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
+        file.sync_all()?;
+        Ok(())
+    });
+    if let Err(e) = finished {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(e.context(format!("recording {}", out.display())));
+    }
+    std::fs::rename(&tmp, out).with_context(|| format!("renaming {} into place", tmp.display()))?;
+    if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
+        let _ = File::open(dir).and_then(|d| d.sync_all());
+    }
+    Ok(sources
+        .iter()
+        .map(|s| (s.topic().to_string(), s.count()))
+        .collect())
+}
+
+/// One message of a recording: its topic and JSON.
+#[derive(Debug, Clone)]
+pub struct Message {
+    pub topic: String,
+    pub log_time: u64,
+    pub publish_time: u64,
+    pub value: Value,
+}
+
+/// Every message of a recording, in file order.
+pub fn read(path: &Path) -> anyhow::Result<Vec<Message>> {
+    let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
+    let mut out = Vec::new();
+    for m in mcap::MessageStream::new(&bytes)
+        .with_context(|| format!("{}: not an MCAP file", path.display()))?
+    {
+        let m = m.with_context(|| format!("{}: damaged", path.display()))?;
+        let value = serde_json::from_slice(&m.data).with_context(|| {
+            format!(
+                "{}: a message on {:?} is not JSON",
+                path.display(),
+                m.channel.topic
+            )
+        })?;
+        out.push(Message {
+            topic: m.channel.topic.clone(),
+            log_time: m.log_time,
+            publish_time: m.publish_time,
+            value,
+        });
+    }
+    Ok(out)
+}
+
+/// Messages per topic.
+pub fn counts(messages: &[Message]) -> BTreeMap<String, u64> {
+    let mut c = BTreeMap::new();
+    for m in messages {
+        *c.entry(m.topic.clone()).or_insert(0) += 1;
+    }
+    c
+}
+
+/// `softarm replay`: what a recording says about the run.
+#[derive(Debug, Clone, Serialize)]
+pub struct Replay {
+    pub seconds: f64,
+    pub counts: BTreeMap<String, u64>,
+    /// One per finished execution, as `softarm stats --json` prints it.
+    pub executions: Vec<Value>,
+    /// Setpoint intervals (µs): p50, p99, max, and how many were more than 1.5 periods.
+    pub setpoint_interval_us: Option<Value>,
+    /// The controller's last reported tick latency and overruns.
+    pub controller: Option<Value>,
+}
+
+fn percentile(sorted: &[f64], p: f64) -> f64 {
+    if sorted.is_empty() {
+        return f64::NAN;
+    }
+    let i = ((sorted.len() - 1) as f64 * p).round() as usize;
+    sorted[i.min(sorted.len() - 1)]
+}
+
+pub fn replay(messages: &[Message]) -> Replay {
+    let first = messages.iter().map(|m| m.log_time).min().unwrap_or(0);
+    let last = messages.iter().map(|m| m.log_time).max().unwrap_or(0);
+    let executions = stats_of(messages)
+        .iter()
+        .filter_map(|s| serde_json::from_str(&crate::stats::json_line(s)).ok())
+        .collect();
+    let stamps: Vec<u64> = messages
+        .iter()
+        .filter(|m| m.topic == "setpoint")
+        .map(|m| m.publish_time)
+        .collect();
+    let mut intervals: Vec<f64> = stamps
+        .windows(2)
+        .map(|w| w[1].saturating_sub(w[0]) as f64 / 1e3)
+        .collect();
+    let setpoint_interval_us = (!intervals.is_empty()).then(|| {
+        intervals.sort_by(f64::total_cmp);
+        let p50 = percentile(&intervals, 0.5);
+        let late = intervals.iter().filter(|&&v| v > 1.5 * p50).count();
+        json!({
+            "p50": p50,
+            "p99": percentile(&intervals, 0.99),
+            "max": intervals.last().copied().unwrap_or(f64::NAN),
+            "late": late,
+        })
+    });
+    let controller = messages
+        .iter()
+        .rev()
+        .find(|m| m.topic == "status")
+        .map(|m| {
+            json!({
+                "ticks": m.value["ticks"],
+                "overruns": m.value["overruns"],
+                "latency_ns": m.value["latency"],
+            })
+        });
+    Replay {
+        seconds: last.saturating_sub(first) as f64 / 1e9,
+        counts: counts(messages),
+        executions,
+        setpoint_interval_us,
+        controller,
+    }
+}
+
+/// The executions' statistics a recording holds, in order.
+pub fn stats_of(messages: &[Message]) -> Vec<softarm_ipc::ExecutionStats> {
+    messages
+        .iter()
+        .filter(|m| m.topic == "stats")
+        .filter_map(|m| crate::stats::from_json(&m.value))
+        .collect()
+}
+
+/// `softarm replay`'s table.
+pub fn replay_text(r: &Replay, messages: &[Message]) -> String {
+    let mut out = format!("{:.1} s recorded\n", r.seconds);
+    for (topic, n) in &r.counts {
+        out += &format!("  {topic:<17} {n:>8} samples\n");
+    }
+    let stats = stats_of(messages);
+    if stats.is_empty() {
+        out += "no execution finished in this recording\n";
+    }
+    let mut set = None;
+    for s in &stats {
+        if set != Some(s.set_id) {
+            set = Some(s.set_id);
+            out += &format!(
+                "set {}\n{}\n",
+                s.set_id,
+                crate::stats::table_header(s.errors().len())
+            );
+        }
+        out += &crate::stats::table_row(s);
+        out.push('\n');
+    }
+    if let Some(s) = &r.setpoint_interval_us {
+        out += &format!(
+            "setpoint interval µs: p50 {:.1}, p99 {:.1}, max {:.1}; {} over 1.5× the median\n",
+            s["p50"].as_f64().unwrap_or(f64::NAN),
+            s["p99"].as_f64().unwrap_or(f64::NAN),
+            s["max"].as_f64().unwrap_or(f64::NAN),
+            s["late"]
+        );
+    }
+    if let Some(c) = &r.controller {
+        let l = &c["latency_ns"];
+        let us = |k: &str| l[k].as_f64().map_or(f64::NAN, |v| v / 1e3);
+        out += &format!(
+            "controller (last status): {} ticks, {} overruns; wake-up latency µs p50 {:.1}, \
+             p99 {:.1}, p99.9 {:.1}, max {:.1}\n",
+            c["ticks"],
+            c["overruns"],
+            us("p50_ns"),
+            us("p99_ns"),
+            us("p999_ns"),
+            us("max_ns")
+        );
+    }
+    out
+}
+
+/// Writes what the recorder tells the user when it ends.
+pub fn summary(
+    out: &Path,
+    counts: &BTreeMap<String, u64>,
+    w: &mut impl Write,
+) -> std::io::Result<()> {
+    writeln!(w, "recorded {}", out.display())?;
+    for (topic, n) in counts {
+        writeln!(w, "  {topic:<17} {n:>8} samples")?;
+    }
+    Ok(())
+}
+
+/// The plot of a recording: the last way-point set it saw executed, with the end effector's
+/// path per execution (tracker samples between the execution's first and last setpoint), the
+/// reached points (`cp_sample`) and the errors (`stats`).
+pub fn plot_data(messages: &[Message], title: &str) -> anyhow::Result<crate::plot::PlotData> {
+    let samples: Vec<&Message> = messages.iter().filter(|m| m.topic == "cp_sample").collect();
+    let Some(set) = samples.last().and_then(|m| m.value["set_id"].as_u64()) else {
+        bail!(
+            "the recording has no conditioning samples: no way-point set was executed while it ran"
+        );
+    };
+    let of_set: Vec<&&Message> = samples
+        .iter()
+        .filter(|m| m.value["set_id"].as_u64() == Some(set))
+        .collect();
+    let position = |v: &Value| -> Option<[f64; 3]> {
+        let a = v.as_array()?;
+        Some([
+            a.first()?.as_f64()?,
+            a.get(1)?.as_f64()?,
+            a.get(2)?.as_f64()?,
+        ])
+    };
+    let points = of_set
+        .iter()
+        .filter_map(|m| m.value["points"].as_u64())
+        .max()
+        .unwrap_or(0) as usize;
+    let mut waypoints = vec![[f64::NAN; 3]; points];
+    let request = messages
+        .iter()
+        .rev()
+        .find(|m| m.topic == "estimate_request" && m.value["set_id"].as_u64() == Some(set));
+    if let Some(req) = request {
+        for (i, p) in req.value["desired"]
+            .as_array()
+            .into_iter()
+            .flatten()
+            .take(points)
+            .enumerate()
+        {
+            waypoints[i] = position(p).unwrap_or([f64::NAN; 3]);
+        }
+    }
+    for m in &of_set {
+        let i = m.value["point"].as_u64().unwrap_or(u64::MAX) as usize;
+        if i < points && waypoints[i][0].is_nan() {
+            waypoints[i] = position(&m.value["desired"]).unwrap_or([f64::NAN; 3]);
+        }
+    }
+    // The set's span: from its acceptance (the controller asks the learner for its estimates
+    // then) to its last conditioning sample's execution's end.
+    let set_start = request.map_or(0, |m| m.publish_time);
+    let mut numbers: Vec<u32> = of_set
+        .iter()
+        .filter_map(|m| m.value["execution"].as_u64().map(|e| e as u32))
+        .collect();
+    numbers.sort_unstable();
+    numbers.dedup();
+    let stats: Vec<softarm_ipc::ExecutionStats> = stats_of(messages)
+        .into_iter()
+        .filter(|s| s.set_id == set)
+        .collect();
+    let execute = softarm_ipc::ControllerState::Execute as u64;
+    let mut executions = Vec::new();
+    for &n in &numbers {
+        // The setpoints of this execution: EXECUTE, this number, since the set's start.
+        let span = messages
+            .iter()
+            .filter(|m| {
+                m.topic == "setpoint"
+                    && m.value["state"].as_u64() == Some(execute)
+                    && m.value["execution"].as_u64() == Some(u64::from(n))
+            })
+            .map(|m| m.publish_time)
+            .filter(|&t| t >= set_start)
+            .fold(None, |acc: Option<(u64, u64)>, t| {
+                Some(acc.map_or((t, t), |(a, b)| (a.min(t), b.max(t))))
+            });
+        let path = span.map_or_else(Vec::new, |(a, b)| {
+            messages
+                .iter()
+                .filter(|m| m.topic == "tracker" && (a..=b).contains(&m.publish_time))
+                .filter_map(|m| position(&m.value["position"]))
+                .collect()
+        });
+        let mut reached = vec![None; points];
+        for m in of_set
+            .iter()
+            .filter(|m| m.value["execution"].as_u64() == Some(u64::from(n)))
+        {
+            let i = m.value["point"].as_u64().unwrap_or(u64::MAX) as usize;
+            if i < points {
+                reached[i] = position(&m.value["reached"]);
+            }
+        }
+        let errors_m = stats
+            .iter()
+            .find(|s| s.execution == n)
+            .map_or_else(Vec::new, |s| s.errors().to_vec());
+        executions.push(crate::plot::Execution {
+            number: n,
+            path,
+            reached,
+            errors_m,
+        });
+    }
+    Ok(crate::plot::PlotData {
+        title: format!("{title}: set {set}, {} executions", executions.len()),
+        waypoints,
+        executions,
+    })
+}

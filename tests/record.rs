@@ -1,0 +1,207 @@
+//! End to end: `softarm record` beside a running stack, then `replay` and `plot` of what it
+//! wrote; the same sample counts per channel from the recorder, from the Rust reader and from
+//! the `mcap` Python package; a recorder killed mid-way leaves no file that looks whole.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use nix::sys::signal::{Signal, kill};
+use nix::unistd::Pid;
+use softarm_test_support::{DEMO_WAYPOINTS, TestStack, set_id};
+
+const BIN: &str = env!("CARGO_BIN_EXE_softarm");
+
+/// "  topic    N samples" lines of the recorder's summary.
+fn counts_of(stdout: &str) -> BTreeMap<String, u64> {
+    stdout
+        .lines()
+        .filter_map(|l| {
+            let mut w = l.split_whitespace();
+            let (topic, n, unit) = (w.next()?, w.next()?, w.next()?);
+            let n = n.parse().ok()?;
+            (unit == "samples").then(|| (topic.to_string(), n))
+        })
+        .collect()
+}
+
+/// Whether the `mcap` Python package is there; CI requires it (SOFTARM_REQUIRE_PYTHON=1).
+fn python_mcap() -> bool {
+    let ok = Command::new("python3")
+        .args(["-c", "import mcap"])
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if !ok {
+        assert!(
+            std::env::var("SOFTARM_REQUIRE_PYTHON").as_deref() != Ok("1"),
+            "SOFTARM_REQUIRE_PYTHON=1 but python3 with the mcap package is missing"
+        );
+        eprintln!(
+            "not run: the check with the mcap Python package (python3 -c 'import mcap' fails)"
+        );
+    }
+    ok
+}
+
+#[test]
+fn a_recorded_run_replays_and_plots_with_the_same_counts_everywhere() {
+    let mut s = TestStack::new(BIN, "record", true);
+    s.up();
+    let run = s.dir.join("run.mcap");
+    let recorder = s
+        .command()
+        .args(["record", "--duration", "20", "-o"])
+        .arg(&run)
+        .arg("--config")
+        .arg(&s.config)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // The recorder's node is up before the set starts.
+    s.wait_status("the recorder", Duration::from_secs(20), |st| {
+        st["alive"]
+            .as_array()
+            .is_some_and(|a| a.iter().any(|n| n == "record"))
+    });
+    let (code, out, err) = s.submit(Path::new(DEMO_WAYPOINTS), 2);
+    assert_eq!(code, 0, "{out}{err}");
+    let set = set_id(&out);
+    s.wait_stats(set, 2, Duration::from_secs(60));
+    let out = recorder.wait_with_output().unwrap();
+    assert!(out.status.success(), "{out:?}");
+    assert!(run.exists() && !s.dir.join("run.mcap.partial").exists());
+    let recorded = counts_of(&String::from_utf8_lossy(&out.stdout));
+    for topic in [
+        "setpoint",
+        "tracker",
+        "motor_state",
+        "cp_sample",
+        "stats",
+        "status",
+    ] {
+        assert!(
+            recorded.get(topic).copied().unwrap_or(0) > 0,
+            "{topic}: {recorded:?}"
+        );
+    }
+    assert!(recorded["setpoint"] > 2000, "{recorded:?}");
+
+    // The Rust reader.
+    let replay = s
+        .command()
+        .args(["replay", "--json"])
+        .arg(&run)
+        .output()
+        .unwrap();
+    assert!(replay.status.success(), "{replay:?}");
+    let r: serde_json::Value = serde_json::from_slice(&replay.stdout).unwrap();
+    let read: BTreeMap<String, u64> = serde_json::from_value(r["counts"].clone()).unwrap();
+    let nonzero: BTreeMap<String, u64> = recorded.into_iter().filter(|(_, n)| *n > 0).collect();
+    assert_eq!(read, nonzero);
+    let executions = r["executions"].as_array().unwrap();
+    let ours: Vec<_> = executions.iter().filter(|e| e["set_id"] == set).collect();
+    assert_eq!(ours.len(), 2, "{executions:?}");
+    assert!(r["setpoint_interval_us"]["p50"].as_f64().unwrap() > 0.0);
+    let text = s.command().arg("replay").arg(&run).output().unwrap();
+    let text = String::from_utf8_lossy(&text.stdout);
+    assert!(
+        text.contains(&format!("set {set}")) && text.contains("mean mm"),
+        "{text}"
+    );
+
+    // The mcap Python package.
+    if python_mcap() {
+        let script = "import sys, json, collections\n\
+            from mcap.reader import make_reader\n\
+            c = collections.Counter()\n\
+            with open(sys.argv[1], 'rb') as f:\n\
+            \x20   for schema, channel, message in make_reader(f).iter_messages():\n\
+            \x20       json.loads(message.data)\n\
+            \x20       c[channel.topic] += 1\n\
+            print(json.dumps(c))\n";
+        let py = Command::new("python3")
+            .args(["-c", script])
+            .arg(&run)
+            .output()
+            .unwrap();
+        assert!(py.status.success(), "{py:?}");
+        let py: BTreeMap<String, u64> = serde_json::from_slice(&py.stdout).unwrap();
+        assert_eq!(py, nonzero);
+    }
+
+    // The plot.
+    let png = s.dir.join("run.png");
+    let plot = s
+        .command()
+        .arg("plot")
+        .arg(&run)
+        .arg("-o")
+        .arg(&png)
+        .output()
+        .unwrap();
+    assert!(plot.status.success(), "{plot:?}");
+    let bytes = std::fs::read(&png).unwrap();
+    assert_eq!(&bytes[1..4], b"PNG");
+    let width = u32::from_be_bytes(bytes[16..20].try_into().unwrap());
+    let height = u32::from_be_bytes(bytes[20..24].try_into().unwrap());
+    assert_eq!((width, height), softarm_clients::plot::SIZE);
+}
+
+#[test]
+fn a_killed_recorder_leaves_no_file_that_looks_whole_and_a_stopped_one_does() {
+    let s = TestStack::new(BIN, "record-kill", false);
+    let run = s.dir.join("killed.mcap");
+    let spawn = |out: &Path| {
+        s.command()
+            .args(["record", "-o"])
+            .arg(out)
+            .arg("--config")
+            .arg(&s.config)
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap()
+    };
+    let partial = s.dir.join("killed.mcap.partial");
+    let mut killed = spawn(&run);
+    let start = Instant::now();
+    while !partial.exists() {
+        assert!(
+            start.elapsed() < Duration::from_secs(20),
+            "no recording started"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    kill(Pid::from_raw(killed.id() as i32), Signal::SIGKILL).unwrap();
+    killed.wait().unwrap();
+    assert!(!run.exists(), "a killed recording looks whole");
+
+    let stopped = s.dir.join("stopped.mcap");
+    let mut child = spawn(&stopped);
+    std::thread::sleep(Duration::from_millis(500));
+    kill(Pid::from_raw(child.id() as i32), Signal::SIGTERM).unwrap();
+    assert!(child.wait().unwrap().success());
+    let replay = s
+        .command()
+        .args(["replay", "--json"])
+        .arg(&stopped)
+        .output()
+        .unwrap();
+    assert!(replay.status.success(), "{replay:?}");
+
+    // Not a recording: refused, named.
+    std::fs::write(s.dir.join("junk.mcap"), b"not mcap").unwrap();
+    let out = s
+        .command()
+        .arg("replay")
+        .arg(s.dir.join("junk.mcap"))
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("junk.mcap"),
+        "{out:?}"
+    );
+}
