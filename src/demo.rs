@@ -8,7 +8,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
-use softarm_clients::{stats, status, submit, train};
+use softarm_clients::{plot, record, stats, status, submit, train};
 use softarm_ipc::{ExecutionStats, Namespace};
 use softarm_model::bundle::Model;
 use softarm_model::config::{self, Config, DEFAULT};
@@ -48,6 +48,12 @@ pub struct Args {
     /// learnt: how far it carries to points it has not visited.
     #[arg(long, value_name = "FILE")]
     then: Option<PathBuf>,
+    /// Records the run here (MCAP), and plots it beside it (the same name, .png).
+    #[arg(long, value_name = "FILE", default_value = "softarm-demo.mcap")]
+    record: PathBuf,
+    /// Neither records nor plots.
+    #[arg(long)]
+    no_record: bool,
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -246,6 +252,12 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
         .map_err(anyhow::Error::msg)?;
     // Subscribe before submitting: no execution's stats can be missed.
     let follower = stats::Stats::open(&ns)?;
+    // The recorder is one more subscriber, on a thread of its own, from here to the end.
+    let recording_stop = std::sync::Arc::new(AtomicBool::new(false));
+    let recording = (!args.no_record).then(|| {
+        let (ns, out, stop) = (ns.clone(), args.record.clone(), recording_stop.clone());
+        std::thread::spawn(move || record::record(&ns, &out, None, &stop))
+    });
     let run_set = |file: &WaypointFile, executions: u32, sup: &mut Supervisor| {
         run_set(
             &ns,
@@ -263,7 +275,26 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
         Some(file) => Some(run_set(file, 1, &mut sup)?),
         None => None,
     };
+    recording_stop.store(true, std::sync::atomic::Ordering::Relaxed);
     sup.stop(Duration::from_secs(5));
+    if let Some(recording) = recording {
+        let counts = recording
+            .join()
+            .map_err(|_| anyhow::anyhow!("the recorder panicked"))??;
+        let png = args.record.with_extension("png");
+        let messages = record::read(&args.record)?;
+        let data = record::plot_data(&messages, "softarm demo")?;
+        plot::render(&data, &png)?;
+        say(
+            args.json,
+            &format!(
+                "softarm demo: recorded {} ({} samples; `softarm replay` reads it), plotted {}",
+                args.record.display(),
+                counts.values().sum::<u64>(),
+                png.display()
+            ),
+        );
+    }
 
     let first = rows.first().expect("at least one execution");
     let last = rows.last().expect("at least one execution");

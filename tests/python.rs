@@ -35,7 +35,11 @@ fn python(modules: &[&str]) -> Option<String> {
         Ok(o) if o.status.success() => return Some(py),
         Ok(o) => format!(
             "{py} cannot import {modules:?}: {}",
-            String::from_utf8_lossy(&o.stderr).trim()
+            String::from_utf8_lossy(&o.stderr)
+                .trim()
+                .lines()
+                .last()
+                .unwrap_or("")
         ),
         Err(e) => format!("no {py}: {e}"),
     };
@@ -50,7 +54,12 @@ fn python(modules: &[&str]) -> Option<String> {
 /// Runs `py <args>` from this package's folder (as the stack's processes run: iceoryx2 looks
 /// for `config/iceoryx2.toml` there first) and insists on success.
 fn run_python(py: &str, args: &[&str]) -> Output {
-    let out = Command::new(py).args(args).output().unwrap();
+    let out = Command::new(py)
+        .args(args)
+        // No __pycache__ in the work tree.
+        .env("PYTHONDONTWRITEBYTECODE", "1")
+        .output()
+        .unwrap();
     assert!(
         out.status.success(),
         "{py} {args:?}: {}\n{}{}",
@@ -280,7 +289,8 @@ fn python_mirrors_match_the_rust_payloads_enums_and_services() {
         declared_type_names(),
         "a payload is missing here"
     );
-    let python_names: Vec<&String> = mirrors.as_object().unwrap().keys().collect();
+    let mut python_names: Vec<&String> = mirrors.as_object().unwrap().keys().collect();
+    python_names.sort();
     let mut expected: Vec<&str> = rust.iter().map(|l| l.name).collect();
     expected.sort();
     assert_eq!(python_names, expected, "mirrors in softarm_ipc.PAYLOADS");
