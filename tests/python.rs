@@ -12,7 +12,6 @@ use std::collections::BTreeMap;
 use std::mem::{MaybeUninit, align_of, offset_of, size_of};
 use std::path::Path;
 use std::process::{Command, Output};
-use std::str::FromStr;
 use std::time::Duration;
 
 use softarm_ipc::iceoryx2::prelude::{PortFactory, ZeroCopySend};
@@ -70,15 +69,8 @@ fn run_python(py: &str, args: &[&str]) -> Output {
     out
 }
 
-/// Parses JSON into the value type `TestStack::status` returns: serde_json's, which this
-/// package does not name (it is not among its dependencies).
-fn json<V: FromStr>(_like: fn(&TestStack) -> V, text: &str) -> V
-where
-    V::Err: std::fmt::Debug,
-{
-    text.trim()
-        .parse()
-        .unwrap_or_else(|e| panic!("not JSON ({e:?}): {text}"))
+fn json(text: &str) -> serde_json::Value {
+    serde_json::from_str(text.trim()).unwrap_or_else(|e| panic!("not JSON ({e}): {text}"))
 }
 
 /// A Rust payload's layout as `check_layout.py` prints a mirror's.
@@ -279,7 +271,7 @@ fn python_mirrors_match_the_rust_payloads_enums_and_services() {
     let Some(py) = python(&[]) else { return };
     let script = format!("{PY}/check_layout.py");
     let out = run_python(&py, &[&script]);
-    let mirrors = json(TestStack::status, &String::from_utf8_lossy(&out.stdout));
+    let mirrors = json(&String::from_utf8_lossy(&out.stdout));
 
     let rust = rust_layouts();
     let mut rust_names: Vec<String> = rust.iter().map(|l| l.type_name.clone()).collect();
@@ -343,7 +335,7 @@ fn python_mirrors_match_the_rust_payloads_enums_and_services() {
 
     // Enums: the same numbers and names (ControllerState 2 stays free).
     let out = run_python(&py, &[&script, "--enums"]);
-    let enums = json(TestStack::status, &String::from_utf8_lossy(&out.stdout));
+    let enums = json(&String::from_utf8_lossy(&out.stdout));
     for v in 0..8u32 {
         let python = |e: &str| {
             enums[e]
@@ -369,7 +361,7 @@ fn python_mirrors_match_the_rust_payloads_enums_and_services() {
     // exceed when it opens them, and creates them with when it is first), and the payload type
     // details iceoryx2 matches on.
     let out = run_python(&py, &[&script, "--services"]);
-    let services = json(TestStack::status, &String::from_utf8_lossy(&out.stdout));
+    let services = json(&String::from_utf8_lossy(&out.stdout));
     let ns = Namespace::new(&format!(
         "softarm/test-python-layout-{}",
         std::process::id()
@@ -486,7 +478,7 @@ fn python_reads_a_live_stack_and_submits_to_it() {
             "--json",
         ],
     );
-    let bundle = json(TestStack::status, &String::from_utf8_lossy(&out.stdout));
+    let bundle = json(&String::from_utf8_lossy(&out.stdout));
     let (file, b) = bundle.as_object().unwrap().iter().next().unwrap();
     assert!(
         file.starts_with("model-") && file.ends_with(".safetensors"),
@@ -496,7 +488,7 @@ fn python_reads_a_live_stack_and_submits_to_it() {
     let t = &b["tensors"];
     assert_eq!(
         t["promp.actuation.0.mean"]["shape"],
-        json(TestStack::status, &format!("[{}]", 6 * k))
+        serde_json::json!([6 * k])
     );
     assert_eq!(t["promp.task.2.cov"]["shape"][1], 3 * k, "{t}");
     assert_eq!(t["forward.weights"]["shape"][1], 3, "{t}");
@@ -525,7 +517,7 @@ fn python_reads_a_live_stack_and_submits_to_it() {
         ],
     );
     let text = String::from_utf8_lossy(&out.stdout).to_string();
-    let summary = json(TestStack::status, text.lines().last().unwrap_or(""));
+    let summary = json(text.lines().last().unwrap_or(""));
     assert_eq!(summary["kind"], "summary", "{text}");
     assert!(summary["setpoints"].as_u64().unwrap() > 100, "{summary}");
     assert!(
