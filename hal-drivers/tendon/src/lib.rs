@@ -296,35 +296,44 @@ impl Link {
         }
     }
 
-    /// Present current and position of every motor in one sync read (126..136), and, when
-    /// `status` asks or a reply raises its alert bit, torque enable and hardware-error status
-    /// in another (64..71). Returns the number of motors that did not answer.
+    /// Present position (132..136) and present current (126..128) of every motor, in two
+    /// sync reads, and, when `status` asks or a reply raises its alert bit, torque enable and
+    /// hardware-error status in a third (64..71). Returns the number of answers missing.
+    ///
+    /// Not one read of 126..136: Present Velocity sits between, and a velocity of -1
+    /// (`FF FF FF FF`) before a position byte `FD` is a byte run dynamixel2 0.9.1 does not
+    /// unstuff, which cost a reading about every second on a moving arm.
     fn read(&mut self, reading: &mut Reading, status: bool) -> Result<usize, Fault> {
         let ids = self.ids;
         let bus = &mut self.bus;
         let mut alert = status;
         let mut missing = 0;
         let mut first_fault = None;
-        guarded(|| {
-            bus.sync_read_cb(&ids, table::PRESENT_CURRENT, 10, |r| match r {
-                Ok(r) => {
-                    let Some(i) = ids.iter().position(|&id| id == r.motor_id) else {
+        for (address, len) in [(table::PRESENT_POSITION, 4u16), (table::PRESENT_CURRENT, 2)] {
+            guarded(|| {
+                bus.sync_read_cb(&ids, address, len, |r| match r {
+                    Ok(r) => {
+                        let Some(i) = ids.iter().position(|&id| id == r.motor_id) else {
+                            missing += 1;
+                            return;
+                        };
+                        let d = r.data;
+                        if address == table::PRESENT_POSITION {
+                            reading.ticks[i] = i32::from_le_bytes([d[0], d[1], d[2], d[3]]);
+                        } else {
+                            let current = i16::from_le_bytes([d[0], d[1]]);
+                            reading.current_a[i] = f64::from(current) * table::CURRENT_UNIT_A;
+                        }
+                        alert |= r.alert;
+                    }
+                    Err(e) => {
                         missing += 1;
-                        return;
-                    };
-                    let d = r.data;
-                    let current = i16::from_le_bytes([d[0], d[1]]);
-                    reading.current_a[i] = f64::from(current) * table::CURRENT_UNIT_A;
-                    reading.ticks[i] = i32::from_le_bytes([d[6], d[7], d[8], d[9]]);
-                    alert |= r.alert;
-                }
-                Err(e) => {
-                    missing += 1;
-                    first_fault.get_or_insert(Fault::from(e));
-                }
+                        first_fault.get_or_insert(Fault::from(e));
+                    }
+                })?;
+                Ok(())
             })?;
-            Ok(())
-        })?;
+        }
         if alert {
             let mut on = false;
             guarded(|| {

@@ -14,8 +14,9 @@ pub const TORQUE_ENABLE: u16 = 64;
 pub const PROFILE_VELOCITY: u16 = 112;
 /// 4 bytes, ticks.
 pub const GOAL_POSITION: u16 = 116;
-/// 2 bytes signed; followed by Present Velocity (4 bytes) and Present Position (4 bytes,
-/// signed, ticks), so one read of 10 bytes from here gets current and position.
+/// 2 bytes signed, units of [`CURRENT_UNIT_A`].
 pub const PRESENT_CURRENT: u16 = 126;
+/// 4 bytes signed, ticks.
+pub const PRESENT_POSITION: u16 = 132;
 /// Amperes per unit of Present Current.
 pub const CURRENT_UNIT_A: f64 = 0.00269;
