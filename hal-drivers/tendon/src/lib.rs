@@ -417,7 +417,11 @@ pub fn run(config: &Config, namespace: Namespace, stop: &AtomicBool) -> anyhow::
         let action = supervisor.update(now, &poll, fault);
         let state = supervisor.state();
         if state != last_state {
-            tracing::warn!(from = last_state.name(), to = state.name(), "driver state");
+            if state == DriverState::Following {
+                tracing::info!(from = last_state.name(), to = state.name(), "driver state");
+            } else {
+                tracing::warn!(from = last_state.name(), to = state.name(), "driver state");
+            }
             last_state = state;
         }
 
