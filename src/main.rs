@@ -204,7 +204,8 @@ enum Command {
         #[arg(short, long)]
         output: PathBuf,
     },
-    /// Times the controller's hot paths on this machine (min / p50 / p99 / p99.9 / max).
+    /// Times the stack on this machine (min / p50 / p99 / p99.9 / max): tick wake-up latency
+    /// against a bare loop, messages between processes, end to end, hot-path calls, memory.
     Bench(bench::Args),
     /// Installs the stack as systemd services: binary, config, state folder, units, user.
     Install(install::Args),

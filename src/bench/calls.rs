@@ -120,12 +120,8 @@ pub(super) fn run(
     // [kinematics] settings) on D_fwd of the demonstrations above, evaluated at the demonstrated
     // actuations in turn.
     let net = RbfNetwork::fit(&demos.actuations, positions, &NetworkConfig::default())?;
-    let poly = Polynomial::fit(
-        &demos.actuations,
-        positions,
-        &PolynomialConfig::default(),
-    )
-    .map_err(anyhow::Error::msg)?;
+    let poly = Polynomial::fit(&demos.actuations, positions, &PolynomialConfig::default())
+        .map_err(anyhow::Error::msg)?;
     let evaluations = ticks.min(100_000);
     let models: [(&str, String, &dyn ForwardModel); 2] = [
         (

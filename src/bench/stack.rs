@@ -13,7 +13,7 @@
 //! wake with its deadline, and only the wakes whose deadlines fall in that window are counted.
 
 use std::collections::VecDeque;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::thread::JoinHandle;
@@ -26,7 +26,7 @@ use softarm_ipc::clock::Ticker;
 use softarm_ipc::{ControllerState, ControllerStatus, Namespace, Node, now_ns};
 use softarm_model::config::{self, Config, DEFAULT};
 
-use super::{Out, Stats, duration, header, json_with, row};
+use super::{Out, RemoveOnDrop, Stats, duration, header, json_with, row};
 use crate::up::Supervisor;
 
 pub(super) struct Settings<'a> {
@@ -51,14 +51,15 @@ pub(super) fn run(s: &Settings, out: &Out, stop: &AtomicBool) -> anyhow::Result<
     let pid = std::process::id();
     let namespace = format!("softarm/bench-{pid}");
     let run_dir = std::env::temp_dir().join(format!("softarm-bench-{pid}"));
-    std::fs::create_dir_all(&run_dir)
-        .with_context(|| format!("creating {}", run_dir.display()))?;
+    std::fs::create_dir_all(&run_dir).with_context(|| format!("creating {}", run_dir.display()))?;
     let _cleanup = RemoveOnDrop(run_dir.clone());
 
     // The given (or embedded) config in the bench's own namespace, with its own state and no
     // model.
     let text = match s.config {
-        Some(p) => std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?,
+        Some(p) => {
+            std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?
+        }
         None => DEFAULT.to_string(),
     };
     let mut overrides = vec![
@@ -102,7 +103,8 @@ pub(super) fn run(s: &Settings, out: &Out, stop: &AtomicBool) -> anyhow::Result<
     out.progress(&format!(
         "starting sim, controller and learner in namespace {namespace}"
     ));
-    let level = std::env::var("RUST_LOG").unwrap_or_else(|_| "warn".into());
+    // The children's own warnings (no model yet) are expected here.
+    let level = std::env::var("RUST_LOG").unwrap_or_else(|_| "error".into());
     let mut sup = Supervisor::new(
         vec!["--config".into(), config_path.display().to_string()],
         vec![("RUST_LOG".into(), level)],
@@ -118,8 +120,8 @@ pub(super) fn run(s: &Settings, out: &Out, stop: &AtomicBool) -> anyhow::Result<
     };
     let controller_pid = pid_of(&sup, "controller").context("the controller did not start")?;
 
-    // The window: from the controller's first deadline to the deadline of the first status at
-    // least `seconds` after it.
+    // The window: from the controller's first deadline to the deadline of the first status
+    // whose tick ends `seconds` of periods.
     let mut first_deadline = u64::MAX;
     let mut last: Option<ControllerStatus> = None;
     let up_by = Instant::now() + Duration::from_secs(30);
@@ -158,7 +160,9 @@ pub(super) fn run(s: &Settings, out: &Out, stop: &AtomicBool) -> anyhow::Result<
                         s.seconds
                     ));
                 }
-                if l.stamp_ns >= first_deadline.saturating_add(window_ns) {
+                // Its tick's deadline is the last of the window: periods since the first.
+                let covered = (l.ticks + l.overruns).saturating_mul(period_ns);
+                if covered >= window_ns {
                     break;
                 }
                 if Instant::now() > up_by + Duration::from_secs_f64(s.seconds) {
@@ -170,8 +174,7 @@ pub(super) fn run(s: &Settings, out: &Out, stop: &AtomicBool) -> anyhow::Result<
         std::thread::sleep(Duration::from_millis(5));
     }
     let last = last.expect("the loop ends on a status");
-    let last_deadline =
-        first_deadline + (last.ticks.saturating_sub(1) + last.overruns) * period_ns;
+    let last_deadline = first_deadline + (last.ticks.saturating_sub(1) + last.overruns) * period_ns;
     let bare = bare.finish()?;
     let rss = rss(&sup);
 
@@ -186,7 +189,8 @@ pub(super) fn run(s: &Settings, out: &Out, stop: &AtomicBool) -> anyhow::Result<
         .zip(bare_stats.values())
         .map(|(c, b)| *c as f64 / b.max(1) as f64)
         .collect();
-    let window_s = (last_deadline - first_deadline) as f64 / 1e9;
+    // Periods from the first deadline to the last, both included.
+    let window_s = (last_deadline + period_ns - first_deadline) as f64 / 1e9;
     let state = ControllerState::from_u32(last.state).map_or("?", |s| s.name());
     let model = if last.model_loaded == 1 {
         "model loaded"
@@ -245,6 +249,11 @@ pub(super) fn run(s: &Settings, out: &Out, stop: &AtomicBool) -> anyhow::Result<
         },
     });
 
+    out.text(
+        "(the controller's histogram counts every tick since its first, so the window is its \
+         whole run,\n first deadline to the last status's; the bare loop, started before the \
+         stack, counts its wakes in that window only)",
+    );
     out.text(&format!(
         "\nResident memory (VmRSS) at the end of the window: {}",
         rss.iter()
@@ -252,11 +261,7 @@ pub(super) fn run(s: &Settings, out: &Out, stop: &AtomicBool) -> anyhow::Result<
             .collect::<Vec<_>>()
             .join(", ")
     ));
-    let rss_kib = Value::Object(
-        rss.iter()
-            .map(|(r, kib)| (r.clone(), json!(kib)))
-            .collect(),
-    );
+    let rss_kib = Value::Object(rss.iter().map(|(r, kib)| (r.clone(), json!(kib))).collect());
 
     out.progress(&format!(
         "timing {} setpoints end to end through the controller (busy-polling)",
@@ -272,7 +277,7 @@ pub(super) fn run(s: &Settings, out: &Out, stop: &AtomicBool) -> anyhow::Result<
     out.text(&header(&format!(
         "Through the running controller, to a busy-polling subscriber in this process ({} \
          setpoints; tracker at {} Hz, io thread {} after each deadline)",
-        from_tick.n,
+        s.setpoints,
         config.sim.rate_hz,
         duration(250_000u64.min((5e8 / rate) as u64)),
     )));
@@ -313,8 +318,8 @@ impl Bare {
     /// The wakes whose deadlines fall in [from, to], recorded as the controller records its own
     /// (1 µs to 60 s, 2 significant digits, min and max exact), and their skipped periods.
     fn window(&self, from: u64, to: u64) -> anyhow::Result<(Stats, u64)> {
-        let mut h = Histogram::<u64>::new_with_bounds(1_000, 60_000_000_000, 2)
-            .expect("valid bounds");
+        let mut h =
+            Histogram::<u64>::new_with_bounds(1_000, 60_000_000_000, 2).expect("valid bounds");
         let (mut min, mut max, mut overruns) = (u64::MAX, 0, 0);
         for w in self
             .wakes
@@ -522,13 +527,5 @@ fn end_to_end(
     match (Stats::of(&from_tracker), Stats::of(&from_tick)) {
         (Some(a), Some(b)) => Ok((a, b)),
         _ => bail!("no setpoint with its tracker sample arrived from the controller"),
-    }
-}
-
-struct RemoveOnDrop(PathBuf);
-
-impl Drop for RemoveOnDrop {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
     }
 }
