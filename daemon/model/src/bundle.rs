@@ -176,14 +176,21 @@ pub fn write<M: Serialize>(
     );
     let toml_path = dir.join(format!("{stem}.toml"));
     write_atomic(&toml_path, text.as_bytes())?;
-    // Older tensors files of this stem are no longer referenced.
+    // Older tensors files of this stem are no longer referenced, and the temporary files of a
+    // writer killed mid-write (named with its pid) will never be finished: one writer per
+    // folder, so whatever is not this process's goes.
+    let ours = format!(".{}.tmp", std::process::id());
     if let Ok(entries) = fs::read_dir(dir) {
         for e in entries.flatten() {
             let name = e.file_name().to_string_lossy().to_string();
-            if name.starts_with(&format!("{stem}-"))
+            let old_tensors = name.starts_with(&format!("{stem}-"))
                 && name.ends_with(".safetensors")
-                && name != file
-            {
+                && name != file;
+            let orphan = (name.starts_with(&format!(".{stem}-"))
+                || name.starts_with(&format!(".{stem}.toml.")))
+                && name.ends_with(".tmp")
+                && !name.ends_with(&ours);
+            if old_tensors || orphan {
                 let _ = fs::remove_file(e.path());
             }
         }
