@@ -22,16 +22,29 @@ pub fn run(
     latch: &EstopLatch,
     stop: &AtomicBool,
 ) -> anyhow::Result<()> {
-    let mut plant = Plant::new(*arm, config.realism, config.initial_actuation)
-        .map_err(anyhow::Error::msg)
-        .context("the simulated plant")?;
     let ipc = Node::open(namespace, "sim")?;
     let mut commands = Commands::open(&ipc, latch)?;
+    // A real arm stays where it was while its driver restarts: a sim restarted beside a
+    // running controller starts where the controller holds it, not at `initial_actuation`
+    // (the controller would otherwise resume from a teleported arm).
+    let mut start = config.initial_actuation;
+    let waiting = std::time::Instant::now();
+    while waiting.elapsed() < std::time::Duration::from_millis(100) {
+        if let Some(a) = commands.poll(now_ns(), 1_000_000_000).setpoint {
+            tracing::info!(actuation = ?a, "a controller is running: starting where it holds the arm");
+            start = a;
+            break;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(2));
+    }
+    let mut plant = Plant::new(*arm, config.realism, start)
+        .map_err(anyhow::Error::msg)
+        .context("the simulated plant")?;
     let tracker = ipc.publisher(&ipc.tracker()?)?;
     let motors = ipc.publisher(&ipc.motor_state()?)?;
 
     let dt = 1.0 / config.rate_hz;
-    let mut command = config.initial_actuation;
+    let mut command = start;
     let mut seq = 0u64;
     let mut ticker = Ticker::new(config.rate_hz);
     tracing::info!(rate_hz = config.rate_hz, "sim running");
