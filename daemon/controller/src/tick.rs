@@ -205,6 +205,9 @@ struct Tick<'a> {
     /// The next set, waiting for the running one's execution to end.
     queued: Option<Box<ReadySet>>,
     was_safe: bool,
+    /// The e-stop was engaged since the arm was last safe: the drivers held their own
+    /// positions (or dropped the torque), not the setpoint.
+    stopped_since_safe: bool,
     /// Periods the clock skipped before this tick (overruns): a playing execution follows.
     skipped: u64,
     count: Counts,
@@ -225,6 +228,7 @@ impl<'a> Tick<'a> {
             mode: Mode::Idle,
             queued: None,
             was_safe: false,
+            stopped_since_safe: false,
             skipped: 0,
             count: Counts::default(),
         }
@@ -239,6 +243,7 @@ impl<'a> Tick<'a> {
         self.take_plan();
         if self.inputs.engaged {
             self.abandon();
+            self.stopped_since_safe = true;
         }
         self.start_limiter();
         let health = self.health(now);
@@ -356,12 +361,18 @@ impl<'a> Tick<'a> {
         }
     }
 
-    /// Safe again after HOLD or STOPPED: start from the measured state, never jumping. After
-    /// HOLD the execution resumes where it paused; after an e-stop there is none ([`abandon`]).
+    /// Safe again. After STOPPED the limiter starts from the measured state: the drivers held
+    /// their own positions or dropped the torque, so the last setpoint may be anywhere. After
+    /// HOLD it goes on from the held setpoint, which the drivers kept applying: restarting from
+    /// the measured state would step the setpoint by the arm's tracking error at that moment,
+    /// faster than the slew limit. After HOLD the execution resumes where it paused; after an
+    /// e-stop there is none ([`abandon`]).
     ///
     /// [`abandon`]: Self::abandon
     fn resume(&mut self) {
-        if let (Some(lim), Some((m, _))) = (self.limiter.as_mut(), self.inputs.measured) {
+        if std::mem::take(&mut self.stopped_since_safe)
+            && let (Some(lim), Some((m, _))) = (self.limiter.as_mut(), self.inputs.measured)
+        {
             lim.reset(m);
         }
     }
