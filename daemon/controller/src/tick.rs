@@ -110,8 +110,9 @@ struct Inputs {
     /// The measured actuation and its stamp.
     measured: Option<(Actuation, u64)>,
     engaged: bool,
-    /// The driver reports a motor with a hardware error: the arm may not move until it is
-    /// fixed (the driver holds the others).
+    /// The driver reports a motor with a hardware error, or its torque off (it has not engaged
+    /// the setpoint, e.g. one too far from where a sagged motor stands): the arm may not move
+    /// until it is fixed; the setpoint stays where it is, so a driver that engages takes it.
     driver_fault: bool,
     /// Last, so the ports go before it.
     _node: Node,
@@ -140,7 +141,8 @@ impl Inputs {
         }
         while let Ok(Some(s)) = self.motors.receive() {
             self.measured = Some((s.actuation, s.stamp_ns));
-            self.driver_fault = s.state == DriverState::Fault as u32;
+            self.driver_fault =
+                s.state == DriverState::Fault as u32 || s.state == DriverState::Off as u32;
         }
         while let Ok(Some(s)) = self.estop.receive() {
             self.engaged = s.engaged != 0;
