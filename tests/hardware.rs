@@ -97,7 +97,37 @@ fn follow(setpoints: &Pub<Setpoint>, a: f64, d: Duration) {
     }
 }
 
-fn stop(mut child: Child) -> std::process::ExitStatus {
+/// A process the test started: killed if the test ends without stopping it, so a failed
+/// assertion leaves nothing running.
+struct Guard(Child);
+
+impl std::ops::Deref for Guard {
+    type Target = Child;
+    fn deref(&self) -> &Child {
+        &self.0
+    }
+}
+
+impl std::ops::DerefMut for Guard {
+    fn deref_mut(&mut self) -> &mut Child {
+        &mut self.0
+    }
+}
+
+impl Drop for Guard {
+    fn drop(&mut self) {
+        if let Ok(None) = self.0.try_wait() {
+            let _ = self.0.kill();
+            let _ = self.0.wait();
+        }
+    }
+}
+
+fn spawn(s: &TestStack, role: &str) -> Guard {
+    Guard(s.spawn(&[role]))
+}
+
+fn stop(mut child: Guard) -> std::process::ExitStatus {
     kill(Pid::from_raw(child.id() as i32), Signal::SIGTERM).unwrap();
     let start = Instant::now();
     loop {
@@ -134,7 +164,7 @@ fn tendon_follows_then_holds_then_turns_the_torque_off_and_obeys_the_estop() {
     let n = node(&s);
     let setpoints = n.publisher(&n.setpoint().unwrap()).unwrap();
     let motors = n.subscriber(&n.motor_state().unwrap()).unwrap();
-    let driver = s.spawn(&["tendon"]);
+    let driver = spawn(&s, "tendon");
 
     // Torque off until the first setpoint.
     let m: MotorState = eventually("motor state", || newest(&motors));
@@ -237,7 +267,7 @@ fn an_estop_reaches_the_motors_while_their_replies_are_lost() {
     let n = node(&s);
     let setpoints = n.publisher(&n.setpoint().unwrap()).unwrap();
     let motors = n.subscriber(&n.motor_state().unwrap()).unwrap();
-    let driver = s.spawn(&["tendon"]);
+    let driver = spawn(&s, "tendon");
     eventually("torque on", || {
         send(&setpoints, 0.5);
         (torque(&rig, &t.ids) == [true; 6]).then_some(())
@@ -272,7 +302,7 @@ fn an_estop_whose_sample_was_missed_still_reaches_the_motors_through_the_latch()
     let t = c.tendon.clone().unwrap();
     let n = node(&s);
     let setpoints = n.publisher(&n.setpoint().unwrap()).unwrap();
-    let driver = s.spawn(&["tendon"]);
+    let driver = spawn(&s, "tendon");
     eventually("torque on", || {
         send(&setpoints, 0.5);
         (torque(&rig, &t.ids) == [true; 6]).then_some(())
@@ -300,7 +330,7 @@ fn tendon_survives_a_noisy_and_a_silent_bus_and_stops_commanding_a_faulted_motor
     let n = node(&s);
     let setpoints = n.publisher(&n.setpoint().unwrap()).unwrap();
     let motors = n.subscriber(&n.motor_state().unwrap()).unwrap();
-    let driver = s.spawn(&["tendon"]);
+    let driver = spawn(&s, "tendon");
     let pid = driver.id() as i32;
     eventually("following", || {
         send(&setpoints, 0.5);
@@ -402,7 +432,7 @@ fn tracker_publishes_the_arm_in_the_base_frame_resyncs_and_survives_silence() {
     let (s, c, rig) = rig("hw-tracker");
     let n = node(&s);
     let samples = n.subscriber(&n.tracker().unwrap()).unwrap();
-    let driver = s.spawn(&["tracker"]);
+    let driver = spawn(&s, "tracker");
     let pid = driver.id() as i32;
 
     let want = c.arm.position(&[0.5; 6]);
@@ -477,8 +507,8 @@ fn both_drivers_survive_an_unplugged_adapter_and_pick_up_when_it_is_back() {
     let setpoints = n.publisher(&n.setpoint().unwrap()).unwrap();
     let motors = n.subscriber(&n.motor_state().unwrap()).unwrap();
     let samples = n.subscriber(&n.tracker().unwrap()).unwrap();
-    let tendon = s.spawn(&["tendon"]);
-    let tracker = s.spawn(&["tracker"]);
+    let tendon = spawn(&s, "tendon");
+    let tracker = spawn(&s, "tracker");
     eventually("following", || {
         send(&setpoints, 0.5);
         newest(&motors).filter(|m| m.driver_state() == Some(DriverState::Following))
@@ -538,7 +568,7 @@ fn tracker_polls_in_point_mode_with_angles() {
     std::fs::write(&s.config, text).unwrap();
     let n = node(&s);
     let samples = n.subscriber(&n.tracker().unwrap()).unwrap();
-    let driver = s.spawn(&["tracker"]);
+    let driver = spawn(&s, "tracker");
     let want = c.arm.position(&[0.5; 6]);
     let p = eventually("20 polled samples", || {
         newest(&samples).filter(|p| p.seq >= 20)
@@ -581,16 +611,17 @@ fn the_hardware_stack_executes_a_set_through_softarm_emulate() {
         hardware_config_text(dir, ns, Path::new("/dev/null"), Path::new("/dev/null"))
     });
     let emulated = s.dir.join("emulated.toml");
-    let mut emulate = s
-        .command()
-        .args(["emulate", "--config"])
-        .arg(&s.config)
-        .arg("--write-config")
-        .arg(&emulated)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let mut emulate = Guard(
+        s.command()
+            .args(["emulate", "--config"])
+            .arg(&s.config)
+            .arg("--write-config")
+            .arg(&emulated)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
     eventually("the emulated config", || emulated.exists().then_some(()));
     let c = Config::load(&emulated).unwrap();
     assert!(c.tendon.unwrap().port.starts_with("/dev/pts"));
