@@ -8,6 +8,7 @@ pub mod stats;
 pub mod status;
 pub mod submit;
 pub mod train;
+pub mod watch;
 
 use std::time::{Duration, Instant};
 
