@@ -69,6 +69,8 @@ fn runtime_config(trained: LearnerConfig, configured: LearnerConfig) -> LearnerC
         seed: configured.seed,
         algorithm: configured.algorithm,
         correction: configured.correction,
+        actor_max_centres: configured.actor_max_centres,
+        critic_max_centres: configured.critic_max_centres,
         ..trained
     };
     if runtime != configured {
@@ -254,10 +256,17 @@ pub fn run(config: &Config, stop: &AtomicBool) -> anyhow::Result<()> {
                             for (point, a) in first.into_iter().enumerate() {
                                 send(r.set_id, point as u32, a);
                             }
+                            let (actor, critic) = l.learner.cacla().stored_centres();
+                            let (actor_evicted, critic_evicted) =
+                                l.learner.cacla().evicted_centres();
                             tracing::info!(
                                 set_id,
                                 points = r.points().len(),
-                                "first estimates sent"
+                                actor,
+                                critic,
+                                actor_evicted,
+                                critic_evicted,
+                                "first estimates sent (lattice weights stored and evicted)"
                             );
                         }
                         Err(e) => tracing::warn!(set_id = r.set_id, "request ignored: {e}"),

@@ -55,6 +55,13 @@ pub struct LearnerConfig {
     pub workspace_max_m: Position,
     /// The actuation an untrained actor proposes.
     pub initial_actuation: f64,
+    /// Most weights the actor's and the critic's lattices keep; past that the least recently
+    /// trained are dropped. Settings of the running learner (never written into a bundle):
+    /// they bound its memory over many sets (the default model stores ~4k and ~30k).
+    #[serde(skip_serializing)]
+    pub actor_max_centres: usize,
+    #[serde(skip_serializing)]
+    pub critic_max_centres: usize,
     pub seed: u64,
     /// Which online learner runs ([`crate::online`]): `softarm` or the paper's. Like
     /// `correction`, a setting of the running learner, read from the config and never written
@@ -85,6 +92,9 @@ impl Default for LearnerConfig {
             workspace_min_m: [-0.45, -0.45, -0.6],
             workspace_max_m: [0.45, 0.45, 0.05],
             initial_actuation: 0.5,
+            // ~17 and ~13 MiB at most; the actor's covers the default workspace's whole lattice.
+            actor_max_centres: 200_000,
+            critic_max_centres: 500_000,
             seed: 1,
             algorithm: Algorithm::default(),
             correction: CorrectionConfig::default(),
@@ -171,9 +181,29 @@ impl LearnerConfig {
             }
         }
         self.correction.validate()?;
-        self.lattices()
-            .map(|_| ())
-            .map_err(|e| format!("learner: {e}"))
+        let (actor, critic) = self.lattices().map_err(|e| format!("learner: {e}"))?;
+        for (k, v, least) in [
+            (
+                "actor_max_centres",
+                self.actor_max_centres,
+                LinearRbf::<ACTUATORS>::min_capacity(&actor),
+            ),
+            (
+                "critic_max_centres",
+                self.critic_max_centres,
+                LinearRbf::<1>::min_capacity(&critic),
+            ),
+        ] {
+            if !(least..=100_000_000).contains(&v) {
+                return bad(
+                    k,
+                    format!(
+                        "must be {least} (eight updates' worth of centres) to 100000000, got {v}"
+                    ),
+                );
+            }
+        }
+        Ok(())
     }
 
     fn lattices(&self) -> Result<(Lattice, Lattice), RbfError> {
@@ -305,8 +335,12 @@ impl CaclaMtl {
         config.validate()?;
         let (actor, critic) = config.lattices().map_err(|e| e.to_string())?;
         Ok(Self {
-            actor: Actor::new(LinearRbf::new(actor, [config.initial_actuation; ACTUATORS])),
-            critic: Critic::new(LinearRbf::new(critic, [0.0])),
+            actor: Actor::new(LinearRbf::new(
+                actor,
+                [config.initial_actuation; ACTUATORS],
+                config.actor_max_centres,
+            )),
+            critic: Critic::new(LinearRbf::new(critic, [0.0], config.critic_max_centres)),
             memory: Vec::new(),
             rng: StdRng::seed_from_u64(config.seed),
             config,
@@ -329,6 +363,11 @@ impl CaclaMtl {
     /// Centres with stored weights: (actor, critic).
     pub fn stored_centres(&self) -> (usize, usize) {
         (self.actor.weights.stored(), self.critic.weights.stored())
+    }
+
+    /// Weights dropped by the capacities since this learner started: (actor, critic).
+    pub fn evicted_centres(&self) -> (u64, u64) {
+        (self.actor.weights.evicted(), self.critic.weights.evicted())
     }
 
     /// Correction (printed paper): σ(g) = h / (1 + exp(−c (g − b))). The printed sign of b
@@ -444,13 +483,19 @@ impl CaclaMtl {
             LinearRbf::from_entries(
                 actor,
                 [state.config.initial_actuation; ACTUATORS],
+                state.config.actor_max_centres,
                 &state.actor,
             )
             .map_err(|e| format!("actor: {e}"))?,
         );
         l.critic = Critic::new(
-            LinearRbf::from_entries(critic, [0.0], &state.critic)
-                .map_err(|e| format!("critic: {e}"))?,
+            LinearRbf::from_entries(
+                critic,
+                [0.0],
+                state.config.critic_max_centres,
+                &state.critic,
+            )
+            .map_err(|e| format!("critic: {e}"))?,
         );
         l.memory = state.memory.clone();
         Ok(l)
@@ -725,10 +770,27 @@ mod tests {
             },
             "learner.critic_spacing_m: 0.03 m over the workspace makes",
         );
+        // A wide neighbourhood needs room for its updates.
+        check(
+            &|c| c.critic_max_centres = 511,
+            "learner.critic_max_centres: must be 512 (eight updates' worth of centres)",
+        );
+        check(
+            &|c| {
+                c.critic_span = 5;
+                c.critic_max_centres = 100_000;
+            },
+            "learner.critic_max_centres: must be 125000",
+        );
+        check(
+            &|c| c.actor_max_centres = usize::MAX,
+            "learner.actor_max_centres: must be 216 (eight updates' worth of centres) to 100000000",
+        );
         for span in [2, crate::rbf::MAX_SPAN] {
             let c = LearnerConfig {
                 critic_span: span,
                 actor_span: span,
+                critic_max_centres: 100_000_000,
                 ..Default::default()
             };
             c.validate().unwrap();

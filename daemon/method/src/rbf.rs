@@ -102,6 +102,11 @@ impl Lattice {
         self.lower.len()
     }
 
+    /// Centres evaluated per axis.
+    pub fn span(&self) -> usize {
+        self.span
+    }
+
     /// Total number of lattice centres (mostly never stored).
     pub fn centres(&self) -> u64 {
         self.counts.iter().product()
@@ -227,24 +232,61 @@ impl Hasher for KeyHasher {
     }
 }
 
-type SparseMap<const OUT: usize> = HashMap<u64, [f64; OUT], BuildHasherDefault<KeyHasher>>;
+/// A stored weight and when it was last trained (the approximator's update count then).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Entry<const OUT: usize> {
+    w: [f64; OUT],
+    touched: u64,
+}
+
+type SparseMap<const OUT: usize> = HashMap<u64, Entry<OUT>, BuildHasherDefault<KeyHasher>>;
 
 /// A linear function approximator on a lattice: f(x) = Σ φ_i(x) w_i, weights stored only where
-/// trained.
-#[derive(Debug, Clone, PartialEq)]
+/// trained, at most `capacity` of them: past that, the least recently trained go (an arm that
+/// keeps meeting new sets would otherwise grow them without bound).
+#[derive(Debug, Clone)]
 pub struct LinearRbf<const OUT: usize> {
     lattice: Lattice,
     initial: [f64; OUT],
     weights: SparseMap<OUT>,
+    capacity: usize,
+    /// Updates so far: the recency stamp of the centres each one touches.
+    clock: u64,
+    evicted: u64,
+}
+
+/// The same function: the same weights (recency is bookkeeping).
+impl<const OUT: usize> PartialEq for LinearRbf<OUT> {
+    fn eq(&self, other: &Self) -> bool {
+        self.lattice == other.lattice
+            && self.initial == other.initial
+            && self.weights.len() == other.weights.len()
+            && self
+                .weights
+                .iter()
+                .all(|(k, e)| other.weights.get(k).is_some_and(|o| o.w == e.w))
+    }
 }
 
 impl<const OUT: usize> LinearRbf<OUT> {
-    pub fn new(lattice: Lattice, initial: [f64; OUT]) -> Self {
+    /// An untrained approximator keeping at most `capacity` weights (at least
+    /// [`LinearRbf::min_capacity`] of `lattice`).
+    pub fn new(lattice: Lattice, initial: [f64; OUT], capacity: usize) -> Self {
+        let capacity = capacity.max(Self::min_capacity(&lattice));
         Self {
             lattice,
             initial,
             weights: SparseMap::default(),
+            capacity,
+            clock: 0,
+            evicted: 0,
         }
+    }
+
+    /// The smallest useful capacity: eight updates' worth of centres, so an eviction never
+    /// reaches the centres the update that caused it has just trained.
+    pub fn min_capacity(lattice: &Lattice) -> usize {
+        8 * lattice.span().pow(lattice.dim() as u32)
     }
 
     pub fn lattice(&self) -> &Lattice {
@@ -256,16 +298,21 @@ impl<const OUT: usize> LinearRbf<OUT> {
         self.weights.len()
     }
 
+    /// Weights dropped by the capacity so far.
+    pub fn evicted(&self) -> u64 {
+        self.evicted
+    }
+
     /// f(x), normalised over the centres that have been trained: an untrained centre next to
     /// trained ones does not drag the estimate toward `initial`. Where none is trained, `initial`.
     pub fn value(&self, features: &Features) -> [f64; OUT] {
         let mut out = [0.0; OUT];
         let mut mass = 0.0;
         for (key, phi) in features.iter() {
-            if let Some(w) = self.weights.get(&key) {
+            if let Some(e) = self.weights.get(&key) {
                 mass += phi;
                 for o in 0..OUT {
-                    out[o] += phi * w[o];
+                    out[o] += phi * e.w[o];
                 }
             }
         }
@@ -280,12 +327,38 @@ impl<const OUT: usize> LinearRbf<OUT> {
     /// function stays continuous as the trained region grows.
     pub fn update(&mut self, features: &Features, rate: f64, step: &[f64; OUT]) {
         let here = self.value(features);
+        self.clock += 1;
         for (key, phi) in features.iter() {
-            let w = self.weights.entry(key).or_insert(here);
+            let e = self.weights.entry(key).or_insert(Entry {
+                w: here,
+                touched: 0,
+            });
+            e.touched = self.clock;
             for o in 0..OUT {
-                w[o] += rate * phi * step[o];
+                e.w[o] += rate * phi * step[o];
             }
         }
+        if self.weights.len() > self.capacity {
+            self.evict();
+        }
+    }
+
+    /// Drops the least recently trained weights (ties by key) down to 7/8 of the capacity, so
+    /// evictions (a pass over all weights) come once per many updates. The order is total, so a
+    /// restored approximator evicts exactly what the saved one would have.
+    fn evict(&mut self) {
+        let keep = self.capacity - self.capacity / 8;
+        let drop = self.weights.len().saturating_sub(keep);
+        if drop == 0 {
+            return;
+        }
+        let mut order: Vec<(u64, u64)> =
+            self.weights.iter().map(|(k, e)| (e.touched, *k)).collect();
+        let (_, &mut threshold, _) = order.select_nth_unstable(drop - 1);
+        // min_capacity keeps the update under way out of reach.
+        debug_assert!(threshold.0 < self.clock || self.clock == 0);
+        self.weights.retain(|k, e| (e.touched, *k) > threshold);
+        self.evicted += drop as u64;
     }
 
     /// Moves f(x) the given fraction of the way toward `target` (normalised LMS: the gradient
@@ -300,20 +373,24 @@ impl<const OUT: usize> LinearRbf<OUT> {
         self.update(features, fraction / energy, &step);
     }
 
-    /// Weights as a sorted list, for saving.
+    /// Weights for saving, the least recently trained first (ties by key), so that
+    /// [`LinearRbf::from_entries`] restores their recency too.
     pub fn to_entries(&self) -> Vec<(u64, [f64; OUT])> {
-        let mut v: Vec<_> = self.weights.iter().map(|(k, w)| (*k, *w)).collect();
-        v.sort_unstable_by_key(|e| e.0);
-        v
+        let mut v: Vec<_> = self.weights.iter().collect();
+        v.sort_unstable_by_key(|(k, e)| (e.touched, **k));
+        v.into_iter().map(|(k, e)| (*k, e.w)).collect()
     }
 
+    /// Saved weights, the least recently trained first; more than `capacity` keeps the most
+    /// recent ones.
     pub fn from_entries(
         lattice: Lattice,
         initial: [f64; OUT],
+        capacity: usize,
         entries: &[(u64, [f64; OUT])],
     ) -> Result<Self, RbfError> {
         let total = lattice.centres();
-        let mut weights = SparseMap::default();
+        let mut rbf = Self::new(lattice, initial, capacity);
         for (k, w) in entries {
             if *k >= total {
                 return Err(RbfError::Lattice(format!(
@@ -325,13 +402,19 @@ impl<const OUT: usize> LinearRbf<OUT> {
                     "weight of centre {k} is not finite"
                 )));
             }
-            weights.insert(*k, *w);
+            rbf.clock += 1;
+            let entry = Entry {
+                w: *w,
+                touched: rbf.clock,
+            };
+            if rbf.weights.insert(*k, entry).is_some() {
+                return Err(RbfError::Lattice(format!("centre {k} stored twice")));
+            }
         }
-        Ok(Self {
-            lattice,
-            initial,
-            weights,
-        })
+        if rbf.weights.len() > rbf.capacity {
+            rbf.evict();
+        }
+        Ok(rbf)
     }
 }
 
@@ -549,7 +632,7 @@ mod tests {
         lat.features(&[0.51, 0.2, 0.33, 0.9, 0.11, 0.5], &mut f);
         assert_eq!(f.len(), 729);
         assert!((f.iter().map(|(_, v)| v).sum::<f64>() - 1.0).abs() < 1e-12);
-        let mut net = LinearRbf::<1>::new(lat.clone(), [0.0]);
+        let mut net = LinearRbf::<1>::new(lat.clone(), [0.0], usize::MAX);
         net.update(&f, 1.0, &[1.0]);
         assert_eq!(net.stored(), 729);
         // At a corner the neighbourhood is cut by the box.
@@ -572,9 +655,67 @@ mod tests {
     }
 
     #[test]
+    fn past_its_capacity_a_linear_rbf_forgets_the_least_recently_trained_first() {
+        // 2-D, span 2: 4 centres per update, so the smallest capacity is 32.
+        let lat = Lattice::new(&[0.0, 0.0], &[1.0, 1.0], &[0.01, 0.01], 0.5, 2).unwrap();
+        assert_eq!(LinearRbf::<1>::min_capacity(&lat), 32);
+        let mut net = LinearRbf::<1>::new(lat.clone(), [0.0], 40);
+        let mut f = Features::default();
+        let at = |i: usize| {
+            [
+                0.005 + 0.02 * (i % 40) as f64,
+                0.005 + 0.1 * (i / 40) as f64,
+            ]
+        };
+        // A home point trained all along, and a walk over 400 new places.
+        let home = [0.505, 0.905];
+        let mut most = 0;
+        for i in 0..400 {
+            lat.features(&home, &mut f);
+            net.move_toward(&f, 0.5, &[1.0]);
+            lat.features(&at(i), &mut f);
+            net.move_toward(&f, 0.5, &[-1.0]);
+            most = most.max(net.stored());
+        }
+        assert!(most <= 40, "{most} stored, capacity 40");
+        assert!(net.evicted() >= 400 * 4 - 40, "{}", net.evicted());
+        // What it trains keeps coming back stays; the early walk is forgotten.
+        lat.features(&home, &mut f);
+        assert!(net.value(&f)[0] > 0.9, "{}", net.value(&f)[0]);
+        lat.features(&at(0), &mut f);
+        assert_eq!(
+            net.value(&f),
+            [0.0],
+            "the first place walked is still stored"
+        );
+        lat.features(&at(399), &mut f);
+        assert!(net.value(&f)[0] < -0.4, "{}", net.value(&f)[0]);
+
+        // Saved and restored, recency survives: the next evictions drop the same ones.
+        let entries = net.to_entries();
+        let mut back = LinearRbf::from_entries(lat.clone(), [0.0], 40, &entries).unwrap();
+        assert_eq!(back, net);
+        lat.features(&[0.995, 0.005], &mut f);
+        for n in [&mut net, &mut back] {
+            for _ in 0..3 {
+                n.move_toward(&f, 0.5, &[0.3]);
+            }
+        }
+        assert_eq!(back, net);
+        // A smaller capacity on restore keeps the most recent; a centre twice is refused.
+        let small = LinearRbf::from_entries(lat.clone(), [0.0], 32, &entries).unwrap();
+        assert!(small.stored() <= 32);
+        lat.features(&home, &mut f);
+        assert!(small.value(&f)[0] > 0.9);
+        let twice = [entries[0], entries[0]];
+        let e = LinearRbf::from_entries(lat, [0.0], 40, &twice).unwrap_err();
+        assert!(e.to_string().contains("twice"), "{e}");
+    }
+
+    #[test]
     fn a_linear_rbf_learns_a_smooth_function() {
         let lat = Lattice::new(&[0.0, 0.0], &[1.0, 1.0], &[0.05, 0.05], 0.5, 5).unwrap();
-        let mut net = LinearRbf::<1>::new(lat.clone(), [0.0]);
+        let mut net = LinearRbf::<1>::new(lat.clone(), [0.0], usize::MAX);
         let mut f = Features::default();
         let target = |x: f64, y: f64| (3.0 * x).sin() + y * y;
         let mut rng = StdRng::seed_from_u64(5);
@@ -598,9 +739,10 @@ mod tests {
         let before = moved.value(&f)[0];
         moved.move_toward(&f, 0.25, &[before + 1.0]);
         assert!((moved.value(&f)[0] - (before + 0.25)).abs() < 1e-12);
-        let back = LinearRbf::from_entries(lat.clone(), [0.0], &net.to_entries()).unwrap();
+        let back =
+            LinearRbf::from_entries(lat.clone(), [0.0], usize::MAX, &net.to_entries()).unwrap();
         assert_eq!(back, net);
-        assert!(LinearRbf::from_entries(lat, [0.0], &[(u64::MAX, [0.0])]).is_err());
+        assert!(LinearRbf::from_entries(lat, [0.0], usize::MAX, &[(u64::MAX, [0.0])]).is_err());
     }
 
     #[test]
