@@ -3,7 +3,7 @@
 //! the error at every conditioning point per execution, optionally runs a second set once on
 //! what was learnt (`--then`), and stops everything.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
@@ -13,7 +13,7 @@ use softarm_ipc::{ExecutionStats, Namespace};
 use softarm_model::bundle::Model;
 use softarm_model::config::{self, Config, DEFAULT};
 use softarm_model::scenario::Scenario;
-use softarm_model::waypoints::WaypointFile;
+use softarm_model::waypoints::{WaypointFile, validate};
 
 use crate::up::{self, Supervisor};
 
@@ -23,10 +23,10 @@ pub const WAYPOINTS: &str = include_str!("../config/waypoints/demo.toml");
 #[derive(clap::Args)]
 pub struct Args {
     /// Executions of the way-point set.
-    #[arg(long, default_value_t = 20)]
+    #[arg(long, default_value_t = 20, allow_negative_numbers = true)]
     executions: u32,
     /// Seeds the demonstrations, the plant and the learner.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, allow_negative_numbers = true)]
     seed: u64,
     /// One JSON object per execution on stdout (as `softarm stats --json`), nothing else.
     #[arg(long)]
@@ -62,7 +62,7 @@ enum Learner {
     Paper,
 }
 
-fn cache_dir() -> PathBuf {
+pub(crate) fn cache_dir() -> PathBuf {
     if let Some(d) = std::env::var_os("XDG_CACHE_HOME") {
         return PathBuf::from(d).join("softarm");
     }
@@ -87,6 +87,11 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
         .as_deref()
         .map(Scenario::resolve)
         .transpose()?;
+    // Refused before anything starts (a stack, minutes of training), not at the end of the run.
+    if !args.no_record {
+        record::check_output(&args.record).context("--record")?;
+        plot::check_output(&args.record.with_extension("png")).context("--record")?;
+    }
     let started = Instant::now();
     let pid = std::process::id();
     let namespace = format!("softarm/demo-{pid}");
@@ -95,6 +100,9 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
         .model_dir
         .clone()
         .unwrap_or_else(|| cache_dir().join(format!("demo-model-seed{}", args.seed)));
+    if model_dir.exists() && !model_dir.is_dir() {
+        bail!("the model folder {} is not a folder", model_dir.display());
+    }
     std::fs::create_dir_all(&run_dir).with_context(|| format!("creating {}", run_dir.display()))?;
     let _cleanup = RemoveOnDrop(run_dir.clone());
 
@@ -128,6 +136,24 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
         .with_context(|| format!("writing {}", config_path.display()))?;
     let config = Config::load(&config_path)?;
     let ns = Namespace::new(&namespace)?;
+    // The user's sets, read and checked as the controller will check them, before the stack.
+    let file = match &args.set {
+        Some(path) => load_set("--set", path, &config, args.executions)?,
+        None => {
+            let file = WaypointFile::parse(WAYPOINTS)
+                .map_err(anyhow::Error::msg)
+                .context("the demo way-points")?;
+            file.to_set(args.executions)
+                .and_then(|set| validate(&set, &config.waypoints, &config.activation))
+                .map_err(|e| anyhow::anyhow!("--executions: {e}"))?;
+            file
+        }
+    };
+    let then = args
+        .then
+        .as_deref()
+        .map(|path| load_set("--then", path, &config, 1))
+        .transpose()?;
 
     let level = std::env::var("RUST_LOG").unwrap_or_else(|_| "warn".into());
     let mut sup = Supervisor::new(
@@ -238,18 +264,6 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
         )?;
     }
 
-    let file = match &args.set {
-        Some(path) => WaypointFile::load(path).map_err(anyhow::Error::msg)?,
-        None => WaypointFile::parse(WAYPOINTS)
-            .map_err(anyhow::Error::msg)
-            .context("the demo way-points")?,
-    };
-    let then = args
-        .then
-        .as_deref()
-        .map(WaypointFile::load)
-        .transpose()
-        .map_err(anyhow::Error::msg)?;
     // Subscribe before submitting: no execution's stats can be missed.
     let follower = stats::Stats::open(&ns)?;
     // The recorder is one more subscriber, on a thread of its own, from here to the end.
@@ -320,6 +334,23 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// The way-point file of option `flag`, refused (naming both) where the controller would refuse
+/// it for `executions` executions under `config`'s limits.
+fn load_set(
+    flag: &str,
+    path: &Path,
+    config: &Config,
+    executions: u32,
+) -> anyhow::Result<WaypointFile> {
+    let file = WaypointFile::load(path)
+        .map_err(anyhow::Error::msg)
+        .context(flag.to_string())?;
+    file.to_set(executions)
+        .and_then(|set| validate(&set, &config.waypoints, &config.activation))
+        .map_err(|e| anyhow::anyhow!("{flag} {}: {e}", path.display()))?;
+    Ok(file)
+}
+
 /// Submits `file` for `executions` executions and prints each execution's row as it ends.
 #[allow(clippy::too_many_arguments)]
 fn run_set(
@@ -378,7 +409,7 @@ fn run_set(
     Ok(rows)
 }
 
-struct RemoveOnDrop(PathBuf);
+pub(crate) struct RemoveOnDrop(pub PathBuf);
 
 impl Drop for RemoveOnDrop {
     fn drop(&mut self) {

@@ -17,6 +17,7 @@ mod bench;
 mod demo;
 mod emulate;
 mod install;
+mod soak;
 mod up;
 
 /// Exit code of a process whose config is refused (EX_CONFIG of sysexits.h): starting it again
@@ -50,7 +51,7 @@ impl Stack {
             None => Config::default_sim(PathBuf::from(".")),
         };
         if let Some(ns) = &self.namespace {
-            Namespace::new(ns)?;
+            Namespace::new(ns).context("--namespace")?;
             c.robot.namespace = Some(ns.clone());
         }
         Ok(c)
@@ -132,14 +133,14 @@ enum Command {
         #[command(flatten)]
         stack: Stack,
         /// Seeds the demonstration sequences.
-        #[arg(long, default_value_t = 1)]
+        #[arg(long, default_value_t = 1, allow_negative_numbers = true)]
         seed: u64,
     },
     /// Submits a way-point set; exit 0 accepted, 2 rejected, 1 no controller.
     Submit {
         /// Way-point file (TOML: duration_s, [[point]] t_s, position_m).
         waypoints: PathBuf,
-        #[arg(long, default_value_t = 1)]
+        #[arg(long, default_value_t = 1, allow_negative_numbers = true)]
         executions: u32,
         /// Follow the set's stats until its executions are done.
         #[arg(long)]
@@ -185,7 +186,7 @@ enum Command {
         #[arg(short, long)]
         output: PathBuf,
         /// Stop after this many seconds.
-        #[arg(long)]
+        #[arg(long, allow_negative_numbers = true)]
         duration: Option<f64>,
         #[command(flatten)]
         stack: Stack,
@@ -207,6 +208,10 @@ enum Command {
     /// Times the stack on this machine (min / p50 / p99 / p99.9 / max): tick wake-up latency
     /// against a bare loop, messages between processes, end to end, hot-path calls, memory.
     Bench(bench::Args),
+    /// Runs the simulated stack for a long time with continuous executions, scenario changes
+    /// and random kills; reports invariant violations, memory and tick latency (exit 1 if
+    /// anything failed).
+    Soak(soak::Args),
     /// Installs the stack as systemd services: binary, config, state folder, units, user.
     Install(install::Args),
     /// Removes the units and the binary; keeps the config, the state and the user.
@@ -360,7 +365,17 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             json,
             stack,
         } => {
-            let f = stats::Stats::open(&stack.namespace()?)?;
+            let ns = stack.namespace()?;
+            let f = stats::Stats::open(&ns)?;
+            if !f.controller_running() {
+                // No statistics can come: said, rather than nothing printed (or followed for
+                // ever) as if no execution had finished yet.
+                return Err(anyhow!(
+                    "no controller runs in namespace {:?}: is `softarm up` running there (same \
+                     --config or --namespace)?",
+                    ns.as_str()
+                ));
+            }
             let mut header = None;
             let wait = if follow {
                 Duration::from_secs(3600 * 24 * 365)
@@ -399,6 +414,16 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 "e-stop {} ({n} receivers)",
                 if reset { "released" } else { "engaged" }
             );
+            if n == 0 {
+                // Not an error: the latch is what a process starting later reads.
+                eprintln!(
+                    "softarm: no running process in namespace {:?} heard it; the latch {} says \
+                     {} for every process that starts",
+                    c.namespace(),
+                    c.estop_latch().path().display(),
+                    if reset { "released" } else { "engaged" }
+                );
+            }
         }
         Command::Config { command } => match command {
             ConfigCommand::Check { file } => {
@@ -418,7 +443,11 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                         "--duration must be a positive number of seconds, got {d}"
                     ));
                 }
-                d => d.map(std::time::Duration::from_secs_f64),
+                Some(d) => Some(
+                    Duration::try_from_secs_f64(d)
+                        .map_err(|_| anyhow!("--duration {d:e} s is too long"))?,
+                ),
+                None => None,
             };
             let counts = record::record(&stack.namespace()?, &output, duration, &*stop_flag()?)?;
             record::summary(&output, &counts, &mut std::io::stdout())?;
@@ -433,12 +462,19 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             }
         }
         Command::Plot { recording, output } => {
+            // Before the recording is read: a plot that cannot be written is refused first.
+            softarm_clients::plot::check_output(&output)?;
             let messages = record::read(&recording)?;
             let data = record::plot_data(&messages, &recording.display().to_string())?;
             softarm_clients::plot::render(&data, &output)?;
             println!("wrote {}", output.display());
         }
         Command::Bench(args) => bench::run(&args)?,
+        Command::Soak(args) => {
+            if !soak::run(&args, &*stop_flag()?)? {
+                return Ok(ExitCode::FAILURE);
+            }
+        }
         Command::Install(args) => install::install(&args)?,
         Command::Uninstall(args) => install::uninstall(&args)?,
     }
@@ -448,7 +484,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     // The demo's own output is its table; its processes' logs only when something is wrong.
-    init_logging(if matches!(cli.command, Command::Demo(_)) {
+    init_logging(if matches!(cli.command, Command::Demo(_) | Command::Soak(_)) {
         "warn"
     } else {
         "info"

@@ -1,0 +1,84 @@
+//! `softarm soak`, short: the whole sim stack with continuous executions, a scenario change and
+//! random kills, its report read back. The ten-minute figures are in the README; this checks
+//! that the machinery runs and reports what happened.
+
+use std::process::Command;
+
+use softarm_test_support::quick_model;
+
+const BIN: &str = env!("CARGO_BIN_EXE_softarm");
+
+#[test]
+fn a_short_soak_survives_its_kills_and_reports_everything() {
+    let dir = std::env::temp_dir().join(format!("softarm-test-soak-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let model = dir.join("model");
+    quick_model(&model);
+    let out = Command::new(BIN)
+        .args(["soak", "--minutes", "1", "--kill-every-s", "12"])
+        .args(["--scenario-every-s", "10", "--seed", "3", "--json"])
+        .arg("--model-dir")
+        .arg(&model)
+        .env("TMPDIR", &dir)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    // Nothing of the soak's own left behind: only the model is in its temporary folder.
+    let left: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap()
+        .filter_map(Result::ok)
+        .map(|e| e.file_name())
+        .filter(|n| n != "model")
+        .collect();
+    let _ = std::fs::remove_dir_all(&dir);
+    let r: serde_json::Value = serde_json::from_str(stdout.trim())
+        .unwrap_or_else(|e| panic!("{e}: stdout {stdout:?}\nstderr {stderr}"));
+    let ctx = format!("{r:#}\nstderr:\n{stderr}");
+    assert!(out.status.success(), "{ctx}");
+    assert_eq!(r["failures"].as_array().unwrap().len(), 0, "{ctx}");
+    assert_eq!(r["invariants"]["violations"], 0, "{ctx}");
+    // A minute at 500 Hz, less what kills and restarts cost.
+    assert!(
+        r["invariants"]["setpoints"].as_u64().unwrap() > 5000,
+        "{ctx}"
+    );
+    assert!(r["executions"].as_u64().unwrap() >= 3, "{ctx}");
+    let kills: u64 = r["kills"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|k| k[1].as_u64().unwrap())
+        .sum();
+    assert!(kills >= 2, "{ctx}");
+    assert!(r["kills_survived"].as_u64().unwrap() >= 1, "{ctx}");
+    assert!(r["scenario_changes"].as_u64().unwrap() >= 1, "{ctx}");
+    for (role, rss) in r["rss"].as_array().unwrap().iter().map(|x| (&x[0], &x[1])) {
+        assert!(rss["start_kib"].as_u64().unwrap() > 1000, "{role}: {ctx}");
+        assert!(rss["peak_kib"].as_u64() >= rss["end_kib"].as_u64(), "{ctx}");
+    }
+    assert!(r["tick"]["samples"].as_u64().unwrap() > 0, "{ctx}");
+    assert!(r["lattice_end"][1].as_u64().unwrap() > 0, "{ctx}");
+    assert!(left.is_empty(), "left behind: {left:?}");
+}
+
+#[test]
+fn a_soak_of_no_time_or_a_kill_every_instant_is_refused() {
+    for (args, want) in [
+        (&["--minutes", "0"][..], "--minutes"),
+        (&["--minutes", "nan"][..], "--minutes"),
+        (
+            &["--minutes", "1", "--kill-every-s", "0.1"][..],
+            "--kill-every-s",
+        ),
+        (
+            &["--minutes", "1", "--scenario-every-s", "-3"][..],
+            "--scenario-every-s",
+        ),
+    ] {
+        let out = Command::new(BIN).arg("soak").args(args).output().unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {err}");
+        assert!(err.contains(want), "{args:?}: {err}");
+    }
+}
