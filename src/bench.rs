@@ -27,21 +27,21 @@ mod stack;
 pub struct Args {
     /// The window over which the controller's and the bare loop's wake-up latency are compared
     /// (s).
-    #[arg(long, default_value_t = 15.0)]
+    #[arg(long, default_value_t = 15.0, allow_negative_numbers = true)]
     seconds: f64,
     /// Messages per variant of the process-to-process test, and setpoints timed end to end
     /// through the controller.
-    #[arg(long, default_value_t = 3000)]
+    #[arg(long, default_value_t = 3000, allow_negative_numbers = true)]
     samples: usize,
     /// The rate of the process-to-process messages.
-    #[arg(long, default_value_t = 2000.0)]
+    #[arg(long, default_value_t = 2000.0, allow_negative_numbers = true)]
     ipc_rate_hz: f64,
     /// Eq. 11 ticks to time (also bounds the CACLA-MTL updates and forward-model calls timed,
     /// 100,000 at most each).
-    #[arg(long, default_value_t = 200_000)]
+    #[arg(long, default_value_t = 200_000, allow_negative_numbers = true)]
     ticks: usize,
     /// Re-conditionings to time.
-    #[arg(long, default_value_t = 50)]
+    #[arg(long, default_value_t = 50, allow_negative_numbers = true)]
     reconditions: usize,
     /// One JSON object on stdout instead of the table.
     #[arg(long)]
@@ -54,16 +54,16 @@ pub struct Args {
     /// clock_nanosleep, as the controller's tick) for this many seconds, and its wake-up
     /// latency. Run it beside a running stack to see what the controller's own latency
     /// (`softarm status`) adds.
-    #[arg(long, value_name = "SECONDS")]
+    #[arg(long, value_name = "SECONDS", allow_negative_numbers = true)]
     wakeup: Option<f64>,
     /// The loop rate: the bare loop's with --wakeup, else the stack's controller.rate_hz
     /// (default: the config's).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     rate_hz: Option<f64>,
     /// SCHED_FIFO at this priority (needs CAP_SYS_NICE) for the bare loop, and in the full run
     /// for the controller's tick too (controller.realtime_priority). Without it both run as the
     /// config says.
-    #[arg(long, value_name = "PRIORITY")]
+    #[arg(long, value_name = "PRIORITY", allow_negative_numbers = true)]
     fifo: Option<i32>,
     /// The other end of the process-to-process test (internal): its namespace.
     #[arg(long, hide = true, requires = "peer_socket")]
@@ -101,6 +101,17 @@ fn full(args: &Args) -> anyhow::Result<()> {
     }
     if args.ticks == 0 || args.reconditions == 0 {
         anyhow::bail!("--ticks and --reconditions must be > 0");
+    }
+    // The config's ranges, said here for the flags rather than for the bench's own config.
+    if let Some(r) = args.rate_hz
+        && !(10.0..=1000.0).contains(&r)
+    {
+        anyhow::bail!("--rate-hz must be in [10, 1000] (controller.rate_hz), got {r}");
+    }
+    if let Some(p) = args.fifo
+        && !(1..=99).contains(&p)
+    {
+        anyhow::bail!("--fifo must be a SCHED_FIFO priority in [1, 99], got {p}");
     }
     let started = std::time::Instant::now();
     let stop = crate::stop_flag()?;

@@ -9,7 +9,7 @@ use std::time::Duration;
 
 use anyhow::Context;
 use softarm_emulate::rig::Rig;
-use softarm_model::config::{self, Config};
+use softarm_model::config::{self, Config, ConfigError};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -20,7 +20,7 @@ pub struct Args {
     #[arg(long, value_name = "FILE")]
     write_config: Option<PathBuf>,
     /// Where the motors stand at start (normalised actuation).
-    #[arg(long, default_value_t = 0.5)]
+    #[arg(long, default_value_t = 0.5, allow_negative_numbers = true)]
     initial: f64,
 }
 
@@ -44,10 +44,55 @@ fn emulated_config(text: &str, c: &Config, rig: &Rig) -> anyhow::Result<String> 
     .map_err(anyhow::Error::msg)
 }
 
+/// Refuses, before the emulators start, a `--write-config` path the copy cannot go to, or that
+/// is the config itself (the emulators' paths would replace the real devices').
+fn check_write_config(out: &Path, config: &Path) -> anyhow::Result<()> {
+    if out.is_dir() {
+        anyhow::bail!("--write-config {}: it is a directory", out.display());
+    }
+    if let (Ok(a), Ok(b)) = (out.canonicalize(), config.canonicalize())
+        && a == b
+    {
+        anyhow::bail!(
+            "--write-config {} is the --config it would copy: the emulated devices' paths would \
+             replace the real ones; write the copy to another file",
+            out.display()
+        );
+    }
+    // Missing folders are created; a file on the way is not a folder.
+    if let Some(file) = out.ancestors().skip(1).find(|a| a.exists() && !a.is_dir()) {
+        anyhow::bail!(
+            "--write-config {}: {} is not a folder",
+            out.display(),
+            file.display()
+        );
+    }
+    Ok(())
+}
+
 pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
     let c = Config::load(&args.config)?;
+    // Refused as the drivers refuse it (exit 78): starting again cannot help.
+    for (section, there) in [
+        ("tendon", c.tendon.is_some()),
+        ("tracker", c.tracker.is_some()),
+    ] {
+        if !there {
+            return Err(ConfigError {
+                origin: args.config.display().to_string(),
+                line: None,
+                message: format!(
+                    "no [{section}] section to emulate (config/hardware.toml has an example)"
+                ),
+            }
+            .into());
+        }
+    }
     if !(0.0..=1.0).contains(&args.initial) {
         anyhow::bail!("--initial must be in [0, 1], got {}", args.initial);
+    }
+    if let Some(out) = &args.write_config {
+        check_write_config(out, &args.config)?;
     }
     let text = std::fs::read_to_string(&args.config)
         .with_context(|| format!("reading {}", args.config.display()))?;

@@ -128,6 +128,17 @@ pub struct Learning {
     pub last_mm: f64,
 }
 
+/// A set's executions as they ended.
+struct SetSeen {
+    id: u64,
+    /// Index of the scenario it ran on.
+    scenario: usize,
+    executions: u32,
+    /// Mean error of its first and its last execution (mm).
+    first_mm: f64,
+    last_mm: f64,
+}
+
 /// A kill whose recovery is being waited for.
 struct Pending {
     role: &'static str,
@@ -246,8 +257,7 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<bool> {
         .map(|r| (r.to_string(), Rss::default()))
         .collect();
     let mut warm = false;
-    // Per set: its scenario, executions seen, the first and the last execution's mean error.
-    let mut sets: Vec<(u64, usize, u32, f64, f64)> = Vec::new();
+    let mut sets: Vec<SetSeen> = Vec::new();
     let mut scenarios = vec!["nominal".to_string()];
     let mut scenario = 0;
     let mut running: Option<Running> = None;
@@ -288,12 +298,18 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<bool> {
         while let Some(s) = follower.next(Duration::from_millis(50)) {
             report.executions += 1;
             let mm = s.mean_m * 1e3;
-            match sets.iter_mut().find(|x| x.0 == s.set_id) {
+            match sets.iter_mut().find(|x| x.id == s.set_id) {
                 Some(x) => {
-                    x.2 += 1;
-                    x.4 = mm;
+                    x.executions += 1;
+                    x.last_mm = mm;
                 }
-                None => sets.push((s.set_id, scenarios.len() - 1, 1, mm, mm)),
+                None => sets.push(SetSeen {
+                    id: s.set_id,
+                    scenario: scenarios.len() - 1,
+                    executions: 1,
+                    first_mm: mm,
+                    last_mm: mm,
+                }),
             }
             if running
                 .as_ref()
@@ -362,7 +378,7 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<bool> {
 
         // The next set, once the last is done.
         if running.is_none() && pending.as_ref().is_none_or(|p| p.back) {
-            let file = if report.sets_submitted % 3 == 0 {
+            let file = if report.sets_submitted.is_multiple_of(3) {
                 demo_set.clone()
             } else {
                 variation(&demo_set, &mut rng)
@@ -466,17 +482,17 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<bool> {
         .iter()
         .enumerate()
         .filter_map(|(i, name)| {
-            let mine: Vec<_> = sets.iter().filter(|x| x.1 == i).collect();
-            let twice: Vec<_> = mine.iter().filter(|x| x.2 >= 2).collect();
-            let mean = |f: &dyn Fn(&(u64, usize, u32, f64, f64)) -> f64| {
+            let mine: Vec<_> = sets.iter().filter(|x| x.scenario == i).collect();
+            let twice: Vec<_> = mine.iter().filter(|x| x.executions >= 2).collect();
+            let mean = |f: &dyn Fn(&SetSeen) -> f64| {
                 twice.iter().map(|x| f(x)).sum::<f64>() / twice.len().max(1) as f64
             };
             (!mine.is_empty()).then(|| Learning {
                 scenario: name.clone(),
                 sets: mine.len() as u64,
-                executions: mine.iter().map(|x| u64::from(x.2)).sum(),
-                first_mm: mean(&|x| x.3),
-                last_mm: mean(&|x| x.4),
+                executions: mine.iter().map(|x| u64::from(x.executions)).sum(),
+                first_mm: mean(&|x| x.first_mm),
+                last_mm: mean(&|x| x.last_mm),
             })
         })
         .collect();

@@ -4,7 +4,7 @@
 //! `softarm up` with the hardware config) closing the loop through them.
 
 use std::path::Path;
-use std::process::{Child, Stdio};
+use std::process::Stdio;
 use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
@@ -18,7 +18,7 @@ use softarm_ipc::{
 };
 use softarm_model::config::Config;
 use softarm_model::hardware::Mapping;
-use softarm_test_support::{DEMO_WAYPOINTS, TestStack, alive, hardware_config_text, set_id};
+use softarm_test_support::{DEMO_WAYPOINTS, Guard, TestStack, alive, hardware_config_text, set_id};
 
 const BIN: &str = env!("CARGO_BIN_EXE_softarm");
 const LIMIT: Duration = Duration::from_secs(20);
@@ -26,25 +26,11 @@ const LIMIT: Duration = Duration::from_secs(20);
 /// A test's folder and namespace with the hardware config, quick time-outs, and the
 /// emulators running for it.
 fn rig(name: &str) -> (TestStack, Config, Rig) {
-    // The emulators need the config's [tendon] and [tracker]; the ports are filled in after.
-    let probe = TestStack::with_config(BIN, name, false, |dir, ns| {
-        hardware_config_text(dir, ns, Path::new("/dev/null"), Path::new("/dev/null"))
-    });
-    let c = Config::load(&probe.config).unwrap();
-    let rig = Rig::start(&c, 0.5).unwrap();
-    drop(probe);
-    let s = TestStack::with_config(BIN, name, false, |dir, ns| {
-        let text = hardware_config_text(dir, ns, rig.tendon_path(), rig.tracker_path());
-        softarm_test_support::with_overrides(
-            &text,
-            &[
-                ("tendon.hold_after_ms", 150.0.into()),
-                ("tendon.torque_off_after_ms", 2000.0.into()),
-            ],
-        )
-    });
-    let c = Config::load(&s.config).unwrap();
-    (s, c, rig)
+    TestStack::with_devices(BIN, name, |c| {
+        let rig = Rig::start(c, 0.5).unwrap();
+        let (tendon, tracker) = (rig.tendon_path().into(), rig.tracker_path().into());
+        (rig, tendon, tracker)
+    })
 }
 
 /// Points `link` at `target`, as udev points /dev/softarm-tendon at the adapter plugged in.
@@ -58,15 +44,8 @@ fn node(s: &TestStack) -> Node {
 }
 
 /// Polls `f` every 20 ms until it gives `Some`, at most [`LIMIT`].
-fn eventually<T>(what: &str, mut f: impl FnMut() -> Option<T>) -> T {
-    let start = Instant::now();
-    loop {
-        if let Some(v) = f() {
-            return v;
-        }
-        assert!(start.elapsed() < LIMIT, "waited {LIMIT:?} for {what}");
-        std::thread::sleep(Duration::from_millis(20));
-    }
+fn eventually<T>(what: &str, f: impl FnMut() -> Option<T>) -> T {
+    softarm_test_support::eventually(what, LIMIT, f)
 }
 
 /// The newest motor state that arrived, if any.
@@ -97,49 +76,12 @@ fn follow(setpoints: &Pub<Setpoint>, a: f64, d: Duration) {
     }
 }
 
-/// A process the test started: killed if the test ends without stopping it, so a failed
-/// assertion leaves nothing running.
-struct Guard(Child);
-
-impl std::ops::Deref for Guard {
-    type Target = Child;
-    fn deref(&self) -> &Child {
-        &self.0
-    }
-}
-
-impl std::ops::DerefMut for Guard {
-    fn deref_mut(&mut self) -> &mut Child {
-        &mut self.0
-    }
-}
-
-impl Drop for Guard {
-    fn drop(&mut self) {
-        if let Ok(None) = self.0.try_wait() {
-            let _ = self.0.kill();
-            let _ = self.0.wait();
-        }
-    }
-}
-
 fn spawn(s: &TestStack, role: &str) -> Guard {
     Guard(s.spawn(&[role]))
 }
 
-fn stop(mut child: Guard) -> std::process::ExitStatus {
-    kill(Pid::from_raw(child.id() as i32), Signal::SIGTERM).unwrap();
-    let start = Instant::now();
-    loop {
-        if let Some(status) = child.try_wait().unwrap() {
-            return status;
-        }
-        if start.elapsed() > LIMIT {
-            let _ = child.kill();
-            panic!("the driver did not stop on SIGTERM");
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    }
+fn stop(child: Guard) -> std::process::ExitStatus {
+    child.stop(LIMIT)
 }
 
 fn torque(rig: &Rig, ids: &[u8]) -> Vec<bool> {

@@ -26,6 +26,36 @@ pub(crate) fn poll<T>(timeout: Duration, mut f: impl FnMut() -> Option<T>) -> Op
     }
 }
 
+/// Refuses an output path no file can be written at, before the work that would produce it:
+/// `out` a directory, or its folder missing or not a folder. The error names `what` and `out`.
+pub(crate) fn check_output_path(out: &std::path::Path, what: &str) -> anyhow::Result<()> {
+    if out.is_dir() {
+        anyhow::bail!(
+            "cannot write {what} to {}: it is a directory",
+            out.display()
+        );
+    }
+    let dir = match out.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => std::path::Path::new("."),
+    };
+    if !dir.exists() {
+        anyhow::bail!(
+            "cannot write {what} to {}: there is no folder {}",
+            out.display(),
+            dir.display()
+        );
+    }
+    if !dir.is_dir() {
+        anyhow::bail!(
+            "cannot write {what} to {}: {} is not a folder",
+            out.display(),
+            dir.display()
+        );
+    }
+    Ok(())
+}
+
 /// The message for a stack that does not answer.
 pub(crate) fn unreachable(namespace: &str, what: &str) -> String {
     format!(

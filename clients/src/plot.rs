@@ -88,13 +88,8 @@ const POINT_COLOURS: [RGBColor; 10] = [
 ///
 /// Errors (bad extension, unwritable path, nothing to plot) name `out`.
 pub fn render(data: &PlotData, out: &Path) -> Result<()> {
+    check_output(out)?;
     let format = format_of(out)?;
-    if out.is_dir() {
-        bail!(
-            "cannot write the plot to {}: it is a directory",
-            out.display()
-        );
-    }
     let scene = Scene::new(data);
     if scene.is_empty() {
         bail!(
@@ -113,10 +108,17 @@ pub fn render(data: &PlotData, out: &Path) -> Result<()> {
         Format::Svg => {
             let svg = draw_svg(&scene)
                 .with_context(|| format!("drawing the plot for {}", out.display()))?;
-            std::fs::write(out, svg)
+            softarm_ipc::file::write_atomic(out, svg.as_bytes(), None)
                 .with_context(|| format!("writing the SVG plot to {}", out.display()))
         }
     }
+}
+
+/// Refuses, before any work, an output [`render`] could not write: an extension other than
+/// `.png` or `.svg`, a directory, a folder that is not there.
+pub fn check_output(out: &Path) -> Result<()> {
+    format_of(out)?;
+    crate::check_output_path(out, "the plot")
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

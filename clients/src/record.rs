@@ -175,10 +175,7 @@ pub fn record(
     duration: Option<Duration>,
     stop: &AtomicBool,
 ) -> anyhow::Result<BTreeMap<String, u64>> {
-    match out.extension().and_then(|e| e.to_str()) {
-        Some("mcap") => {}
-        _ => bail!("{}: a recording's name must end in .mcap", out.display()),
-    }
+    check_output(out)?;
     let node = Node::open(namespace.clone(), "record")?;
     let mut sources: Vec<Box<dyn Drain>> = vec![
         source(&node, "setpoint", node.subscriber(&node.setpoint()?)?),
@@ -233,7 +230,10 @@ pub fn record(
         let _ = std::fs::remove_file(&tmp);
         return Err(e.context(format!("recording {}", out.display())));
     }
-    std::fs::rename(&tmp, out).with_context(|| format!("renaming {} into place", tmp.display()))?;
+    if let Err(e) = std::fs::rename(&tmp, out) {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(e).with_context(|| format!("renaming {} into place", tmp.display()));
+    }
     if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
         let _ = File::open(dir).and_then(|d| d.sync_all());
     }
@@ -241,6 +241,16 @@ pub fn record(
         .iter()
         .map(|s| (s.topic().to_string(), s.count()))
         .collect())
+}
+
+/// Refuses, before anything is recorded, an output [`record`] could not write: a name not ending
+/// in `.mcap`, a directory, a folder that is not there.
+pub fn check_output(out: &Path) -> anyhow::Result<()> {
+    match out.extension().and_then(|e| e.to_str()) {
+        Some("mcap") => {}
+        _ => bail!("{}: a recording's name must end in .mcap", out.display()),
+    }
+    crate::check_output_path(out, "the recording")
 }
 
 /// One message of a recording: its topic and JSON.

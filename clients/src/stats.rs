@@ -68,7 +68,7 @@ pub fn table_row(s: &ExecutionStats) -> String {
 
 /// A subscription to `stats` (the last 64 executions arrive first).
 pub struct Stats {
-    _ipc: Node,
+    ipc: Node,
     sub: Sub<ExecutionStats>,
 }
 
@@ -76,7 +76,17 @@ impl Stats {
     pub fn open(namespace: &Namespace) -> Result<Self, softarm_ipc::Error> {
         let ipc = Node::open(namespace.clone(), "stats")?;
         let sub = ipc.subscriber(&ipc.stats()?)?;
-        Ok(Self { _ipc: ipc, sub })
+        Ok(Self { ipc, sub })
+    }
+
+    /// Whether a controller runs in the namespace (its node is alive): without one no stats
+    /// can come.
+    pub fn controller_running(&self) -> bool {
+        self.ipc.alive_nodes().is_ok_and(|nodes| {
+            nodes
+                .iter()
+                .any(|n| n.split('.').next() == Some("controller"))
+        })
     }
 
     /// The next execution's stats, waiting up to `timeout`.

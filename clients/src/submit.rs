@@ -33,8 +33,16 @@ pub fn prepare(
     executions: u32,
 ) -> Result<WaypointSet, String> {
     let f = WaypointFile::load(file)?;
+    let max = config.waypoints.max_executions;
+    if !(1..=max).contains(&executions) {
+        return Err(format!(
+            "--executions {executions}: 1 to {max} are allowed (the config's \
+             waypoints.max_executions)"
+        ));
+    }
     let set = f.to_set(executions)?;
-    validate(&set, &config.waypoints, &config.activation)?;
+    validate(&set, &config.waypoints, &config.activation)
+        .map_err(|e| format!("{}: {e}", file.display()))?;
     Ok(set)
 }
 

@@ -14,6 +14,7 @@ use softarm_ipc::{
 };
 use softarm_method::cacla::{CaclaMtl, LearnerConfig};
 use softarm_method::online::OnlineLearner;
+use softarm_method::space::Workspace;
 use softarm_model::bundle::{BundleError, BundleWatch, Model, read_checkpoint, write_checkpoint};
 use softarm_model::config::Config;
 
@@ -105,19 +106,99 @@ impl Incoming {
     }
 }
 
-/// A sample the learner can use: points in range (the memory grows to the point's index), and
-/// finite positions and actuation.
-fn check(s: &ConditioningSample) -> Result<(), &'static str> {
+/// A sample the learner can use: a set (ids start at 1), points in range (the memory grows to
+/// the point's index), executions counted from 1 and not going back, and finite positions and
+/// actuation. The reason names the field.
+fn check(s: &ConditioningSample) -> Result<(), String> {
+    if s.set_id == 0 {
+        return Err("set_id 0 is no set".into());
+    }
     let points = s.points as usize;
     if points == 0 || points > MAX_WAYPOINTS {
-        return Err("the set's point count is out of range");
+        return Err(format!(
+            "points {} is out of range (1 to {MAX_WAYPOINTS})",
+            s.points
+        ));
     }
-    if s.point >= s.points || s.next_point >= s.points {
-        return Err("a point index is out of range");
+    for (name, index) in [("point", s.point), ("next_point", s.next_point)] {
+        if index >= s.points {
+            return Err(format!(
+                "{name} {index} is out of range (the set has {} points)",
+                s.points
+            ));
+        }
     }
-    let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
-    if !(finite(&s.desired) && finite(&s.next_desired) && finite(&s.actuation)) {
-        return Err("a position or the actuation is not finite");
+    if s.execution == 0 {
+        return Err("execution 0: executions count from 1".into());
+    }
+    if s.next_execution < s.execution {
+        return Err(format!(
+            "next_execution {} is before execution {}",
+            s.next_execution, s.execution
+        ));
+    }
+    for (name, v) in [
+        ("desired", &s.desired[..]),
+        ("next_desired", &s.next_desired[..]),
+        ("actuation", &s.actuation[..]),
+    ] {
+        if !v.iter().all(|x| x.is_finite()) {
+            return Err(format!("{name} {v:?} is not finite"));
+        }
+    }
+    Ok(())
+}
+
+/// A sample of the set last visited must come after that visit: the controller plays each set's
+/// executions and points in order, so one that does not (a repeat, or counters gone back) is
+/// stale or a confused peer's, and is not learnt from.
+fn check_order(s: &ConditioningSample, last: Option<(u64, u32, u32)>) -> Result<(), String> {
+    match last {
+        Some((set_id, execution, point))
+            if set_id == s.set_id && (s.execution, s.point) <= (execution, point) =>
+        {
+            Err(format!(
+                "execution {} point {} does not follow the last visit of the set (execution \
+                 {execution} point {point}): repeated or out of order",
+                s.execution, s.point
+            ))
+        }
+        _ => Ok(()),
+    }
+}
+
+/// How far outside the way-point workspace an arm's position is still believed (m). Farther, a
+/// `reached` is a tracker glitch or a broken peer's: learning from it would wreck the learner
+/// (its Jacobians, corrections and critic scale with the error), and the checkpoint with it.
+const REACH_MARGIN_M: f64 = 0.25;
+
+/// Where a reached position may be: the way-point workspace grown by [`REACH_MARGIN_M`].
+fn reachable(config: &Config) -> Workspace {
+    let w = config.waypoints.workspace();
+    Workspace {
+        min_m: w.min_m.map(|v| v - REACH_MARGIN_M),
+        max_m: w.max_m.map(|v| v + REACH_MARGIN_M),
+    }
+}
+
+/// A request the learner can plan with: a set, 1 to `MAX_WAYPOINTS` points, finite targets.
+/// Checked before the running set's memory is given up for it. The reason names the field.
+fn check_request(r: &EstimateRequest) -> Result<(), String> {
+    if r.set_id == 0 {
+        return Err("set_id 0 is no set".into());
+    }
+    if r.count == 0 || r.count as usize > MAX_WAYPOINTS {
+        return Err(format!(
+            "count {} is out of range (1 to {MAX_WAYPOINTS})",
+            r.count
+        ));
+    }
+    if let Some(i) = r
+        .points()
+        .iter()
+        .position(|p| !p.iter().all(|v| v.is_finite()))
+    {
+        return Err(format!("desired[{i}] {:?} is not finite", r.desired[i]));
     }
     Ok(())
 }
@@ -190,6 +271,10 @@ pub fn run(config: &Config, stop: &AtomicBool) -> anyhow::Result<()> {
     let mut warned = false;
     let mut set_id = 0u64;
     let mut inbox: Vec<Incoming> = Vec::new();
+    // Requests and samples refused since the start; the set and visit last learnt from.
+    let mut refused = 0u64;
+    let mut last_visit: Option<(u64, u32, u32)> = None;
+    let reach = reachable(config);
     // Under systemd: READY=1 now that every port is open (a model may still be missing: then
     // the learner waits for one, and says so in STATUS=); WATCHDOG=1 while this loop turns.
     let _ = sd_notify::notify(&[sd_notify::NotifyState::Ready]);
@@ -222,6 +307,7 @@ pub fn run(config: &Config, stop: &AtomicBool) -> anyhow::Result<()> {
                     tracing::info!(model = %l.model_id, "learner ready");
                     loaded = Some(l);
                     set_id = 0;
+                    last_visit = None;
                 }
                 Err(e) => tracing::error!("{e}"),
             }
@@ -248,6 +334,11 @@ pub fn run(config: &Config, stop: &AtomicBool) -> anyhow::Result<()> {
         for m in inbox.drain(..) {
             match m {
                 Incoming::Request(r) => {
+                    if let Err(why) = check_request(&r) {
+                        refused += 1;
+                        tracing::warn!(set_id = r.set_id, refused, "request refused: {why}");
+                        continue;
+                    }
                     // A new set: its points' histories start over, and its first execution
                     // runs without exploration.
                     match l.learner.start_set(r.points()) {
@@ -269,13 +360,36 @@ pub fn run(config: &Config, stop: &AtomicBool) -> anyhow::Result<()> {
                                 "first estimates sent (lattice weights stored and evicted)"
                             );
                         }
-                        Err(e) => tracing::warn!(set_id = r.set_id, "request ignored: {e}"),
+                        Err(e) => {
+                            refused += 1;
+                            tracing::warn!(set_id = r.set_id, refused, "request refused: {e}");
+                        }
                     }
                 }
-                Incoming::Sample(s) => {
-                    if let Err(why) = check(&s) {
-                        tracing::warn!(set_id = s.set_id, point = s.point, "sample ignored: {why}");
+                Incoming::Sample(mut s) => {
+                    if let Err(why) = check(&s).and_then(|()| check_order(&s, last_visit)) {
+                        refused += 1;
+                        tracing::warn!(
+                            set_id = s.set_id,
+                            point = s.point,
+                            refused,
+                            "sample refused: {why}"
+                        );
                         continue;
+                    }
+                    if s.reached.iter().all(|v| v.is_finite()) && !reach.contains(&s.reached) {
+                        // Not learnt from; the estimate asked for is still due.
+                        refused += 1;
+                        tracing::warn!(
+                            set_id = s.set_id,
+                            point = s.point,
+                            refused,
+                            "sample refused: reached {:?} is outside where the arm can be (the \
+                             way-point workspace and {REACH_MARGIN_M} m around it): not learnt \
+                             from",
+                            s.reached
+                        );
+                        s.reached = [f64::NAN; 3];
                     }
                     if s.set_id != set_id {
                         // A set whose request this learner did not see (it restarted): its
@@ -290,14 +404,17 @@ pub fn run(config: &Config, stop: &AtomicBool) -> anyhow::Result<()> {
                             send(s.set_id, s.next_point, next)
                         }
                         Err(why) => {
+                            refused += 1;
                             tracing::warn!(
                                 set_id = s.set_id,
                                 point = s.point,
-                                "sample ignored: {why}"
+                                refused,
+                                "sample refused: {why}"
                             );
                             continue;
                         }
                     }
+                    last_visit = Some((s.set_id, s.execution, s.point));
                     if s.point + 1 == s.points {
                         checkpoint(config, l);
                     }
@@ -308,7 +425,7 @@ pub fn run(config: &Config, stop: &AtomicBool) -> anyhow::Result<()> {
     if let Some(l) = &loaded {
         checkpoint(config, l);
     }
-    tracing::info!("learner stopped");
+    tracing::info!(refused, "learner stopped");
     Ok(())
 }
 
@@ -318,9 +435,12 @@ mod tests {
 
     fn sample() -> ConditioningSample {
         ConditioningSample {
+            set_id: 1,
             points: 3,
             point: 2,
             next_point: 0,
+            execution: 1,
+            next_execution: 2,
             ..Default::default()
         }
     }
@@ -353,9 +473,77 @@ mod tests {
                 actuation: [f64::INFINITY; 6],
                 ..sample()
             },
+            ConditioningSample {
+                set_id: 0,
+                ..sample()
+            },
+            ConditioningSample {
+                execution: 0,
+                ..sample()
+            },
+            ConditioningSample {
+                next_execution: 0,
+                ..sample()
+            },
         ];
         for s in bad {
             assert!(check(&s).is_err(), "{s:?}");
+        }
+        // The field is named.
+        let why = |s| check(&s).unwrap_err();
+        assert!(
+            why(ConditioningSample {
+                point: 7,
+                ..sample()
+            })
+            .starts_with("point 7 ")
+        );
+        assert!(
+            why(ConditioningSample {
+                next_point: 9,
+                ..sample()
+            })
+            .starts_with("next_point 9")
+        );
+        assert!(
+            why(ConditioningSample {
+                next_desired: [f64::NAN; 3],
+                ..sample()
+            })
+            .starts_with("next_desired")
+        );
+    }
+
+    #[test]
+    fn a_visit_that_does_not_follow_the_last_of_its_set_is_refused() {
+        let s = sample();
+        assert_eq!(check_order(&s, None), Ok(()));
+        // The same visit again, and an earlier one: refused.
+        assert!(check_order(&s, Some((1, 1, 2))).is_err());
+        assert!(check_order(&s, Some((1, 2, 0))).is_err());
+        // A later one, or one of another set: fine.
+        assert_eq!(check_order(&s, Some((1, 1, 1))), Ok(()));
+        assert_eq!(check_order(&s, Some((2, 5, 2))), Ok(()));
+    }
+
+    #[test]
+    fn malformed_requests_are_refused_naming_the_field() {
+        let good = EstimateRequest {
+            set_id: 4,
+            count: 2,
+            ..Default::default()
+        };
+        assert_eq!(check_request(&good), Ok(()));
+        let mut nan = good;
+        nan.desired[1][2] = f64::NAN;
+        for (r, want) in [
+            (EstimateRequest { set_id: 0, ..good }, "set_id 0"),
+            (EstimateRequest { count: 0, ..good }, "count 0"),
+            (EstimateRequest { count: 17, ..good }, "count 17"),
+            (nan, "desired[1]"),
+        ] {
+            let why = check_request(&r).unwrap_err();
+            assert!(why.starts_with(want), "{why}");
         }
     }
 

@@ -6,7 +6,9 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
-use crate::config::config_text;
+use softarm_model::config::Config;
+
+use crate::config::{config_text, hardware_config_text, with_overrides};
 use crate::model::quick_model;
 
 /// The demo way-point set.
@@ -57,6 +59,37 @@ impl TestStack {
             namespace,
             up: None,
         }
+    }
+
+    /// A stack for the real arm's code path: the hardware config with quick time-outs (hold
+    /// after 150 ms without a setpoint, torque off after 2 s) and the devices `devices` starts
+    /// for it (emulators) from the config's `[tendon]` and `[tracker]`. `devices` gives back
+    /// what it started and the devices' paths (tendon, tracker), which the config then names.
+    pub fn with_devices<D>(
+        bin: impl AsRef<Path>,
+        name: &str,
+        devices: impl FnOnce(&Config) -> (D, PathBuf, PathBuf),
+    ) -> (Self, Config, D) {
+        let bin = bin.as_ref();
+        // The devices need the config's [tendon] and [tracker]; the ports are filled in after.
+        let probe = Self::with_config(bin, name, false, |dir, ns| {
+            hardware_config_text(dir, ns, Path::new("/dev/null"), Path::new("/dev/null"))
+        });
+        let c = Config::load(&probe.config).unwrap();
+        let (started, tendon, tracker) = devices(&c);
+        drop(probe);
+        let s = Self::with_config(bin, name, false, |dir, ns| {
+            let text = hardware_config_text(dir, ns, &tendon, &tracker);
+            with_overrides(
+                &text,
+                &[
+                    ("tendon.hold_after_ms", 150.0.into()),
+                    ("tendon.torque_off_after_ms", 2000.0.into()),
+                ],
+            )
+        });
+        let c = Config::load(&s.config).unwrap();
+        (s, c, started)
     }
 
     /// `softarm` without arguments (nor this stack's config).
