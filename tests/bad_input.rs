@@ -561,7 +561,6 @@ fn state_of(s: &ControllerStatus) -> ControllerState {
 }
 
 #[test]
-#[ignore = "a defect outside this change: the controller takes tracker samples whose position is not a number as fresh data and executes on them (daemon/controller/src/tick.rs, Inputs::read); un-ignore once it refuses them"]
 fn tracker_samples_that_are_not_numbers_hold_the_controller() {
     let s = TestStack::new(BIN, "bad-tracker", true);
     let arm = Config::load(&s.config).unwrap().arm;
@@ -704,8 +703,7 @@ fn waypoint_requests_with_nonsense_are_rejected_by_the_controller_naming_it() {
         ("a position NaN", with(&|s| s.positions_m[2][2] = f64::NAN), "point 3: position_m 3 (z) = NaN is not a finite number"),
         ("a position inf", with(&|s| s.positions_m[0][0] = f64::INFINITY), "point 1: position_m 1 (x) = inf is not a finite number"),
         ("a position outside the workspace", with(&|s| s.positions_m[3] = [0.0, 0.0, 0.3]), "point 4: position [0.0, 0.0, 0.3] m is outside the workspace box"),
-        // Not here: a point inside the box that the arm cannot reach (e.g. [0.44, -0.44,
-        // 0.04] m) is accepted; the workspace box is the controller's only check of reach.
+        ("a position in the box but beyond the arm", with(&|s| s.positions_m[1] = [0.44, -0.44, 0.04]), "point 2: position [0.44, -0.44, 0.04] m is 0.624 m from the base, beyond the arm's reach"),
     ];
     for (what, set, want) in &cases {
         let r = submit(*set);
@@ -743,7 +741,6 @@ fn waypoint_requests_with_nonsense_are_rejected_by_the_controller_naming_it() {
 }
 
 #[test]
-#[ignore = "a defect outside this change: the controller starts its limiter from a motor state that is not a number and publishes setpoints that are not numbers from then on (daemon/controller/src/tick.rs, Inputs::read and start_limiter); un-ignore once it refuses them"]
 fn motor_states_that_are_not_numbers_hold_the_controller_and_never_reach_its_setpoints() {
     let s = TestStack::new(BIN, "bad-motors", true);
     let arm = Config::load(&s.config).unwrap().arm;

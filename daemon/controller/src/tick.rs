@@ -65,7 +65,8 @@ pub(crate) fn run(
     tracing::info!(
         overruns = tick.ticker.overruns(),
         ticks = tick.count.ticks,
-        "controller stopped"
+        refused = tick.inputs.refused,
+        "controller stopped (refused: tracker and motor samples that were not numbers)"
     );
     Ok(())
 }
@@ -114,6 +115,9 @@ struct Inputs {
     /// the setpoint, e.g. one too far from where a sagged motor stands): the arm may not move
     /// until it is fixed; the setpoint stays where it is, so a driver that engages takes it.
     driver_fault: bool,
+    /// Samples whose position or actuation is not a number: never taken as fresh data (the
+    /// controller holds on stale data rather than execute on, or start its limiter from, NaN).
+    refused: u64,
     /// Last, so the ports go before it.
     _node: Node,
 }
@@ -130,6 +134,7 @@ impl Inputs {
             measured: None,
             engaged,
             driver_fault: false,
+            refused: 0,
             _node: node,
         })
     }
@@ -137,10 +142,19 @@ impl Inputs {
     /// Takes in everything that arrived since the last tick.
     fn read(&mut self) {
         while let Ok(Some(s)) = self.tracker.receive() {
-            self.position = Some((s.position, s.stamp_ns));
+            if s.position.iter().all(|v| v.is_finite()) {
+                self.position = Some((s.position, s.stamp_ns));
+            } else {
+                self.refused += 1;
+            }
         }
         while let Ok(Some(s)) = self.motors.receive() {
-            self.measured = Some((s.actuation, s.stamp_ns));
+            if s.actuation.iter().all(|v| v.is_finite()) {
+                self.measured = Some((s.actuation, s.stamp_ns));
+            } else {
+                self.refused += 1;
+            }
+            // What the driver says of itself holds whatever its readings.
             self.driver_fault =
                 s.state == DriverState::Fault as u32 || s.state == DriverState::Off as u32;
         }

@@ -110,9 +110,19 @@ pub struct WaypointLimits {
     /// Way-points must lie in this box (m, tracker frame).
     pub workspace_min_m: Position,
     pub workspace_max_m: Position,
+    /// Farthest a way-point may be from the base (the frame's origin, where the arm is
+    /// mounted): the box's corners lie beyond any arm's reach (m).
+    #[serde(default = "default_reach_m")]
+    pub reach_m: f64,
     pub min_duration_s: f64,
     pub max_duration_s: f64,
     pub max_executions: u32,
+}
+
+/// The default arm's longest backbone (two modules at full length, connector and tool: 0.56 m)
+/// with room for a longer tool.
+fn default_reach_m() -> f64 {
+    0.6
 }
 
 impl WaypointLimits {
@@ -348,6 +358,7 @@ impl Config {
 
         let w = &self.waypoints;
         workspace("waypoints", w.workspace_min_m, w.workspace_max_m)?;
+        within("waypoints.reach_m", w.reach_m, Open(0.0), 10.0, " m")?;
         within(
             "waypoints.min_duration_s",
             w.min_duration_s,

@@ -190,6 +190,17 @@ pub fn validate(
             workspace.max_m
         ));
     }
+    let norm = |p: &[f64; 3]| p.iter().map(|v| v * v).sum::<f64>().sqrt();
+    if let Some(i) = positions.iter().position(|p| norm(p) > limits.reach_m) {
+        return Err(format!(
+            "point {}: position {:?} m is {:.3} m from the base, beyond the arm's reach of {} m \
+             (the config's waypoints.reach_m)",
+            i + 1,
+            positions[i],
+            norm(&positions[i]),
+            limits.reach_m
+        ));
+    }
     Ok(())
 }
 
@@ -202,6 +213,7 @@ mod tests {
         WaypointLimits {
             workspace_min_m: [-0.45, -0.45, -0.6],
             workspace_max_m: [0.45, 0.45, 0.05],
+            reach_m: 0.6,
             min_duration_s: 1.0,
             max_duration_s: 60.0,
             max_executions: 100,
@@ -233,6 +245,12 @@ mod tests {
         check(&|s| s.times_s[1] = 0.5, "must increase strictly");
         check(&|s| s.times_s[1] = 1.2, "0.200 s apart");
         check(&|s| s.positions_m[0][2] = 0.3, "point 1: position");
+        // Inside the box, beyond the arm: a corner of the box.
+        check(
+            &|s| s.positions_m[1] = [0.44, -0.44, 0.04],
+            "point 2: position [0.44, -0.44, 0.04] m is 0.624 m from the base, beyond the arm's \
+             reach of 0.6 m (the config's waypoints.reach_m)",
+        );
         check(
             &|s| s.positions_m[1][0] = f64::NAN,
             "point 2: position_m 1 (x) = NaN is not a finite number",
