@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use anyhow::{Context, bail};
-use softarm_model::config::{self, Config, DEFAULT};
+use softarm_model::config::{self, Config, ConfigError, DEFAULT};
 
 const USER: &str = "softarm";
 const ETC: &str = "etc/softarm";
@@ -238,12 +238,15 @@ fn under(root: &Path, path: &Path) -> PathBuf {
 /// The config as installed: its model and state live in /var/lib/softarm, where the services
 /// may write (the units make everything else read-only).
 fn installed_config(source: Option<&Path>) -> anyhow::Result<(String, Config)> {
+    let origin = source.map_or("the embedded config".into(), |p| p.display().to_string());
     let text = match source {
         Some(p) => {
             std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?
         }
         None => DEFAULT.to_string(),
     };
+    // Checked as it is first, so a refusal names the user's file and line; then as installed.
+    Config::parse(&text, &origin, Path::new("/").join(ETC))?;
     let text = config::with_overrides(
         &text,
         &[
@@ -251,9 +254,16 @@ fn installed_config(source: Option<&Path>) -> anyhow::Result<(String, Config)> {
             ("state.dir", format!("/{STATE}/state").into()),
         ],
     )
-    .map_err(anyhow::Error::msg)
-    .context("the config to install")?;
-    let config = Config::parse(&text, "the config to install", Path::new("/").join(ETC))?;
+    .map_err(|message| ConfigError {
+        origin: origin.clone(),
+        line: None,
+        message,
+    })?;
+    let config = Config::parse(
+        &text,
+        &format!("{origin} (as installed)"),
+        Path::new("/").join(ETC),
+    )?;
     Ok((text, config))
 }
 
@@ -323,6 +333,12 @@ pub fn install(args: &Args) -> anyhow::Result<()> {
 
 pub fn uninstall(args: &UninstallArgs) -> anyhow::Result<()> {
     let (root, system) = args.target.root();
+    if !args.target.prefix.is_absolute() {
+        bail!(
+            "--prefix must be an absolute path, got {}",
+            args.target.prefix.display()
+        );
+    }
     let mut steps = vec![if system {
         Step::SystemctlIfAny(&["disable", "--now", "softarm.target"])
     } else {

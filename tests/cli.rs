@@ -181,6 +181,8 @@ const CASES: &[Case] = &[
     case("install --prefix relative", &["install", "--root", "root", "--prefix", "relative"], FAILED, &["--prefix must be an absolute path, got relative"]),
     case("install --root a file", &["install", "--root", "file"], FAILED, &["writing file/usr/local/bin/softarm: Not a directory"]),
     case("uninstall --root without a folder", &["uninstall", "--root"], USAGE, &["a value is required for '--root <DIR>'"]),
+    case("install --config garbage", &["install", "--root", "root", "--config", "garbage.toml"], CONFIG, &["garbage.toml:1: key with no value"]),
+    case("uninstall --prefix relative", &["uninstall", "--root", "root", "--prefix", "relative"], FAILED, &["--prefix must be an absolute path, got relative"]),
 
     // Clients without a stack: said in bounded time, not waited for.
     case("status without a stack", &["status", "--namespace", "{ns}"], 3, &[]),

@@ -111,7 +111,7 @@ fn a_bad_config_to_install_is_refused_and_nothing_is_written() {
     std::fs::write(&no_state, "[robot]\nid = \"x\"\n").unwrap();
     for (config, says, code) in [
         (&refused, "controller.rate_hz", 78),
-        (&no_state, "no section [model]", 1),
+        (&no_state, "no-state.toml:1: missing field", 78),
     ] {
         let stage = root.join("stage");
         let out = Command::new(BIN)
