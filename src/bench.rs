@@ -390,12 +390,3 @@ fn wakeup(seconds: f64, rate_hz: f64, fifo: Option<i32>, json: bool) -> anyhow::
     }
     Ok(())
 }
-
-/// A folder of this run, removed when dropped.
-struct RemoveOnDrop(PathBuf);
-
-impl Drop for RemoveOnDrop {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}

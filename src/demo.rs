@@ -8,13 +8,13 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
-use softarm_clients::{plot, record, stats, status, submit, train};
+use softarm_clients::{plot, record, stats, status, submit};
 use softarm_ipc::{ExecutionStats, Namespace};
-use softarm_model::bundle::Model;
-use softarm_model::config::{self, Config, DEFAULT};
+use softarm_model::config::{Config, DEFAULT};
 use softarm_model::scenario::Scenario;
 use softarm_model::waypoints::{WaypointFile, validate};
 
+use crate::scratch::Scratch;
 use crate::up::{self, Supervisor};
 
 /// The demo's way-point set: five conditioning points inside the demonstrated subspace.
@@ -93,9 +93,6 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
         plot::check_output(&args.record.with_extension("png")).context("--record")?;
     }
     let started = Instant::now();
-    let pid = std::process::id();
-    let namespace = format!("softarm/demo-{pid}");
-    let run_dir = std::env::temp_dir().join(format!("softarm-demo-{pid}"));
     let model_dir = args
         .model_dir
         .clone()
@@ -103,20 +100,13 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
     if model_dir.exists() && !model_dir.is_dir() {
         bail!("the model folder {} is not a folder", model_dir.display());
     }
-    std::fs::create_dir_all(&run_dir).with_context(|| format!("creating {}", run_dir.display()))?;
-    let _cleanup = RemoveOnDrop(run_dir.clone());
-
     // The embedded default, in this demo's own namespace, with its own state and seeds.
     let seed = i64::try_from(args.seed).context("--seed must be at most 9223372036854775807")?;
-    let text = config::with_overrides(
+    let scratch = Scratch::new(
+        "demo",
         DEFAULT,
         &[
-            ("robot.namespace", namespace.clone().into()),
             ("model.dir", model_dir.display().to_string().into()),
-            (
-                "state.dir",
-                run_dir.join("state").display().to_string().into(),
-            ),
             ("learner.seed", seed.into()),
             (
                 "learner.algorithm",
@@ -128,17 +118,11 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
             ),
             ("sim.realism.seed", seed.into()),
         ],
-    )
-    .map_err(anyhow::Error::msg)
-    .context("the demo's config")?;
-    let config_path = run_dir.join("softarm.toml");
-    std::fs::write(&config_path, &text)
-        .with_context(|| format!("writing {}", config_path.display()))?;
-    let config = Config::load(&config_path)?;
-    let ns = Namespace::new(&namespace)?;
+    )?;
+    let (config, ns) = (&scratch.config, &scratch.namespace);
     // The user's sets, read and checked as the controller will check them, before the stack.
     let file = match &args.set {
-        Some(path) => load_set("--set", path, &config, args.executions)?,
+        Some(path) => load_set("--set", path, config, args.executions)?,
         None => {
             let file = WaypointFile::parse(WAYPOINTS)
                 .map_err(anyhow::Error::msg)
@@ -152,93 +136,23 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
     let then = args
         .then
         .as_deref()
-        .map(|path| load_set("--then", path, &config, 1))
+        .map(|path| load_set("--then", path, config, 1))
         .transpose()?;
 
-    let level = std::env::var("RUST_LOG").unwrap_or_else(|_| "warn".into());
-    let mut sup = Supervisor::new(
-        vec!["--config".into(), config_path.display().to_string()],
-        vec![("RUST_LOG".into(), level)],
-    )?;
-    for role in ["sim", "controller", "learner"] {
-        sup.add(role)?;
-    }
+    let mut sup = scratch.supervisor(&["sim", "controller", "learner"], "warn")?;
     say(
         args.json,
-        &format!("softarm demo: stack up in namespace {namespace}"),
+        &format!("softarm demo: stack up in namespace {}", ns.as_str()),
     );
-
     let wait_for = |what: &str,
                     limit: Duration,
                     sup: &mut Supervisor,
                     ok: &dyn Fn(&status::Report) -> bool| {
-        let start = Instant::now();
-        loop {
-            if stop.load(Ordering::Relaxed) {
-                bail!("interrupted");
-            }
-            sup.poll();
-            if let Ok(r) = status::status(&ns, Duration::from_millis(200))
-                && ok(&r)
-            {
-                return Ok(());
-            }
-            if start.elapsed() > limit {
-                bail!("{what} did not happen within {} s", limit.as_secs());
-            }
-        }
+        scratch.wait_for(what, limit, sup, stop, ok)
     };
-    wait_for(
-        "the controller coming up",
-        Duration::from_secs(20),
-        &mut sup,
-        &|r| {
-            r.controller
-                .is_some_and(|s| s.state == softarm_ipc::ControllerState::Idle as u32)
-        },
-    )?;
-
-    // A cached model an older softarm wrote is not readable any more: trained again.
-    let train_because = match Model::read(&model_dir) {
-        Ok(_) => None,
-        Err(_) if !model_dir.join("model.toml").exists() => {
-            Some(format!("no model in {}", model_dir.display()))
-        }
-        Err(e) => Some(format!("the model is not usable ({e})")),
-    };
-    if let Some(why) = train_because {
-        say(
-            args.json,
-            &format!(
-                "softarm demo: {why}: training (demonstrations, ProMPs, forward models, CACLA-MTL pre-training)"
-            ),
-        );
-        let t = Instant::now();
-        let r = train::train(&config, &ns, args.seed)?;
-        say(
-            args.json,
-            &format!(
-                "softarm demo: trained in {:.1} s: {} demonstrations ({} samples, {:.1} s), held-out error of the forward model {:.2} mm, of the polynomial kinematics {:.2} mm (means), pre-training {:.1} s ({} updates)",
-                t.elapsed().as_secs_f64(),
-                r.demos,
-                r.samples,
-                r.demonstrate_s,
-                r.forward_error_m.0 * 1e3,
-                r.kinematics_error_m.0 * 1e3,
-                r.pretrain_s,
-                r.pretrain_updates
-            ),
-        );
-    }
-    wait_for(
-        "loading the model",
-        Duration::from_secs(20),
-        &mut sup,
-        &|r| {
-            r.controller.is_some_and(|s| s.model_loaded == 1)
-                && r.alive.iter().any(|n| n == "learner")
-        },
-    )?;
+    scratch.ready_with_model(&mut sup, stop, args.seed, &|line| {
+        say(args.json, &format!("softarm demo: {line}"))
+    })?;
 
     // Trained (or reused) on the nominal arm; now the sim becomes the scenario's arm.
     if let Some(s) = scenario.as_ref().filter(|s| !s.is_nominal()) {
@@ -265,7 +179,7 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
     }
 
     // Subscribe before submitting: no execution's stats can be missed.
-    let follower = stats::Stats::open(&ns)?;
+    let follower = stats::Stats::open(ns)?;
     // The recorder is one more subscriber, on a thread of its own, from here to the end.
     let recording_stop = std::sync::Arc::new(AtomicBool::new(false));
     let recording = (!args.no_record).then(|| {
@@ -274,7 +188,7 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
     });
     let run_set = |file: &WaypointFile, executions: u32, sup: &mut Supervisor| {
         run_set(
-            &ns,
+            ns,
             &follower,
             file,
             executions,
@@ -407,12 +321,4 @@ fn run_set(
         rows.push(s);
     }
     Ok(rows)
-}
-
-pub(crate) struct RemoveOnDrop(pub PathBuf);
-
-impl Drop for RemoveOnDrop {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
 }

@@ -17,6 +17,7 @@ mod bench;
 mod demo;
 mod emulate;
 mod install;
+mod scratch;
 mod soak;
 mod up;
 
@@ -484,11 +485,13 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     // The demo's own output is its table; its processes' logs only when something is wrong.
-    init_logging(if matches!(cli.command, Command::Demo(_) | Command::Soak(_)) {
-        "warn"
-    } else {
-        "info"
-    });
+    init_logging(
+        if matches!(cli.command, Command::Demo(_) | Command::Soak(_)) {
+            "warn"
+        } else {
+            "info"
+        },
+    );
     match run(cli) {
         Ok(code) => code,
         Err(e) => {

@@ -26,13 +26,14 @@ use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
 use serde::Serialize;
 use softarm_clients::watch::{self, Limits, Watch};
-use softarm_clients::{stats, status, submit, train};
-use softarm_ipc::{ControllerState, ControllerStatus, Latency, Namespace, Node, now_ns};
+use softarm_clients::{stats, status, submit};
+use softarm_ipc::{ControllerStatus, Latency, Node, now_ns};
 use softarm_model::bundle::{Model, read_checkpoint};
-use softarm_model::config::{self, Config, DEFAULT};
+use softarm_model::config::DEFAULT;
 use softarm_model::waypoints::{Point, WaypointFile};
 
 use crate::demo;
+use crate::scratch::Scratch;
 use crate::up::{self, Supervisor};
 
 #[derive(clap::Args)]
@@ -160,88 +161,37 @@ fn say(json: bool, line: &str) {
 }
 
 pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<bool> {
-    let pid = std::process::id();
-    let namespace = format!("softarm/soak-{pid}");
-    let run_dir = std::env::temp_dir().join(format!("softarm-soak-{pid}"));
-    std::fs::create_dir_all(&run_dir).with_context(|| format!("creating {}", run_dir.display()))?;
-    let _cleanup = demo::RemoveOnDrop(run_dir.clone());
     let model_dir = args
         .model_dir
         .clone()
         .unwrap_or_else(|| demo::cache_dir().join(format!("demo-model-seed{}", args.seed)));
     let seed = i64::try_from(args.seed).context("--seed must be at most 9223372036854775807")?;
-    let text = config::with_overrides(
+    let scratch = Scratch::new(
+        "soak",
         DEFAULT,
         &[
-            ("robot.namespace", namespace.clone().into()),
             ("model.dir", model_dir.display().to_string().into()),
-            (
-                "state.dir",
-                run_dir.join("state").display().to_string().into(),
-            ),
             ("learner.seed", seed.into()),
             ("sim.realism.seed", seed.into()),
         ],
-    )
-    .map_err(anyhow::Error::msg)
-    .context("the soak's config")?;
-    let config_path = run_dir.join("softarm.toml");
-    std::fs::write(&config_path, &text)
-        .with_context(|| format!("writing {}", config_path.display()))?;
-    let config = Config::load(&config_path)?;
-    let ns = Namespace::new(&namespace)?;
+    )?;
+    let (config, ns) = (&scratch.config, &scratch.namespace);
     let demo_set = WaypointFile::parse(demo::WAYPOINTS)
         .map_err(anyhow::Error::msg)
         .context("the demo way-points")?;
-
-    let level = std::env::var("RUST_LOG").unwrap_or_else(|_| "error".into());
-    let mut sup = Supervisor::new(
-        vec!["--config".into(), config_path.display().to_string()],
-        vec![("RUST_LOG".into(), level)],
-    )?;
-    for role in ROLES {
-        sup.add(role)?;
-    }
-    say(args.json, &format!("stack up in namespace {namespace}"));
+    let mut sup = scratch.supervisor(&ROLES, "error")?;
+    say(args.json, &format!("stack up in namespace {}", ns.as_str()));
     let wait_for = |what: &str, sup: &mut Supervisor, ok: &dyn Fn(&status::Report) -> bool| {
-        let start = Instant::now();
-        loop {
-            if stop.load(Ordering::Relaxed) {
-                bail!("interrupted");
-            }
-            sup.poll();
-            if let Ok(r) = status::status(&ns, Duration::from_millis(200))
-                && ok(&r)
-            {
-                return Ok(());
-            }
-            if start.elapsed() > Duration::from_secs(60) {
-                bail!("{what} did not happen within 60 s");
-            }
-        }
+        scratch.wait_for(what, Duration::from_secs(60), sup, stop, ok)
     };
-    let idle = |r: &status::Report| {
-        r.controller
-            .is_some_and(|s| s.state == ControllerState::Idle as u32)
-    };
-    wait_for("the controller coming up", &mut sup, &idle)?;
-    if Model::read(&model_dir).is_err() {
-        say(
-            args.json,
-            &format!("no usable model in {}: training", model_dir.display()),
-        );
-        train::train(&config, &ns, args.seed)?;
-    }
-    wait_for("loading the model", &mut sup, &|r| {
-        r.controller.is_some_and(|s| s.model_loaded == 1) && r.alive.iter().any(|n| n == "learner")
-    })?;
+    scratch.ready_with_model(&mut sup, stop, args.seed, &|line| say(args.json, line))?;
     let lattice_start = Model::read(&model_dir)
         .map(|m| (m.learner.actor.len(), m.learner.critic.len()))
         .unwrap_or_default();
 
     // Subscribed before the first set: nothing is missed.
-    let watch = Watch::start(&ns, Limits::from_config(&config))?;
-    let follower = stats::Stats::open(&ns)?;
+    let watch = Watch::start(ns, Limits::from_config(config))?;
+    let follower = stats::Stats::open(ns)?;
     let node = Node::open(ns.clone(), "soak")?;
     let statuses = node.subscriber(&node.status()?)?;
 
@@ -331,7 +281,7 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<bool> {
         if let Some(p) = pending.as_mut() {
             if !p.back
                 && pid_of(&sup, p.role).is_some_and(|n| n != p.old)
-                && status::status(&ns, Duration::from_millis(200)).is_ok_and(|r| {
+                && status::status(ns, Duration::from_millis(200)).is_ok_and(|r| {
                     r.running() && ROLES.iter().all(|role| r.alive.iter().any(|n| n == role))
                 })
             {
@@ -385,7 +335,7 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<bool> {
             };
             let executions = rng.random_range(3..=6);
             let set = file.to_set(executions).map_err(anyhow::Error::msg)?;
-            match submit::submit(&ns, set, Duration::from_secs(5)) {
+            match submit::submit(ns, set, Duration::from_secs(5)) {
                 submit::Outcome::Accepted { set_id } => {
                     report.sets_submitted += 1;
                     running = Some(Running {
@@ -433,7 +383,7 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<bool> {
         if warm && Instant::now() >= sample_at {
             sample_at = Instant::now() + Duration::from_secs(5);
             for (role, r) in rss.iter_mut() {
-                if let Some(kib) = pid_of(&sup, role).and_then(rss_kib) {
+                if let Some(kib) = pid_of(&sup, role).and_then(|p| up::rss_kib(&p.to_string())) {
                     if r.start_kib == 0 {
                         r.start_kib = kib;
                     }
@@ -545,15 +495,6 @@ fn variation(base: &WaypointFile, rng: &mut StdRng) -> WaypointFile {
         duration_s: base.duration_s,
         point,
     }
-}
-
-/// VmRSS of a process (KiB), from /proc.
-fn rss_kib(pid: u32) -> Option<u64> {
-    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
-    status
-        .lines()
-        .find_map(|l| l.strip_prefix("VmRSS:"))
-        .and_then(|v| v.trim().trim_end_matches("kB").trim().parse().ok())
 }
 
 fn print_report(r: &Report) {

@@ -222,6 +222,15 @@ impl Drop for Supervisor {
     }
 }
 
+/// Resident memory (VmRSS, KiB) of process `pid` (a number, or "self"), from /proc.
+pub fn rss_kib(pid: &str) -> Option<u64> {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
+    status
+        .lines()
+        .find_map(|l| l.strip_prefix("VmRSS:"))
+        .and_then(|v| v.trim().trim_end_matches("kB").trim().parse().ok())
+}
+
 /// The sim's own arguments for a scenario.
 pub fn sim_args(scenario: Option<&str>) -> Vec<String> {
     scenario

@@ -21,7 +21,8 @@ use softarm_ipc::iceoryx2::prelude::{ServiceName, ipc};
 use softarm_ipc::iceoryx2::service::port_factory::event::PortFactory as EventService;
 use softarm_ipc::{Namespace, Node, PubSub, Setpoint, now_ns};
 
-use super::{Out, RemoveOnDrop, Stats, header, json_with, row};
+use super::{Out, Stats, header, json_with, row};
+use crate::scratch::RemoveOnDrop;
 
 /// Messages sent before those timed, per variant.
 const WARMUP: usize = 50;

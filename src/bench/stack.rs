@@ -23,11 +23,12 @@ use anyhow::{Context, anyhow, bail};
 use hdrhistogram::Histogram;
 use serde_json::{Value, json};
 use softarm_ipc::clock::Ticker;
-use softarm_ipc::{ControllerState, ControllerStatus, Namespace, Node, now_ns};
-use softarm_model::config::{self, Config, DEFAULT};
+use softarm_ipc::{ControllerState, ControllerStatus, Node, now_ns};
+use softarm_model::config::{DEFAULT, Override};
 
-use super::{Out, RemoveOnDrop, Stats, duration, header, json_with, row};
-use crate::up::Supervisor;
+use super::{Out, Stats, duration, header, json_with, row};
+use crate::scratch::Scratch;
+use crate::up::{self, Supervisor};
 
 pub(super) struct Settings<'a> {
     pub config: Option<&'a Path>,
@@ -48,12 +49,6 @@ pub(super) struct StackRun {
 const ROLES: [&str; 3] = ["sim", "controller", "learner"];
 
 pub(super) fn run(s: &Settings, out: &Out, stop: &AtomicBool) -> anyhow::Result<StackRun> {
-    let pid = std::process::id();
-    let namespace = format!("softarm/bench-{pid}");
-    let run_dir = std::env::temp_dir().join(format!("softarm-bench-{pid}"));
-    std::fs::create_dir_all(&run_dir).with_context(|| format!("creating {}", run_dir.display()))?;
-    let _cleanup = RemoveOnDrop(run_dir.clone());
-
     // The given (or embedded) config in the bench's own namespace, with its own state and no
     // model.
     let text = match s.config {
@@ -62,38 +57,22 @@ pub(super) fn run(s: &Settings, out: &Out, stop: &AtomicBool) -> anyhow::Result<
         }
         None => DEFAULT.to_string(),
     };
-    let mut overrides = vec![
-        ("robot.namespace", namespace.clone().into()),
-        (
-            "model.dir",
-            run_dir.join("no-model").display().to_string().into(),
-        ),
-        (
-            "state.dir",
-            run_dir.join("state").display().to_string().into(),
-        ),
-    ];
+    let mut overrides: Vec<Override> = vec![("model.dir", "no-model".into())];
     if let Some(r) = s.rate_hz {
         overrides.push(("controller.rate_hz", r.into()));
     }
     if let Some(p) = s.fifo {
         overrides.push(("controller.realtime_priority", i64::from(p).into()));
     }
-    let text = config::with_overrides(&text, &overrides)
-        .map_err(anyhow::Error::msg)
-        .context("the bench's config")?;
-    let config_path = run_dir.join("softarm.toml");
-    std::fs::write(&config_path, &text)
-        .with_context(|| format!("writing {}", config_path.display()))?;
-    let config = Config::load(&config_path)?;
+    let scratch = Scratch::new("bench", &text, &overrides)?;
+    let config = &scratch.config;
     let rate = config.controller.rate_hz;
     let period_ns = (1e9 / rate).round().max(1.0) as u64;
     let window_ns = (s.seconds * 1e9) as u64;
     let priority = config.controller.realtime_priority;
 
     // Subscribed before anything publishes.
-    let ns = Namespace::new(&namespace)?;
-    let node = Node::open(ns, "bench")?;
+    let node = Node::open(scratch.namespace.clone(), "bench")?;
     let status = node.subscriber(&node.status()?)?;
 
     // The bare loop first: its wakes must cover the controller's first deadline.
@@ -101,17 +80,11 @@ pub(super) fn run(s: &Settings, out: &Out, stop: &AtomicBool) -> anyhow::Result<
     let bare = BareLoop::start(rate, (priority > 0).then_some(priority), capacity)?;
 
     out.progress(&format!(
-        "starting sim, controller and learner in namespace {namespace}"
+        "starting sim, controller and learner in namespace {}",
+        scratch.namespace.as_str()
     ));
     // The children's own warnings (no model yet) are expected here.
-    let level = std::env::var("RUST_LOG").unwrap_or_else(|_| "error".into());
-    let mut sup = Supervisor::new(
-        vec!["--config".into(), config_path.display().to_string()],
-        vec![("RUST_LOG".into(), level)],
-    )?;
-    for role in ROLES {
-        sup.add(role)?;
-    }
+    let mut sup = scratch.supervisor(&ROLES, "error")?;
     let pid_of = |sup: &Supervisor, role: &str| {
         sup.pids()
             .into_iter()
@@ -438,27 +411,13 @@ fn scheduling_of(pid: u32) -> String {
 
 /// VmRSS (KiB) of each process of the stack, and of this one.
 fn rss(sup: &Supervisor) -> Vec<(String, u64)> {
-    let read = |pid: &str| {
-        std::fs::read_to_string(format!("/proc/{pid}/status"))
-            .ok()
-            .and_then(|s| {
-                s.lines().find_map(|l| {
-                    l.strip_prefix("VmRSS:")?
-                        .trim()
-                        .trim_end_matches("kB")
-                        .trim()
-                        .parse()
-                        .ok()
-                })
-            })
-    };
     let mut out: Vec<(String, u64)> = sup
         .pids()
         .into_iter()
-        .filter_map(|(role, pid)| Some((role, read(&pid.to_string())?)))
+        .filter_map(|(role, pid)| Some((role, up::rss_kib(&pid.to_string())?)))
         .collect();
     out.sort_by_key(|(role, _)| ROLES.iter().position(|r| r == role));
-    if let Some(kib) = read("self") {
+    if let Some(kib) = up::rss_kib("self") {
         out.push(("bench".into(), kib));
     }
     out

@@ -150,11 +150,14 @@ pub struct StateConfig {
     pub dir: PathBuf,
 }
 
+/// A config key (`section.key`, sections nested with dots) and the value it is set to.
+pub type Override<'a> = (&'a str, toml::Value);
+
 /// `text` (a config) with each `(dotted key, value)` set, e.g. `("sim.realism.seed", 3)`; the
 /// key's section must exist. For the tools that write or run a config of their own (`softarm
 /// demo`, `softarm install`, the tests). Comments and layout survive; a replaced value loses
 /// the comment after it.
-pub fn with_overrides(text: &str, overrides: &[(&str, toml::Value)]) -> Result<String, String> {
+pub fn with_overrides(text: &str, overrides: &[Override]) -> Result<String, String> {
     let mut doc: toml_edit::DocumentMut = text
         .parse()
         .map_err(|e: toml_edit::TomlError| e.message().to_string())?;
