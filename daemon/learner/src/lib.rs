@@ -23,6 +23,17 @@ struct Loaded {
     model_id: String,
 }
 
+/// Counts and logs a refused sample, naming what was wrong.
+fn refuse(refused: &mut u64, s: &ConditioningSample, why: &dyn std::fmt::Display) {
+    *refused += 1;
+    tracing::warn!(
+        set_id = s.set_id,
+        point = s.point,
+        refused = *refused,
+        "sample refused: {why}"
+    );
+}
+
 /// The checkpoint if it descends from the bundle in `model_dir`, else the bundle's learner.
 fn load(config: &Config) -> Result<Loaded, BundleError> {
     let model_dir = config.model_dir();
@@ -368,27 +379,17 @@ pub fn run(config: &Config, stop: &AtomicBool) -> anyhow::Result<()> {
                 }
                 Incoming::Sample(mut s) => {
                     if let Err(why) = check(&s).and_then(|()| check_order(&s, last_visit)) {
-                        refused += 1;
-                        tracing::warn!(
-                            set_id = s.set_id,
-                            point = s.point,
-                            refused,
-                            "sample refused: {why}"
-                        );
+                        refuse(&mut refused, &s, &why);
                         continue;
                     }
                     if s.reached.iter().all(|v| v.is_finite()) && !reach.contains(&s.reached) {
                         // Not learnt from; the estimate asked for is still due.
-                        refused += 1;
-                        tracing::warn!(
-                            set_id = s.set_id,
-                            point = s.point,
-                            refused,
-                            "sample refused: reached {:?} is outside where the arm can be (the \
-                             way-point workspace and {REACH_MARGIN_M} m around it): not learnt \
-                             from",
+                        let why = format!(
+                            "reached {:?} is outside where the arm can be (the way-point \
+                             workspace and {REACH_MARGIN_M} m around it): not learnt from",
                             s.reached
                         );
+                        refuse(&mut refused, &s, &why);
                         s.reached = [f64::NAN; 3];
                     }
                     if s.set_id != set_id {
@@ -404,13 +405,7 @@ pub fn run(config: &Config, stop: &AtomicBool) -> anyhow::Result<()> {
                             send(s.set_id, s.next_point, next)
                         }
                         Err(why) => {
-                            refused += 1;
-                            tracing::warn!(
-                                set_id = s.set_id,
-                                point = s.point,
-                                refused,
-                                "sample refused: {why}"
-                            );
+                            refuse(&mut refused, &s, &why);
                             continue;
                         }
                     }
