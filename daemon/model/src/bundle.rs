@@ -735,6 +735,25 @@ mod tests {
         fs::write(&meta, &text).unwrap();
         assert!(Model::read(&dir).is_ok());
 
+        // Another bundle's tensor file under this bundle's name: whole and well formed, but
+        // not the tensors this metadata describes.
+        let mut other = model();
+        other.demo_duration_s += 1.0;
+        other.learner.actor[0].1[0] += 0.01;
+        let dir2 = tmp("corrupt-other");
+        let r2 = other.write(&dir2).unwrap();
+        assert_ne!(r, r2);
+        fs::copy(dir2.join(format!("model-{r2}.safetensors")), &tensors).unwrap();
+        let e = Model::read(&dir).unwrap_err().to_string();
+        assert!(e.contains("corrupt") || e.contains("size"), "{e}");
+        // A model bundle where a learner checkpoint is expected: refused, the file named.
+        fs::write(&tensors, &good).unwrap();
+        fs::copy(&meta, dir2.join("learner.toml")).unwrap();
+        fs::copy(&tensors, dir2.join(format!("model-{r}.safetensors"))).unwrap();
+        let e = read_checkpoint(&dir2).unwrap_err().to_string();
+        assert!(e.contains("learner.toml is not a valid bundle"), "{e}");
+        fs::remove_dir_all(&dir2).unwrap();
+
         let e = Model::read(&dir.join("nowhere")).unwrap_err().to_string();
         assert!(e.contains("softarm train"), "{e}");
         fs::remove_dir_all(&dir).unwrap();
