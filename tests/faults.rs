@@ -4,7 +4,9 @@
 //! beside the arm relies on: no setpoint outside the actuator limits, no step faster than the
 //! slew limit (within each controller's stream, and across a restart no jump), HOLD within
 //! twice the stale age once the sim is gone, no execution's statistics twice or lost; the test
-//! checks that executions go on after each restart.
+//! checks that executions go on after each restart. With the e-stop engaged, the same kills
+//! (each process once, seeded order and moments) leave only STOPPED setpoints until the reset,
+//! every restarted controller STOPPED, and the reset moves nothing by a jump.
 //! A failure names the seed; SOFTARM_FAULT_SEED=N reruns that sequence.
 
 use std::path::Path;
@@ -12,11 +14,12 @@ use std::time::{Duration, Instant};
 
 use nix::sys::signal::{Signal, kill};
 use nix::unistd::Pid;
+use rand::seq::SliceRandom;
 use rand::{RngExt, SeedableRng};
 use softarm_clients::watch::{Limits, Report, Watch};
 use softarm_ipc::Namespace;
 use softarm_model::config::Config;
-use softarm_test_support::{DEMO_WAYPOINTS, TestStack, set_id};
+use softarm_test_support::{DEMO_WAYPOINTS, FaultSeed, TestStack, set_id};
 
 const BIN: &str = env!("CARGO_BIN_EXE_softarm");
 
@@ -43,10 +46,8 @@ fn check(r: &Report, run: &str) {
 
 #[test]
 fn random_kills_break_no_safety_invariant() {
-    let seed: u64 = std::env::var("SOFTARM_FAULT_SEED")
-        .ok()
-        .and_then(|s| s.parse().ok())
-        .unwrap_or(7);
+    let said = FaultSeed::from_env(7);
+    let seed = said.0;
     let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
     let mut s = TestStack::new(BIN, "faults", true);
     s.up();
@@ -196,5 +197,112 @@ fn stalled_processes_and_a_cpu_hog_break_no_safety_invariant() {
     eprintln!(
         "stalls: {} setpoints, {} executions; controller overruns {} -> {} over its own 0.6 s stop",
         r.setpoints, r.executions, stalled_overruns.0, stalled_overruns.1
+    );
+}
+
+/// It found that a sim restarted while the e-stop was latched started its arm at
+/// `initial_actuation` (it took its start only from a setpoint it may follow): after the reset,
+/// or in a controller restarted meanwhile, the limiter started from the teleported arm, a
+/// setpoint step of up to 0.3 in one tick. The sim now starts where a STOPPED controller holds
+/// the arm too.
+#[test]
+fn an_estop_stays_latched_through_random_kills_and_a_reset_resumes_smoothly() {
+    let said = FaultSeed::from_env(7);
+    let seed = said.0;
+    let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
+    let mut s = TestStack::new(BIN, "estop-kills", true);
+    s.up();
+    // Watching from before the e-stop: from twice the stale age after it, only STOPPED
+    // setpoints, whichever controller sends them, until the reset.
+    let watch = watch(&s);
+    let (code, out, err) = s.submit(Path::new(DEMO_WAYPOINTS), 20);
+    assert_eq!(code, 0, "seed {seed}: {out}{err}");
+    let first = set_id(&out);
+    s.wait_status("EXECUTE", Duration::from_secs(60), |st| {
+        st["controller"]["state"] == "EXECUTE"
+    });
+    std::thread::sleep(Duration::from_millis(rng.random_range(300..2000)));
+    let out = s.run(&["estop"]);
+    assert!(out.status.success(), "seed {seed}: {out:?}");
+    s.wait_status("STOPPED", Duration::from_secs(10), |st| {
+        st["controller"]["state"] == "STOPPED"
+    });
+
+    // Each process SIGKILLed once, in a seeded order, at a seeded moment; `up` restarts it.
+    // No outage is declared for the sim: a stopped controller says STOPPED, not HOLD.
+    let pid_of =
+        |s: &TestStack, role: &str| s.children().into_iter().find(|c| c.0 == role).map(|c| c.1);
+    let mut victims = ["controller", "sim", "learner"];
+    victims.shuffle(&mut rng);
+    for victim in victims {
+        std::thread::sleep(Duration::from_millis(rng.random_range(100..1500)));
+        let ticks = s.status()["controller"]["ticks"].as_u64().unwrap_or(0);
+        let old = pid_of(&s, victim).unwrap_or_else(|| panic!("no {victim}: {}", s.logs()));
+        kill(Pid::from_raw(old), Signal::SIGKILL).unwrap();
+        eprintln!("e-stop (seed {seed}): killed {victim}");
+        let start = Instant::now();
+        while pid_of(&s, victim).is_none_or(|p| p == old) {
+            assert!(
+                start.elapsed() < Duration::from_secs(30),
+                "seed {seed}: no new {victim}: {}",
+                s.logs()
+            );
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        // Every process back; a new controller (its tick count starts again) says STOPPED.
+        let st = s.wait_status(
+            &format!("the stack back after the {victim}"),
+            Duration::from_secs(30),
+            |st| {
+                let alive = st["alive"].as_array().cloned().unwrap_or_default();
+                let fresh = victim != "controller"
+                    || st["controller"]["ticks"]
+                        .as_u64()
+                        .is_some_and(|t| t < ticks);
+                ["controller", "learner", "sim"]
+                    .iter()
+                    .all(|r| alive.iter().any(|a| a == r))
+                    && fresh
+            },
+        );
+        assert_eq!(
+            st["controller"]["state"], "STOPPED",
+            "seed {seed}: after the {victim} restarted: {st}"
+        );
+    }
+    // Still stopped a while later, whoever restarted.
+    std::thread::sleep(Duration::from_millis(500));
+    assert_eq!(s.status()["controller"]["state"], "STOPPED", "seed {seed}");
+    assert_eq!(
+        watch.executions_of(first),
+        watch.report().executions as usize
+    );
+
+    // Released: the controller leaves STOPPED (the watch checks the step), and a new set runs.
+    let out = s.run(&["estop", "--reset"]);
+    assert!(out.status.success(), "seed {seed}: {out:?}");
+    s.wait_status("IDLE after the reset", Duration::from_secs(10), |st| {
+        st["controller"]["state"] == "IDLE"
+    });
+    let (code, out, err) = s.submit(Path::new(DEMO_WAYPOINTS), 1);
+    assert_eq!(code, 0, "seed {seed}: {out}{err}");
+    let second = set_id(&out);
+    let start = Instant::now();
+    while watch.executions_of(second) == 0 {
+        assert!(
+            start.elapsed() < Duration::from_secs(60),
+            "seed {seed}: the new set did not execute after the reset: {}",
+            s.logs()
+        );
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    let r = watch.finish();
+    s.stop();
+    check(&r, &format!("e-stop, seed {seed}"));
+    assert!(r.estops >= 1, "seed {seed}: the watch saw no e-stop");
+    assert_eq!(r.streams, 2, "seed {seed}: one controller restart");
+    eprintln!(
+        "e-stop (seed {seed}): {} setpoints from {} controller runs, {} executions",
+        r.setpoints, r.streams, r.executions
     );
 }

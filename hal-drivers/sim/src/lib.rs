@@ -26,16 +26,28 @@ pub fn run(
     let mut commands = Commands::open(&ipc, latch)?;
     // A real arm stays where it was while its driver restarts: a sim restarted beside a
     // running controller starts where the controller holds it, not at `initial_actuation`
-    // (the controller would otherwise resume from a teleported arm).
+    // (the controller would otherwise resume from a teleported arm). Also while the e-stop is
+    // latched: a STOPPED controller's setpoint is not a command, but it is where the arm was
+    // held when the motors stopped, and a controller restarted or reset later starts from
+    // the measured state.
     let mut start = config.initial_actuation;
-    let waiting = std::time::Instant::now();
-    while waiting.elapsed() < std::time::Duration::from_millis(100) {
-        if let Some(a) = commands.poll(now_ns(), 1_000_000_000).setpoint {
-            tracing::info!(actuation = ?a, "a controller is running: starting where it holds the arm");
-            start = a;
-            break;
+    {
+        let held = ipc.subscriber(&ipc.setpoint()?)?;
+        let waiting = std::time::Instant::now();
+        'wait: while waiting.elapsed() < std::time::Duration::from_millis(100) {
+            while let Ok(Some(s)) = held.receive() {
+                let fresh = now_ns().saturating_sub(s.stamp_ns) <= 1_000_000_000;
+                if fresh && s.actuation.iter().all(|a| (0.0..=1.0).contains(a)) {
+                    tracing::info!(
+                        actuation = ?s.actuation,
+                        "a controller is running: starting where it holds the arm"
+                    );
+                    start = s.actuation;
+                    break 'wait;
+                }
+            }
+            std::thread::sleep(std::time::Duration::from_millis(2));
         }
-        std::thread::sleep(std::time::Duration::from_millis(2));
     }
     let mut plant = Plant::new(*arm, config.realism, start)
         .map_err(anyhow::Error::msg)

@@ -17,5 +17,5 @@ pub mod stack;
 
 pub use config::{config_text, hardware_config_text, with_overrides};
 pub use model::{quick_model, quick_training};
-pub use process::{Guard, eventually};
+pub use process::{FaultSeed, Guard, eventually};
 pub use stack::{DEMO_WAYPOINTS, TestStack, alive, children_of, set_id};

@@ -51,6 +51,33 @@ impl Guard {
     }
 }
 
+/// The seed of a seeded fault test: `SOFTARM_FAULT_SEED` if set, else the test's own. If the
+/// test fails, whichever assertion failed, it says how to rerun the same sequence.
+#[derive(Debug)]
+pub struct FaultSeed(pub u64);
+
+impl FaultSeed {
+    pub fn from_env(default: u64) -> Self {
+        Self(
+            std::env::var("SOFTARM_FAULT_SEED")
+                .ok()
+                .and_then(|s| s.parse().ok())
+                .unwrap_or(default),
+        )
+    }
+}
+
+impl Drop for FaultSeed {
+    fn drop(&mut self) {
+        if std::thread::panicking() {
+            eprintln!(
+                "failed with seed {0}: rerun with SOFTARM_FAULT_SEED={0}",
+                self.0
+            );
+        }
+    }
+}
+
 /// Polls `f` every 20 ms until it gives `Some`; a panic naming `what` after `limit`.
 pub fn eventually<T>(what: &str, limit: Duration, mut f: impl FnMut() -> Option<T>) -> T {
     let start = Instant::now();

@@ -1,0 +1,163 @@
+//! Fault injection on the real arm's code path, without the arm: `softarm emulate` (the motor
+//! bus and the tracker on pseudo-terminals) and `softarm up` with the hardware config, the
+//! `tendon` and `tracker` drivers and the controller SIGKILLed at seeded random moments of
+//! running executions while `up` restarts them. An independent subscriber
+//! (`softarm_clients::watch`) checks every setpoint: within the actuator limits, no step
+//! beyond the slew limit (nor a jump across a controller restart), HOLD and nothing executed
+//! from twice the stale age after a driver died until it can be back, no execution's
+//! statistics twice or lost. After each kill the driver is back (a new process), the
+//! controller executes again and an execution finishes.
+//!
+//! The tracker gone leaves the controller with stale tracker data, the tendon driver gone with
+//! stale motor state; the controller holds on either after `controller.tracker_timeout_ms`
+//! (`daemon/controller/src/tick.rs`, `Tick::health`), so the config's limits apply to both.
+//! A failure names the seed; SOFTARM_FAULT_SEED=N reruns that sequence.
+
+use std::path::Path;
+use std::process::Stdio;
+use std::time::{Duration, Instant};
+
+use nix::sys::signal::{Signal, kill};
+use nix::unistd::Pid;
+use rand::seq::SliceRandom;
+use rand::{RngExt, SeedableRng};
+use softarm_clients::watch::{Limits, Watch};
+use softarm_ipc::{Namespace, now_ns};
+use softarm_model::config::Config;
+use softarm_test_support::{
+    DEMO_WAYPOINTS, FaultSeed, Guard, TestStack, eventually, hardware_config_text, set_id,
+};
+
+const BIN: &str = env!("CARGO_BIN_EXE_softarm");
+const LIMIT: Duration = Duration::from_secs(30);
+
+fn pid_of(s: &TestStack, role: &str) -> Option<i32> {
+    s.children().into_iter().find(|c| c.0 == role).map(|c| c.1)
+}
+
+fn alive_all(st: &serde_json::Value) -> bool {
+    let alive = st["alive"].as_array().cloned().unwrap_or_default();
+    ["controller", "learner", "tendon", "tracker"]
+        .iter()
+        .all(|r| alive.iter().any(|a| a == r))
+}
+
+#[test]
+fn killed_hardware_drivers_and_controller_break_no_safety_invariant() {
+    let said = FaultSeed::from_env(11);
+    let seed = said.0;
+    let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
+    let started = Instant::now();
+
+    // The emulators as a user runs them; the stack from the config `softarm emulate` writes.
+    let mut s = TestStack::with_config(BIN, "hw-faults", true, |dir, ns| {
+        hardware_config_text(dir, ns, Path::new("/dev/null"), Path::new("/dev/null"))
+    });
+    let emulated = s.dir.join("emulated.toml");
+    let mut emulate = Guard(
+        s.command()
+            .args(["emulate", "--config"])
+            .arg(&s.config)
+            .arg("--write-config")
+            .arg(&emulated)
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    eventually("the emulated config", LIMIT, || {
+        emulated.exists().then_some(())
+    });
+    let config = Config::load(&emulated).unwrap();
+    s.config = emulated;
+    s.up();
+    s.wait_status("every process of the hardware stack", LIMIT, alive_all);
+
+    // The motor-state time-out is the tracker's (one `timeout_ns` in the controller), so the
+    // config's limits are the ones to check.
+    let watch = Watch::start(
+        &Namespace::new(&s.namespace).unwrap(),
+        Limits::from_config(&config),
+    )
+    .unwrap();
+
+    let submit = |s: &TestStack| {
+        let (code, out, err) = s.submit(Path::new(DEMO_WAYPOINTS), 200);
+        assert_eq!(code, 0, "{out}{err}");
+        let set = set_id(&out);
+        s.wait_status("EXECUTE", LIMIT, |st| {
+            st["controller"]["state"] == "EXECUTE"
+        });
+        set
+    };
+    let mut set = submit(&s);
+
+    // Each driver at least twice, the controller once, in a seeded order; `up`'s back-off
+    // doubles per restart of the same process (1 s, 2 s), which bounds the count.
+    let mut victims = vec!["tendon", "tendon", "tracker", "tracker", "controller"];
+    victims.shuffle(&mut rng);
+    let mut driver_kills = 0;
+    for (round, victim) in victims.into_iter().enumerate() {
+        std::thread::sleep(Duration::from_millis(rng.random_range(300..2500)));
+        let old = pid_of(&s, victim).unwrap_or_else(|| panic!("no {victim}: {}", s.logs()));
+        if victim != "controller" {
+            // `up` restarts it after a second at the earliest.
+            let killed = now_ns();
+            watch.outage(killed, killed + 900_000_000);
+            driver_kills += 1;
+        }
+        kill(Pid::from_raw(old), Signal::SIGKILL).unwrap();
+        eprintln!(
+            "round {round} (seed {seed}): killed {victim} at {:.1} s",
+            started.elapsed().as_secs_f64()
+        );
+        // Restarted by `up`: a new process of that role.
+        eventually(&format!("a new {victim}"), LIMIT, || {
+            pid_of(&s, victim).filter(|&p| p != old)
+        });
+        // The stack whole again and executing; a new controller forgot its set.
+        if victim == "controller" {
+            s.wait_status("a new controller, IDLE", LIMIT, |st| {
+                alive_all(st) && st["controller"]["state"] == "IDLE"
+            });
+            set = submit(&s);
+        } else {
+            s.wait_status(
+                &format!("EXECUTE after the {victim} came back"),
+                LIMIT,
+                |st| alive_all(st) && st["controller"]["state"] == "EXECUTE",
+            );
+        }
+        // Going on: an execution of the set finishes after the restart.
+        let before = watch.executions_of(set);
+        eventually(
+            &format!("an execution after the {victim} came back"),
+            LIMIT,
+            || (watch.executions_of(set) > before).then_some(()),
+        );
+    }
+    let r = watch.finish();
+    s.stop();
+    kill(Pid::from_raw(emulate.0.id() as i32), Signal::SIGTERM).unwrap();
+    let status = eventually("softarm emulate to stop", LIMIT, || {
+        emulate.0.try_wait().unwrap()
+    });
+    assert!(status.success(), "softarm emulate: {status}");
+    eprintln!(
+        "seed {seed}: {} setpoints from {} controller runs, {} executions of {} sets, \
+         {driver_kills} driver kills, {:.1} s",
+        r.setpoints,
+        r.streams,
+        r.executions,
+        r.sets,
+        started.elapsed().as_secs_f64()
+    );
+    assert_eq!(
+        r.violations, 0,
+        "seed {seed}: {} invariants broken: {:#?}",
+        r.violations, r.messages
+    );
+    assert_eq!(r.outages, driver_kills, "seed {seed}");
+    assert!(r.setpoints > 5000, "seed {seed}: {} setpoints", r.setpoints);
+    assert_eq!(r.streams, 2, "seed {seed}: one controller restart");
+}
