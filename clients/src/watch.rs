@@ -3,7 +3,8 @@
 //!
 //! - every setpoint within the actuator limits;
 //! - no step faster than the slew limit within one controller's stream, and across a restart
-//!   (a new controller starts its sequence again) no jump;
+//!   (a new controller starts its sequence again) no jump; leaving STOPPED, where the controller
+//!   restarts from the measured state on purpose, no jump from where the motors are;
 //! - while a driver is surely gone (an outage its caller declares), nothing executed on its
 //!   stale data from twice the stale age on, and HOLD said;
 //! - once an e-stop is engaged, only STOPPED setpoints until it is reset, across restarts;
@@ -20,7 +21,8 @@ use std::thread::JoinHandle;
 use std::time::Duration;
 
 use softarm_ipc::{
-    Actuation, ControllerState, EstopState, ExecutionStats, Namespace, Node, Setpoint, now_ns,
+    Actuation, ControllerState, EstopState, ExecutionStats, MotorState, Namespace, Node, Setpoint,
+    now_ns,
 };
 use softarm_model::config::Config;
 
@@ -35,8 +37,9 @@ pub struct Limits {
     pub period_s: f64,
     /// Tracker data older than this puts the controller in HOLD.
     pub stale_ns: u64,
-    /// The largest step across a controller restart: the new one starts from the measured
-    /// state, which backlash and lag leave this close to the last setpoint.
+    /// The largest step across a controller restart from the last setpoint, and leaving
+    /// STOPPED from the measured state: the controller starts from the measured state, which
+    /// backlash and lag leave this close to the last setpoint.
     pub restart_step: f64,
 }
 
@@ -85,6 +88,8 @@ struct Outage {
 pub struct Checker {
     limits: Limits,
     last: Option<Setpoint>,
+    /// Where the motors are, as the driver last said.
+    measured: Option<Actuation>,
     outages: Vec<Outage>,
     /// Since when the e-stop is engaged (its stamp), if it is.
     estop_since: Option<u64>,
@@ -98,6 +103,7 @@ impl Checker {
         Self {
             limits,
             last: None,
+            measured: None,
             outages: Vec::new(),
             estop_since: None,
             executions: BTreeMap::new(),
@@ -135,6 +141,12 @@ impl Checker {
         }
     }
 
+    pub fn motors(&mut self, m: &MotorState) {
+        if m.actuation.iter().all(|v| v.is_finite()) {
+            self.measured = Some(m.actuation);
+        }
+    }
+
     pub fn setpoint(&mut self, p: &Setpoint) {
         let l = self.limits;
         self.report.setpoints += 1;
@@ -152,25 +164,33 @@ impl Checker {
         if restarted {
             self.report.streams += 1;
         }
+        let stopped = ControllerState::Stopped as u32;
         if let Some(last) = self.last {
             let dt = p.stamp_ns.saturating_sub(last.stamp_ns) as f64 * 1e-9;
-            let allowed = if restarted {
-                l.restart_step
+            // Leaving STOPPED the controller starts again from where the motors are (no driver
+            // followed the stopped setpoints): no jump from there. Unknown where: unchecked.
+            let (from, allowed, how) = if last.state == stopped && p.state != stopped {
+                match self.measured {
+                    Some(m) => (m, l.restart_step, ", from the motors, leaving STOPPED"),
+                    None => (p.actuation, f64::INFINITY, ""),
+                }
+            } else if restarted {
+                (
+                    last.actuation,
+                    l.restart_step,
+                    ", across a controller restart",
+                )
             } else {
-                l.slew_per_s * (dt + l.period_s) + 1e-9
+                let slew = l.slew_per_s * (dt + l.period_s) + 1e-9;
+                (last.actuation, slew, "")
             };
             for a in 0..p.actuation.len() {
-                let step = (p.actuation[a] - last.actuation[a]).abs();
+                let step = (p.actuation[a] - from[a]).abs();
                 if step > allowed {
                     self.violation(format!(
-                        "actuator {a} stepped {step:.4} in {:.1} ms (allowed {allowed:.4}{}) \
+                        "actuator {a} stepped {step:.4} in {:.1} ms (allowed {allowed:.4}{how}) \
                          at seq {}",
                         dt * 1e3,
-                        if restarted {
-                            ", across a controller restart"
-                        } else {
-                            ""
-                        },
                         p.seq
                     ));
                 }
@@ -251,6 +271,7 @@ impl Checker {
         let mut checked = Checker {
             limits: self.limits,
             last: None,
+            measured: None,
             outages: Vec::new(),
             estop_since: None,
             executions: BTreeMap::new(),
@@ -296,9 +317,10 @@ impl Watch {
                     let setpoints = node.subscriber(&node.setpoint()?)?;
                     let stats = node.subscriber(&node.stats()?)?;
                     let estop = node.subscriber(&node.estop()?)?;
-                    Ok((node, setpoints, stats, estop))
+                    let motors = node.subscriber(&node.motor_state()?)?;
+                    Ok((node, setpoints, stats, estop, motors))
                 })();
-                let (_node, setpoints, stats, estop) = match ports {
+                let (_node, setpoints, stats, estop, motors) = match ports {
                     Ok(p) => {
                         let _ = ready_tx.send(Ok(()));
                         p
@@ -316,6 +338,9 @@ impl Watch {
                     let mut c = lock(&checker);
                     while let Ok(Some(e)) = estop.receive() {
                         c.estop(&e);
+                    }
+                    while let Ok(Some(m)) = motors.receive() {
+                        c.motors(&m);
                     }
                     pending.retain(|p| {
                         let now = p.stamp_ns <= round;
@@ -511,6 +536,31 @@ mod tests {
         c.setpoint(&at(3, 700, 0.5, Idle));
         assert_eq!(c.report().violations, 1);
         assert_eq!(c.report().estops, 1);
+    }
+
+    #[test]
+    fn leaving_stopped_starts_from_the_motors_not_from_the_held_setpoint() {
+        use ControllerState::*;
+        let motors = |v: f64| MotorState {
+            actuation: [v; 6],
+            ..Default::default()
+        };
+        let mut c = Checker::new(limits());
+        c.setpoint(&at(1, 0, 0.5, Stopped));
+        c.motors(&motors(0.45));
+        // The reset: from the motors (0.45), 0.05 from the held setpoint.
+        c.setpoint(&at(2, 2, 0.451, Idle));
+        assert_eq!(c.report().violations, 0, "{:?}", c.report().messages);
+        // Anywhere else is a jump.
+        c.setpoint(&at(3, 4, 0.451, Stopped));
+        c.setpoint(&at(4, 6, 0.48, Idle));
+        let r = c.report();
+        assert_eq!(r.violations, 6, "{:?}", r.messages);
+        assert!(
+            r.messages[0].contains("leaving STOPPED"),
+            "{:?}",
+            r.messages
+        );
     }
 
     #[test]
