@@ -327,6 +327,11 @@ impl Link {
                         alert |= r.alert;
                     }
                     Err(e) => {
+                        // An answer with an error number still carries the motor's alert
+                        // bit (tests/fuzz.rs found it dropped with the answer).
+                        if let ReadError::MotorError(m) = &e {
+                            alert |= m.alert();
+                        }
                         missing += 1;
                         first_fault.get_or_insert(Fault::from(e));
                     }
@@ -356,6 +361,54 @@ impl Link {
         match first_fault {
             Some(Fault::Port(m)) => Err(Fault::Port(m)),
             _ => Ok(missing),
+        }
+    }
+}
+
+/// The driver's bus exchange on a port of the caller's choosing, for the fuzz tests
+/// (`tests/fuzz.rs`). Bytes from the wire become a `Reading` only through `dynamixel2`, which
+/// reads from a serial port, and `Link::read`: this is the narrowest path there is. Not an API.
+#[doc(hidden)]
+pub mod fuzz {
+    use super::*;
+
+    /// What the motors last reported, as the driver holds it.
+    #[derive(Debug, Clone, Copy, PartialEq)]
+    pub struct Snapshot {
+        pub ticks: [i32; ACTUATORS],
+        pub current_a: [f64; ACTUATORS],
+        pub hardware_error: [u8; ACTUATORS],
+    }
+
+    /// An open `Link` and the `Reading` its reads update.
+    pub struct Probe {
+        link: Link,
+        reading: Reading,
+    }
+
+    impl Probe {
+        /// Opens the bus as the driver does at start (every motor must answer).
+        pub fn open(t: &TendonConfig) -> anyhow::Result<Self> {
+            Ok(Self {
+                link: Link::open(t, true)?,
+                reading: Reading::default(),
+            })
+        }
+
+        /// One `Link::read`: the number of answers missing, or the fault as the driver
+        /// reports it.
+        pub fn read(&mut self, status: bool) -> Result<usize, String> {
+            self.link
+                .read(&mut self.reading, status)
+                .map_err(|f| f.to_string())
+        }
+
+        pub fn reading(&self) -> Snapshot {
+            Snapshot {
+                ticks: self.reading.ticks,
+                current_a: self.reading.current_a,
+                hardware_error: self.reading.hardware_error,
+            }
         }
     }
 }
