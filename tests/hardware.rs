@@ -4,7 +4,6 @@
 //! `softarm up` with the hardware config) closing the loop through them.
 
 use std::path::Path;
-use std::process::Stdio;
 use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
@@ -18,7 +17,7 @@ use softarm_ipc::{
 };
 use softarm_model::config::Config;
 use softarm_model::hardware::Mapping;
-use softarm_test_support::{DEMO_WAYPOINTS, Guard, TestStack, alive, hardware_config_text, set_id};
+use softarm_test_support::{DEMO_WAYPOINTS, Guard, TestStack, alive, set_id};
 
 const BIN: &str = env!("CARGO_BIN_EXE_softarm");
 const LIMIT: Duration = Duration::from_secs(20);
@@ -549,25 +548,9 @@ fn a_motor_fault_holds_the_controller_and_shows_in_status() {
 fn the_hardware_stack_executes_a_set_through_softarm_emulate() {
     // The emulators as a user runs them, from the hardware config; the stack from the config
     // `softarm emulate` writes.
-    let mut s = TestStack::with_config(BIN, "hw-stack", true, |dir, ns| {
-        hardware_config_text(dir, ns, Path::new("/dev/null"), Path::new("/dev/null"))
-    });
-    let emulated = s.dir.join("emulated.toml");
-    let mut emulate = Guard(
-        s.command()
-            .args(["emulate", "--config"])
-            .arg(&s.config)
-            .arg("--write-config")
-            .arg(&emulated)
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .spawn()
-            .unwrap(),
-    );
-    eventually("the emulated config", || emulated.exists().then_some(()));
-    let c = Config::load(&emulated).unwrap();
+    let (mut s, mut emulate) = TestStack::emulated(BIN, "hw-stack");
+    let c = Config::load(&s.config).unwrap();
     assert!(c.tendon.unwrap().port.starts_with("/dev/pts"));
-    s.config = emulated;
     s.up();
     let alive_roles = s.status()["alive"].clone();
     for role in ["controller", "learner", "tendon", "tracker"] {

@@ -14,7 +14,6 @@
 //! A failure names the seed; SOFTARM_FAULT_SEED=N reruns that sequence.
 
 use std::path::Path;
-use std::process::Stdio;
 use std::time::{Duration, Instant};
 
 use nix::sys::signal::{Signal, kill};
@@ -24,9 +23,7 @@ use rand::{RngExt, SeedableRng};
 use softarm_clients::watch::{Limits, Watch};
 use softarm_ipc::{Namespace, now_ns};
 use softarm_model::config::Config;
-use softarm_test_support::{
-    DEMO_WAYPOINTS, FaultSeed, Guard, TestStack, eventually, hardware_config_text, set_id,
-};
+use softarm_test_support::{DEMO_WAYPOINTS, FaultSeed, TestStack, eventually, set_id};
 
 const BIN: &str = env!("CARGO_BIN_EXE_softarm");
 const LIMIT: Duration = Duration::from_secs(30);
@@ -50,26 +47,8 @@ fn killed_hardware_drivers_and_controller_break_no_safety_invariant() {
     let started = Instant::now();
 
     // The emulators as a user runs them; the stack from the config `softarm emulate` writes.
-    let mut s = TestStack::with_config(BIN, "hw-faults", true, |dir, ns| {
-        hardware_config_text(dir, ns, Path::new("/dev/null"), Path::new("/dev/null"))
-    });
-    let emulated = s.dir.join("emulated.toml");
-    let mut emulate = Guard(
-        s.command()
-            .args(["emulate", "--config"])
-            .arg(&s.config)
-            .arg("--write-config")
-            .arg(&emulated)
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .unwrap(),
-    );
-    eventually("the emulated config", LIMIT, || {
-        emulated.exists().then_some(())
-    });
-    let config = Config::load(&emulated).unwrap();
-    s.config = emulated;
+    let (mut s, mut emulate) = TestStack::emulated(BIN, "hw-faults");
+    let config = Config::load(&s.config).unwrap();
     s.up();
     s.wait_status("every process of the hardware stack", LIMIT, alive_all);
 

@@ -10,6 +10,7 @@ use softarm_model::config::Config;
 
 use crate::config::{config_text, hardware_config_text, with_overrides};
 use crate::model::quick_model;
+use crate::process::{Guard, eventually};
 
 /// The demo way-point set.
 pub const DEMO_WAYPOINTS: &str = concat!(
@@ -59,6 +60,34 @@ impl TestStack {
             namespace,
             up: None,
         }
+    }
+
+    /// The real arm's stack without the arm, as a user runs it: a stack on the hardware config
+    /// (with a quick model), `softarm emulate` started from it (stdout piped: it prints the
+    /// device paths; its log in the stack's folder), and the stack switched to the config the
+    /// emulator writes, naming its devices.
+    pub fn emulated(bin: impl AsRef<Path>, name: &str) -> (Self, Guard) {
+        let mut s = Self::with_config(bin, name, true, |dir, ns| {
+            hardware_config_text(dir, ns, Path::new("/dev/null"), Path::new("/dev/null"))
+        });
+        let emulated = s.dir.join("emulated.toml");
+        let log = std::fs::File::create(s.dir.join("emulate.log")).unwrap();
+        let emulator = Guard(
+            s.command()
+                .args(["emulate", "--config"])
+                .arg(&s.config)
+                .arg("--write-config")
+                .arg(&emulated)
+                .stdout(Stdio::piped())
+                .stderr(log)
+                .spawn()
+                .unwrap(),
+        );
+        eventually("the emulated config", Duration::from_secs(30), || {
+            emulated.exists().then_some(())
+        });
+        s.config = emulated;
+        (s, emulator)
     }
 
     /// A stack for the real arm's code path: the hardware config with quick time-outs (hold
