@@ -109,7 +109,7 @@ pub struct Report {
     pub lattice_start: (usize, usize),
     pub lattice_end: (usize, usize),
     /// The last controller's tick wake-up latency (its life since its last restart), and the
-    /// worst p99 and max any controller reported.
+    /// worst p99 (over at least 5000 ticks) and max any controller reported.
     pub tick: Latency,
     pub tick_worst_p99_ns: u64,
     pub tick_worst_max_ns: u64,
@@ -233,7 +233,10 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<bool> {
         }
         sup.poll();
         while let Ok(Some(s)) = statuses.receive() {
-            report.tick_worst_p99_ns = report.tick_worst_p99_ns.max(s.latency.p99_ns);
+            // A young controller's percentiles are its start-up's: its max counts, its p99 not.
+            if s.latency.samples >= 5000 {
+                report.tick_worst_p99_ns = report.tick_worst_p99_ns.max(s.latency.p99_ns);
+            }
             report.tick_worst_max_ns = report.tick_worst_max_ns.max(s.latency.max_ns);
             last_status = Some(*s);
         }
