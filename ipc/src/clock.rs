@@ -87,9 +87,70 @@ impl Ticker {
     }
 }
 
+/// When to try again after failures: at first `first_ns` after one, doubling per failure up to
+/// `max_ns`; a success starts over. For reopening a port, asking a silent device again.
+#[derive(Debug, Clone, Copy)]
+pub struct Backoff {
+    first_ns: u64,
+    max_ns: u64,
+    wait_ns: u64,
+    next_ns: u64,
+}
+
+impl Backoff {
+    pub fn new(first_ns: u64, max_ns: u64) -> Self {
+        Self {
+            first_ns,
+            max_ns,
+            wait_ns: first_ns,
+            next_ns: 0,
+        }
+    }
+
+    /// Whether it is time to try.
+    pub fn ready(&self, now_ns: u64) -> bool {
+        now_ns >= self.next_ns
+    }
+
+    /// A try failed at `now_ns`: the next waits, longer each time.
+    pub fn failed(&mut self, now_ns: u64) {
+        self.next_ns = now_ns.saturating_add(self.wait_ns);
+        self.wait_ns = self.wait_ns.saturating_mul(2).min(self.max_ns);
+    }
+
+    /// A try succeeded: the next may come at once, and a failure waits `first_ns` again.
+    pub fn succeeded(&mut self) {
+        self.wait_ns = self.first_ns;
+        self.next_ns = 0;
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_backoff_doubles_up_to_its_cap_and_starts_over_on_success() {
+        const MS: u64 = 1_000_000;
+        let mut b = Backoff::new(10 * MS, 45 * MS);
+        assert!(b.ready(0));
+        let mut waits = Vec::new();
+        let mut t = 1000 * MS;
+        for _ in 0..5 {
+            b.failed(t);
+            let mut next = t;
+            while !b.ready(next) {
+                next += MS;
+            }
+            waits.push((next - t) / MS);
+            t = next;
+        }
+        assert_eq!(waits, [10, 20, 40, 45, 45]);
+        b.succeeded();
+        assert!(b.ready(t));
+        b.failed(t);
+        assert!(!b.ready(t + 9 * MS) && b.ready(t + 10 * MS));
+    }
 
     /// A controlled sequence of wake-ups: late ones skip exactly the deadlines that passed, and
     /// the next deadline stays on the grid.

@@ -17,7 +17,7 @@ use dynamixel2::serial2::SerialPort;
 use dynamixel2::{Bus, ReadError, TransferError, WriteError};
 
 use softarm_driver::{Action, Commands, Supervisor, Timeouts};
-use softarm_ipc::clock::Ticker;
+use softarm_ipc::clock::{Backoff, Ticker};
 use softarm_ipc::{ACTUATORS, DriverState, MotorState, Namespace, Node, now_ns};
 use softarm_model::config::Config;
 use softarm_model::hardware::{Mapping, TendonConfig};
@@ -97,30 +97,6 @@ struct Reading {
 impl Reading {
     fn faulted(&self, i: usize) -> bool {
         self.hardware_error[i] != 0
-    }
-}
-
-/// Retries with back-off: 10 ms, doubling per failure, at most 1 s apart.
-#[derive(Debug, Default)]
-struct Backoff {
-    failures: u32,
-    next_ns: u64,
-}
-
-impl Backoff {
-    fn ready(&self, now_ns: u64) -> bool {
-        now_ns >= self.next_ns
-    }
-
-    fn failed(&mut self, now_ns: u64) {
-        let wait_ns = (10_000_000u64 << self.failures.min(7)).min(1_000_000_000);
-        self.failures += 1;
-        self.next_ns = now_ns + wait_ns;
-    }
-
-    fn succeeded(&mut self) {
-        self.failures = 0;
-        self.next_ns = 0;
     }
 }
 
@@ -445,7 +421,8 @@ pub fn run(config: &Config, namespace: Namespace, stop: &AtomicBool) -> anyhow::
     );
 
     let mut reading = Reading::default();
-    let mut backoff = Backoff::default();
+    // Retries: 10 ms after a failure, doubling per failure, at most 1 s apart.
+    let mut backoff = Backoff::new(10_000_000, 1_000_000_000);
     // A bus silent this long is reopened: an adapter unplugged and plugged in again is a new
     // device behind the same name, and the old descriptor never hears from it.
     const REOPEN_AFTER_NS: u64 = 1_000_000_000;

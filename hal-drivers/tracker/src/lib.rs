@@ -12,6 +12,7 @@ use std::time::Duration;
 use anyhow::Context;
 use serial2::SerialPort;
 
+use softarm_ipc::clock::Backoff;
 use softarm_ipc::{Namespace, Node, Position, TrackerSample, now_ns};
 use softarm_model::config::Config;
 use softarm_model::hardware::{Frame, TrackerConfig, TrackerMode, TrackerRecord};
@@ -165,16 +166,14 @@ pub fn run(config: &Config, namespace: Namespace, stop: &AtomicBool) -> anyhow::
     // Silence: reported after silent_after_ms, the device asked again at doubling intervals.
     let mut silent = false;
     let mut silent_episodes = 0u64;
-    let mut next_ask = 0u64;
-    let mut ask_every = silent_ns;
+    let mut ask = Backoff::new(silent_ns, 2_000_000_000);
     // A lost port: reopened at doubling intervals.
     let mut port_faults = 0u64;
-    let mut reopen_at = 0u64;
-    let mut reopen_every = 10_000_000u64;
+    let mut reopen = Backoff::new(10_000_000, 2_000_000_000);
     while !stop.load(Ordering::Relaxed) {
         let now = now_ns();
         let Some(p) = port.as_mut() else {
-            if now < reopen_at {
+            if !reopen.ready(now) {
                 std::thread::sleep(READ_TIMEOUT);
                 continue;
             }
@@ -183,12 +182,11 @@ pub fn run(config: &Config, namespace: Namespace, stop: &AtomicBool) -> anyhow::
                     tracing::info!("tracker port opened");
                     decoder.reset();
                     port = Some(p);
-                    reopen_every = 10_000_000;
+                    reopen.succeeded();
                 }
                 Err(e) => {
                     port_faults += 1;
-                    reopen_at = now + reopen_every;
-                    reopen_every = (reopen_every * 2).min(2_000_000_000);
+                    reopen.failed(now);
                     tracing::error!(port_faults, "{e:#}");
                 }
             }
@@ -206,7 +204,7 @@ pub fn run(config: &Config, namespace: Namespace, stop: &AtomicBool) -> anyhow::
                 port_faults += 1;
                 tracing::error!(port_faults, "tracker port lost: {e}; reopening");
                 port = None;
-                reopen_at = now + reopen_every;
+                reopen.failed(now);
                 continue;
             }
         };
@@ -258,15 +256,14 @@ pub fn run(config: &Config, namespace: Namespace, stop: &AtomicBool) -> anyhow::
         if got_record && silent {
             tracing::warn!("the tracker answers again");
             silent = false;
-            ask_every = silent_ns;
         }
         if arrived.saturating_sub(last_record) >= silent_ns {
             if !silent {
                 silent = true;
                 silent_episodes += 1;
-                next_ask = arrived;
+                ask.succeeded();
             }
-            if arrived >= next_ask {
+            if ask.ready(arrived) {
                 tracing::error!(
                     silent_ms = arrived.saturating_sub(last_record) / 1_000_000,
                     silent_episodes,
@@ -276,9 +273,8 @@ pub fn run(config: &Config, namespace: Namespace, stop: &AtomicBool) -> anyhow::
                 // plugged in again is a new device behind the same name, which the old
                 // descriptor never hears from.
                 port = None;
-                reopen_at = arrived;
-                next_ask = arrived + ask_every;
-                ask_every = (ask_every * 2).min(2_000_000_000);
+                reopen.succeeded();
+                ask.failed(arrived);
             }
         }
     }
