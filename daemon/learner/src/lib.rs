@@ -603,9 +603,17 @@ mod tests {
         }
 
         proptest! {
-            #![proptest_config(ProptestConfig::with_cases(
-                std::env::var("PROPTEST_CASES").ok().and_then(|v| v.parse().ok()).unwrap_or(256)
-            ))]
+            // Each case fits a polynomial and replays up to 40 samples: a failure shrinks in
+            // a bounded number of steps, so it is reported within CI's time bound, not killed.
+            #![proptest_config(ProptestConfig {
+                max_shrink_iters: 400,
+                ..ProptestConfig::with_cases(
+                    std::env::var("PROPTEST_CASES")
+                        .ok()
+                        .and_then(|v| v.parse().ok())
+                        .unwrap_or(256),
+                )
+            })]
 
             #[test]
             fn arbitrary_samples_never_panic_and_answers_are_actuations(
