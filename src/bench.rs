@@ -17,7 +17,7 @@ use std::path::PathBuf;
 
 use hdrhistogram::Histogram;
 use serde_json::{Value, json};
-use softarm_model::config::Config;
+use softarm_config::Config;
 
 mod calls;
 mod ipc;
@@ -357,7 +357,7 @@ fn wakeup(seconds: f64, rate_hz: f64, fifo: Option<i32>, json: bool) -> anyhow::
         set_fifo(priority)?;
     }
     let periods = (seconds * rate_hz).round() as u64;
-    let mut ticker = softarm_ipc::clock::Ticker::new(rate_hz);
+    let mut ticker = softarm_runtime::clock::Ticker::new(rate_hz);
     let mut ns = histogram();
     for _ in 0..periods {
         ns.saturating_record(ticker.wait().latency_ns.max(1));

@@ -9,10 +9,10 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
 use softarm_clients::{plot, record, stats, status, submit};
+use softarm_config::scenario::Scenario;
+use softarm_config::waypoints::{WaypointFile, validate};
+use softarm_config::{Config, DEFAULT};
 use softarm_ipc::{ExecutionStats, Namespace};
-use softarm_model::config::{Config, DEFAULT};
-use softarm_model::scenario::Scenario;
-use softarm_model::waypoints::{WaypointFile, validate};
 
 use crate::scratch::Scratch;
 use crate::up::{self, Supervisor};

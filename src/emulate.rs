@@ -8,8 +8,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
 use anyhow::Context;
+use softarm_config::{Config, ConfigError};
 use softarm_emulate::rig::Rig;
-use softarm_model::config::{self, Config, ConfigError};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -32,7 +32,7 @@ fn text_of(p: &Path) -> String {
 /// from wherever it is written.
 fn emulated_config(text: &str, c: &Config, rig: &Rig) -> anyhow::Result<String> {
     let absolute = |p: PathBuf| std::path::absolute(&p).unwrap_or(p);
-    config::with_overrides(
+    softarm_config::with_overrides(
         text,
         &[
             ("tendon.port", text_of(rig.tendon_path()).into()),
@@ -108,7 +108,7 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
     match &args.write_config {
         Some(out) => {
             let emulated = emulated_config(&text, &c, &rig)?;
-            softarm_ipc::file::write_atomic(out, emulated.as_bytes(), None)
+            softarm_runtime::file::write_atomic(out, emulated.as_bytes(), None)
                 .with_context(|| format!("writing {}", out.display()))?;
             println!("config:  {}", out.display());
             println!("run:     softarm up --config {}", out.display());

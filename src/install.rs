@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use anyhow::{Context, bail};
-use softarm_model::config::{self, Config, ConfigError, DEFAULT};
+use softarm_config::{Config, ConfigError, DEFAULT};
 
 const USER: &str = "softarm";
 const ETC: &str = "etc/softarm";
@@ -224,9 +224,9 @@ fn chown(path: &Path, owner: &str) -> anyhow::Result<()> {
         .with_context(|| format!("chown {owner}:{USER} {}", path.display()))
 }
 
-/// [`softarm_ipc::file::write_atomic`] with the mode set before the file appears.
+/// [`softarm_runtime::file::write_atomic`] with the mode set before the file appears.
 fn write_atomic(path: &Path, bytes: &[u8], mode: u32) -> anyhow::Result<()> {
-    softarm_ipc::file::write_atomic(path, bytes, Some(mode))
+    softarm_runtime::file::write_atomic(path, bytes, Some(mode))
         .with_context(|| format!("writing {}", path.display()))
 }
 
@@ -247,7 +247,7 @@ fn installed_config(source: Option<&Path>) -> anyhow::Result<(String, Config)> {
     };
     // Checked as it is first, so a refusal names the user's file and line; then as installed.
     Config::parse(&text, &origin, Path::new("/").join(ETC))?;
-    let text = config::with_overrides(
+    let text = softarm_config::with_overrides(
         &text,
         &[
             ("model.dir", format!("/{STATE}/model").into()),

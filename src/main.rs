@@ -9,9 +9,9 @@ use std::time::Duration;
 use anyhow::{Context, anyhow};
 use clap::{Parser, Subcommand};
 use softarm_clients::{estop, record, stats, status, submit, train};
+use softarm_config::scenario::Scenario;
+use softarm_config::{Config, ConfigError};
 use softarm_ipc::Namespace;
-use softarm_model::config::{Config, ConfigError};
-use softarm_model::scenario::Scenario;
 
 mod bench;
 mod demo;
@@ -431,7 +431,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 let c = Config::load(&file)?;
                 println!("{}: ok (namespace {})", file.display(), c.namespace());
             }
-            ConfigCommand::Default => print!("{}", softarm_model::config::DEFAULT),
+            ConfigCommand::Default => print!("{}", softarm_config::DEFAULT),
         },
         Command::Record {
             output,

@@ -8,9 +8,9 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
 use softarm_clients::{status, train};
+use softarm_config::{Config, Override};
 use softarm_ipc::{ControllerState, Namespace};
 use softarm_model::bundle::Model;
-use softarm_model::config::{self, Config, Override};
 
 use crate::up::Supervisor;
 
@@ -36,7 +36,7 @@ impl Scratch {
             ("state.dir", dir.join("state").display().to_string().into()),
         ];
         all.extend_from_slice(overrides);
-        let text = config::with_overrides(text, &all)
+        let text = softarm_config::with_overrides(text, &all)
             .map_err(anyhow::Error::msg)
             .with_context(|| format!("the {kind}'s config"))?;
         let config_path = dir.join("softarm.toml");

@@ -27,10 +27,11 @@ use rand::{RngExt, SeedableRng};
 use serde::Serialize;
 use softarm_clients::watch::{self, Limits, Watch};
 use softarm_clients::{stats, status, submit};
-use softarm_ipc::{ControllerStatus, Latency, Node, now_ns};
+use softarm_config::DEFAULT;
+use softarm_config::waypoints::{Point, WaypointFile};
+use softarm_ipc::{ControllerStatus, Latency, Node};
 use softarm_model::bundle::{Model, read_checkpoint};
-use softarm_model::config::DEFAULT;
-use softarm_model::waypoints::{Point, WaypointFile};
+use softarm_runtime::now_ns;
 
 use crate::demo;
 use crate::scratch::Scratch;

@@ -7,16 +7,17 @@ use std::sync::Mutex;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
+use softarm_config::Config;
+use softarm_config::hardware::Mapping;
+use softarm_config::waypoints::WaypointFile;
 use softarm_emulate::rig::Rig;
 use softarm_ipc::iceoryx2::prelude::ZeroCopySend;
 use softarm_ipc::{
     Actuation, ActuationEstimate, ConditioningSample, ControllerState, ControllerStatus,
     DriverState, EstimateRequest, MAX_WAYPOINTS, MotorState, Namespace, Node, Position, Setpoint,
-    Sub, TrackerSample, WaypointReply, WaypointSet, now_ns,
+    Sub, TrackerSample, WaypointReply, WaypointSet,
 };
-use softarm_model::config::Config;
-use softarm_model::hardware::Mapping;
-use softarm_model::waypoints::WaypointFile;
+use softarm_runtime::now_ns;
 use softarm_test_support::{DEMO_WAYPOINTS, Guard, TestStack, alive, eventually};
 
 const BIN: &str = env!("CARGO_BIN_EXE_softarm");

@@ -73,7 +73,7 @@ fn an_estop_survives_restarts_until_reset_and_a_reset_moves_nothing() {
     s.wait_status("STOPPED", Duration::from_secs(10), |st| {
         st["controller"]["state"] == "STOPPED"
     });
-    assert!(driver_stopped(&motors, softarm_ipc::now_ns()));
+    assert!(driver_stopped(&motors, softarm_runtime::now_ns()));
     let finished = s.stats(set).len();
 
     // Restarted after the e-stop, each comes back stopped: it read the latch.
@@ -85,7 +85,7 @@ fn an_estop_survives_restarts_until_reset_and_a_reset_moves_nothing() {
                 .is_some_and(|a| a.iter().any(|n| n == "controller"))
     });
     kill_and_wait_for_restart(&s, "sim");
-    let after = softarm_ipc::now_ns();
+    let after = softarm_runtime::now_ns();
     assert!(driver_stopped(&motors, after), "the new sim moves");
     assert!(s.logs().contains("the e-stop is latched"), "{}", s.logs());
     assert_eq!(s.status()["controller"]["state"], "STOPPED");
@@ -96,7 +96,7 @@ fn an_estop_survives_restarts_until_reset_and_a_reset_moves_nothing() {
     s.wait_status("IDLE after reset", Duration::from_secs(10), |st| {
         st["controller"]["state"] == "IDLE"
     });
-    assert!(!driver_stopped(&motors, softarm_ipc::now_ns()));
+    assert!(!driver_stopped(&motors, softarm_runtime::now_ns()));
     std::thread::sleep(Duration::from_secs(2));
     let st = s.status();
     assert_eq!(st["controller"]["state"], "IDLE", "{st}");

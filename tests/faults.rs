@@ -17,8 +17,8 @@ use nix::unistd::Pid;
 use rand::seq::SliceRandom;
 use rand::{RngExt, SeedableRng};
 use softarm_clients::watch::{Limits, Report, Watch};
+use softarm_config::Config;
 use softarm_ipc::Namespace;
-use softarm_model::config::Config;
 use softarm_test_support::{DEMO_WAYPOINTS, FaultSeed, TestStack, set_id};
 
 const BIN: &str = env!("CARGO_BIN_EXE_softarm");
@@ -74,7 +74,7 @@ fn random_kills_break_no_safety_invariant() {
         let old = pid_of(&s, victim).unwrap_or_else(|| panic!("no {victim}: {}", s.logs()));
         if victim == "sim" {
             // `up` restarts it after a second at the earliest.
-            let killed = softarm_ipc::now_ns();
+            let killed = softarm_runtime::now_ns();
             watch.outage(killed, killed + 900_000_000);
             sim_kills += 1;
         }
@@ -145,7 +145,7 @@ fn stalled_processes_and_a_cpu_hog_break_no_safety_invariant() {
     for role in ["sim", "learner", "controller"] {
         std::thread::sleep(Duration::from_millis(1000));
         let before = overruns(&s);
-        let stopped = softarm_ipc::now_ns();
+        let stopped = softarm_runtime::now_ns();
         if role == "sim" {
             watch.outage(stopped, stopped + 600_000_000);
         }

@@ -9,14 +9,13 @@ use std::time::{Duration, Instant};
 
 use nix::sys::signal::{Signal, kill};
 use nix::unistd::Pid;
+use softarm_config::Config;
+use softarm_config::hardware::Mapping;
 use softarm_emulate::dynamixel::{BusFaults, short_status_packet};
 use softarm_emulate::rig::Rig;
 use softarm_ipc::iceoryx2::prelude::ZeroCopySend;
-use softarm_ipc::{
-    DriverState, MotorState, Namespace, Node, Pub, Setpoint, Sub, TrackerSample, now_ns,
-};
-use softarm_model::config::Config;
-use softarm_model::hardware::Mapping;
+use softarm_ipc::{DriverState, MotorState, Namespace, Node, Pub, Setpoint, Sub, TrackerSample};
+use softarm_runtime::now_ns;
 use softarm_test_support::{DEMO_WAYPOINTS, Guard, TestStack, alive, set_id};
 
 const BIN: &str = env!("CARGO_BIN_EXE_softarm");

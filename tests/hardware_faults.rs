@@ -21,8 +21,9 @@ use nix::unistd::Pid;
 use rand::seq::SliceRandom;
 use rand::{RngExt, SeedableRng};
 use softarm_clients::watch::{Limits, Watch};
-use softarm_ipc::{Namespace, now_ns};
-use softarm_model::config::Config;
+use softarm_config::Config;
+use softarm_ipc::Namespace;
+use softarm_runtime::now_ns;
 use softarm_test_support::{DEMO_WAYPOINTS, FaultSeed, TestStack, eventually, set_id};
 
 const BIN: &str = env!("CARGO_BIN_EXE_softarm");

@@ -44,7 +44,7 @@ fn a_restarted_controller_resumes_without_a_setpoint_jump() {
         .find(|c| c.0 == "controller")
         .unwrap();
     kill(Pid::from_raw(pid), Signal::SIGKILL).unwrap();
-    let killed = softarm_ipc::now_ns();
+    let killed = softarm_runtime::now_ns();
     // Until the new controller has published for a second or so.
     let start = Instant::now();
     while seen.iter().filter(|p| p.0 > killed).count() < 500 {

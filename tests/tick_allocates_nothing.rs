@@ -8,13 +8,10 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
 use softarm_clients::{stats, submit};
+use softarm_config::Config;
 use softarm_ipc::Namespace;
-use softarm_model::config::Config;
-use softarm_test_support::alloc::{self, Counting};
+use softarm_test_alloc as alloc;
 use softarm_test_support::{DEMO_WAYPOINTS, TestStack};
-
-#[global_allocator]
-static GLOBAL: Counting = Counting;
 
 #[test]
 fn the_controller_tick_allocates_nothing_once_running() {

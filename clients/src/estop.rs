@@ -7,7 +7,8 @@ use std::time::Duration;
 
 use anyhow::{Context, anyhow};
 
-use softarm_ipc::{EstopLatch, EstopState, Namespace, Node, now_ns};
+use softarm_ipc::{EstopState, Namespace, Node};
+use softarm_runtime::{EstopLatch, now_ns};
 
 /// Engages (`engaged`) or releases the e-stop; the number of processes that heard it.
 ///

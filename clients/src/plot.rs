@@ -108,7 +108,7 @@ pub fn render(data: &PlotData, out: &Path) -> Result<()> {
         Format::Svg => {
             let svg = draw_svg(&scene)
                 .with_context(|| format!("drawing the plot for {}", out.display()))?;
-            softarm_ipc::file::write_atomic(out, svg.as_bytes(), None)
+            softarm_runtime::file::write_atomic(out, svg.as_bytes(), None)
                 .with_context(|| format!("writing the SVG plot to {}", out.display()))
         }
     }

@@ -2,9 +2,10 @@
 
 use std::time::Duration;
 
-use softarm_ipc::{Namespace, Node, WaypointSet, now_ns};
-use softarm_model::config::Config;
-use softarm_model::waypoints::{WaypointFile, validate};
+use softarm_config::Config;
+use softarm_config::waypoints::{WaypointFile, validate};
+use softarm_ipc::{Namespace, Node, WaypointSet};
+use softarm_runtime::now_ns;
 
 /// How a submission ended; the exit code of `softarm submit`.
 #[derive(Debug, Clone, PartialEq)]

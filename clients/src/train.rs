@@ -9,10 +9,11 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, anyhow, bail, ensure};
 use indicatif::{ProgressBar, ProgressStyle};
-use softarm_ipc::{ControllerState, DemonstrateRequest, Namespace, Node, now_ns};
+use softarm_config::Config;
+use softarm_ipc::{ControllerState, DemonstrateRequest, Namespace, Node};
 use softarm_method::skill::Recording;
-use softarm_model::config::Config;
-use softarm_model::pipeline::{self, Training, TrainingData};
+use softarm_model::pipeline::{self, IMITATION_PASSES, Training, TrainingData};
+use softarm_runtime::now_ns;
 
 /// What `softarm train` made and measured, for the user.
 #[derive(Debug, Clone)]
@@ -213,6 +214,18 @@ fn recordings(samples: &[Sample], demos: usize) -> Result<Vec<Recording>> {
 }
 
 /// Runs the whole training against the stack in `namespace` and writes the bundle.
+/// `softarm train`'s settings: the config's sections the pipeline reads.
+pub fn training(config: &Config) -> Training {
+    Training {
+        basis_functions: config.model.basis_functions,
+        forward: config.forward_model,
+        kinematics: config.kinematics,
+        learner: config.learner,
+        pretrain: config.pretrain,
+        imitation_passes: IMITATION_PASSES,
+    }
+}
+
 pub fn train(config: &Config, namespace: &Namespace, seed: u64) -> Result<Trained> {
     let budget = budget(config.pretrain.budget_s)?;
     let (samples, demos, demonstrate_s) = record(namespace, seed)?;
@@ -226,7 +239,7 @@ pub fn train(config: &Config, namespace: &Namespace, seed: u64) -> Result<Traine
     };
     // The budget and the progress bar start with the pre-training, after the fits.
     let mut started: Option<(Instant, ProgressBar)> = None;
-    let trained = pipeline::train(&data, &Training::from(config), |_| {
+    let trained = pipeline::train(&data, &training(config), |_| {
         let (start, progress) = started
             .get_or_insert_with(|| (Instant::now(), bar(budget.as_secs(), "pre-training s")));
         progress.set_position(start.elapsed().as_secs());
@@ -257,6 +270,18 @@ pub fn train(config: &Config, namespace: &Namespace, seed: u64) -> Result<Traine
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn training_from_a_config_takes_its_sections() {
+        let c = softarm_config::Config::default_sim(std::path::PathBuf::from("/tmp/x"));
+        let t = super::training(&c);
+        assert_eq!(t.basis_functions, c.model.basis_functions);
+        assert_eq!(t.forward, c.forward_model);
+        assert_eq!(t.kinematics, c.kinematics);
+        assert_eq!(t.learner, c.learner);
+        assert_eq!(t.pretrain, c.pretrain);
+        assert_eq!(t.imitation_passes, super::IMITATION_PASSES);
+    }
+
     use super::*;
 
     fn sample(demo: u32, class: u32, stamp_ns: u64, v: f64) -> Sample {

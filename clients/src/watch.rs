@@ -20,11 +20,11 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use std::thread::JoinHandle;
 use std::time::Duration;
 
+use softarm_config::Config;
 use softarm_ipc::{
     Actuation, ControllerState, EstopState, ExecutionStats, MotorState, Namespace, Node, Setpoint,
-    now_ns,
 };
-use softarm_model::config::Config;
+use softarm_runtime::now_ns;
 
 /// The limits the invariants are checked against: the config's.
 #[derive(Debug, Clone, Copy)]

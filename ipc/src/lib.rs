@@ -13,15 +13,9 @@ use iceoryx2::prelude::*;
 
 pub use iceoryx2;
 
-pub use softarm_method::space::{ACTUATORS, Actuation, MAX_WAYPOINTS, Position};
+pub use softarm_space::{ACTUATORS, Actuation, MAX_WAYPOINTS, Position};
 /// Longest reason text in a reply.
 pub const MAX_REASON: usize = 200;
-
-pub mod clock;
-pub mod file;
-pub mod latch;
-pub use clock::now_ns;
-pub use latch::EstopLatch;
 
 /// What the controller is doing.
 #[repr(u32)]
@@ -245,10 +239,10 @@ pub struct WaypointReply {
 }
 
 impl WaypointReply {
-    pub fn accepted(seq: u64, set_id: u64) -> Self {
+    pub fn accepted(seq: u64, stamp_ns: u64, set_id: u64) -> Self {
         Self {
             seq,
-            stamp_ns: now_ns(),
+            stamp_ns,
             set_id,
             accepted: 1,
             reason_len: 0,
@@ -257,7 +251,7 @@ impl WaypointReply {
     }
 
     /// A rejection; the reason is cut at a character boundary to fit.
-    pub fn rejected(seq: u64, reason: &str) -> Self {
+    pub fn rejected(seq: u64, stamp_ns: u64, reason: &str) -> Self {
         let mut end = reason.len().min(MAX_REASON);
         while !reason.is_char_boundary(end) {
             end -= 1;
@@ -266,7 +260,7 @@ impl WaypointReply {
         r[..end].copy_from_slice(&reason.as_bytes()[..end]);
         Self {
             seq,
-            stamp_ns: now_ns(),
+            stamp_ns,
             set_id: 0,
             accepted: 0,
             reason_len: end as u32,
@@ -678,10 +672,10 @@ mod tests {
 
     #[test]
     fn reasons_fit_and_round_trip() {
-        let r = WaypointReply::rejected(1, "point 3: time 9 s is after the duration 8 s");
+        let r = WaypointReply::rejected(1, 0, "point 3: time 9 s is after the duration 8 s");
         assert_eq!(r.reason(), "point 3: time 9 s is after the duration 8 s");
         let long = "é".repeat(150);
-        let r = WaypointReply::rejected(1, &long);
+        let r = WaypointReply::rejected(1, 0, &long);
         assert!(r.reason().len() <= MAX_REASON && r.reason().chars().all(|c| c == 'é'));
     }
 

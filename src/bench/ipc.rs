@@ -16,10 +16,11 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, anyhow, bail};
 use serde_json::{Map, Value, json};
-use softarm_ipc::clock::Ticker;
 use softarm_ipc::iceoryx2::prelude::{ServiceName, ipc};
 use softarm_ipc::iceoryx2::service::port_factory::event::PortFactory as EventService;
-use softarm_ipc::{Namespace, Node, PubSub, Setpoint, now_ns};
+use softarm_ipc::{Namespace, Node, PubSub, Setpoint};
+use softarm_runtime::clock::Ticker;
+use softarm_runtime::now_ns;
 
 use super::{Out, Stats, header, json_with, row};
 use crate::scratch::RemoveOnDrop;

@@ -22,9 +22,10 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, anyhow, bail};
 use hdrhistogram::Histogram;
 use serde_json::{Value, json};
-use softarm_ipc::clock::Ticker;
-use softarm_ipc::{ControllerState, ControllerStatus, Node, now_ns};
-use softarm_model::config::{DEFAULT, Override};
+use softarm_config::{DEFAULT, Override};
+use softarm_ipc::{ControllerState, ControllerStatus, Node};
+use softarm_runtime::clock::Ticker;
+use softarm_runtime::now_ns;
 
 use super::{Out, Stats, duration, header, json_with, row};
 use crate::scratch::Scratch;

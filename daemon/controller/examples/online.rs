@@ -7,14 +7,14 @@
 //! [learner], `;` for newlines).
 
 use anyhow::{Context, bail};
+use softarm_config::Config;
+use softarm_config::scenario::Scenario;
+use softarm_config::waypoints::WaypointFile;
 use softarm_controller::rehearsal::rehearse;
 use softarm_method::cacla::{CaclaMtl, LearnerConfig};
 use softarm_method::online::OnlineLearner;
 use softarm_method::plant::Plant;
 use softarm_model::bundle::Model;
-use softarm_model::config::Config;
-use softarm_model::scenario::Scenario;
-use softarm_model::waypoints::WaypointFile;
 
 fn mean(v: &[f64]) -> f64 {
     v.iter().sum::<f64>() / v.len() as f64

@@ -2,8 +2,8 @@
 //! its start, sampled at the tick rate by linear interpolation, tagged with its index and class
 //! so the recorder can tell them apart.
 
+use softarm_config::{Config, Controller};
 use softarm_ipc::Actuation;
-use softarm_model::config::{Config, Controller};
 
 /// The demonstration tag of a setpoint that is not part of a demonstration.
 pub(crate) const NO_DEMO: u32 = u32::MAX;

@@ -10,12 +10,13 @@ use std::thread::JoinHandle;
 
 use anyhow::Context;
 use rtrb::{Consumer, Producer, PushError, RingBuffer};
-use softarm_ipc::clock::Ticker;
+use softarm_config::Config;
 use softarm_ipc::iceoryx2::port::update_connections::UpdateConnections;
 use softarm_ipc::{
-    ConditioningSample, ControllerStatus, ExecutionStats, Namespace, Node, Setpoint, now_ns,
+    ConditioningSample, ControllerStatus, ExecutionStats, Namespace, Node, Setpoint,
 };
-use softarm_model::config::Config;
+use softarm_runtime::clock::Ticker;
+use softarm_runtime::now_ns;
 
 /// What the tick publishes.
 pub(crate) enum Outgoing {

@@ -55,7 +55,7 @@ impl TickLatency {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use softarm_test_support::alloc::{self, Counting};
+    use softarm_test_alloc::{self as alloc, Counting};
 
     #[global_allocator]
     static GLOBAL: Counting = Counting;

@@ -30,8 +30,8 @@ use std::thread::JoinHandle;
 
 use anyhow::{Context, anyhow};
 use rtrb::RingBuffer;
+use softarm_config::Config;
 use softarm_ipc::Namespace;
-use softarm_model::config::Config;
 
 use demonstration::DemoSequences;
 use execution::ReadySet;

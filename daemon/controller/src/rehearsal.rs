@@ -5,14 +5,14 @@
 //! working, and for tuning (`cargo run --release -p softarm-controller --example online`).
 
 use anyhow::Context;
+use softarm_config::Config;
+use softarm_config::waypoints::WaypointFile;
 use softarm_method::classify::classify;
 use softarm_method::engine::{Planner, Timeline};
 use softarm_method::online::OnlineLearner;
 use softarm_method::plant::Plant;
 use softarm_method::{ACTUATORS, Actuation, Position, distance};
 use softarm_model::bundle::Model;
-use softarm_model::config::Config;
-use softarm_model::waypoints::WaypointFile;
 
 use crate::Limiter;
 
@@ -89,9 +89,9 @@ pub fn rehearse(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use softarm_config::scenario::Scenario;
     use softarm_method::cacla::{CaclaMtl, LearnerConfig};
     use softarm_method::online::Algorithm;
-    use softarm_model::scenario::Scenario;
 
     fn mean(v: &[f64]) -> f64 {
         v.iter().sum::<f64>() / v.len() as f64
@@ -148,7 +148,7 @@ mod tests {
             std::process::id(),
             std::thread::current().id()
         ));
-        softarm_test_support::model::quick_model(&dir);
+        softarm_model::pipeline::quick_model(&dir);
         let model = Model::read(&dir).unwrap();
         let _ = std::fs::remove_dir_all(&dir);
         model

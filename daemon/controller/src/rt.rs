@@ -9,7 +9,7 @@ use std::time::Duration;
 
 use softarm_ipc::ControllerState;
 
-use softarm_model::config::Controller;
+use softarm_config::Controller;
 
 use crate::Shared;
 

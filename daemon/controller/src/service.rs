@@ -9,16 +9,17 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use rtrb::{Consumer, Producer, PushError};
+use softarm_config::Config;
+use softarm_config::waypoints::validate;
 use softarm_ipc::{
     ACTUATORS, Actuation, ActuationEstimate, ControllerState, DemonstrateReply, DemonstrateRequest,
     EstimateRequest, MAX_WAYPOINTS, Namespace, Node, Position, Pub, Server, Sub, WaypointReply,
-    WaypointSet, now_ns,
+    WaypointSet,
 };
 use softarm_method::classify::classify;
 use softarm_method::engine::{EngineError, Planner, Replanner, Timeline};
 use softarm_model::bundle::{BundleWatch, Model};
-use softarm_model::config::Config;
-use softarm_model::waypoints::validate;
+use softarm_runtime::now_ns;
 
 use crate::demonstration::DemoSequences;
 use crate::execution::ReadySet;
@@ -216,11 +217,11 @@ impl Service {
             let reply = match admit(&self.config, &self.slot, &set) {
                 Ok(admitted) => {
                     let set_id = self.request_estimates(&set, admitted);
-                    WaypointReply::accepted(set.seq, set_id)
+                    WaypointReply::accepted(set.seq, now_ns(), set_id)
                 }
                 Err(reason) => {
                     tracing::warn!("way-point set rejected: {reason}");
-                    WaypointReply::rejected(set.seq, &reason.to_string())
+                    WaypointReply::rejected(set.seq, now_ns(), &reason.to_string())
                 }
             };
             let _ = req.send_copy(reply);

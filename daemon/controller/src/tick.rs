@@ -7,12 +7,13 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use anyhow::Context;
 use rtrb::{Consumer, Producer};
-use softarm_ipc::clock::Ticker;
+use softarm_config::{Config, Controller};
 use softarm_ipc::{
     Actuation, ConditioningSample, ControllerState, ControllerStatus, DriverState, EstopState,
-    ExecutionStats, MotorState, Namespace, Node, Position, Setpoint, Sub, TrackerSample, now_ns,
+    ExecutionStats, MotorState, Namespace, Node, Position, Setpoint, Sub, TrackerSample,
 };
-use softarm_model::config::{Config, Controller};
+use softarm_runtime::clock::Ticker;
+use softarm_runtime::now_ns;
 
 use crate::demonstration::{self, DemoPlayback, DemoSequences, NO_DEMO};
 use crate::execution::{Execution, ReadySet};

@@ -8,15 +8,16 @@
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
+use softarm_config::Config;
 use softarm_ipc::{
     Actuation, ActuationEstimate, ConditioningSample, EstimateRequest, MAX_WAYPOINTS, Namespace,
-    Node, now_ns,
+    Node,
 };
 use softarm_method::cacla::{CaclaMtl, LearnerConfig};
 use softarm_method::online::OnlineLearner;
 use softarm_method::space::Workspace;
 use softarm_model::bundle::{BundleError, BundleWatch, Model, read_checkpoint, write_checkpoint};
-use softarm_model::config::Config;
+use softarm_runtime::now_ns;
 
 struct Loaded {
     learner: OnlineLearner,

@@ -1,7 +1,7 @@
 //! The method of "Task Driven Skill Learning in a Soft-Robotic Arm" (IROS 2021), pure math:
 //! no I/O, no clock, no iceoryx2 (Cargo enforces it: this crate depends on neither).
 //!
-//! - [`space`] — actuation and task space, named once.
+//! - [`space`] — actuation and task space, named once (re-exported from `softarm-space`).
 //! - [`promp`] — probabilistic movement primitives (train, condition, marginals).
 //! - [`activation`] — a_j(t) and b_i(t) of Eq. 11.
 //! - [`engine`] — Eq. 11 on the controller's tick grid ([`engine::Planner`] →
@@ -25,6 +25,7 @@ pub mod poly;
 pub mod promp;
 pub mod rbf;
 pub mod skill;
-pub mod space;
 
+/// The spaces, named once beneath the method and the contract (crate `softarm-space`).
+pub use softarm_space as space;
 pub use space::{ACTUATORS, Actuation, MAX_WAYPOINTS, Position, Workspace, distance};

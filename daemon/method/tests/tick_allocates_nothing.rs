@@ -7,7 +7,7 @@ mod common;
 use common::{D, primitives};
 use softarm_method::activation::ActivationConfig;
 use softarm_method::engine::{Planner, Timeline};
-use softarm_test_support::alloc::{self, Counting};
+use softarm_test_alloc::{self as alloc, Counting};
 
 #[global_allocator]
 static GLOBAL: Counting = Counting;

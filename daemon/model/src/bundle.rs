@@ -48,9 +48,9 @@ pub fn fnv64(bytes: &[u8]) -> u64 {
     })
 }
 
-/// Writes `bytes` to `path` atomically ([`softarm_ipc::file::write_atomic`]).
+/// Writes `bytes` to `path` atomically ([`softarm_runtime::file::write_atomic`]).
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), BundleError> {
-    softarm_ipc::file::write_atomic(path, bytes, None).map_err(io(path))
+    softarm_runtime::file::write_atomic(path, bytes, None).map_err(io(path))
 }
 
 /// Named tensors on their way to or from a file.

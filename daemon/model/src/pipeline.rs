@@ -20,7 +20,6 @@ use softarm_method::skill::{self, DemoRecipe, Recording};
 use softarm_method::space::{Actuation, Position, distance};
 
 use crate::bundle::Model;
-use crate::config::Config;
 
 /// Supervised passes over D_fwd that warm-start the actor before pre-training (`softarm train`).
 pub const IMITATION_PASSES: usize = 3;
@@ -60,7 +59,8 @@ pub enum PipelineError {
     Learner(String),
 }
 
-/// How the pipeline trains; [`Training::from`] a [`Config`] gives `softarm train`'s settings.
+/// How the pipeline trains; `softarm_clients::train::training` gives `softarm train`'s settings
+/// from a config.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Training {
     /// K of every ProMP, per DoF.
@@ -71,19 +71,6 @@ pub struct Training {
     /// Pre-training; its `budget_s` is for the caller's `keep_going`, not read here.
     pub pretrain: PretrainConfig,
     pub imitation_passes: usize,
-}
-
-impl From<&Config> for Training {
-    fn from(config: &Config) -> Self {
-        Self {
-            basis_functions: config.model.basis_functions,
-            forward: config.forward_model,
-            kinematics: config.kinematics,
-            learner: config.learner,
-            pretrain: config.pretrain,
-            imitation_passes: IMITATION_PASSES,
-        }
-    }
 }
 
 /// What the pipeline learns from.
@@ -368,8 +355,60 @@ pub fn from_plant(
     )
 }
 
+/// Quick settings for tests and benches: K = 15, 80 centres, two imitation passes, 300 epochs
+/// of pre-training.
+pub fn quick_training() -> Training {
+    Training {
+        basis_functions: 15,
+        forward: NetworkConfig {
+            centres: 80,
+            ..Default::default()
+        },
+        kinematics: Default::default(),
+        learner: LearnerConfig::default(),
+        pretrain: PretrainConfig {
+            max_epochs: 300,
+            ..Default::default()
+        },
+        imitation_passes: 2,
+    }
+}
+
+/// Writes a model bundle made in a second or two into `dir` (demonstrations straight from the
+/// kinematic model, six per class, seed 5, [`quick_training`]); its id. For tests and benches.
+pub fn quick_model(dir: &std::path::Path) -> String {
+    let recipe = DemoRecipe {
+        demos_per_class: 6,
+        ..Default::default()
+    };
+    let (model, _) = from_plant(
+        &softarm_method::pcc::ArmGeometry::default(),
+        &recipe,
+        5,
+        &quick_training(),
+        |_| true,
+    )
+    .expect("the quick model trains");
+    model.write(dir).expect("the quick model is written")
+}
+
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn the_quick_model_is_written_and_reads_back() {
+        let dir =
+            std::env::temp_dir().join(format!("softarm-pipeline-quick-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let id = super::quick_model(&dir);
+        let m = crate::bundle::Model::read(&dir).unwrap();
+        assert_eq!(m.id, id);
+        assert_eq!((m.actuation.len(), m.task.len()), (3, 3));
+        assert_eq!(m.forward.centres(), 80);
+        // Same inputs, same bundle.
+        assert_eq!(super::quick_model(&dir), id);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
     use super::*;
     use softarm_method::cacla::evaluate;
     use softarm_method::pcc::ArmGeometry;
@@ -631,17 +670,5 @@ mod tests {
         )
         .unwrap_err();
         assert!(matches!(e, PipelineError::Recipe(_)), "{e}");
-    }
-
-    #[test]
-    fn training_from_a_config_takes_its_sections() {
-        let c = Config::default_sim(std::path::PathBuf::from("/tmp/x"));
-        let t = Training::from(&c);
-        assert_eq!(t.basis_functions, c.model.basis_functions);
-        assert_eq!(t.forward, c.forward_model);
-        assert_eq!(t.kinematics, c.kinematics);
-        assert_eq!(t.learner, c.learner);
-        assert_eq!(t.pretrain, c.pretrain);
-        assert_eq!(t.imitation_passes, IMITATION_PASSES);
     }
 }

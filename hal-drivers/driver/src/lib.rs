@@ -2,9 +2,8 @@
 //! services ([`Commands`]), and deciding, alone, what is safe to do with them ([`Supervisor`]),
 //! whatever the controller does. The sim and the tendon driver are built on these.
 
-use softarm_ipc::{
-    Actuation, ControllerState, DriverState, EstopLatch, EstopState, Node, Setpoint, Sub, now_ns,
-};
+use softarm_ipc::{Actuation, ControllerState, DriverState, EstopState, Node, Setpoint, Sub};
+use softarm_runtime::{EstopLatch, now_ns};
 
 /// The setpoint and e-stop subscriptions of a driver, and what arrived on them.
 pub struct Commands {

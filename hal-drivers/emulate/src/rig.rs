@@ -8,9 +8,9 @@ use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 
 use anyhow::Context;
+use softarm_config::Config;
+use softarm_config::hardware::{Frame, Mapping};
 use softarm_method::space::ACTUATORS;
-use softarm_model::config::Config;
-use softarm_model::hardware::{Frame, Mapping};
 
 use crate::bird::{self, BirdFaults};
 use crate::dynamixel;

@@ -7,8 +7,9 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use anyhow::Context;
 
 use softarm_driver::Commands;
-use softarm_ipc::clock::Ticker;
-use softarm_ipc::{DriverState, EstopLatch, MotorState, Namespace, Node, TrackerSample, now_ns};
+use softarm_ipc::{DriverState, MotorState, Namespace, Node, TrackerSample};
+use softarm_runtime::clock::Ticker;
+use softarm_runtime::{EstopLatch, now_ns};
 
 use softarm_method::pcc::ArmGeometry;
 use softarm_method::plant::{Plant, SimConfig};

@@ -16,11 +16,12 @@ use dynamixel2::instructions::SyncWriteData;
 use dynamixel2::serial2::SerialPort;
 use dynamixel2::{Bus, ReadError, TransferError, WriteError};
 
+use softarm_config::Config;
+use softarm_config::hardware::{Mapping, TendonConfig};
 use softarm_driver::{Action, Commands, Supervisor, Timeouts};
-use softarm_ipc::clock::{Backoff, Ticker};
-use softarm_ipc::{ACTUATORS, DriverState, MotorState, Namespace, Node, now_ns};
-use softarm_model::config::Config;
-use softarm_model::hardware::{Mapping, TendonConfig};
+use softarm_ipc::{ACTUATORS, DriverState, MotorState, Namespace, Node};
+use softarm_runtime::clock::{Backoff, Ticker};
+use softarm_runtime::now_ns;
 
 pub mod table;
 

@@ -25,10 +25,10 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
 use proptest::prelude::*;
+use softarm_config::Config;
+use softarm_config::hardware::TendonConfig;
 use softarm_emulate::dynamixel::{self as dxl, Bus};
 use softarm_emulate::pty::Pty;
-use softarm_model::config::Config;
-use softarm_model::hardware::TendonConfig;
 use softarm_tendon::fuzz::Probe;
 use softarm_tendon::table::CURRENT_UNIT_A;
 

@@ -12,10 +12,11 @@ use std::time::Duration;
 use anyhow::Context;
 use serial2::SerialPort;
 
-use softarm_ipc::clock::Backoff;
-use softarm_ipc::{Namespace, Node, Position, TrackerSample, now_ns};
-use softarm_model::config::Config;
-use softarm_model::hardware::{Frame, TrackerConfig, TrackerMode, TrackerRecord};
+use softarm_config::Config;
+use softarm_config::hardware::{Frame, TrackerConfig, TrackerMode, TrackerRecord};
+use softarm_ipc::{Namespace, Node, Position, TrackerSample};
+use softarm_runtime::clock::Backoff;
+use softarm_runtime::now_ns;
 
 pub mod bird;
 

@@ -2,11 +2,11 @@
 
 use std::path::Path;
 
-use softarm_model::config::{self, DEFAULT};
+use softarm_config::DEFAULT;
 
-/// [`softarm_model::config::with_overrides`], for tests: a bad override is a test bug.
+/// [`softarm_config::with_overrides`], for tests: a bad override is a test bug.
 pub fn with_overrides(text: &str, overrides: &[(&str, toml::Value)]) -> String {
-    config::with_overrides(text, overrides).unwrap_or_else(|e| panic!("{e}"))
+    softarm_config::with_overrides(text, overrides).unwrap_or_else(|e| panic!("{e}"))
 }
 
 /// The shipped hardware config (`config/hardware.toml`).
@@ -53,7 +53,7 @@ pub fn config_text(dir: &Path, namespace: &str) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use softarm_model::config::Config;
+    use softarm_config::Config;
 
     #[test]
     fn a_test_config_is_valid_and_has_its_overrides() {

@@ -6,11 +6,11 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
-use softarm_model::config::Config;
+use softarm_config::Config;
 
 use crate::config::{config_text, hardware_config_text, with_overrides};
-use crate::model::quick_model;
 use crate::process::{Guard, eventually};
+use softarm_model::pipeline::quick_model;
 
 /// The demo way-point set.
 pub const DEMO_WAYPOINTS: &str = concat!(

@@ -7,7 +7,7 @@ use serde::Deserialize;
 use softarm_ipc::WaypointSet;
 use softarm_method::MAX_WAYPOINTS;
 
-use crate::config::{MAX_DURATION_S, WaypointLimits, key_line, line_at};
+use crate::{MAX_DURATION_S, WaypointLimits, key_line, line_at};
 use softarm_method::activation::ActivationConfig;
 
 /// A way-point file: `duration_s`, and `[[point]]` tables with `t_s` and `position_m`.

@@ -18,7 +18,7 @@ use serde::{Deserialize, Serialize};
 use softarm_method::pcc::ArmGeometry;
 use softarm_method::plant::SimConfig;
 
-use crate::config::{ConfigError, key_line, line_at};
+use crate::{ConfigError, key_line, line_at};
 
 /// The scenarios shipped in `config/scenarios/`, embedded so `--scenario NAME` works anywhere.
 pub const SHIPPED: [(&str, &str); 5] = [

@@ -4,7 +4,7 @@
 //! each test binary:
 //!
 //! ```
-//! use softarm_test_support::alloc::{self, Counting};
+//! use softarm_test_alloc::{self as alloc, Counting};
 //!
 //! #[global_allocator]
 //! static GLOBAL: Counting = Counting;

@@ -1,5 +1,13 @@
 //! The one configuration file every softarm process reads: TOML, unknown keys
 //! refused, every value checked at start; errors name the key and its line.
+//!
+//! - [`Config`] (this file): every section, the embedded defaults, `--set`-style overrides.
+//! - [`hardware`]: the real arm's drivers' sections, motor ticks ↔ actuation, tracker ↔ base
+//!   frame.
+//! - [`waypoints`]: way-point files and the checks a set must pass.
+//! - [`scenario`]: scenario files, the sim's arm when it is not the one the model knows.
+//!
+//! Every process links this crate to read its section; none of it trains or loads a model.
 
 use std::path::{Path, PathBuf};
 
@@ -14,6 +22,10 @@ use softarm_method::cacla::{LearnerConfig, PretrainConfig};
 use softarm_method::poly::{MAX_DEGREE, PolynomialConfig};
 use softarm_method::rbf::NetworkConfig;
 use softarm_method::skill::DemoRecipe;
+
+pub mod hardware;
+pub mod scenario;
+pub mod waypoints;
 
 use crate::hardware::{TendonConfig, TrackerConfig};
 
@@ -243,8 +255,8 @@ impl Config {
     }
 
     /// The e-stop latch of this stack: in the state folder, so it outlives every process.
-    pub fn estop_latch(&self) -> softarm_ipc::EstopLatch {
-        softarm_ipc::EstopLatch::new(self.state_dir().join("estop"))
+    pub fn estop_latch(&self) -> softarm_runtime::EstopLatch {
+        softarm_runtime::EstopLatch::new(self.state_dir().join("estop"))
     }
 
     /// Checks every value of every section. The error is the exact dotted key (array elements
