@@ -296,21 +296,10 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             let config = stack.load()?;
             let r = train::train(&config, &stack.namespace()?, seed)?;
             println!(
-                "trained model {} in {}: {} demonstrations ({} samples, {:.1} s); on held-out \
-                 demonstrations the forward model is off by {:.2} mm mean, {:.2} mm max, the \
-                 polynomial kinematics by {:.2} mm mean, {:.2} mm max; pre-training {:.1} s, {} \
-                 updates",
+                "trained model {} in {}: {}",
                 r.model_id,
                 config.model_dir().display(),
-                r.demos,
-                r.samples,
-                r.demonstrate_s,
-                r.forward_error_m.0 * 1e3,
-                r.forward_error_m.1 * 1e3,
-                r.kinematics_error_m.0 * 1e3,
-                r.kinematics_error_m.1 * 1e3,
-                r.pretrain_s,
-                r.pretrain_updates
+                r.summary()
             );
         }
         Command::Submit {
@@ -319,82 +308,20 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             wait,
             stack,
         } => {
-            let config = stack.load()?;
-            let set = match submit::prepare(&config, &waypoints, executions) {
-                Ok(s) => s,
-                Err(reason) => {
-                    println!("rejected: {reason}");
-                    return Ok(ExitCode::from(2));
-                }
-            };
-            let ns = stack.namespace()?;
-            let follower = if wait {
-                Some(stats::Stats::open(&ns)?)
-            } else {
-                None
-            };
-            let outcome = submit::submit(&ns, set, Duration::from_secs(10));
-            match &outcome {
-                submit::Outcome::Accepted { set_id } => println!("accepted: set {set_id}"),
-                submit::Outcome::Rejected { reason } => println!("rejected: {reason}"),
-                submit::Outcome::Unreachable { message } => eprintln!("softarm: {message}"),
-            }
-            if let (Some(f), submit::Outcome::Accepted { set_id }) = (follower, &outcome) {
-                println!("{}", stats::table_header(set.count as usize));
-                let mut done = 0;
-                // Validated: the duration and the rest are bounded by the config's limits.
-                let limit =
-                    Duration::try_from_secs_f64(set.duration_s + config.controller.rest_s + 30.0)
-                        .context("the set's duration")?;
-                while done < executions {
-                    let s = f.next(limit).ok_or_else(|| {
-                        anyhow!(
-                            "no stats arrived within {} s: is the stack still running?",
-                            limit.as_secs()
-                        )
-                    })?;
-                    if s.set_id == *set_id {
-                        println!("{}", stats::table_row(&s));
-                        done += 1;
-                    }
-                }
-            }
-            return Ok(ExitCode::from(outcome.exit_code()));
+            let code = submit::run(
+                &stack.load()?,
+                &stack.namespace()?,
+                &waypoints,
+                executions,
+                wait,
+            )?;
+            return Ok(ExitCode::from(code));
         }
         Command::Stats {
             follow,
             json,
             stack,
-        } => {
-            let ns = stack.namespace()?;
-            let f = stats::Stats::open(&ns)?;
-            if !f.controller_running() {
-                // No statistics can come: said, rather than nothing printed (or followed for
-                // ever) as if no execution had finished yet.
-                return Err(anyhow!(
-                    "no controller runs in namespace {:?}: is `softarm up` running there (same \
-                     --config or --namespace)?",
-                    ns.as_str()
-                ));
-            }
-            let mut header = None;
-            let wait = if follow {
-                Duration::from_secs(3600 * 24 * 365)
-            } else {
-                Duration::from_millis(500)
-            };
-            while let Some(s) = f.next(wait) {
-                if json {
-                    println!("{}", stats::json_line(&s));
-                } else {
-                    if header != Some(s.count) {
-                        println!("{}", stats::table_header(s.count as usize));
-                        header = Some(s.count);
-                    }
-                    println!("{}", stats::table_row(&s));
-                }
-            }
-        }
+        } => stats::show(&stack.namespace()?, follow, json)?,
         Command::Status { json, stack } => {
             let r = status::status(&stack.namespace()?, Duration::from_secs(1))?;
             if json {
@@ -408,24 +335,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 return Ok(ExitCode::from(status::NOT_RUNNING));
             }
         }
-        Command::Estop { reset, stack } => {
-            let c = stack.load()?;
-            let n = estop::send(&Namespace::new(&c.namespace())?, &c.estop_latch(), !reset)?;
-            println!(
-                "e-stop {} ({n} receivers)",
-                if reset { "released" } else { "engaged" }
-            );
-            if n == 0 {
-                // Not an error: the latch is what a process starting later reads.
-                eprintln!(
-                    "softarm: no running process in namespace {:?} heard it; the latch {} says \
-                     {} for every process that starts",
-                    c.namespace(),
-                    c.estop_latch().path().display(),
-                    if reset { "released" } else { "engaged" }
-                );
-            }
-        }
+        Command::Estop { reset, stack } => estop::run(&stack.load()?, reset)?,
         Command::Config { command } => match command {
             ConfigCommand::Check { file } => {
                 let c = Config::load(&file)?;

@@ -128,17 +128,9 @@ impl Scratch {
             let t = Instant::now();
             let r = train::train(&self.config, &self.namespace, seed)?;
             say(&format!(
-                "trained in {:.1} s: {} demonstrations ({} samples, {:.1} s), held-out error of \
-                 the forward model {:.2} mm, of the polynomial kinematics {:.2} mm (means), \
-                 pre-training {:.1} s ({} updates)",
+                "trained in {:.1} s: {}",
                 t.elapsed().as_secs_f64(),
-                r.demos,
-                r.samples,
-                r.demonstrate_s,
-                r.forward_error_m.0 * 1e3,
-                r.kinematics_error_m.0 * 1e3,
-                r.pretrain_s,
-                r.pretrain_updates
+                r.summary()
             ));
         }
         self.wait_for(

@@ -50,3 +50,21 @@ fn publish(namespace: &Namespace, engaged: bool) -> anyhow::Result<usize> {
     std::thread::sleep(Duration::from_millis(200));
     Ok(receivers)
 }
+
+/// `softarm estop [--reset]` for the stack of `config`: sends, then says who heard it.
+pub fn run(config: &softarm_config::Config, reset: bool) -> anyhow::Result<()> {
+    let latch = config.estop_latch();
+    let n = send(&Namespace::new(&config.namespace())?, &latch, !reset)?;
+    let word = if reset { "released" } else { "engaged" };
+    println!("e-stop {word} ({n} receivers)");
+    if n == 0 {
+        // Not an error: the latch is what a process starting later reads.
+        eprintln!(
+            "softarm: no running process in namespace {:?} heard it; the latch {} says {word} \
+             for every process that starts",
+            config.namespace(),
+            latch.path().display(),
+        );
+    }
+    Ok(())
+}

@@ -94,3 +94,36 @@ impl Stats {
         crate::poll(timeout, || self.sub.receive().ok().flatten().map(|s| *s))
     }
 }
+
+/// `softarm stats [--follow] [--json]`: the executions' stats the controller still holds (the
+/// last 64), then with `follow` every new one; an error when no controller runs there.
+pub fn show(namespace: &Namespace, follow: bool, json: bool) -> anyhow::Result<()> {
+    let f = Stats::open(namespace)?;
+    if !f.controller_running() {
+        // No statistics can come: said, rather than nothing printed (or followed for ever) as
+        // if no execution had finished yet.
+        anyhow::bail!(
+            "no controller runs in namespace {:?}: is `softarm up` running there (same \
+             --config or --namespace)?",
+            namespace.as_str()
+        );
+    }
+    let mut header = None;
+    let wait = if follow {
+        Duration::from_secs(3600 * 24 * 365)
+    } else {
+        Duration::from_millis(500)
+    };
+    while let Some(s) = f.next(wait) {
+        if json {
+            println!("{}", json_line(&s));
+        } else {
+            if header != Some(s.count) {
+                println!("{}", table_header(s.count as usize));
+                header = Some(s.count);
+            }
+            println!("{}", table_row(&s));
+        }
+    }
+    Ok(())
+}

@@ -2,10 +2,14 @@
 
 use std::time::Duration;
 
+use anyhow::{Context, anyhow};
+
 use softarm_config::Config;
 use softarm_config::waypoints::{WaypointFile, validate};
 use softarm_ipc::{Namespace, Node, WaypointSet};
 use softarm_runtime::now_ns;
+
+use crate::stats;
 
 /// How a submission ended; the exit code of `softarm submit`.
 #[derive(Debug, Clone, PartialEq)]
@@ -85,4 +89,67 @@ pub fn submit(namespace: &Namespace, mut set: WaypointSet, timeout: Duration) ->
             message: crate::unreachable(namespace.as_str(), "the way-point set"),
         },
     }
+}
+
+/// `softarm submit FILE [--executions N] [--wait]`: checks, sends, prints the answer, and with
+/// `wait` a table row per execution of the set as its stats arrive; the exit code.
+pub fn run(
+    config: &Config,
+    namespace: &Namespace,
+    file: &std::path::Path,
+    executions: u32,
+    wait: bool,
+) -> anyhow::Result<u8> {
+    let set = match prepare(config, file, executions) {
+        Ok(s) => s,
+        Err(reason) => {
+            println!("rejected: {reason}");
+            return Ok(Outcome::Rejected { reason }.exit_code());
+        }
+    };
+    // Subscribed before sending, so no execution's stats can pass unseen.
+    let follower = if wait {
+        Some(stats::Stats::open(namespace)?)
+    } else {
+        None
+    };
+    let outcome = submit(namespace, set, Duration::from_secs(10));
+    match &outcome {
+        Outcome::Accepted { set_id } => println!("accepted: set {set_id}"),
+        Outcome::Rejected { reason } => println!("rejected: {reason}"),
+        Outcome::Unreachable { message } => eprintln!("softarm: {message}"),
+    }
+    if let (Some(f), Outcome::Accepted { set_id }) = (follower, &outcome) {
+        // Validated: the duration and the rest are bounded by the config's limits.
+        let limit = Duration::try_from_secs_f64(set.duration_s + config.controller.rest_s + 30.0)
+            .context("the set's duration")?;
+        follow(&f, *set_id, executions, set.count as usize, limit)?;
+    }
+    Ok(outcome.exit_code())
+}
+
+/// Prints the stats of `executions` executions of set `set_id` as they arrive; an error when
+/// none arrives within `limit`.
+fn follow(
+    f: &stats::Stats,
+    set_id: u64,
+    executions: u32,
+    points: usize,
+    limit: Duration,
+) -> anyhow::Result<()> {
+    println!("{}", stats::table_header(points));
+    let mut done = 0;
+    while done < executions {
+        let s = f.next(limit).ok_or_else(|| {
+            anyhow!(
+                "no stats arrived within {} s: is the stack still running?",
+                limit.as_secs()
+            )
+        })?;
+        if s.set_id == set_id {
+            println!("{}", stats::table_row(&s));
+            done += 1;
+        }
+    }
+    Ok(())
 }

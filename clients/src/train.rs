@@ -31,6 +31,26 @@ pub struct Trained {
     pub model_id: String,
 }
 
+impl Trained {
+    /// What was made and how good it is, in one sentence for the user.
+    pub fn summary(&self) -> String {
+        format!(
+            "{} demonstrations ({} samples, {:.1} s); on held-out demonstrations the forward \
+             model is off by {:.2} mm mean, {:.2} mm max, the polynomial kinematics by {:.2} mm \
+             mean, {:.2} mm max; pre-training {:.1} s, {} updates",
+            self.demos,
+            self.samples,
+            self.demonstrate_s,
+            self.forward_error_m.0 * 1e3,
+            self.forward_error_m.1 * 1e3,
+            self.kinematics_error_m.0 * 1e3,
+            self.kinematics_error_m.1 * 1e3,
+            self.pretrain_s,
+            self.pretrain_updates
+        )
+    }
+}
+
 fn bar(len: u64, msg: &str) -> ProgressBar {
     if !std::io::stderr().is_terminal() {
         return ProgressBar::hidden();
