@@ -14,11 +14,8 @@ use softarm_config::waypoints::{WaypointFile, validate};
 use softarm_config::{Config, DEFAULT};
 use softarm_ipc::{ExecutionStats, Namespace};
 
-use crate::scratch::Scratch;
-use crate::up::{self, Supervisor};
-
-/// The demo's way-point set: five conditioning points inside the demonstrated subspace.
-pub const WAYPOINTS: &str = include_str!("../config/waypoints/demo.toml");
+use softarm_stack::scratch::{self, Scratch};
+use softarm_stack::supervisor::{self, Supervisor};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -38,8 +35,9 @@ pub struct Args {
     /// tool-change, creep, twist, stiffer) or a scenario file. The model stays the nominal one.
     #[arg(long)]
     scenario: Option<String>,
-    /// The online learner: softarm (Jacobian-directed corrections) or paper (Alg. 1 as printed).
-    #[arg(long, value_enum, default_value_t = Learner::Softarm)]
+    /// The online learner: gauss-newton (Jacobian-directed steps; "softarm", its former name,
+    /// still works) or paper (Alg. 1 as printed).
+    #[arg(long, value_enum, default_value_t = Learner::GaussNewton)]
     learner: Learner,
     /// The way-point file to run (default: the demo set, config/waypoints/demo.toml).
     #[arg(long, value_name = "FILE")]
@@ -56,20 +54,12 @@ pub struct Args {
     no_record: bool,
 }
 
-#[derive(Clone, Copy, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, clap::ValueEnum)]
 enum Learner {
-    Softarm,
+    /// `learner.algorithm = "gauss-newton"`; `softarm` is its former name.
+    #[value(alias = "softarm")]
+    GaussNewton,
     Paper,
-}
-
-pub(crate) fn cache_dir() -> PathBuf {
-    if let Some(d) = std::env::var_os("XDG_CACHE_HOME") {
-        return PathBuf::from(d).join("softarm");
-    }
-    if let Some(h) = std::env::var_os("HOME") {
-        return PathBuf::from(h).join(".cache/softarm");
-    }
-    std::env::temp_dir().join("softarm-cache")
 }
 
 fn say(json: bool, line: &str) {
@@ -96,7 +86,7 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
     let model_dir = args
         .model_dir
         .clone()
-        .unwrap_or_else(|| cache_dir().join(format!("demo-model-seed{}", args.seed)));
+        .unwrap_or_else(|| scratch::cache_dir().join(format!("demo-model-seed{}", args.seed)));
     if model_dir.exists() && !model_dir.is_dir() {
         bail!("the model folder {} is not a folder", model_dir.display());
     }
@@ -111,7 +101,7 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
             (
                 "learner.algorithm",
                 match args.learner {
-                    Learner::Softarm => "softarm",
+                    Learner::GaussNewton => "gauss-newton",
                     Learner::Paper => "paper",
                 }
                 .into(),
@@ -124,7 +114,7 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
     let file = match &args.set {
         Some(path) => load_set("--set", path, config, args.executions)?,
         None => {
-            let file = WaypointFile::parse(WAYPOINTS)
+            let file = WaypointFile::parse(scratch::DEMO_WAYPOINTS)
                 .map_err(anyhow::Error::msg)
                 .context("the demo way-points")?;
             file.to_set(args.executions)
@@ -165,7 +155,7 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
             ),
         );
         let arg = args.scenario.as_deref();
-        sup.restart_with("sim", up::sim_args(arg), Duration::from_secs(5))?;
+        sup.restart_with("sim", supervisor::sim_args(arg), Duration::from_secs(5))?;
         wait_for(
             "the scenario's sim coming up",
             Duration::from_secs(20),
@@ -321,4 +311,26 @@ fn run_set(
         rows.push(s);
     }
     Ok(rows)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::ValueEnum;
+
+    #[test]
+    fn the_learner_flag_takes_the_new_name_and_the_former_one() {
+        assert_eq!(
+            Learner::GaussNewton.to_possible_value().unwrap().get_name(),
+            "gauss-newton"
+        );
+        for name in ["gauss-newton", "softarm"] {
+            assert_eq!(
+                Learner::from_str(name, false),
+                Ok(Learner::GaussNewton),
+                "{name}"
+            );
+        }
+        assert_eq!(Learner::from_str("paper", false), Ok(Learner::Paper));
+    }
 }

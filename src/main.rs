@@ -2,28 +2,21 @@
 
 use std::path::PathBuf;
 use std::process::ExitCode;
-use std::sync::Arc;
-use std::sync::atomic::AtomicBool;
 use std::time::Duration;
 
-use anyhow::{Context, anyhow};
+use anyhow::Context;
 use clap::{Parser, Subcommand};
 use softarm_clients::{estop, record, stats, status, submit, train};
 use softarm_config::scenario::Scenario;
 use softarm_config::{Config, ConfigError};
+use softarm_emulate::command as emulate;
 use softarm_ipc::Namespace;
+use softarm_runtime::stop_flag;
+use softarm_stack::supervisor as up;
+use softarm_stack::{bench, soak};
+use softarm_systemd as install;
 
-mod bench;
 mod demo;
-mod emulate;
-mod install;
-mod scratch;
-mod soak;
-mod up;
-
-/// Exit code of a process whose config is refused (EX_CONFIG of sysexits.h): starting it again
-/// cannot help, so the systemd units list it in `RestartPreventExitStatus=`.
-const EXIT_CONFIG: u8 = 78;
 
 /// Task-driven skill learning for a two-module soft continuum arm: ProMPs blended by the paper's
 /// Eq. 11, conditioning points learned online by CACLA-MTL.
@@ -238,13 +231,23 @@ fn init_logging(default: &str) {
         .try_init();
 }
 
-/// SIGINT and SIGTERM set the returned flag; processes finish their loop and clean up.
-fn stop_flag() -> anyhow::Result<Arc<AtomicBool>> {
-    let flag = Arc::new(AtomicBool::new(false));
-    for sig in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
-        signal_hook::flag::register(sig, flag.clone()).context("installing a signal handler")?;
-    }
-    Ok(flag)
+/// `softarm sim [--scenario NAME|FILE]`: the simulated arm, the config's or another.
+fn sim(c: &Config, scenario: Option<&str>) -> anyhow::Result<()> {
+    let (arm, sim) = match scenario {
+        Some(s) => {
+            let s = Scenario::resolve(s)?;
+            tracing::info!(scenario = %s.name, "the sim runs another arm: {}", s.describe());
+            s.apply(&c.arm, &c.sim)?
+        }
+        None => (c.arm, c.sim),
+    };
+    softarm_sim::run(
+        &sim,
+        &arm,
+        Namespace::new(&c.namespace())?,
+        &c.estop_latch(),
+        &*stop_flag()?,
+    )
 }
 
 fn run(cli: Cli) -> anyhow::Result<ExitCode> {
@@ -265,24 +268,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         }
         Command::Controller(stack) => softarm_controller::run(&stack.load()?, &*stop_flag()?)?,
         Command::Learner(stack) => softarm_learner::run(&stack.load()?, &*stop_flag()?)?,
-        Command::Sim { stack, scenario } => {
-            let c = stack.load()?;
-            let (arm, sim) = match &scenario {
-                Some(s) => {
-                    let s = Scenario::resolve(s)?;
-                    tracing::info!(scenario = %s.name, "the sim runs another arm: {}", s.describe());
-                    s.apply(&c.arm, &c.sim)?
-                }
-                None => (c.arm, c.sim),
-            };
-            softarm_sim::run(
-                &sim,
-                &arm,
-                Namespace::new(&c.namespace())?,
-                &c.estop_latch(),
-                &*stop_flag()?,
-            )?
-        }
+        Command::Sim { stack, scenario } => sim(&stack.load()?, scenario.as_deref())?,
         Command::Tendon(stack) => {
             let c = stack.load_with("tendon", |c| c.tendon.is_some())?;
             softarm_tendon::run(&c, Namespace::new(&c.namespace())?, &*stop_flag()?)?
@@ -347,39 +333,9 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             output,
             duration,
             stack,
-        } => {
-            let duration = match duration {
-                Some(d) if !(d.is_finite() && d > 0.0) => {
-                    return Err(anyhow!(
-                        "--duration must be a positive number of seconds, got {d}"
-                    ));
-                }
-                Some(d) => Some(
-                    Duration::try_from_secs_f64(d)
-                        .map_err(|_| anyhow!("--duration {d:e} s is too long"))?,
-                ),
-                None => None,
-            };
-            let counts = record::record(&stack.namespace()?, &output, duration, &*stop_flag()?)?;
-            record::summary(&output, &counts, &mut std::io::stdout())?;
-        }
-        Command::Replay { recording, json } => {
-            let messages = record::read(&recording)?;
-            let r = record::replay(&messages);
-            if json {
-                println!("{}", serde_json::to_string(&r)?);
-            } else {
-                print!("{}", record::replay_text(&r, &messages));
-            }
-        }
-        Command::Plot { recording, output } => {
-            // Before the recording is read: a plot that cannot be written is refused first.
-            softarm_clients::plot::check_output(&output)?;
-            let messages = record::read(&recording)?;
-            let data = record::plot_data(&messages, &recording.display().to_string())?;
-            softarm_clients::plot::render(&data, &output)?;
-            println!("wrote {}", output.display());
-        }
+        } => record::run(&stack.namespace()?, &output, duration, &*stop_flag()?)?,
+        Command::Replay { recording, json } => record::replay_command(&recording, json)?,
+        Command::Plot { recording, output } => softarm_clients::plot::run(&recording, &output)?,
         Command::Bench(args) => bench::run(&args)?,
         Command::Soak(args) => {
             if !soak::run(&args, &*stop_flag()?)? {
@@ -407,7 +363,7 @@ fn main() -> ExitCode {
         Err(e) => {
             eprintln!("softarm: {e:#}");
             if e.chain().any(|c| c.is::<ConfigError>()) {
-                ExitCode::from(EXIT_CONFIG)
+                ExitCode::from(softarm_config::EXIT_CONFIG)
             } else {
                 ExitCode::FAILURE
             }

@@ -19,6 +19,7 @@ mod hardware;
 mod hardware_faults;
 mod install;
 mod iox2;
+mod layering;
 mod leftovers;
 mod notify;
 mod python;

@@ -681,6 +681,17 @@ fn draw_error_series<'a, DB: DrawingBackend + 'a>(
     Ok(())
 }
 
+/// `softarm plot FILE -o OUT`: the recording's last set drawn into `output` (PNG or SVG).
+pub fn run(recording: &Path, output: &Path) -> anyhow::Result<()> {
+    // Before the recording is read: a plot that cannot be written is refused first.
+    check_output(output)?;
+    let messages = crate::record::read(recording)?;
+    let data = crate::record::plot_data(&messages, &recording.display().to_string())?;
+    render(&data, output)?;
+    println!("wrote {}", output.display());
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -547,3 +547,38 @@ pub fn plot_data(messages: &[Message], title: &str) -> anyhow::Result<crate::plo
         executions,
     })
 }
+
+/// `softarm record -o FILE [--duration S]`: records until stopped or for `duration` seconds,
+/// then prints the channels' counts.
+pub fn run(
+    namespace: &Namespace,
+    output: &Path,
+    duration: Option<f64>,
+    stop: &AtomicBool,
+) -> anyhow::Result<()> {
+    let duration = match duration {
+        Some(d) if !(d.is_finite() && d > 0.0) => {
+            bail!("--duration must be a positive number of seconds, got {d}");
+        }
+        Some(d) => Some(
+            Duration::try_from_secs_f64(d)
+                .map_err(|_| anyhow::anyhow!("--duration {d:e} s is too long"))?,
+        ),
+        None => None,
+    };
+    let counts = record(namespace, output, duration, stop)?;
+    summary(output, &counts, &mut std::io::stdout())?;
+    Ok(())
+}
+
+/// `softarm replay FILE [--json]`: per-execution errors and timing from a recording.
+pub fn replay_command(recording: &Path, json: bool) -> anyhow::Result<()> {
+    let messages = read(recording)?;
+    let r = replay(&messages);
+    if json {
+        println!("{}", serde_json::to_string(&r)?);
+    } else {
+        print!("{}", replay_text(&r, &messages));
+    }
+    Ok(())
+}

@@ -18,10 +18,16 @@ use softarm_method::plant::SimConfig;
 use softarm_method::space::{Actuation, Position};
 
 use softarm_method::activation::ActivationConfig;
-use softarm_method::cacla::{LearnerConfig, PretrainConfig};
+use softarm_method::cacla::PretrainConfig;
+use softarm_method::learner_config::LearnerConfig;
 use softarm_method::poly::{MAX_DEGREE, PolynomialConfig};
 use softarm_method::rbf::NetworkConfig;
 use softarm_method::skill::DemoRecipe;
+
+/// Exit code of a process whose config is refused (EX_CONFIG of sysexits.h): starting it again
+/// cannot help, so the systemd units list it in `RestartPreventExitStatus=` and the supervisor
+/// of `softarm up` gives it up.
+pub const EXIT_CONFIG: u8 = 78;
 
 pub mod hardware;
 pub mod scenario;
@@ -235,6 +241,10 @@ impl Config {
             line: key_line(text, &key),
             message: format!("{key}: {message}"),
         })?;
+        // Logged here, so every process that reads the file says it, and no caller can forget.
+        for w in deprecations(text, origin) {
+            tracing::warn!("{w}");
+        }
         Ok(c)
     }
 
@@ -469,6 +479,42 @@ impl Config {
     }
 }
 
+/// Former spellings that still load as their new names: (dotted key, its old value or `None`
+/// for any value, the message).
+const DEPRECATED: [(&str, Option<&str>, &str); 2] = [
+    (
+        "learner.correction",
+        None,
+        "[learner.correction] is deprecated: rename it [learner.gauss_newton]",
+    ),
+    (
+        "learner.algorithm",
+        Some("softarm"),
+        "learner.algorithm = \"softarm\" is deprecated: use \"gauss-newton\"",
+    ),
+];
+
+/// One line per deprecated spelling in the TOML `text`, each naming the new one, as
+/// `origin:line: message`. [`Config::parse`] logs them.
+pub fn deprecations(text: &str, origin: &str) -> Vec<String> {
+    let Ok(doc) = text.parse::<toml::Table>() else {
+        return Vec::new();
+    };
+    DEPRECATED
+        .iter()
+        .filter(|(key, old, _)| {
+            let mut parts = key.split('.');
+            let first = parts.next().and_then(|k| doc.get(k));
+            let value = parts.fold(first, |v, k| v.and_then(|v| v.get(k)));
+            value.is_some_and(|v| old.is_none_or(|old| v.as_str() == Some(old)))
+        })
+        .map(|(key, _, message)| match key_line(text, key) {
+            Some(line) => format!("{origin}:{line}: {message}"),
+            None => format!("{origin}: {message}"),
+        })
+        .collect()
+}
+
 /// A failed check: the dotted key and a message that does not repeat it.
 type Invalid = (String, String);
 
@@ -636,6 +682,69 @@ mod tests {
     }
 
     const HARDWARE: &str = include_str!("../../../config/hardware.toml");
+
+    /// `text` with `new` spelt `old`, parsed, and the deprecation lines it gives.
+    fn formerly(text: &str, new: &str, old: &str) -> (Config, Vec<String>) {
+        assert!(text.contains(new), "{new}");
+        let old = text.replace(new, old);
+        let c = Config::parse(&old, "c.toml", ".".into()).unwrap();
+        (c, deprecations(&old, "c.toml"))
+    }
+
+    #[test]
+    fn the_former_learner_correction_section_loads_and_names_gauss_newton() {
+        let new = Config::parse(DEFAULT, "c.toml", ".".into()).unwrap();
+        assert!(deprecations(DEFAULT, "c.toml").is_empty());
+        assert!(deprecations(HARDWARE, "h.toml").is_empty());
+        let (old, warnings) = formerly(DEFAULT, "[learner.gauss_newton]", "[learner.correction]");
+        assert_eq!(old, new);
+        let line = DEFAULT
+            .lines()
+            .position(|l| l.starts_with("[learner.gauss_newton]"))
+            .unwrap()
+            + 1;
+        assert_eq!(
+            warnings,
+            [format!(
+                "c.toml:{line}: [learner.correction] is deprecated: rename it [learner.gauss_newton]"
+            )]
+        );
+        // A value out of range there still names its key (and the section's line).
+        let bad = DEFAULT
+            .replace("[learner.gauss_newton]", "[learner.correction]")
+            .replace("gain = 0.8 ", "gain = 8.0 ");
+        let e = Config::parse(&bad, "c.toml", ".".into()).unwrap_err();
+        assert!(e.message.starts_with("learner.gauss_newton.gain: "), "{e}");
+    }
+
+    #[test]
+    fn the_former_algorithm_softarm_loads_and_names_gauss_newton() {
+        let new = Config::parse(DEFAULT, "c.toml", ".".into()).unwrap();
+        assert_eq!(
+            new.learner.algorithm,
+            softarm_method::learner_config::Algorithm::GaussNewton
+        );
+        let (old, warnings) = formerly(
+            DEFAULT,
+            "algorithm = \"gauss-newton\"",
+            "algorithm = \"softarm\"",
+        );
+        assert_eq!(old, new);
+        assert_eq!(warnings.len(), 1, "{warnings:?}");
+        assert!(
+            warnings[0]
+                .ends_with(": learner.algorithm = \"softarm\" is deprecated: use \"gauss-newton\""),
+            "{warnings:?}"
+        );
+        // "paper" is no former name.
+        let (paper, warnings) = formerly(
+            DEFAULT,
+            "algorithm = \"gauss-newton\"",
+            "algorithm = \"paper\"",
+        );
+        assert_ne!(paper, new);
+        assert!(warnings.is_empty(), "{warnings:?}");
+    }
 
     #[test]
     fn the_hardware_config_is_valid_and_differs_only_in_the_drivers() {

@@ -1,14 +1,35 @@
 //! Executing a way-point set: per execution a rest that slews to v(0), then Eq. 11 tick by tick;
 //! at each conditioning point a sample for the learner, at the end of each execution its stats.
+//! The tick plays it on the arm, `softarm-rehearsal` on a simulated plant: this is the one
+//! place that decides when a point is sampled and which estimate the learner sends next.
 
+use softarm_config::Controller;
 use softarm_ipc::{
     ACTUATORS, Actuation, ConditioningSample, ExecutionStats, MAX_WAYPOINTS, Position,
 };
 use softarm_method::distance;
 use softarm_method::engine::TickEngine;
 
-/// A way-point set ready to run: its engine and what the tick needs to know.
-pub(crate) struct ReadySet {
+/// The rest before each execution, in ticks.
+pub fn rest_ticks(c: &Controller) -> i64 {
+    (c.rest_s * c.rate_hz).round() as i64
+}
+
+/// A conditioning sample as the learner gets it: with the `setpoint` published at the point
+/// (the action it credits) and the actuators' newest measured state (NaN if none yet).
+pub fn complete_sample(
+    mut s: ConditioningSample,
+    setpoint: Actuation,
+    measured: Option<Actuation>,
+) -> ConditioningSample {
+    s.actuation = setpoint;
+    s.measured = measured.unwrap_or([f64::NAN; ACTUATORS]);
+    s
+}
+
+/// A way-point set ready to run: its engine and what the tick needs to know. Made by
+/// [`Admitted::start`](crate::Admitted::start).
+pub struct ReadySet {
     pub(crate) set_id: u64,
     pub(crate) executions: u32,
     pub(crate) points: usize,
@@ -19,7 +40,7 @@ pub(crate) struct ReadySet {
 }
 
 /// Executing a way-point set, `executions` times over.
-pub(crate) struct Execution {
+pub struct Execution {
     set: Box<ReadySet>,
     /// 1-based.
     execution: u32,
@@ -32,17 +53,19 @@ pub(crate) struct Execution {
 }
 
 /// What one tick of an execution produced.
-pub(crate) struct ExecutionTick {
-    pub(crate) target: Actuation,
-    /// At a conditioning point: the sample for the learner (the caller fills in the setpoint it
-    /// published, and the sequence number).
-    pub(crate) point: Option<ConditioningSample>,
+pub struct ExecutionTick {
+    /// Before the limiter.
+    pub target: Actuation,
+    /// At a conditioning point: the sample for the learner (the caller completes it with the
+    /// setpoint it published, [`complete_sample`], and numbers it).
+    pub point: Option<ConditioningSample>,
     /// At the end of an execution: its stats (sequence number by the caller).
-    pub(crate) finished: Option<ExecutionStats>,
+    pub finished: Option<ExecutionStats>,
 }
 
 impl Execution {
-    pub(crate) fn new(set: Box<ReadySet>, rest_ticks: i64) -> Self {
+    /// The set's first execution, from the start of its rest.
+    pub fn new(set: Box<ReadySet>, rest_ticks: i64) -> Self {
         Self {
             execution: 1,
             k: -rest_ticks,
@@ -53,18 +76,18 @@ impl Execution {
         }
     }
 
-    pub(crate) fn set_id(&self) -> u64 {
+    pub fn set_id(&self) -> u64 {
         self.set.set_id
     }
 
     /// The execution under way (1-based); past the last once the set is through.
-    pub(crate) fn execution(&self) -> u32 {
+    pub fn execution(&self) -> u32 {
         self.execution
     }
 
     /// Re-conditioned tables swapped in during the current execution (its rest included: what
     /// is swapped in there is in force for it).
-    pub(crate) fn reconditions(&self) -> u32 {
+    pub fn reconditions(&self) -> u32 {
         u32::try_from(self.set.engine.applied() - self.applied_before).unwrap_or(u32::MAX)
     }
 
@@ -74,12 +97,12 @@ impl Execution {
     }
 
     /// Whether it is between executions, where the set may end or give way to the next.
-    pub(crate) fn at_boundary(&self, rest_ticks: i64) -> bool {
+    pub fn at_boundary(&self, rest_ticks: i64) -> bool {
         self.k == -rest_ticks
     }
 
     /// Whether every execution has run.
-    pub(crate) fn through(&self) -> bool {
+    pub fn through(&self) -> bool {
         self.execution > self.set.executions
     }
 
@@ -92,8 +115,8 @@ impl Execution {
     /// execution follows the clock, so it jumps that many ticks ahead (the limiter smooths the
     /// jump) and T_cond stays on wall time; a point whose tick was jumped over is sampled at the
     /// first tick played at or after it, one point per tick, and the execution ends only once
-    /// every point was sampled.
-    pub(crate) fn step(
+    /// every point was sampled. `reached`: the newest tracker position (`None`: none yet).
+    pub fn step(
         &mut self,
         reached: Option<Position>,
         rest_ticks: i64,

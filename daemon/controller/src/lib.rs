@@ -9,19 +9,24 @@
 //!
 //! The modules: the tick loop ([`tick`]), what its modes play ([`execution`] of way-point sets,
 //! [`demonstration`]s), its [`limiter`] and its wake-up [`latency`]; the [`service`] thread
-//! (admitting and planning sets, estimates, re-conditioning, demonstrations); the [`io`] thread
-//! and the tick's outbox; real-time set-up and the watchdog ([`rt`]).
+//! (estimates, re-conditioning, demonstrations) and the [`admission`] of sets it uses; the
+//! [`io`] thread and the tick's outbox; real-time set-up and the watchdog ([`rt`]).
+//!
+//! Admission, [`Execution`] and the [`Limiter`] are public so that `softarm-rehearsal` runs
+//! Alg. 2 with this very code on a simulated plant, in one process.
 
+mod admission;
 mod demonstration;
 mod execution;
 mod io;
 mod latency;
 mod limiter;
-pub mod rehearsal;
 mod rt;
 mod service;
 mod tick;
 
+pub use admission::{Admitted, admit};
+pub use execution::{Execution, ExecutionTick, ReadySet, complete_sample, rest_ticks};
 pub use limiter::Limiter;
 
 use std::sync::Arc;
@@ -34,7 +39,6 @@ use softarm_config::Config;
 use softarm_ipc::Namespace;
 
 use demonstration::DemoSequences;
-use execution::ReadySet;
 
 /// What the service thread hands the tick.
 enum ToTick {

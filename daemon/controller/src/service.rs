@@ -10,19 +10,16 @@ use std::time::{Duration, Instant};
 use anyhow::Context;
 use rtrb::{Consumer, Producer, PushError};
 use softarm_config::Config;
-use softarm_config::waypoints::validate;
 use softarm_ipc::{
     ACTUATORS, Actuation, ActuationEstimate, ControllerState, DemonstrateReply, DemonstrateRequest,
-    EstimateRequest, MAX_WAYPOINTS, Namespace, Node, Position, Pub, Server, Sub, WaypointReply,
-    WaypointSet,
+    EstimateRequest, Namespace, Node, Pub, Server, Sub, WaypointReply, WaypointSet,
 };
-use softarm_method::classify::classify;
-use softarm_method::engine::{EngineError, Planner, Replanner, Timeline};
+use softarm_method::engine::{EngineError, Replanner};
 use softarm_model::bundle::{BundleWatch, Model};
 use softarm_runtime::now_ns;
 
+use crate::admission::{Admitted, admit};
 use crate::demonstration::DemoSequences;
-use crate::execution::ReadySet;
 use crate::{Retired, Shared, ToTick, rt};
 
 /// How often the service thread looks for work: quick enough for users and the learner, and
@@ -37,12 +34,7 @@ struct PendingSet {
     set_id: u64,
     /// `None`: wait for every estimate, however long.
     deadline: Option<Instant>,
-    planner: Planner<ACTUATORS>,
-    executions: u32,
-    desired: [Position; MAX_WAYPOINTS],
-    /// Without the learner's estimate, each point's primitive's own mean at its phase (no
-    /// conditioning change), from the model this set was planned with.
-    fallback: Vec<Actuation>,
+    admitted: Admitted,
     estimates: Vec<Option<Actuation>>,
 }
 
@@ -50,13 +42,6 @@ impl PendingSet {
     fn ready(&self, now: Instant) -> bool {
         self.estimates.iter().all(Option::is_some) || self.deadline.is_some_and(|d| now >= d)
     }
-}
-
-/// A set that passed admission: planned, with each way-point's primitive and its mean there.
-struct Admitted {
-    planner: Planner<ACTUATORS>,
-    q: Vec<usize>,
-    fallback: Vec<Actuation>,
 }
 
 /// The replanner of every set handed to the tick (running, queued, or still in the ring), until
@@ -214,7 +199,7 @@ impl Service {
     fn admit_sets(&mut self) {
         while let Ok(Some(req)) = self.ports.waypoints.receive() {
             let set = *req.payload();
-            let reply = match admit(&self.config, &self.slot, &set) {
+            let reply = match admit(&self.config, self.slot.model.as_ref(), &set) {
                 Ok(admitted) => {
                     let set_id = self.request_estimates(&set, admitted);
                     WaypointReply::accepted(set.seq, now_ns(), set_id)
@@ -232,32 +217,24 @@ impl Service {
     fn request_estimates(&mut self, set: &WaypointSet, admitted: Admitted) -> u64 {
         self.next_set_id += 1;
         let set_id = self.next_set_id;
-        let n = set.count as usize;
-        let mut desired = [[0.0; 3]; MAX_WAYPOINTS];
-        desired[..n].copy_from_slice(&set.positions_m[..n]);
+        let n = admitted.points();
         tracing::info!(
             set_id,
             points = n,
             executions = set.executions,
-            q = ?admitted.q,
+            q = ?admitted.classes(),
             "way-point set accepted"
         );
         self.request_seq += 1;
-        let _ = self.ports.requests.send_copy(EstimateRequest {
-            seq: self.request_seq,
-            stamp_ns: now_ns(),
+        let _ = self.ports.requests.send_copy(admitted.estimate_request(
             set_id,
-            count: n as u32,
-            _pad: 0,
-            desired,
-        });
+            self.request_seq,
+            now_ns(),
+        ));
         self.pending = Some(PendingSet {
             set_id,
             deadline: estimate_deadline(Instant::now(), self.config.controller.estimate_timeout_s),
-            planner: admitted.planner,
-            executions: set.executions,
-            desired,
-            fallback: admitted.fallback,
+            admitted,
             estimates: vec![None; n],
         });
         set_id
@@ -330,31 +307,14 @@ impl Service {
             return;
         }
         let p = self.pending.take().expect("checked above");
-        let initial: Vec<Actuation> = p
-            .estimates
-            .iter()
-            .zip(&p.fallback)
-            .map(|(e, fallback)| e.unwrap_or(*fallback))
-            .collect();
         if p.estimates.iter().any(Option::is_none) {
             tracing::warn!(
                 set_id = p.set_id,
                 "no estimates from the learner in time: starting from the primitives' means"
             );
         }
-        let points = initial.len();
-        let mut cond_ticks = [0usize; MAX_WAYPOINTS];
-        cond_ticks[..points].copy_from_slice(p.planner.conditioning_ticks());
-        match p.planner.start(&initial) {
-            Ok((engine, replanner)) => {
-                let set = ReadySet {
-                    set_id: p.set_id,
-                    executions: p.executions,
-                    points,
-                    desired: p.desired,
-                    cond_ticks,
-                    engine,
-                };
+        match p.admitted.start(p.set_id, &p.estimates) {
+            Ok((set, replanner)) => {
                 if self.send_to_tick(ToTick::Execute(Box::new(set))) {
                     self.handed.add(p.set_id, replanner);
                 }
@@ -406,47 +366,6 @@ fn estimate_deadline(now: Instant, timeout_s: f64) -> Option<Instant> {
         Duration::ZERO
     });
     now.checked_add(wait)
-}
-
-/// Validates a set and plans it: ClassifyToPrimitives, then the primitives' marginals on the
-/// tick grid. Any error is the rejection reason, worded for the user; nothing changes.
-fn admit(config: &Config, slot: &ModelSlot, set: &WaypointSet) -> anyhow::Result<Admitted> {
-    validate(set, &config.waypoints, &config.activation).map_err(anyhow::Error::msg)?;
-    let Some(model) = slot.model.as_ref() else {
-        anyhow::bail!(
-            "no trained model in {}: run `softarm train` first",
-            slot.watch.dir().display()
-        );
-    };
-    let n = set.count as usize;
-    let points = &set.positions_m[..n];
-    let z: Vec<f64> = set.times_s[..n]
-        .iter()
-        .map(|t| t / set.duration_s)
-        .collect();
-    let q = classify(&model.task, points, &z, config.controller.variance_floor)?;
-    let timeline = Timeline::new(set.duration_s, config.controller.rate_hz)?;
-    let planner = Planner::new(
-        model.actuation.clone(),
-        &set.times_s[..n],
-        &q,
-        timeline,
-        config.activation,
-        config.controller.variance_floor,
-    )?;
-    let fallback = q
-        .iter()
-        .zip(&z)
-        .map(|(&j, &z)| {
-            let m = model.actuation[j].marginal(z).mean;
-            std::array::from_fn(|d| m[d])
-        })
-        .collect();
-    Ok(Admitted {
-        planner,
-        q,
-        fallback,
-    })
 }
 
 #[cfg(test)]

@@ -16,7 +16,7 @@ use softarm_runtime::clock::Ticker;
 use softarm_runtime::now_ns;
 
 use crate::demonstration::{self, DemoPlayback, DemoSequences, NO_DEMO};
-use crate::execution::{Execution, ReadySet};
+use crate::execution::{self, Execution, ReadySet, complete_sample};
 use crate::io::{Outbox, Outgoing};
 use crate::latency::TickLatency;
 use crate::limiter::Limiter;
@@ -95,7 +95,7 @@ impl Timing {
         Self {
             rate_hz: c.rate_hz,
             timeout_ns: (c.tracker_timeout_ms * 1e6) as u64,
-            rest_ticks: (c.rest_s * c.rate_hz).round() as i64,
+            rest_ticks: execution::rest_ticks(c),
             demo_rest_ticks: (demonstration::rest_s(c) * c.rate_hz).round() as i64,
             status_every: (c.rate_hz / 10.0).round().max(1.0) as u64,
         }
@@ -462,14 +462,10 @@ impl<'a> Tick<'a> {
             demo_class: step.demo.1,
             execution: step.execution,
         }));
-        if let Some(mut s) = step.sample {
+        if let Some(s) = step.sample {
+            let mut s = complete_sample(s, setpoint, self.inputs.measured.map(|(m, _)| m));
             self.count.samples += 1;
             s.seq = self.count.samples;
-            s.actuation = setpoint;
-            s.measured = self
-                .inputs
-                .measured
-                .map_or([f64::NAN; softarm_ipc::ACTUATORS], |(m, _)| m);
             self.links.outbox.send(Outgoing::Sample(s));
         }
         if let Some(mut s) = step.finished {

@@ -5,8 +5,9 @@
 
 use std::process::ExitCode;
 
-use softarm_method::cacla::{CaclaMtl, LearnerConfig};
+use softarm_method::cacla::CaclaMtl;
 use softarm_method::distance;
+use softarm_method::learner_config::LearnerConfig;
 use softarm_method::pcc::ArmGeometry;
 
 fn main() -> ExitCode {

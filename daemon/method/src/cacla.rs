@@ -13,224 +13,19 @@ use rand_distr::{Distribution, StandardNormal};
 use serde::{Deserialize, Serialize};
 
 use crate::forward::ForwardModel;
-use crate::online::{Algorithm, CorrectionConfig};
-use crate::rbf::{Features, Lattice, LinearRbf, RbfError};
+use crate::learner_config::LearnerConfig;
+use crate::rbf::{Features, LinearRbf};
 use crate::space::{ACTUATORS, Actuation, Position, distance};
 
-/// Hyper-parameters; the `[learner]` section of the config. Defaults: the starting values the
-/// paper's method suggests (α_V 0.1, α_Ac 0.2, γ 0.5, b 30 mm, c 100 /m, lattices 30/15 mm), but
-/// for h (`sigma_max`, see there).
+/// Alg. 1's memory of one conditioning point: k_n, and the state and error of its last visit,
+/// which the next visit's δ needs. Part of [`LearnerState`], so bundles and checkpoints carry it.
+///
+/// The online learner keeps more per point (`online::RunningPoint`: tries, Jacobian, trust
+/// region, error filter) apart from this, on purpose: pre-training runs Alg. 1 without it, and
+/// that state is of the running set only (never checkpointed), so the stored format stays
+/// Alg. 1's as the paper defines it.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct LearnerConfig {
-    /// α_V
-    pub alpha_critic: f64,
-    /// α_Ac
-    pub alpha_actor: f64,
-    /// γ
-    pub gamma: f64,
-    /// h: the largest exploration σ (normalised actuation). The usual starting value 0.15 is
-    /// unstable on the suggested arm: σ = 0.15 moves the end effector ~135 mm, so the next
-    /// σ(g) is h again and the error never falls (loop gain ≈ 0.9 m · h c / 4 ≈ 3.4). 0.03 keeps
-    /// that gain below 1.
-    pub sigma_max: f64,
-    /// b: the error (m) at which σ is h/2.
-    pub sigma_mid_m: f64,
-    /// c: steepness of σ(g) (1/m).
-    pub sigma_slope_per_m: f64,
-    /// Critic lattice spacing over (p_desired, p_current) (m); the paper: 30 mm.
-    pub critic_spacing_m: f64,
-    /// Actor lattice spacing over p_desired (m); the paper: 15 mm.
-    pub actor_spacing_m: f64,
-    /// Gaussian σ of the critic's lattice functions, in cells.
-    pub critic_width: f64,
-    /// Gaussian σ of the actor's lattice functions, in cells.
-    pub actor_width: f64,
-    /// Centres evaluated per axis (2: the two bracketing the input, 3: the nearest and its
-    /// neighbours).
-    pub critic_span: usize,
-    pub actor_span: usize,
-    /// The box the lattices span (m): the arm's reachable workspace.
-    pub workspace_min_m: Position,
-    pub workspace_max_m: Position,
-    /// The actuation an untrained actor proposes.
-    pub initial_actuation: f64,
-    /// Most weights the actor's and the critic's lattices keep; past that the least recently
-    /// trained are dropped. Settings of the running learner (never written into a bundle):
-    /// they bound its memory over many sets (the default model stores ~4k and ~30k).
-    #[serde(skip_serializing)]
-    pub actor_max_centres: usize,
-    #[serde(skip_serializing)]
-    pub critic_max_centres: usize,
-    pub seed: u64,
-    /// Which online learner runs ([`crate::online`]): `softarm` or the paper's. Like
-    /// `correction`, a setting of the running learner, read from the config and never written
-    /// into a model bundle or checkpoint, so changing these never invalidates a trained model.
-    #[serde(skip_serializing)]
-    pub algorithm: Algorithm,
-    /// `[learner.correction]`: the directed corrections of the `softarm` algorithm.
-    #[serde(skip_serializing)]
-    pub correction: CorrectionConfig,
-}
-
-impl Default for LearnerConfig {
-    fn default() -> Self {
-        Self {
-            alpha_critic: 0.1,
-            alpha_actor: 0.2,
-            gamma: 0.5,
-            sigma_max: 0.03,
-            sigma_mid_m: 0.03,
-            sigma_slope_per_m: 100.0,
-            critic_spacing_m: 0.03,
-            actor_spacing_m: 0.015,
-            critic_width: 0.5,
-            actor_width: 0.5,
-            critic_span: 2,
-            actor_span: 3,
-            // The reachable box of the default arm, with a margin.
-            workspace_min_m: [-0.45, -0.45, -0.6],
-            workspace_max_m: [0.45, 0.45, 0.05],
-            initial_actuation: 0.5,
-            // ~17 and ~13 MiB at most; the actor's covers the default workspace's whole lattice.
-            actor_max_centres: 200_000,
-            critic_max_centres: 500_000,
-            seed: 1,
-            algorithm: Algorithm::default(),
-            correction: CorrectionConfig::default(),
-        }
-    }
-}
-
-impl LearnerConfig {
-    /// Checks every field; the error is `learner.KEY: message`. Spans and lattice sizes are
-    /// what [`Lattice::new`] accepts.
-    pub fn validate(&self) -> Result<(), String> {
-        let bad = |key: &str, m: String| Err(format!("learner.{key}: {m}"));
-        let unit = [
-            ("alpha_critic", self.alpha_critic),
-            ("alpha_actor", self.alpha_actor),
-            ("gamma", self.gamma),
-            ("initial_actuation", self.initial_actuation),
-        ];
-        for (k, v) in unit {
-            if !(0.0..=1.0).contains(&v) {
-                return bad(k, format!("must be in [0, 1], got {v:?}"));
-            }
-        }
-        // (key, value, largest, unit)
-        let positive = [
-            ("sigma_max", self.sigma_max, 1.0, ""),
-            ("sigma_mid_m", self.sigma_mid_m, 1.0, " m"),
-            ("sigma_slope_per_m", self.sigma_slope_per_m, 1e4, " /m"),
-            ("critic_width", self.critic_width, 10.0, " cells"),
-            ("actor_width", self.actor_width, 10.0, " cells"),
-        ];
-        for (k, v, max, u) in positive {
-            if !(v.is_finite() && v > 0.0 && v <= max) {
-                return bad(k, format!("must be in (0, {max}]{u}, got {v:?}"));
-            }
-        }
-        for (k, v) in [
-            ("critic_spacing_m", self.critic_spacing_m),
-            ("actor_spacing_m", self.actor_spacing_m),
-        ] {
-            if !(v.is_finite() && (0.001..=1.0).contains(&v)) {
-                return bad(k, format!("must be in [0.001, 1] m, got {v:?}"));
-            }
-        }
-        let max_span = crate::rbf::MAX_SPAN;
-        for (k, v) in [
-            ("critic_span", self.critic_span),
-            ("actor_span", self.actor_span),
-        ] {
-            if !(2..=max_span).contains(&v) {
-                return bad(
-                    k,
-                    format!("must be 2 to {max_span} centres per axis, got {v}"),
-                );
-            }
-        }
-        let (lo, hi) = (self.workspace_min_m, self.workspace_max_m);
-        if let Err(e) = crate::space::Workspace::new(lo, hi) {
-            let key = if lo.iter().all(|v| v.is_finite()) {
-                "workspace_max_m"
-            } else {
-                "workspace_min_m"
-            };
-            return bad(key, e);
-        }
-        // Lattice::new counts centres in a u64: keep well inside it.
-        const MAX_CENTRES: f64 = 1e18;
-        for (k, spacing, dims) in [
-            ("actor_spacing_m", self.actor_spacing_m, 1),
-            ("critic_spacing_m", self.critic_spacing_m, 2),
-        ] {
-            let per_box: f64 = (0..3)
-                .map(|d| ((hi[d] - lo[d]) / spacing).ceil() + 1.0)
-                .product();
-            let centres = per_box.powi(dims);
-            if centres.is_nan() || centres > MAX_CENTRES {
-                return bad(
-                    k,
-                    format!(
-                        "{spacing} m over the workspace makes {centres:.1e} lattice centres, more \
-                         than {MAX_CENTRES:.0e}: widen the spacing or shrink the workspace"
-                    ),
-                );
-            }
-        }
-        self.correction.validate()?;
-        let (actor, critic) = self.lattices().map_err(|e| format!("learner: {e}"))?;
-        for (k, v, least) in [
-            (
-                "actor_max_centres",
-                self.actor_max_centres,
-                LinearRbf::<ACTUATORS>::min_capacity(&actor),
-            ),
-            (
-                "critic_max_centres",
-                self.critic_max_centres,
-                LinearRbf::<1>::min_capacity(&critic),
-            ),
-        ] {
-            if !(least..=100_000_000).contains(&v) {
-                return bad(
-                    k,
-                    format!(
-                        "must be {least} (eight updates' worth of centres) to 100000000, got {v}"
-                    ),
-                );
-            }
-        }
-        Ok(())
-    }
-
-    fn lattices(&self) -> Result<(Lattice, Lattice), RbfError> {
-        let (lo, hi) = (self.workspace_min_m, self.workspace_max_m);
-        let actor = Lattice::new(
-            &lo,
-            &hi,
-            &[self.actor_spacing_m; 3],
-            self.actor_width,
-            self.actor_span,
-        )?;
-        let lo6 = [lo[0], lo[1], lo[2], lo[0], lo[1], lo[2]];
-        let hi6 = [hi[0], hi[1], hi[2], hi[0], hi[1], hi[2]];
-        let critic = Lattice::new(
-            &lo6,
-            &hi6,
-            &[self.critic_spacing_m; 6],
-            self.critic_width,
-            self.critic_span,
-        )?;
-        Ok((actor, critic))
-    }
-}
-
-/// What the learner remembers of one conditioning point.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct Memory {
+pub struct PointMemory {
     /// k_n: visits so far.
     pub visits: u64,
     pub target: Position,
@@ -256,7 +51,7 @@ pub struct LearnerState {
     pub config: LearnerConfig,
     pub actor: Vec<(u64, Actuation)>,
     pub critic: Vec<(u64, [f64; 1])>,
-    pub memory: Vec<Option<Memory>>,
+    pub memory: Vec<Option<PointMemory>>,
 }
 
 /// The critic V(p_desired, p_current): linear in normalised RBF features on a sparse 6-D
@@ -326,7 +121,7 @@ pub struct CaclaMtl {
     config: LearnerConfig,
     actor: Actor,
     critic: Critic,
-    memory: Vec<Option<Memory>>,
+    memory: Vec<Option<PointMemory>>,
     rng: StdRng,
 }
 
@@ -351,7 +146,7 @@ impl CaclaMtl {
         &self.config
     }
 
-    pub fn memory(&self, point: usize) -> Option<&Memory> {
+    pub fn memory(&self, point: usize) -> Option<&PointMemory> {
         self.memory.get(point).and_then(Option::as_ref)
     }
 
@@ -420,7 +215,7 @@ impl CaclaMtl {
         }
         let prev = self.memory[point].filter(|m| m.target == *target);
         let visits = prev.map_or(0, |m| m.visits) + 1;
-        self.memory[point] = Some(Memory {
+        self.memory[point] = Some(PointMemory {
             visits,
             target: *target,
             position: *reached,
@@ -708,93 +503,5 @@ mod tests {
             ..Default::default()
         };
         assert!(CaclaMtl::new(c).err().unwrap().contains("learner.gamma"));
-    }
-
-    #[test]
-    fn every_field_is_checked_and_spans_are_what_lattices_accept() {
-        let check = |edit: &dyn Fn(&mut LearnerConfig), want: &str| {
-            let mut c = LearnerConfig::default();
-            edit(&mut c);
-            let e = c.validate().unwrap_err();
-            assert!(e.starts_with(want), "{e} (wanted {want:?})");
-            assert_eq!(e.matches(want.split(':').next().unwrap()).count(), 1, "{e}");
-        };
-        check(
-            &|c| c.critic_span = 1,
-            "learner.critic_span: must be 2 to 9 centres per axis",
-        );
-        check(
-            &|c| c.actor_span = 10,
-            "learner.actor_span: must be 2 to 9 centres per axis",
-        );
-        check(
-            &|c| c.alpha_actor = f64::NAN,
-            "learner.alpha_actor: must be in [0, 1]",
-        );
-        check(
-            &|c| c.sigma_max = 2.0,
-            "learner.sigma_max: must be in (0, 1]",
-        );
-        check(
-            &|c| c.sigma_slope_per_m = f64::INFINITY,
-            "learner.sigma_slope_per_m: must be in (0, 10000] /m",
-        );
-        check(
-            &|c| c.actor_width = 1e300,
-            "learner.actor_width: must be in (0, 10] cells",
-        );
-        check(
-            &|c| c.critic_spacing_m = 0.0,
-            "learner.critic_spacing_m: must be in [0.001, 1] m",
-        );
-        check(
-            &|c| c.workspace_min_m[1] = f64::NAN,
-            "learner.workspace_min_m: axis 1 (y): the box NaN",
-        );
-        check(
-            &|c| c.workspace_max_m[2] = -1.0,
-            "learner.workspace_max_m: axis 2 (z): the box -0.6 .. -1 m is empty",
-        );
-        // A box so wide the lattices cannot be counted: an error, not an overflow.
-        check(
-            &|c| {
-                c.workspace_min_m = [-1e300; 3];
-                c.workspace_max_m = [1e300; 3];
-            },
-            "learner.actor_spacing_m: 0.015 m over the workspace makes inf lattice centres",
-        );
-        check(
-            &|c| {
-                c.workspace_min_m = [-1e3; 3];
-                c.workspace_max_m = [1e3; 3];
-            },
-            "learner.critic_spacing_m: 0.03 m over the workspace makes",
-        );
-        // A wide neighbourhood needs room for its updates.
-        check(
-            &|c| c.critic_max_centres = 511,
-            "learner.critic_max_centres: must be 512 (eight updates' worth of centres)",
-        );
-        check(
-            &|c| {
-                c.critic_span = 5;
-                c.critic_max_centres = 100_000;
-            },
-            "learner.critic_max_centres: must be 125000",
-        );
-        check(
-            &|c| c.actor_max_centres = usize::MAX,
-            "learner.actor_max_centres: must be 216 (eight updates' worth of centres) to 100000000",
-        );
-        for span in [2, crate::rbf::MAX_SPAN] {
-            let c = LearnerConfig {
-                critic_span: span,
-                actor_span: span,
-                critic_max_centres: 100_000_000,
-                ..Default::default()
-            };
-            c.validate().unwrap();
-            c.lattices().unwrap();
-        }
     }
 }

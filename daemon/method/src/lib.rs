@@ -11,6 +11,9 @@
 //! - [`rbf`] — RBF lattices and the RBF forward-model network; [`forward`] — the
 //!   `ForwardModel` trait.
 //! - [`cacla`] — CACLA-MTL (Alg. 1): [`cacla::Actor`], [`cacla::Critic`], pre-training.
+//! - [`online`] — the online learner over a running set: Alg. 1 as printed, or damped
+//!   Gauss-Newton steps ([`learner_config::Algorithm`]).
+//! - [`learner_config`] — the `[learner]` section, beneath both.
 //! - [`pcc`] — piecewise-constant-curvature kinematics; [`plant`]: the simulated plant.
 
 pub mod activation;
@@ -18,6 +21,7 @@ pub mod cacla;
 pub mod classify;
 pub mod engine;
 pub mod forward;
+pub mod learner_config;
 pub mod online;
 pub mod pcc;
 pub mod plant;

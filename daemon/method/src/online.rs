@@ -3,7 +3,7 @@
 //!
 //! - [`Algorithm::Paper`] — Alg. 1 exactly: a ~ N(Ac(p_d), σ(g)² I), the critic judges, the
 //!   actor moves toward the executed action when δ > 0.
-//! - [`Algorithm::Softarm`] (default) — the same actor-critic, but exploration is *directed*:
+//! - [`Algorithm::GaussNewton`] (default) — the same actor-critic, but exploration is *directed*:
 //!   the errors of a changed arm are systematic and repeat every execution, so the next action
 //!   of a point is a damped Gauss-Newton step from its best executed action,
 //!   a = a_base + J⁺ (p_d − p_reached), with J the trained kinematics' Jacobian, Broyden-updated
@@ -17,137 +17,12 @@
 //! Pure: no I/O, no clock; allocation only when a set starts.
 
 use nalgebra::{DMatrix, Matrix3, SVector, Vector3};
-use serde::{Deserialize, Serialize};
 
 use crate::cacla::{CaclaMtl, Visit};
 use crate::forward::{ForwardModel, Jacobian};
+use crate::learner_config::{Algorithm, GaussNewtonConfig};
 use crate::poly::Polynomial;
 use crate::space::{ACTUATORS, Actuation, MAX_WAYPOINTS, Position, distance};
-
-/// Which online learner runs: `learner.algorithm`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Algorithm {
-    /// The paper's Alg. 1, as printed (with its three corrections), for comparison.
-    Paper,
-    /// Directed exploration with the forward model's Jacobian, learnt per point (this module).
-    #[default]
-    Softarm,
-}
-
-impl Algorithm {
-    pub fn name(self) -> &'static str {
-        match self {
-            Algorithm::Paper => "paper",
-            Algorithm::Softarm => "softarm",
-        }
-    }
-}
-
-/// `[learner.correction]`: the directed corrections of [`Algorithm::Softarm`].
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct CorrectionConfig {
-    /// Fraction of the Gauss-Newton step taken for errors well above `noise_m`. Near the noise
-    /// it falls as g e² / (e² + noise²), so the corrections average the tracker noise out
-    /// instead of chasing it.
-    pub gain: f64,
-    /// μ of the damped pseudo-inverse Jᵀ(JJᵀ + μ²I)⁻¹ (m): directions that move the end
-    /// effector less than this per unit actuation are not pushed along.
-    pub damping_m: f64,
-    /// Largest step ‖Δa‖ of a point's first correction (normalised units).
-    pub trust_initial: f64,
-    /// The trust region grows ×1.5 per improving step up to this, and halves per failed one
-    /// down to `trust_min`.
-    pub trust_max: f64,
-    pub trust_min: f64,
-    /// What one measurement of the error at a point scatters by (m): tracker noise, timing
-    /// jitter, backlash. A rise smaller than this is noise, not a failed step.
-    pub noise_m: f64,
-    /// Gauss-Newton iterations of a set's first estimates against the trained kinematics.
-    pub refine_steps: usize,
-    /// The transfer keeps the corrections of this many targets (the oldest go first).
-    pub transfer_points: usize,
-    /// ℓ of the transfer's kernel (m): how far from a visited target its correction still
-    /// holds in full.
-    pub transfer_length_m: f64,
-    /// σ_f of the transfer's kernel: how much a visited point's correction may differ from the
-    /// mean of all of them (normalised units). Small against `transfer_noise`: the mean
-    /// carries most (a changed tool, creep, stiffness shift every point alike), a point's own
-    /// part only near it.
-    pub transfer_spread: f64,
-    /// σ_n: what a point's correction is uncertain by (normalised units).
-    pub transfer_noise: f64,
-    /// A point's Jacobian learns from a step only if the step was meant to move the end
-    /// effector more than this (m, ‖J Δa‖): the noise of smaller moves would dominate.
-    pub broyden_min_m: f64,
-}
-
-impl Default for CorrectionConfig {
-    fn default() -> Self {
-        Self {
-            gain: 0.8,
-            damping_m: 0.005,
-            trust_initial: 0.2,
-            trust_max: 0.3,
-            trust_min: 0.01,
-            noise_m: 0.002,
-            refine_steps: 10,
-            transfer_points: 64,
-            transfer_length_m: 0.25,
-            transfer_spread: 0.05,
-            transfer_noise: 0.02,
-            broyden_min_m: 0.005,
-        }
-    }
-}
-
-impl CorrectionConfig {
-    /// Checks every field; the error is `learner.correction.KEY: message`.
-    pub fn validate(&self) -> Result<(), String> {
-        let bad = |key: &str, m: String| Err(format!("learner.correction.{key}: {m}"));
-        // (key, value, smallest (exclusive), largest)
-        let ranges = [
-            ("gain", self.gain, 0.0, 1.0),
-            ("damping_m", self.damping_m, 0.0, 1.0),
-            ("trust_initial", self.trust_initial, 0.0, 2.5),
-            ("trust_max", self.trust_max, 0.0, 2.5),
-            ("trust_min", self.trust_min, 0.0, 2.5),
-            ("noise_m", self.noise_m, 0.0, 1.0),
-            ("transfer_length_m", self.transfer_length_m, 0.0, 10.0),
-            ("transfer_spread", self.transfer_spread, 0.0, 1.0),
-            ("transfer_noise", self.transfer_noise, 0.0, 1.0),
-            ("broyden_min_m", self.broyden_min_m, 0.0, 1.0),
-        ];
-        for (k, v, lo, hi) in ranges {
-            if !(v.is_finite() && v > lo && v <= hi) {
-                return bad(k, format!("must be in ({lo}, {hi}], got {v:?}"));
-            }
-        }
-        if !(self.trust_min <= self.trust_initial && self.trust_initial <= self.trust_max) {
-            return bad(
-                "trust_initial",
-                format!(
-                    "must lie between trust_min ({}) and trust_max ({}), got {}",
-                    self.trust_min, self.trust_max, self.trust_initial
-                ),
-            );
-        }
-        if self.refine_steps > 1000 {
-            return bad(
-                "refine_steps",
-                format!("must be 0 to 1000, got {}", self.refine_steps),
-            );
-        }
-        if !(1..=256).contains(&self.transfer_points) {
-            return bad(
-                "transfer_points",
-                format!("must be 1 to 256, got {}", self.transfer_points),
-            );
-        }
-        Ok(())
-    }
-}
 
 /// A visit or estimate that does not fit the running set.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -176,9 +51,12 @@ struct Try {
     error: f64,
 }
 
-/// What the learner knows of one conditioning point of the running set.
+/// What the online learner knows of one conditioning point of the running set, beyond Alg. 1's
+/// [`crate::cacla::PointMemory`]. Kept apart from it: this is of the running set only (a new
+/// set, or a restarted learner joining one, starts it over), never checkpointed, and Alg. 1 and
+/// its pre-training need none of it.
 #[derive(Debug, Clone, Copy, PartialEq)]
-struct Point {
+struct RunningPoint {
     /// Unknown when the learner joined a set already running (after a restart) until a sample
     /// names it.
     target: Option<Position>,
@@ -239,14 +117,14 @@ impl Transfer {
         self.points.len()
     }
 
-    fn kernel(c: &CorrectionConfig, p: &Position, q: &Position) -> f64 {
+    fn kernel(c: &GaussNewtonConfig, p: &Position, q: &Position) -> f64 {
         let l = c.transfer_length_m;
         c.transfer_spread.powi(2) * (-distance(p, q).powi(2) / (2.0 * l * l)).exp()
     }
 
     /// Records `correction` for `target` and solves for α again: a Cholesky of at most
     /// `transfer_points`² (well under a millisecond for 64), once per visit, in the learner.
-    fn set(&mut self, c: &CorrectionConfig, target: &Position, correction: Actuation) {
+    fn set(&mut self, c: &GaussNewtonConfig, target: &Position, correction: Actuation) {
         match self
             .points
             .iter_mut()
@@ -283,7 +161,7 @@ impl Transfer {
     }
 
     /// Δa(p); zero before any point was corrected.
-    fn at(&self, c: &CorrectionConfig, p: &Position) -> Actuation {
+    fn at(&self, c: &GaussNewtonConfig, p: &Position) -> Actuation {
         let mut out = self.mean;
         for ((q, _), alpha) in self.points.iter().zip(&self.alpha) {
             let k = Self::kernel(c, p, q);
@@ -307,12 +185,12 @@ const DRIFT: f64 = 0.1;
 /// coordinates leave three directions free, and steps that wander along them leave the
 /// demonstrated region, where the trained model is not right any more: `d` points back to an
 /// anchor there.
-fn correction(
+fn gauss_newton_step(
     j: &Jacobian,
     e: &Vector3<f64>,
     d: &Actuation,
     gain: f64,
-    c: &CorrectionConfig,
+    c: &GaussNewtonConfig,
     radius: f64,
 ) -> Actuation {
     let jjt = j * j.transpose() + Matrix3::identity() * c.damping_m * c.damping_m;
@@ -363,7 +241,7 @@ pub struct OnlineLearner {
     cacla: CaclaMtl,
     kinematics: Polynomial,
     transfer: Transfer,
-    set: Vec<Point>,
+    set: Vec<RunningPoint>,
 }
 
 impl OnlineLearner {
@@ -413,13 +291,13 @@ impl OnlineLearner {
         self.set.clear();
         self.set.resize(
             points,
-            Point {
+            RunningPoint {
                 target: None,
                 first: None,
                 model: None,
                 last: None,
                 best: None,
-                radius: self.cacla.config().correction.trust_initial,
+                radius: self.cacla.config().gauss_newton.trust_initial,
                 jacobian: None,
                 bias: None,
                 retry: false,
@@ -434,7 +312,7 @@ impl OnlineLearner {
     }
 
     /// Checks `point` and `target` against the set and fills in an unknown target.
-    fn point(&mut self, point: usize, target: &Position) -> Result<&mut Point, OnlineError> {
+    fn point(&mut self, point: usize, target: &Position) -> Result<&mut RunningPoint, OnlineError> {
         let points = self.set.len();
         let p = self
             .set
@@ -458,7 +336,7 @@ impl OnlineLearner {
 
     /// One visit: `action` was executed for `point` and the end effector reached `reached`,
     /// the actuators having reported `measured` there (if known). Alg. 1's update under both
-    /// algorithms; under `softarm` also the point's Jacobian, error filter and trust region,
+    /// algorithms; under `gauss-newton` also the point's Jacobian, error filter and trust region,
     /// and the transfer.
     pub fn observe(
         &mut self,
@@ -471,8 +349,8 @@ impl OnlineLearner {
         if !action.iter().chain(reached).all(|v| v.is_finite()) {
             return Err(OnlineError::NotFinite);
         }
-        let c = self.cacla.config().correction;
-        let softarm = self.algorithm() == Algorithm::Softarm;
+        let c = self.cacla.config().gauss_newton;
+        let gauss_newton = self.algorithm() == Algorithm::GaussNewton;
         let p = self.point(point, target)?;
         let error = distance(target, reached);
         let now = Try {
@@ -484,7 +362,7 @@ impl OnlineLearner {
             reached: *reached,
             error,
         };
-        if softarm {
+        if gauss_newton {
             // Broyden: J += (Δp − J Δa) Δaᵀ / ‖Δa‖², from a step large enough to stand out of
             // the noise. It learns what the model gets wrong about this arm at this point.
             if let (Some(last), Some((j, floor))) = (p.last, p.jacobian.as_mut()) {
@@ -553,7 +431,7 @@ impl OnlineLearner {
         if self.algorithm() == Algorithm::Paper {
             return Ok(self.cacla.act(point, target, explore));
         }
-        let c = self.cacla.config().correction;
+        let c = self.cacla.config().gauss_newton;
         let p = self.set[point];
         if explore && let (Some(last), Some(best)) = (p.last, p.best) {
             // A step that made things worse is not built on: back to the best try.
@@ -581,7 +459,7 @@ impl OnlineLearner {
             let home = p
                 .first
                 .map_or([0.0; ACTUATORS], |f| minus(&f, &base.action));
-            let step = correction(&j, &e, &home, c.gain, &c, p.radius);
+            let step = gauss_newton_step(&j, &e, &home, c.gain, &c, p.radius);
             return Ok(plus(&base.action, &step));
         }
         if let Some(first) = p.first {
@@ -598,13 +476,13 @@ impl OnlineLearner {
     /// against the polynomial kinematics, never further than `trust_max` from the mean (the
     /// polynomial is trusted near the demonstrations only).
     fn refine(&mut self, target: &Position) -> Actuation {
-        let c = self.cacla.config().correction;
+        let c = self.cacla.config().gauss_newton;
         let mean = self.cacla.actor(target);
         let model = &self.kinematics;
         let mut a = mean;
         let mut err = error_vector(target, &model.position(&a));
         for _ in 0..c.refine_steps {
-            let mut step = correction(
+            let mut step = gauss_newton_step(
                 &model.jacobian(&a),
                 &err,
                 &minus(&mean, &a),
@@ -644,7 +522,7 @@ impl OnlineLearner {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::cacla::LearnerConfig;
+    use crate::learner_config::LearnerConfig;
     use crate::pcc::ArmGeometry;
     use crate::poly::PolynomialConfig;
     use rand::rngs::StdRng;
@@ -699,7 +577,7 @@ mod tests {
 
     #[test]
     fn first_estimates_are_refined_against_the_model() {
-        let mut l = learner(Algorithm::Softarm);
+        let mut l = learner(Algorithm::GaussNewton);
         let arm = ArmGeometry::default();
         let t = targets();
         let first = l.start_set(&t).unwrap();
@@ -717,10 +595,10 @@ mod tests {
             tool_m: 0.05,
             ..Default::default()
         };
-        let ours = run(&mut learner(Algorithm::Softarm), &tool, 6);
+        let ours = run(&mut learner(Algorithm::GaussNewton), &tool, 6);
         let paper = run(&mut learner(Algorithm::Paper), &tool, 6);
         assert!(ours[0] > 0.01, "the longer tool is felt: {ours:?}");
-        assert!(ours[4] < 0.002, "softarm: {ours:?}");
+        assert!(ours[4] < 0.002, "gauss-newton: {ours:?}");
         assert!(paper[4] > 0.01, "paper: {paper:?}");
         assert!(ours.iter().all(|e| *e <= 1.5 * ours[0]), "{ours:?}");
     }
@@ -733,9 +611,9 @@ mod tests {
         };
         // Between two of the visited points.
         let other: Position = ArmGeometry::default().position(&[0.45, 0.5, 0.6, 0.55, 0.45, 0.4]);
-        let mut fresh = learner(Algorithm::Softarm);
+        let mut fresh = learner(Algorithm::GaussNewton);
         let before = fresh.start_set(&[other]).unwrap()[0];
-        let mut l = learner(Algorithm::Softarm);
+        let mut l = learner(Algorithm::GaussNewton);
         run(&mut l, &tool, 10);
         assert_eq!(l.transfer_points(), 3);
         let after = l.start_set(&[other]).unwrap()[0];
@@ -755,7 +633,7 @@ mod tests {
 
     #[test]
     fn a_failed_step_shrinks_the_trust_region_and_backtracks() {
-        let mut l = learner(Algorithm::Softarm);
+        let mut l = learner(Algorithm::GaussNewton);
         let t = targets();
         l.start_set(&t).unwrap();
         let good = [0.5; 6];
@@ -811,7 +689,7 @@ mod tests {
 
     #[test]
     fn visits_that_do_not_fit_the_set_are_refused_and_change_nothing() {
-        let mut l = learner(Algorithm::Softarm);
+        let mut l = learner(Algorithm::GaussNewton);
         let t = targets();
         l.start_set(&t).unwrap();
         let a = [0.5; 6];

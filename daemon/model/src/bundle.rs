@@ -16,7 +16,8 @@ use nalgebra::{DMatrix, DVector};
 use safetensors::{Dtype, SafeTensors, tensor::TensorView};
 use serde::{Deserialize, Serialize};
 
-use softarm_method::cacla::{LearnerConfig, LearnerState, Memory};
+use softarm_method::cacla::{LearnerState, PointMemory};
+use softarm_method::learner_config::LearnerConfig;
 use softarm_method::poly::Polynomial;
 use softarm_method::promp::{Basis, Primitive};
 use softarm_method::rbf::RbfNetwork;
@@ -368,7 +369,7 @@ fn get_learner(t: &Tensors, config: LearnerConfig) -> Result<LearnerState, Strin
     let memory = rows
         .chunks_exact(9)
         .map(|r| {
-            (r[0] == 1.0).then(|| Memory {
+            (r[0] == 1.0).then(|| PointMemory {
                 visits: r[1] as u64,
                 target: [r[2], r[3], r[4]],
                 position: [r[5], r[6], r[7]],

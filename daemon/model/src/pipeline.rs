@@ -11,8 +11,9 @@
 //! [`cacla::pretrain`]: softarm_method::cacla::pretrain
 
 use softarm_method::activation::MAX_PRIMITIVES;
-use softarm_method::cacla::{self, CaclaMtl, LearnerConfig, PretrainConfig, PretrainReport};
+use softarm_method::cacla::{self, CaclaMtl, PretrainConfig, PretrainReport};
 use softarm_method::forward::ForwardModel;
+use softarm_method::learner_config::LearnerConfig;
 use softarm_method::poly::{Polynomial, PolynomialConfig};
 use softarm_method::promp::{Primitive, PrimitiveError};
 use softarm_method::rbf::{NetworkConfig, RbfError, RbfNetwork};

@@ -19,7 +19,7 @@ use dynamixel2::{Bus, ReadError, TransferError, WriteError};
 use softarm_config::Config;
 use softarm_config::hardware::{Mapping, TendonConfig};
 use softarm_driver::{Action, Commands, Supervisor, Timeouts};
-use softarm_ipc::{ACTUATORS, DriverState, MotorState, Namespace, Node};
+use softarm_ipc::{ACTUATORS, Actuation, DriverState, MotorState, Namespace, Node};
 use softarm_runtime::clock::{Backoff, Ticker};
 use softarm_runtime::now_ns;
 
@@ -390,170 +390,272 @@ pub mod fuzz {
     }
 }
 
+/// A bus silent this long is reopened: an adapter unplugged and plugged in again is a new
+/// device behind the same name, and the old descriptor never hears from it.
+const REOPEN_AFTER_NS: u64 = 1_000_000_000;
+
 /// Runs the tendon driver until `stop` is set.
 pub fn run(config: &Config, namespace: Namespace, stop: &AtomicBool) -> anyhow::Result<()> {
     let t = config
         .tendon
         .as_ref()
         .context("the config has no [tendon] section")?;
-    let mapping = Mapping::new(t, &config.arm);
     let node = Node::open(namespace, "tendon")?;
     let mut commands = Commands::open(&node, &config.estop_latch())?;
     let publisher = node.publisher(&node.motor_state()?)?;
-    let ms = |v: f64| (v * 1e6) as u64;
-    let timeouts = Timeouts {
-        hold_after_ns: ms(t.hold_after_ms),
-        off_after_ns: ms(t.torque_off_after_ms),
-    };
-    let mut supervisor = Supervisor::new(timeouts);
-    // Setpoints are clamped to what the controller may send, then to the motors' limits.
-    let (lo, hi) = (
-        config.controller.actuator_min,
-        config.controller.actuator_max,
-    );
-
-    // At start a missing motor is an error the user must fix; later the driver keeps trying.
-    let mut link = Some(Link::open(t, true)?);
-    tracing::info!(
-        port = %t.port.display(),
-        baud = t.baud,
-        ids = ?t.ids,
-        "motors answered; the torque comes on with the first setpoint"
-    );
-
-    let mut reading = Reading::default();
-    // Retries: 10 ms after a failure, doubling per failure, at most 1 s apart.
-    let mut backoff = Backoff::new(10_000_000, 1_000_000_000);
-    // A bus silent this long is reopened: an adapter unplugged and plugged in again is a new
-    // device behind the same name, and the old descriptor never hears from it.
-    const REOPEN_AFTER_NS: u64 = 1_000_000_000;
-    let mut last_answer = now_ns();
-    let mut faults = 0u64;
-    let mut clamped = 0u64;
-    let mut refused_engage = 0u64;
-    let mut seq = 0u64;
-    let mut cycle = 0u64;
-    let mut last_state = DriverState::Off;
-    let mut reported_errors = [0u8; ACTUATORS];
-    // Torque and hardware-error status are read at about 5 Hz, and whenever a reply raises
-    // its alert bit.
-    let status_every = ((t.rate_hz / 5.0).round() as u64).max(1);
+    let mut driver = Driver::open(config, t)?;
     let mut ticker = Ticker::new(t.rate_hz);
     while !stop.load(Ordering::Relaxed) {
         ticker.wait();
-        cycle += 1;
         let now = now_ns();
-        let poll = commands.poll(now, timeouts.hold_after_ns);
-        let fault = reading.hardware_error.iter().any(|&e| e != 0);
-        let action = supervisor.update(now, &poll, fault);
-        let state = supervisor.state();
-        if state != last_state {
-            if state == DriverState::Following {
-                tracing::info!(from = last_state.name(), to = state.name(), "driver state");
-            } else {
-                tracing::warn!(from = last_state.name(), to = state.name(), "driver state");
-            }
-            last_state = state;
+        let poll = commands.poll(now, driver.timeouts.hold_after_ns);
+        driver.cycle(now, &poll);
+        if let Some(state) = driver.motor_state() {
+            let _ = publisher.send_copy(state);
         }
+    }
+    driver.leave();
+    tracing::info!(
+        faults = driver.faults,
+        clamped = driver.clamped,
+        refused_engage = driver.refused_engage,
+        refused = commands.refused(),
+        overruns = ticker.overruns(),
+        "tendon driver stopped"
+    );
+    Ok(())
+}
 
-        if link.is_none() && backoff.ready(now) {
-            match Link::open(t, false) {
-                Ok(l) => {
-                    tracing::warn!("motor bus open again");
-                    link = Some(l);
-                    backoff.succeeded();
-                    last_answer = now;
-                }
-                Err(e) => {
-                    faults += 1;
-                    backoff.failed(now);
-                    tracing::error!(faults, "{e:#}");
-                }
+/// The driver's state between cycles: the bus, what the motors last said, the safety state
+/// machine and the counts it reports.
+struct Driver<'a> {
+    t: &'a TendonConfig,
+    mapping: Mapping,
+    timeouts: Timeouts,
+    supervisor: Supervisor,
+    /// Setpoints are clamped to what the controller may send, then to the motors' limits.
+    limits: (Actuation, Actuation),
+    /// `None` while the port is closed (being reopened).
+    link: Option<Link>,
+    reading: Reading,
+    /// Retries: 10 ms after a failure, doubling per failure, at most 1 s apart.
+    backoff: Backoff,
+    last_answer: u64,
+    faults: u64,
+    clamped: u64,
+    refused_engage: u64,
+    seq: u64,
+    cycle: u64,
+    last_state: DriverState,
+    reported_errors: [u8; ACTUATORS],
+    /// Torque and hardware-error status are read every this many cycles (about 5 Hz), and
+    /// whenever a reply raises its alert bit.
+    status_every: u64,
+}
+
+impl<'a> Driver<'a> {
+    fn open(config: &Config, t: &'a TendonConfig) -> anyhow::Result<Self> {
+        let ms = |v: f64| (v * 1e6) as u64;
+        let timeouts = Timeouts {
+            hold_after_ns: ms(t.hold_after_ms),
+            off_after_ns: ms(t.torque_off_after_ms),
+        };
+        // At start a missing motor is an error the user must fix; later the driver keeps trying.
+        let link = Link::open(t, true)?;
+        tracing::info!(
+            port = %t.port.display(),
+            baud = t.baud,
+            ids = ?t.ids,
+            "motors answered; the torque comes on with the first setpoint"
+        );
+        Ok(Self {
+            t,
+            mapping: Mapping::new(t, &config.arm),
+            timeouts,
+            supervisor: Supervisor::new(timeouts),
+            limits: (
+                config.controller.actuator_min,
+                config.controller.actuator_max,
+            ),
+            link: Some(link),
+            reading: Reading::default(),
+            backoff: Backoff::new(10_000_000, 1_000_000_000),
+            last_answer: now_ns(),
+            faults: 0,
+            clamped: 0,
+            refused_engage: 0,
+            seq: 0,
+            cycle: 0,
+            last_state: DriverState::Off,
+            reported_errors: [0; ACTUATORS],
+            status_every: ((t.rate_hz / 5.0).round() as u64).max(1),
+        })
+    }
+
+    /// One cycle: the safety decision, the port reopened if due, the action and a reading on
+    /// the bus, hardware errors reported.
+    fn cycle(&mut self, now: u64, poll: &softarm_driver::Poll) {
+        self.cycle += 1;
+        let fault = self.reading.hardware_error.iter().any(|&e| e != 0);
+        let action = self.supervisor.update(now, poll, fault);
+        self.log_state();
+        self.reopen(now);
+        let (goals, engage) = match action {
+            Action::Follow(a) => self.goals(&a),
+            _ => ([0; ACTUATORS], false),
+        };
+        // Torque-off goes out at once, back-off or not.
+        let urgent = matches!(action, Action::Off) || fault;
+        self.exchange(now, action, &goals, engage, urgent);
+        self.report_hardware_errors();
+    }
+
+    fn log_state(&mut self) {
+        let state = self.supervisor.state();
+        if state != self.last_state {
+            if state == DriverState::Following {
+                tracing::info!(
+                    from = self.last_state.name(),
+                    to = state.name(),
+                    "driver state"
+                );
+            } else {
+                tracing::warn!(
+                    from = self.last_state.name(),
+                    to = state.name(),
+                    "driver state"
+                );
+            }
+            self.last_state = state;
+        }
+    }
+
+    /// Opens the port again once the back-off allows, if it is closed.
+    fn reopen(&mut self, now: u64) {
+        if self.link.is_some() || !self.backoff.ready(now) {
+            return;
+        }
+        match Link::open(self.t, false) {
+            Ok(l) => {
+                tracing::warn!("motor bus open again");
+                self.link = Some(l);
+                self.backoff.succeeded();
+                self.last_answer = now;
+            }
+            Err(e) => {
+                self.faults += 1;
+                self.backoff.failed(now);
+                tracing::error!(faults = self.faults, "{e:#}");
             }
         }
+    }
+
+    /// The goal ticks of setpoint `a`, clamped, and whether the torque may come on for them.
+    fn goals(&mut self, a: &Actuation) -> ([i32; ACTUATORS], bool) {
+        let (t, mapping, (lo, hi)) = (self.t, &self.mapping, self.limits);
         let mut goals = [0i32; ACTUATORS];
-        let mut engage = false;
-        if let Action::Follow(a) = action {
-            let mut wild = false;
-            for i in 0..ACTUATORS {
-                let v = a[i].clamp(lo[i], hi[i]);
-                let g = mapping.ticks(i, v).clamp(t.min_ticks[i], t.max_ticks[i]);
-                wild |= v != a[i] || mapping.ticks(i, v) != g;
-                goals[i] = g;
+        let mut wild = false;
+        for i in 0..ACTUATORS {
+            let v = a[i].clamp(lo[i], hi[i]);
+            let g = mapping.ticks(i, v).clamp(t.min_ticks[i], t.max_ticks[i]);
+            wild |= v != a[i] || mapping.ticks(i, v) != g;
+            goals[i] = g;
+        }
+        if wild {
+            self.clamped += 1;
+            if self.clamped.is_power_of_two() {
+                tracing::warn!(clamped = self.clamped, setpoint = ?a, "setpoint beyond the limits, clamped");
             }
-            if wild {
-                clamped += 1;
-                if clamped.is_power_of_two() {
-                    tracing::warn!(clamped, setpoint = ?a, "setpoint beyond the limits, clamped");
-                }
+        }
+        // Torque comes on only for a setpoint where the motors already are.
+        let reading = &self.reading;
+        let known = reading.stamp_ns.is_some();
+        let engage = known
+            && (0..ACTUATORS).all(|i| {
+                (mapping.actuation(i, goals[i]) - mapping.actuation(i, reading.ticks[i])).abs()
+                    <= t.max_engage_step
+            });
+        let off = self.link.as_ref().is_some_and(|l| !l.torque);
+        if off && known && !engage {
+            self.refused_engage += 1;
+            if self.refused_engage.is_power_of_two() {
+                tracing::error!(
+                    refused_engage = self.refused_engage,
+                    setpoint = ?a,
+                    "first setpoint is farther than tendon.max_engage_step from where \
+                     the motors stand: the torque stays off"
+                );
             }
-            // Torque comes on only for a setpoint where the motors already are.
-            let known = reading.stamp_ns.is_some();
-            engage = known
-                && (0..ACTUATORS).all(|i| {
-                    (mapping.actuation(i, goals[i]) - mapping.actuation(i, reading.ticks[i])).abs()
-                        <= t.max_engage_step
-                });
-            let off = link.as_ref().is_some_and(|l| !l.torque);
-            if off && known && !engage {
-                refused_engage += 1;
-                if refused_engage.is_power_of_two() {
+        }
+        (goals, engage)
+    }
+
+    /// The action and a reading on the bus, when the back-off allows or it is `urgent`; faults
+    /// counted, the port closed on a port fault or a bus silent for [`REOPEN_AFTER_NS`].
+    fn exchange(
+        &mut self,
+        now: u64,
+        action: Action,
+        goals: &[i32; ACTUATORS],
+        engage: bool,
+        urgent: bool,
+    ) {
+        let status = self.cycle.is_multiple_of(self.status_every);
+        let Some(l) = self.link.as_mut() else {
+            return;
+        };
+        if !(self.backoff.ready(now) || urgent) {
+            return;
+        }
+        let reading = &mut self.reading;
+        let result = l
+            .apply(action, goals, engage, reading)
+            .and_then(|()| l.read(reading, status));
+        match result {
+            Ok(0) => {
+                reading.stamp_ns = Some(now_ns());
+                self.backoff.succeeded();
+                self.last_answer = now;
+            }
+            Ok(missing) => {
+                self.faults += missing as u64;
+                self.backoff.failed(now);
+                if self.faults.is_power_of_two() {
                     tracing::error!(
-                        refused_engage,
-                        setpoint = ?a,
-                        "first setpoint is farther than tendon.max_engage_step from where \
-                         the motors stand: the torque stays off"
+                        faults = self.faults,
+                        missing,
+                        "motors did not answer; retrying"
                     );
                 }
             }
-        }
-        // Torque-off goes out at once, back-off or not.
-        let urgent = matches!(action, Action::Off) || fault;
-        if let Some(l) = link.as_mut()
-            && (backoff.ready(now) || urgent)
-        {
-            let result = l
-                .apply(action, &goals, engage, &reading)
-                .and_then(|()| l.read(&mut reading, cycle.is_multiple_of(status_every)));
-            match result {
-                Ok(0) => {
-                    reading.stamp_ns = Some(now_ns());
-                    backoff.succeeded();
-                    last_answer = now;
+            Err(f) => {
+                self.faults += 1;
+                self.backoff.failed(now);
+                if self.faults.is_power_of_two() || matches!(f, Fault::Port(_)) {
+                    tracing::error!(faults = self.faults, "{f}; retrying");
                 }
-                Ok(missing) => {
-                    faults += missing as u64;
-                    backoff.failed(now);
-                    if faults.is_power_of_two() {
-                        tracing::error!(faults, missing, "motors did not answer; retrying");
-                    }
-                }
-                Err(f) => {
-                    faults += 1;
-                    backoff.failed(now);
-                    if faults.is_power_of_two() || matches!(f, Fault::Port(_)) {
-                        tracing::error!(faults, "{f}; retrying");
-                    }
-                    if matches!(f, Fault::Port(_)) {
-                        link = None;
-                    }
+                if matches!(f, Fault::Port(_)) {
+                    self.link = None;
                 }
             }
-            if link.is_some() && now.saturating_sub(last_answer) > REOPEN_AFTER_NS {
-                tracing::error!(
-                    faults,
-                    "no answer from the motors for 1 s: reopening the port"
-                );
-                link = None;
-                backoff.succeeded();
-                last_answer = now;
-            }
         }
-        for (i, &e) in reading.hardware_error.iter().enumerate() {
-            if e != reported_errors[i] {
-                reported_errors[i] = e;
+        if self.link.is_some() && now.saturating_sub(self.last_answer) > REOPEN_AFTER_NS {
+            tracing::error!(
+                faults = self.faults,
+                "no answer from the motors for 1 s: reopening the port"
+            );
+            self.link = None;
+            self.backoff.succeeded();
+            self.last_answer = now;
+        }
+    }
+
+    fn report_hardware_errors(&mut self) {
+        for (i, &e) in self.reading.hardware_error.iter().enumerate() {
+            if e != self.reported_errors[i] {
+                self.reported_errors[i] = e;
                 tracing::error!(
-                    id = t.ids[i],
+                    id = self.t.ids[i],
                     actuator = i + 1,
                     hardware_error = format!("{e:#04x}"),
                     "motor reports a hardware error: turned off, the others hold; restart the \
@@ -561,36 +663,31 @@ pub fn run(config: &Config, namespace: Namespace, stop: &AtomicBool) -> anyhow::
                 );
             }
         }
+    }
 
-        // Stamped when the motors last answered: data that is old looks old to the controller.
-        let Some(stamp_ns) = reading.stamp_ns else {
-            continue;
-        };
-        seq += 1;
-        let _ = publisher.send_copy(MotorState {
-            seq,
+    /// What to publish, stamped when the motors last answered: data that is old looks old to
+    /// the controller. `None` before the first full reading.
+    fn motor_state(&mut self) -> Option<MotorState> {
+        let stamp_ns = self.reading.stamp_ns?;
+        self.seq += 1;
+        Some(MotorState {
+            seq: self.seq,
             stamp_ns,
-            actuation: std::array::from_fn(|i| mapping.actuation(i, reading.ticks[i])),
-            current_a: reading.current_a,
-            faults,
-            state: state as u32,
-            hardware_error: reading.hardware_error,
+            actuation: std::array::from_fn(|i| self.mapping.actuation(i, self.reading.ticks[i])),
+            current_a: self.reading.current_a,
+            faults: self.faults,
+            state: self.supervisor.state() as u32,
+            hardware_error: self.reading.hardware_error,
             ..MotorState::default()
-        });
+        })
     }
-    // Leaving: the arm must not stay driven by a process that is gone.
-    if let Some(l) = link.as_mut()
-        && let Err(e) = l.torque_off()
-    {
-        tracing::error!("could not turn the torque off on the way out: {e}");
+
+    /// Leaving: the arm must not stay driven by a process that is gone.
+    fn leave(&mut self) {
+        if let Some(l) = self.link.as_mut()
+            && let Err(e) = l.torque_off()
+        {
+            tracing::error!("could not turn the torque off on the way out: {e}");
+        }
     }
-    tracing::info!(
-        faults,
-        clamped,
-        refused_engage,
-        refused = commands.refused(),
-        overruns = ticker.overruns(),
-        "tendon driver stopped"
-    );
-    Ok(())
 }

@@ -142,158 +142,245 @@ pub fn run(config: &Config, namespace: Namespace, stop: &AtomicBool) -> anyhow::
         .tracker
         .as_ref()
         .context("the config has no [tracker] section")?;
-    let frame = Frame::new(t);
     let node = Node::open(namespace, "tracker")?;
     let publisher = node.publisher(&node.tracker()?)?;
-    let mut port = Some(open(t)?);
-    tracing::info!(
-        port = %t.port.display(),
-        baud = t.baud,
-        record = ?t.record,
-        mode = ?t.mode,
-        "tracker open"
-    );
-
-    let format = format_of(t);
-    let mut decoder = Decoder::new(format, t.full_scale_in);
-    let mut plausible = Plausibility::new(t.max_speed_m_per_s);
-    let period_ns = (1e9 / t.rate_hz) as u64;
-    let silent_ns = (t.silent_after_ms * 1e6) as u64;
+    let mut reader = Reader::open(t)?;
     let mut buf = [0u8; 256];
-    let mut seq = 0u64;
-    let mut reported = decoder.stats();
-    let mut next_poll = now_ns();
-    let mut last_record = now_ns();
-    // Silence: reported after silent_after_ms, the device asked again at doubling intervals.
-    let mut silent = false;
-    let mut silent_episodes = 0u64;
-    let mut ask = Backoff::new(silent_ns, 2_000_000_000);
-    // A lost port: reopened at doubling intervals.
-    let mut port_faults = 0u64;
-    let mut reopen = Backoff::new(10_000_000, 2_000_000_000);
     while !stop.load(Ordering::Relaxed) {
         let now = now_ns();
-        let Some(p) = port.as_mut() else {
-            if !reopen.ready(now) {
-                std::thread::sleep(READ_TIMEOUT);
-                continue;
-            }
-            match open(t) {
-                Ok(p) => {
-                    tracing::info!("tracker port opened");
-                    decoder.reset();
-                    port = Some(p);
-                    reopen.succeeded();
-                }
-                Err(e) => {
-                    port_faults += 1;
-                    reopen.failed(now);
-                    tracing::error!(port_faults, "{e:#}");
-                }
-            }
+        if !reader.reopen(now) {
+            continue;
+        }
+        let Some(n) = reader.exchange(now, &mut buf) else {
             continue;
         };
-        let io = if t.mode == TrackerMode::Point && now >= next_poll {
-            next_poll = next_poll.saturating_add(period_ns).max(now);
-            p.write_all(&[bird::POINT]).and_then(|()| read(p, &mut buf))
-        } else {
-            read(p, &mut buf)
-        };
-        let n = match io {
-            Ok(n) => n,
-            Err(e) => {
-                port_faults += 1;
-                tracing::error!(port_faults, "tracker port lost: {e}; reopening");
-                port = None;
-                reopen.failed(now);
-                continue;
-            }
-        };
         let arrived = now_ns();
+        let got_record = reader.decode(&buf[..n], arrived, |sample| {
+            let _ = publisher.send_copy(sample);
+        });
+        reader.report_line();
+        reader.watch_silence(got_record, arrived);
+    }
+    reader.leave();
+    Ok(())
+}
+
+/// The tracker's line and what was learnt from it between reads.
+struct Reader<'a> {
+    t: &'a TrackerConfig,
+    frame: Frame,
+    /// `None` while the port is closed (being reopened).
+    port: Option<SerialPort>,
+    format: RecordFormat,
+    decoder: Decoder,
+    plausible: Plausibility,
+    period_ns: u64,
+    silent_ns: u64,
+    seq: u64,
+    reported: bird::DecoderStats,
+    next_poll: u64,
+    last_record: u64,
+    /// Silence: reported after silent_after_ms, the device asked again at doubling intervals.
+    silent: bool,
+    silent_episodes: u64,
+    ask: Backoff,
+    /// A lost port: reopened at doubling intervals.
+    port_faults: u64,
+    reopen: Backoff,
+}
+
+impl<'a> Reader<'a> {
+    fn open(t: &'a TrackerConfig) -> anyhow::Result<Self> {
+        let port = open(t)?;
+        tracing::info!(
+            port = %t.port.display(),
+            baud = t.baud,
+            record = ?t.record,
+            mode = ?t.mode,
+            "tracker open"
+        );
+        let format = format_of(t);
+        let decoder = Decoder::new(format, t.full_scale_in);
+        let silent_ns = (t.silent_after_ms * 1e6) as u64;
+        Ok(Self {
+            t,
+            frame: Frame::new(t),
+            port: Some(port),
+            format,
+            reported: decoder.stats(),
+            decoder,
+            plausible: Plausibility::new(t.max_speed_m_per_s),
+            period_ns: (1e9 / t.rate_hz) as u64,
+            silent_ns,
+            seq: 0,
+            next_poll: now_ns(),
+            last_record: now_ns(),
+            silent: false,
+            silent_episodes: 0,
+            ask: Backoff::new(silent_ns, 2_000_000_000),
+            port_faults: 0,
+            reopen: Backoff::new(10_000_000, 2_000_000_000),
+        })
+    }
+
+    /// Whether the port is open; a closed one is opened again once the back-off allows (and
+    /// the loop waits a read time-out while it may not).
+    fn reopen(&mut self, now: u64) -> bool {
+        if self.port.is_some() {
+            return true;
+        }
+        if !self.reopen.ready(now) {
+            std::thread::sleep(READ_TIMEOUT);
+            return false;
+        }
+        match open(self.t) {
+            Ok(p) => {
+                tracing::info!("tracker port opened");
+                self.decoder.reset();
+                self.port = Some(p);
+                self.reopen.succeeded();
+            }
+            Err(e) => {
+                self.port_faults += 1;
+                self.reopen.failed(now);
+                tracing::error!(port_faults = self.port_faults, "{e:#}");
+            }
+        }
+        false
+    }
+
+    /// Polls (in POINT mode, when due) and reads: the bytes read, `None` when the port was
+    /// lost (closed, to be reopened).
+    fn exchange(&mut self, now: u64, buf: &mut [u8]) -> Option<usize> {
+        let p = self.port.as_mut()?;
+        let io = if self.t.mode == TrackerMode::Point && now >= self.next_poll {
+            self.next_poll = self.next_poll.saturating_add(self.period_ns).max(now);
+            p.write_all(&[bird::POINT]).and_then(|()| read(p, buf))
+        } else {
+            read(p, buf)
+        };
+        match io {
+            Ok(n) => Some(n),
+            Err(e) => {
+                self.port_faults += 1;
+                tracing::error!(
+                    port_faults = self.port_faults,
+                    "tracker port lost: {e}; reopening"
+                );
+                self.port = None;
+                self.reopen.failed(now);
+                None
+            }
+        }
+    }
+
+    /// Decodes `bytes`, read at `arrived`, and hands every plausible record to `publish` as a
+    /// sample in the base frame; whether any record came.
+    fn decode(
+        &mut self,
+        bytes: &[u8],
+        arrived: u64,
+        mut publish: impl FnMut(TrackerSample),
+    ) -> bool {
         // Several records in one read waited in the line: the k-th of the last m arrived
         // (m - 1 - k) record periods earlier, as far as anyone can tell.
         let mut got_record = false;
-        let mut behind = (decoder.pending() + n) / format.bytes();
-        for &byte in &buf[..n] {
-            if let Some(record) = decoder.push(byte) {
-                behind = behind.saturating_sub(1);
-                let arrived = arrived.saturating_sub(behind as u64 * period_ns);
-                last_record = arrived;
-                got_record = true;
-                let position = frame.to_base(record.position_in);
-                if !plausible.accept(position, arrived) {
-                    if plausible.rejected.is_power_of_two() {
-                        tracing::warn!(
-                            rejected = plausible.rejected,
-                            ?position,
-                            "tracker record too far from the last: held back until the next \
-                             confirms it"
-                        );
-                    }
-                    continue;
+        let mut behind = (self.decoder.pending() + bytes.len()) / self.format.bytes();
+        for &byte in bytes {
+            let Some(record) = self.decoder.push(byte) else {
+                continue;
+            };
+            behind = behind.saturating_sub(1);
+            let arrived = arrived.saturating_sub(behind as u64 * self.period_ns);
+            self.last_record = arrived;
+            got_record = true;
+            let position = self.frame.to_base(record.position_in);
+            if !self.plausible.accept(position, arrived) {
+                if self.plausible.rejected.is_power_of_two() {
+                    tracing::warn!(
+                        rejected = self.plausible.rejected,
+                        ?position,
+                        "tracker record too far from the last: held back until the next \
+                         confirms it"
+                    );
                 }
-                seq += 1;
-                let _ = publisher.send_copy(TrackerSample {
-                    seq,
-                    stamp_ns: arrived,
-                    position,
-                });
+                continue;
             }
+            self.seq += 1;
+            publish(TrackerSample {
+                seq: self.seq,
+                stamp_ns: arrived,
+                position,
+            });
         }
-        let stats = decoder.stats();
-        if stats != reported {
-            // At powers of two: a noisy line must not flood the journal.
-            let bad = stats.malformed + stats.dropped_bytes;
-            if bad != reported.malformed + reported.dropped_bytes && bad.is_power_of_two() {
-                tracing::warn!(
-                    records = stats.records,
-                    malformed = stats.malformed,
-                    dropped_bytes = stats.dropped_bytes,
-                    "tracker records lost or garbled; resynchronised on the phasing bit"
-                );
-            }
-            reported = stats;
+        got_record
+    }
+
+    /// Reports lost or garbled records, at powers of two: a noisy line must not flood the
+    /// journal.
+    fn report_line(&mut self) {
+        let stats = self.decoder.stats();
+        if stats == self.reported {
+            return;
         }
-        if got_record && silent {
+        let bad = stats.malformed + stats.dropped_bytes;
+        if bad != self.reported.malformed + self.reported.dropped_bytes && bad.is_power_of_two() {
+            tracing::warn!(
+                records = stats.records,
+                malformed = stats.malformed,
+                dropped_bytes = stats.dropped_bytes,
+                "tracker records lost or garbled; resynchronised on the phasing bit"
+            );
+        }
+        self.reported = stats;
+    }
+
+    /// A device silent for `silent_after_ms` is reported, and asked again through a freshly
+    /// opened port at doubling intervals.
+    fn watch_silence(&mut self, got_record: bool, now: u64) {
+        if got_record && self.silent {
             tracing::warn!("the tracker answers again");
-            silent = false;
+            self.silent = false;
         }
-        if arrived.saturating_sub(last_record) >= silent_ns {
-            if !silent {
-                silent = true;
-                silent_episodes += 1;
-                ask.succeeded();
-            }
-            if ask.ready(arrived) {
-                tracing::error!(
-                    silent_ms = arrived.saturating_sub(last_record) / 1_000_000,
-                    silent_episodes,
-                    "the tracker sends nothing; reopening the port and asking again"
-                );
-                // Asked again through a freshly opened port: an adapter unplugged and
-                // plugged in again is a new device behind the same name, which the old
-                // descriptor never hears from.
-                port = None;
-                reopen.succeeded();
-                ask.failed(arrived);
-            }
+        if now.saturating_sub(self.last_record) < self.silent_ns {
+            return;
+        }
+        if !self.silent {
+            self.silent = true;
+            self.silent_episodes += 1;
+            self.ask.succeeded();
+        }
+        if self.ask.ready(now) {
+            tracing::error!(
+                silent_ms = now.saturating_sub(self.last_record) / 1_000_000,
+                silent_episodes = self.silent_episodes,
+                "the tracker sends nothing; reopening the port and asking again"
+            );
+            // Asked again through a freshly opened port: an adapter unplugged and plugged in
+            // again is a new device behind the same name, which the old descriptor never
+            // hears from.
+            self.port = None;
+            self.reopen.succeeded();
+            self.ask.failed(now);
         }
     }
-    if let Some(p) = port.as_mut() {
-        // Leave the device quiet for the next one to open it.
-        let _ = p.write_all(&[bird::POINT]);
+
+    /// Leaves the device quiet for the next one to open it, and says what happened.
+    fn leave(&mut self) {
+        if let Some(p) = self.port.as_mut() {
+            let _ = p.write_all(&[bird::POINT]);
+        }
+        let s = self.decoder.stats();
+        tracing::info!(
+            records = s.records,
+            malformed = s.malformed,
+            dropped_bytes = s.dropped_bytes,
+            implausible = self.plausible.rejected,
+            silent_episodes = self.silent_episodes,
+            port_faults = self.port_faults,
+            "tracker driver stopped"
+        );
     }
-    let s = decoder.stats();
-    tracing::info!(
-        records = s.records,
-        malformed = s.malformed,
-        dropped_bytes = s.dropped_bytes,
-        implausible = plausible.rejected,
-        silent_episodes,
-        port_faults,
-        "tracker driver stopped"
-    );
-    Ok(())
 }
 
 #[cfg(test)]

@@ -23,13 +23,13 @@ use anyhow::{Context, anyhow, bail};
 use hdrhistogram::Histogram;
 use serde_json::{Value, json};
 use softarm_config::{DEFAULT, Override};
-use softarm_ipc::{ControllerState, ControllerStatus, Node};
+use softarm_ipc::{ControllerState, ControllerStatus, Node, Sub};
 use softarm_runtime::clock::Ticker;
 use softarm_runtime::now_ns;
 
 use super::{Out, Stats, duration, header, json_with, row};
 use crate::scratch::Scratch;
-use crate::up::{self, Supervisor};
+use crate::supervisor::{self, Supervisor};
 
 pub(super) struct Settings<'a> {
     pub config: Option<&'a Path>,
@@ -50,26 +50,9 @@ pub(super) struct StackRun {
 const ROLES: [&str; 3] = ["sim", "controller", "learner"];
 
 pub(super) fn run(s: &Settings, out: &Out, stop: &AtomicBool) -> anyhow::Result<StackRun> {
-    // The given (or embedded) config in the bench's own namespace, with its own state and no
-    // model.
-    let text = match s.config {
-        Some(p) => {
-            std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?
-        }
-        None => DEFAULT.to_string(),
-    };
-    let mut overrides: Vec<Override> = vec![("model.dir", "no-model".into())];
-    if let Some(r) = s.rate_hz {
-        overrides.push(("controller.rate_hz", r.into()));
-    }
-    if let Some(p) = s.fifo {
-        overrides.push(("controller.realtime_priority", i64::from(p).into()));
-    }
-    let scratch = Scratch::new("bench", &text, &overrides)?;
+    let scratch = scratch_stack(s)?;
     let config = &scratch.config;
     let rate = config.controller.rate_hz;
-    let period_ns = (1e9 / rate).round().max(1.0) as u64;
-    let window_ns = (s.seconds * 1e9) as u64;
     let priority = config.controller.realtime_priority;
 
     // Subscribed before anything publishes.
@@ -86,75 +69,145 @@ pub(super) fn run(s: &Settings, out: &Out, stop: &AtomicBool) -> anyhow::Result<
     ));
     // The children's own warnings (no model yet) are expected here.
     let mut sup = scratch.supervisor(&ROLES, "error")?;
-    let pid_of = |sup: &Supervisor, role: &str| {
-        sup.pids()
-            .into_iter()
-            .find(|(r, _)| r == role)
-            .map(|(_, p)| p)
-    };
-    let controller_pid = pid_of(&sup, "controller").context("the controller did not start")?;
-
-    // The window: from the controller's first deadline to the deadline of the first status
-    // whose tick ends `seconds` of periods.
-    let mut first_deadline = u64::MAX;
-    let mut last: Option<ControllerStatus> = None;
-    let up_by = Instant::now() + Duration::from_secs(30);
-    let mut window_announced = false;
-    let mut scheduling = String::new();
-    loop {
-        if stop.load(Ordering::Relaxed) {
-            bail!("interrupted");
-        }
-        sup.poll();
-        if pid_of(&sup, "controller") != Some(controller_pid) {
-            bail!("the controller exited: its latency would not cover the window");
-        }
-        while let Ok(Some(sample)) = status.receive() {
-            let st = *sample;
-            if last.is_some_and(|l| st.ticks < l.ticks) {
-                bail!("the controller restarted: its latency would not cover the window");
-            }
-            // That tick's deadline is first + (ticks − 1 + overruns) periods, and it woke less
-            // than a period after it: the smallest estimate is the closest.
-            let index = (st.ticks.saturating_sub(1) + st.overruns).saturating_mul(period_ns);
-            first_deadline = first_deadline.min(st.stamp_ns.saturating_sub(index));
-            last = Some(st);
-        }
-        match last {
-            None if Instant::now() > up_by => {
-                bail!("the controller published no status within 30 s")
-            }
-            Some(l) => {
-                if !window_announced {
-                    window_announced = true;
-                    scheduling = scheduling_of(controller_pid);
-                    out.progress(&format!(
-                        "controller up ({}); timing {} s of ticks beside the bare loop",
-                        ControllerState::from_u32(l.state).map_or("?", |s| s.name()),
-                        s.seconds
-                    ));
-                }
-                // Its tick's deadline is the last of the window: periods since the first.
-                let covered = (l.ticks + l.overruns).saturating_mul(period_ns);
-                if covered >= window_ns {
-                    break;
-                }
-                if Instant::now() > up_by + Duration::from_secs_f64(s.seconds) {
-                    bail!("the controller's statuses stopped before the window's end");
-                }
-            }
-            None => {}
-        }
-        std::thread::sleep(Duration::from_millis(5));
-    }
-    let last = last.expect("the loop ends on a status");
-    let last_deadline = first_deadline + (last.ticks.saturating_sub(1) + last.overruns) * period_ns;
+    let window = Window::await_end(s, rate, out, &mut sup, &status, stop)?;
     let bare = bare.finish()?;
     let rss = rss(&sup);
+    let wakeup = wakeup_section(&window, &bare, rate, out)?;
+    let rss_kib = rss_section(&rss, out);
 
+    out.progress(&format!(
+        "timing {} setpoints end to end through the controller (busy-polling)",
+        s.setpoints
+    ));
+    let (from_tracker, from_tick) = end_to_end(&node, s.setpoints, rate, stop)?;
+    drop(status);
+    out.progress("stopping the stack");
+    sup.stop(Duration::from_secs(5));
+    if !sup.pids().is_empty() {
+        bail!("a process of the stack is still running");
+    }
+    let end_to_end = end_to_end_section(s, config, &from_tracker, &from_tick, out);
+    Ok(StackRun {
+        wakeup,
+        end_to_end,
+        rss_kib,
+    })
+}
+
+/// The given (or embedded) config in the bench's own namespace, with its own state and no
+/// model.
+fn scratch_stack(s: &Settings) -> anyhow::Result<Scratch> {
+    let text = match s.config {
+        Some(p) => {
+            std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?
+        }
+        None => DEFAULT.to_string(),
+    };
+    let mut overrides: Vec<Override> = vec![("model.dir", "no-model".into())];
+    if let Some(r) = s.rate_hz {
+        overrides.push(("controller.rate_hz", r.into()));
+    }
+    if let Some(p) = s.fifo {
+        overrides.push(("controller.realtime_priority", i64::from(p).into()));
+    }
+    Scratch::new("bench", &text, &overrides)
+}
+
+/// The controller's timed window: from its first deadline to the deadline of the first status
+/// whose tick ends `seconds` of periods.
+struct Window {
+    first_deadline: u64,
+    last_deadline: u64,
+    last: ControllerStatus,
+    /// The controller's scheduling policy, as the kernel reports it.
+    scheduling: String,
+}
+
+impl Window {
+    /// Follows the controller's statuses until they cover the window; refused if the
+    /// controller exits or restarts meanwhile.
+    fn await_end(
+        s: &Settings,
+        rate: f64,
+        out: &Out,
+        sup: &mut Supervisor,
+        status: &Sub<ControllerStatus>,
+        stop: &AtomicBool,
+    ) -> anyhow::Result<Self> {
+        let period_ns = (1e9 / rate).round().max(1.0) as u64;
+        let window_ns = (s.seconds * 1e9) as u64;
+        let pid_of = |sup: &Supervisor| {
+            sup.pids()
+                .into_iter()
+                .find(|(r, _)| r == "controller")
+                .map(|(_, p)| p)
+        };
+        let controller_pid = pid_of(sup).context("the controller did not start")?;
+        let mut first_deadline = u64::MAX;
+        let mut last: Option<ControllerStatus> = None;
+        let up_by = Instant::now() + Duration::from_secs(30);
+        let mut scheduling = None;
+        loop {
+            if stop.load(Ordering::Relaxed) {
+                bail!("interrupted");
+            }
+            sup.poll();
+            if pid_of(sup) != Some(controller_pid) {
+                bail!("the controller exited: its latency would not cover the window");
+            }
+            while let Ok(Some(sample)) = status.receive() {
+                let st = *sample;
+                if last.is_some_and(|l| st.ticks < l.ticks) {
+                    bail!("the controller restarted: its latency would not cover the window");
+                }
+                // That tick's deadline is first + (ticks − 1 + overruns) periods, and it woke
+                // less than a period after it: the smallest estimate is the closest.
+                let index = (st.ticks.saturating_sub(1) + st.overruns).saturating_mul(period_ns);
+                first_deadline = first_deadline.min(st.stamp_ns.saturating_sub(index));
+                last = Some(st);
+            }
+            let Some(l) = last else {
+                if Instant::now() > up_by {
+                    bail!("the controller published no status within 30 s")
+                }
+                std::thread::sleep(Duration::from_millis(5));
+                continue;
+            };
+            if scheduling.is_none() {
+                scheduling = Some(scheduling_of(controller_pid));
+                out.progress(&format!(
+                    "controller up ({}); timing {} s of ticks beside the bare loop",
+                    ControllerState::from_u32(l.state).map_or("?", |s| s.name()),
+                    s.seconds
+                ));
+            }
+            // Its tick's deadline is the last of the window: periods since the first.
+            let covered = (l.ticks + l.overruns).saturating_mul(period_ns);
+            if covered >= window_ns {
+                return Ok(Self {
+                    first_deadline,
+                    last_deadline: first_deadline
+                        + (l.ticks.saturating_sub(1) + l.overruns) * period_ns,
+                    last: l,
+                    scheduling: scheduling.unwrap_or_default(),
+                });
+            }
+            if Instant::now() > up_by + Duration::from_secs_f64(s.seconds) {
+                bail!("the controller's statuses stopped before the window's end");
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+    }
+}
+
+/// The controller's tick wake-up beside the bare loop's over the same window: the table, and
+/// its JSON section.
+fn wakeup_section(w: &Window, bare: &Bare, rate: f64, out: &Out) -> anyhow::Result<Value> {
+    let period_ns = (1e9 / rate).round().max(1.0) as u64;
+    let last = &w.last;
     let controller = Stats::from_latency(&last.latency);
-    let (bare_stats, bare_overruns) = bare.window(first_deadline, last_deadline)?;
-    if bare.first_ns > first_deadline {
+    let (bare_stats, bare_overruns) = bare.window(w.first_deadline, w.last_deadline)?;
+    if bare.first_ns > w.first_deadline {
         bail!("the bare loop started after the controller's first tick");
     }
     let ratio: Vec<f64> = controller
@@ -164,7 +217,7 @@ pub(super) fn run(s: &Settings, out: &Out, stop: &AtomicBool) -> anyhow::Result<
         .map(|(c, b)| *c as f64 / b.max(1) as f64)
         .collect();
     // Periods from the first deadline to the last, both included.
-    let window_s = (last_deadline + period_ns - first_deadline) as f64 / 1e9;
+    let window_s = (w.last_deadline + period_ns - w.first_deadline) as f64 / 1e9;
     let state = ControllerState::from_u32(last.state).map_or("?", |s| s.name());
     let model = if last.model_loaded == 1 {
         "model loaded"
@@ -178,8 +231,8 @@ pub(super) fn run(s: &Settings, out: &Out, stop: &AtomicBool) -> anyhow::Result<
         histograms 1 µs to 60 s at 2 significant digits, min and max exact";
     out.text(&header(&format!(
         "Tick wake-up latency at {rate} Hz over the same {window_s:.1} s window (controller {state}, \
-         {model}; controller {scheduling}, bare loop {})",
-        bare.scheduling
+         {model}; controller {}, bare loop {})",
+        w.scheduling, bare.scheduling
     )));
     out.text(&row(
         "controller tick (its status, whole run)",
@@ -202,17 +255,22 @@ pub(super) fn run(s: &Settings, out: &Out, stop: &AtomicBool) -> anyhow::Result<
             .join(" "),
         w = super::NAME_WIDTH
     ));
-    let wakeup = json!({
+    out.text(
+        "(the controller's histogram counts every tick since its first, so the window is its \
+         whole run,\n first deadline to the last status's; the bare loop, started before the \
+         stack, counts its wakes in that window only)",
+    );
+    Ok(json!({
         "rate_hz": rate,
         "window_s": window_s,
-        "window_start_ns": first_deadline,
-        "window_end_ns": last_deadline,
+        "window_start_ns": w.first_deadline,
+        "window_end_ns": w.last_deadline,
         "window_note": NOTE,
         "controller_state": state,
         "model_loaded": last.model_loaded == 1,
         "controller": json_with(&controller, &[
             ("overruns", json!(last.overruns)),
-            ("scheduling", json!(scheduling)),
+            ("scheduling", json!(w.scheduling)),
         ]),
         "bare": json_with(&bare_stats, &[
             ("overruns", json!(bare_overruns)),
@@ -221,13 +279,11 @@ pub(super) fn run(s: &Settings, out: &Out, stop: &AtomicBool) -> anyhow::Result<
         "ratio": {
             "min": ratio[0], "p50": ratio[1], "p99": ratio[2], "p999": ratio[3], "max": ratio[4],
         },
-    });
+    }))
+}
 
-    out.text(
-        "(the controller's histogram counts every tick since its first, so the window is its \
-         whole run,\n first deadline to the last status's; the bare loop, started before the \
-         stack, counts its wakes in that window only)",
-    );
+/// Resident memory per process at the end of the window: the line, and its JSON section.
+fn rss_section(rss: &[(String, u64)], out: &Out) -> Value {
     out.text(&format!(
         "\nResident memory (VmRSS) at the end of the window: {}",
         rss.iter()
@@ -235,19 +291,18 @@ pub(super) fn run(s: &Settings, out: &Out, stop: &AtomicBool) -> anyhow::Result<
             .collect::<Vec<_>>()
             .join(", ")
     ));
-    let rss_kib = Value::Object(rss.iter().map(|(r, kib)| (r.clone(), json!(kib))).collect());
+    Value::Object(rss.iter().map(|(r, kib)| (r.clone(), json!(kib))).collect())
+}
 
-    out.progress(&format!(
-        "timing {} setpoints end to end through the controller (busy-polling)",
-        s.setpoints
-    ));
-    let (from_tracker, from_tick) = end_to_end(&node, s.setpoints, rate, stop)?;
-    drop(status);
-    out.progress("stopping the stack");
-    sup.stop(Duration::from_secs(5));
-    if !sup.pids().is_empty() {
-        bail!("a process of the stack is still running");
-    }
+/// Setpoints through the running controller: the table, and its JSON section.
+fn end_to_end_section(
+    s: &Settings,
+    config: &softarm_config::Config,
+    from_tracker: &Stats,
+    from_tick: &Stats,
+    out: &Out,
+) -> Value {
+    let rate = config.controller.rate_hz;
     out.text(&header(&format!(
         "Through the running controller, to a busy-polling subscriber in this process ({} \
          setpoints; tracker at {} Hz, io thread {} after each deadline)",
@@ -257,19 +312,14 @@ pub(super) fn run(s: &Settings, out: &Out, stop: &AtomicBool) -> anyhow::Result<
     )));
     out.text(&row(
         "tracker sample -> setpoint received",
-        &from_tracker,
+        from_tracker,
         "",
     ));
-    out.text(&row("setpoint stamp (tick) -> received", &from_tick, ""));
-    let end_to_end = json!({
+    out.text(&row("setpoint stamp (tick) -> received", from_tick, ""));
+    json!({
         "tracker_to_driver": from_tracker.json(),
         "setpoint_to_driver": from_tick.json(),
         "tracker_rate_hz": config.sim.rate_hz,
-    });
-    Ok(StackRun {
-        wakeup,
-        end_to_end,
-        rss_kib,
     })
 }
 
@@ -415,10 +465,10 @@ fn rss(sup: &Supervisor) -> Vec<(String, u64)> {
     let mut out: Vec<(String, u64)> = sup
         .pids()
         .into_iter()
-        .filter_map(|(role, pid)| Some((role, up::rss_kib(&pid.to_string())?)))
+        .filter_map(|(role, pid)| Some((role, supervisor::rss_kib(&pid.to_string())?)))
         .collect();
     out.sort_by_key(|(role, _)| ROLES.iter().position(|r| r == role));
-    if let Some(kib) = up::rss_kib("self") {
+    if let Some(kib) = supervisor::rss_kib("self") {
         out.push(("bench".into(), kib));
     }
     out

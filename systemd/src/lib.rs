@@ -21,17 +21,17 @@ const UNIT_BINARY: &str = "/usr/local/bin/softarm";
 const UNIT_FILES: [(&str, &str); 4] = [
     (
         "softarm-controller.service",
-        include_str!("../systemd/softarm-controller.service"),
+        include_str!("../softarm-controller.service"),
     ),
     (
         "softarm-learner.service",
-        include_str!("../systemd/softarm-learner.service"),
+        include_str!("../softarm-learner.service"),
     ),
     (
         "softarm-driver@.service",
-        include_str!("../systemd/softarm-driver@.service"),
+        include_str!("../softarm-driver@.service"),
     ),
-    ("softarm.target", include_str!("../systemd/softarm.target")),
+    ("softarm.target", include_str!("../softarm.target")),
 ];
 
 /// Where an install goes, and whether to do it.

@@ -12,7 +12,7 @@ use softarm_config::{Config, Override};
 use softarm_ipc::{ControllerState, Namespace};
 use softarm_model::bundle::Model;
 
-use crate::up::Supervisor;
+use crate::supervisor::Supervisor;
 
 pub struct Scratch {
     pub namespace: Namespace,
@@ -153,4 +153,19 @@ impl Drop for RemoveOnDrop {
     fn drop(&mut self) {
         let _ = std::fs::remove_dir_all(&self.0);
     }
+}
+
+/// The demo's way-point set (`config/waypoints/demo.toml`), built in.
+pub const DEMO_WAYPOINTS: &str = include_str!("../../../config/waypoints/demo.toml");
+
+/// Where trained models are cached between runs of `demo`, `soak` and `bench`:
+/// `$XDG_CACHE_HOME/softarm`, else `~/.cache/softarm`.
+pub fn cache_dir() -> PathBuf {
+    if let Some(d) = std::env::var_os("XDG_CACHE_HOME") {
+        return PathBuf::from(d).join("softarm");
+    }
+    if let Some(h) = std::env::var_os("HOME") {
+        return PathBuf::from(h).join(".cache/softarm");
+    }
+    std::env::temp_dir().join("softarm-cache")
 }

@@ -114,7 +114,7 @@ fn full(args: &Args) -> anyhow::Result<()> {
         anyhow::bail!("--fifo must be a SCHED_FIFO priority in [1, 99], got {p}");
     }
     let started = std::time::Instant::now();
-    let stop = crate::stop_flag()?;
+    let stop = softarm_runtime::stop_flag()?;
     let out = Out { json: args.json };
     let machine = machine();
     out.text(&machine_text(&machine));

@@ -115,7 +115,7 @@ impl Supervisor {
                 && let Ok(Some(status)) = child.try_wait()
             {
                 p.child = None;
-                if status.code() == Some(crate::EXIT_CONFIG.into()) {
+                if status.code() == Some(softarm_config::EXIT_CONFIG.into()) {
                     // As the systemd units' RestartPreventExitStatus=.
                     eprintln!(
                         "softarm up: {} refused its config ({status}); not restarting it: fix \

@@ -7,13 +7,13 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
+use crate::rig::Rig;
 use anyhow::Context;
 use softarm_config::{Config, ConfigError};
-use softarm_emulate::rig::Rig;
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// The hardware config whose [tendon] and [tracker] to emulate.
+    /// The hardware config whose `[tendon]` and `[tracker]` to emulate.
     #[arg(long)]
     config: PathBuf,
     /// Writes the config here with the devices' paths (and absolute model and state folders).

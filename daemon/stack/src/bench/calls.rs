@@ -7,9 +7,10 @@ use std::time::Instant;
 
 use serde_json::{Map, Value};
 use softarm_method::activation::ActivationConfig;
-use softarm_method::cacla::{LearnerConfig, PretrainConfig};
+use softarm_method::cacla::PretrainConfig;
 use softarm_method::engine::{Planner, Timeline};
 use softarm_method::forward::ForwardModel;
+use softarm_method::learner_config::LearnerConfig;
 use softarm_method::pcc::ArmGeometry;
 use softarm_method::poly::{Polynomial, PolynomialConfig};
 use softarm_method::rbf::{NetworkConfig, RbfNetwork};

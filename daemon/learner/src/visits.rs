@@ -1,0 +1,547 @@
+//! The learner's side of Alg. 2, without I/O: a set's request answered with the first estimate
+//! of every point, each conditioning point's visit learnt from and answered with the estimate
+//! the controller asked for next. The learner process runs it between its subscribers and its
+//! publisher, `softarm-rehearsal` in one process with the controller's execution.
+
+use softarm_config::Config;
+use softarm_ipc::{
+    Actuation, ActuationEstimate, ConditioningSample, EstimateRequest, MAX_WAYPOINTS,
+};
+use softarm_method::online::OnlineLearner;
+use softarm_method::space::Workspace;
+
+/// How far outside the way-point workspace an arm's position is still believed (m). Farther, a
+/// `reached` is a tracker glitch or a broken peer's: learning from it would wreck the learner
+/// (its Jacobians, corrections and critic scale with the error), and the checkpoint with it.
+const REACH_MARGIN_M: f64 = 0.25;
+
+/// An [`OnlineLearner`] at the conditioning points of the sets the controller runs. What does
+/// not fit is refused, counted and logged, naming what was wrong; nothing else changes then.
+pub struct Learner {
+    online: OnlineLearner,
+    /// Where a reached position may be: the way-point workspace grown by [`REACH_MARGIN_M`].
+    reach: Workspace,
+    /// The set learnt on; 0 for none.
+    set_id: u64,
+    /// The set, execution and point last learnt from.
+    last_visit: Option<(u64, u32, u32)>,
+    refused: u64,
+}
+
+impl Learner {
+    /// `online` at the points of sets checked against `config`'s way-point workspace.
+    pub fn new(online: OnlineLearner, config: &Config) -> Self {
+        let w = config.waypoints.workspace();
+        Self {
+            online,
+            reach: Workspace {
+                min_m: w.min_m.map(|v| v - REACH_MARGIN_M),
+                max_m: w.max_m.map(|v| v + REACH_MARGIN_M),
+            },
+            set_id: 0,
+            last_visit: None,
+            refused: 0,
+        }
+    }
+
+    pub fn online(&self) -> &OnlineLearner {
+        &self.online
+    }
+
+    /// The set learnt on; 0 before the first.
+    pub fn set_id(&self) -> u64 {
+        self.set_id
+    }
+
+    /// Requests and samples refused.
+    pub fn refused(&self) -> u64 {
+        self.refused
+    }
+
+    /// A set was accepted: its points' histories start over, and the first estimate of every
+    /// point (its first execution runs without exploration) goes back. None if refused. The
+    /// estimates' `seq` and `stamp_ns` are the sender's.
+    pub fn request(&mut self, r: &EstimateRequest) -> Vec<ActuationEstimate> {
+        // Checked before the running set's memory is given up for it.
+        let first = check_request(r)
+            .and_then(|()| self.online.start_set(r.points()).map_err(|e| e.to_string()));
+        let first = match first {
+            Ok(first) => first,
+            Err(why) => {
+                self.refused += 1;
+                tracing::warn!(
+                    set_id = r.set_id,
+                    refused = self.refused,
+                    "request refused: {why}"
+                );
+                return Vec::new();
+            }
+        };
+        self.set_id = r.set_id;
+        let (actor, critic) = self.online.cacla().stored_centres();
+        let (actor_evicted, critic_evicted) = self.online.cacla().evicted_centres();
+        tracing::info!(
+            set_id = r.set_id,
+            points = first.len(),
+            actor,
+            critic,
+            actor_evicted,
+            critic_evicted,
+            "first estimates sent (lattice weights stored and evicted)"
+        );
+        first
+            .into_iter()
+            .enumerate()
+            .map(|(point, a)| estimate(r.set_id, point as u32, a))
+            .collect()
+    }
+
+    /// One visit of a conditioning point: learnt from, and answered with the estimate the
+    /// sample asks for next (`next_point` of `next_execution`, as the controller's execution
+    /// decided). `None` if the sample is refused. The estimate's `seq` and `stamp_ns` are the
+    /// sender's.
+    pub fn visit(&mut self, s: &ConditioningSample) -> Option<ActuationEstimate> {
+        let mut s = *s;
+        if let Err(why) = check(&s).and_then(|()| check_order(&s, self.last_visit)) {
+            self.refuse(&s, &why);
+            return None;
+        }
+        if s.reached.iter().all(|v| v.is_finite()) && !self.reach.contains(&s.reached) {
+            // Not learnt from; the estimate asked for is still due.
+            let why = format!(
+                "reached {:?} is outside where the arm can be (the way-point workspace and \
+                 {REACH_MARGIN_M} m around it): not learnt from",
+                s.reached
+            );
+            self.refuse(&s, &why);
+            s.reached = [f64::NAN; 3];
+        }
+        // A set whose request this learner did not see (it restarted): its targets are learnt
+        // from the samples.
+        if s.set_id != self.set_id && self.online.begin(s.points as usize).is_ok() {
+            self.set_id = s.set_id;
+        }
+        match observe_and_estimate(&mut self.online, &s) {
+            Ok(next) => {
+                tracing::debug!(point = s.next_point, estimate = ?next, "estimate");
+                self.last_visit = Some((s.set_id, s.execution, s.point));
+                Some(estimate(s.set_id, s.next_point, next))
+            }
+            Err(why) => {
+                self.refuse(&s, &why);
+                None
+            }
+        }
+    }
+
+    /// Counts and logs a refused sample, naming what was wrong.
+    fn refuse(&mut self, s: &ConditioningSample, why: &dyn std::fmt::Display) {
+        self.refused += 1;
+        tracing::warn!(
+            set_id = s.set_id,
+            point = s.point,
+            refused = self.refused,
+            "sample refused: {why}"
+        );
+    }
+}
+
+fn estimate(set_id: u64, point: u32, actuation: Actuation) -> ActuationEstimate {
+    ActuationEstimate {
+        seq: 0,
+        stamp_ns: 0,
+        set_id,
+        point,
+        _pad: 0,
+        actuation,
+    }
+}
+
+/// A sample the learner can use: a set (ids start at 1), points in range (the memory grows to
+/// the point's index), executions counted from 1 and not going back, and finite positions and
+/// actuation. The reason names the field.
+fn check(s: &ConditioningSample) -> Result<(), String> {
+    if s.set_id == 0 {
+        return Err("set_id 0 is no set".into());
+    }
+    let points = s.points as usize;
+    if points == 0 || points > MAX_WAYPOINTS {
+        return Err(format!(
+            "points {} is out of range (1 to {MAX_WAYPOINTS})",
+            s.points
+        ));
+    }
+    for (name, index) in [("point", s.point), ("next_point", s.next_point)] {
+        if index >= s.points {
+            return Err(format!(
+                "{name} {index} is out of range (the set has {} points)",
+                s.points
+            ));
+        }
+    }
+    if s.execution == 0 {
+        return Err("execution 0: executions count from 1".into());
+    }
+    if s.next_execution < s.execution {
+        return Err(format!(
+            "next_execution {} is before execution {}",
+            s.next_execution, s.execution
+        ));
+    }
+    for (name, v) in [
+        ("desired", &s.desired[..]),
+        ("next_desired", &s.next_desired[..]),
+        ("actuation", &s.actuation[..]),
+    ] {
+        if !v.iter().all(|x| x.is_finite()) {
+            return Err(format!("{name} {v:?} is not finite"));
+        }
+    }
+    Ok(())
+}
+
+/// A sample of the set last visited must come after that visit: the controller plays each set's
+/// executions and points in order, so one that does not (a repeat, or counters gone back) is
+/// stale or a confused peer's, and is not learnt from.
+fn check_order(s: &ConditioningSample, last: Option<(u64, u32, u32)>) -> Result<(), String> {
+    match last {
+        Some((set_id, execution, point))
+            if set_id == s.set_id && (s.execution, s.point) <= (execution, point) =>
+        {
+            Err(format!(
+                "execution {} point {} does not follow the last visit of the set (execution \
+                 {execution} point {point}): repeated or out of order",
+                s.execution, s.point
+            ))
+        }
+        _ => Ok(()),
+    }
+}
+
+/// A request the learner can plan with: a set, 1 to `MAX_WAYPOINTS` points, finite targets.
+/// The reason names the field.
+fn check_request(r: &EstimateRequest) -> Result<(), String> {
+    if r.set_id == 0 {
+        return Err("set_id 0 is no set".into());
+    }
+    if r.count == 0 || r.count as usize > MAX_WAYPOINTS {
+        return Err(format!(
+            "count {} is out of range (1 to {MAX_WAYPOINTS})",
+            r.count
+        ));
+    }
+    if let Some(i) = r
+        .points()
+        .iter()
+        .position(|p| !p.iter().all(|v| v.is_finite()))
+    {
+        return Err(format!("desired[{i}] {:?} is not finite", r.desired[i]));
+    }
+    Ok(())
+}
+
+/// One visit and the estimate asked for next; without a tracker position at the point there is
+/// nothing to learn, but the estimate is still due. A sample that does not fit the running set
+/// (point, target) changes nothing.
+fn observe_and_estimate(
+    learner: &mut OnlineLearner,
+    s: &ConditioningSample,
+) -> Result<Actuation, String> {
+    if learner.points() != s.points as usize {
+        return Err(format!(
+            "the set has {} points, the sample says {}",
+            learner.points(),
+            s.points
+        ));
+    }
+    if s.reached.iter().all(|v| v.is_finite()) {
+        let v = learner
+            .observe(
+                s.point as usize,
+                &s.desired,
+                &s.actuation,
+                &s.reached,
+                Some(&s.measured),
+            )
+            .map_err(|e| e.to_string())?;
+        tracing::debug!(
+            point = s.point,
+            execution = s.execution,
+            error_mm = v.error * 1e3,
+            td = ?v.td_error,
+            action = ?s.actuation,
+            measured = ?s.measured,
+            "visit"
+        );
+    } else {
+        tracing::warn!(
+            point = s.point,
+            "no tracker position at the point: visit skipped"
+        );
+    }
+    // The set's first execution runs without exploration (its estimates are `request`'s); the
+    // controller's execution says which execution the estimate is for.
+    let explore = s.next_execution >= 2;
+    learner
+        .estimate(s.next_point as usize, &s.next_desired, explore)
+        .map_err(|e| e.to_string())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sample() -> ConditioningSample {
+        ConditioningSample {
+            set_id: 1,
+            points: 3,
+            point: 2,
+            next_point: 0,
+            execution: 1,
+            next_execution: 2,
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn malformed_samples_are_refused_with_a_reason() {
+        assert_eq!(check(&sample()), Ok(()));
+        let bad = [
+            ConditioningSample {
+                points: 0,
+                ..sample()
+            },
+            ConditioningSample {
+                points: MAX_WAYPOINTS as u32 + 1,
+                ..sample()
+            },
+            ConditioningSample {
+                point: 3,
+                ..sample()
+            },
+            ConditioningSample {
+                next_point: u32::MAX,
+                ..sample()
+            },
+            ConditioningSample {
+                desired: [f64::NAN, 0.0, 0.0],
+                ..sample()
+            },
+            ConditioningSample {
+                actuation: [f64::INFINITY; 6],
+                ..sample()
+            },
+            ConditioningSample {
+                set_id: 0,
+                ..sample()
+            },
+            ConditioningSample {
+                execution: 0,
+                ..sample()
+            },
+            ConditioningSample {
+                next_execution: 0,
+                ..sample()
+            },
+        ];
+        for s in bad {
+            assert!(check(&s).is_err(), "{s:?}");
+        }
+        // The field is named.
+        let why = |s| check(&s).unwrap_err();
+        assert!(
+            why(ConditioningSample {
+                point: 7,
+                ..sample()
+            })
+            .starts_with("point 7 ")
+        );
+        assert!(
+            why(ConditioningSample {
+                next_point: 9,
+                ..sample()
+            })
+            .starts_with("next_point 9")
+        );
+        assert!(
+            why(ConditioningSample {
+                next_desired: [f64::NAN; 3],
+                ..sample()
+            })
+            .starts_with("next_desired")
+        );
+    }
+
+    #[test]
+    fn a_visit_that_does_not_follow_the_last_of_its_set_is_refused() {
+        let s = sample();
+        assert_eq!(check_order(&s, None), Ok(()));
+        // The same visit again, and an earlier one: refused.
+        assert!(check_order(&s, Some((1, 1, 2))).is_err());
+        assert!(check_order(&s, Some((1, 2, 0))).is_err());
+        // A later one, or one of another set: fine.
+        assert_eq!(check_order(&s, Some((1, 1, 1))), Ok(()));
+        assert_eq!(check_order(&s, Some((2, 5, 2))), Ok(()));
+    }
+
+    #[test]
+    fn malformed_requests_are_refused_naming_the_field() {
+        let good = EstimateRequest {
+            set_id: 4,
+            count: 2,
+            ..Default::default()
+        };
+        assert_eq!(check_request(&good), Ok(()));
+        let mut nan = good;
+        nan.desired[1][2] = f64::NAN;
+        for (r, want) in [
+            (EstimateRequest { set_id: 0, ..good }, "set_id 0"),
+            (EstimateRequest { count: 0, ..good }, "count 0"),
+            (EstimateRequest { count: 17, ..good }, "count 17"),
+            (nan, "desired[1]"),
+        ] {
+            let why = check_request(&r).unwrap_err();
+            assert!(why.starts_with(want), "{why}");
+        }
+    }
+
+    #[test]
+    fn a_set_is_answered_with_its_first_estimates_and_each_visit_with_the_next_asked_for() {
+        let config = Config::default_sim(".".into());
+        let mut l = Learner::new(fuzz::learner(), &config);
+        let (p0, p1) = ([0.165, 0.0, -0.471], [0.031, 0.0, -0.501]);
+        let mut desired = [[0.0; 3]; MAX_WAYPOINTS];
+        desired[..2].copy_from_slice(&[p0, p1]);
+        let request = EstimateRequest {
+            set_id: 5,
+            count: 2,
+            desired,
+            ..Default::default()
+        };
+        let first = l.request(&request);
+        let named: Vec<_> = first.iter().map(|e| (e.set_id, e.point)).collect();
+        assert_eq!(named, [(5, 0), (5, 1)]);
+        assert_eq!(l.set_id(), 5);
+
+        // The last point of execution 1: the answer is what the sample asks for next.
+        let visit = ConditioningSample {
+            set_id: 5,
+            points: 2,
+            point: 1,
+            next_point: 0,
+            execution: 1,
+            next_execution: 2,
+            actuation: first[1].actuation,
+            desired: p1,
+            reached: [p1[0] + 0.01, p1[1], p1[2]],
+            next_desired: p0,
+            measured: first[1].actuation,
+            ..Default::default()
+        };
+        let next = l.visit(&visit).expect("a good visit is answered");
+        assert_eq!((next.set_id, next.point), (5, 0));
+        assert!(next.actuation.iter().all(|a| (0.0..=1.0).contains(a)));
+
+        // The same visit again, and a request that is no set: refused, counted, nothing changes.
+        assert!(l.visit(&visit).is_none());
+        assert!(l.request(&EstimateRequest::default()).is_empty());
+        assert_eq!((l.refused(), l.set_id()), (2, 5));
+    }
+
+    mod fuzz {
+        //! Arbitrary samples on `cp_sample`, as a broken or hostile peer could send them: the
+        //! learner refuses what does not fit with a reason and never panics, and what it
+        //! answers is a finite actuation in [0, 1].
+        use super::*;
+        use proptest::prelude::*;
+        use softarm_method::cacla::CaclaMtl;
+        use softarm_method::learner_config::LearnerConfig;
+        use softarm_method::pcc::ArmGeometry;
+        use softarm_method::poly::{Polynomial, PolynomialConfig};
+
+        pub(super) fn learner() -> OnlineLearner {
+            let arm = ArmGeometry::default();
+            let a: Vec<Actuation> = (0..400)
+                .map(|i| {
+                    std::array::from_fn(|j| 0.2 + 0.6 * (((i * 7 + j * 13) % 37) as f64 / 36.0))
+                })
+                .collect();
+            let p: Vec<_> = a.iter().map(|a| arm.position(a)).collect();
+            let poly = Polynomial::fit(&a, &p, &PolynomialConfig::default()).unwrap();
+            OnlineLearner::new(CaclaMtl::new(LearnerConfig::default()).unwrap(), poly)
+        }
+
+        fn value() -> impl Strategy<Value = f64> {
+            prop_oneof![
+                -1.0f64..1.0,
+                Just(f64::NAN),
+                Just(f64::INFINITY),
+                Just(f64::NEG_INFINITY),
+                Just(1e300),
+                Just(-0.0),
+            ]
+        }
+
+        fn sample() -> impl Strategy<Value = ConditioningSample> {
+            (
+                (0u32..20, 0u32..20, 0u32..20, 0u32..4),
+                prop::array::uniform6(value()),
+                prop::array::uniform3(value()),
+                prop::array::uniform3(value()),
+                prop::array::uniform6(value()),
+                0u64..3,
+            )
+                .prop_map(|((points, point, next_point, exec), a, d, r, m, set_id)| {
+                    ConditioningSample {
+                        set_id,
+                        points,
+                        point,
+                        next_point,
+                        execution: exec,
+                        next_execution: exec + 1,
+                        actuation: a,
+                        desired: d,
+                        reached: r,
+                        next_desired: d,
+                        measured: m,
+                        ..Default::default()
+                    }
+                })
+        }
+
+        proptest! {
+            // Each case fits a polynomial and replays up to 40 samples: a failure shrinks in
+            // a bounded number of steps, so it is reported within CI's time bound, not killed.
+            #![proptest_config(ProptestConfig {
+                max_shrink_iters: 400,
+                ..ProptestConfig::with_cases(
+                    std::env::var("PROPTEST_CASES")
+                        .ok()
+                        .and_then(|v| v.parse().ok())
+                        .unwrap_or(256),
+                )
+            })]
+
+            #[test]
+            fn arbitrary_samples_never_panic_and_answers_are_actuations(
+                samples in prop::collection::vec(sample(), 1..40),
+            ) {
+                let mut l = learner();
+                for s in samples {
+                    if check(&s).is_err() {
+                        continue;
+                    }
+                    if l.points() != s.points as usize {
+                        l.begin(s.points as usize).unwrap();
+                    }
+                    if let Ok(a) = observe_and_estimate(&mut l, &s) {
+                        prop_assert!(
+                            a.iter().all(|v| v.is_finite() && (0.0..=1.0).contains(v)),
+                            "{a:?} for {s:?}"
+                        );
+                    }
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,122 @@
+//! Diagnostic: Alg. 2 in one process, faster than real time ([`Rehearsal`]): the demo way-point
+//! set on a scenario's arm, per execution the error at each conditioning point, as
+//! `softarm demo` prints them for the running stack.
+//! `cargo run --release -p softarm-rehearsal --example online -- MODEL_DIR [EXECUTIONS]`
+//! Environment: SCENARIO (shipped name or file, default nominal), ALGORITHM (gauss-newton |
+//! paper), SEED (the learner's and the plant's, as `softarm demo --seed`; default the config's),
+//! SET (a way-point file, default config/waypoints/demo.toml), SECOND (a way-point file run
+//! once afterwards on the adapted learner, and once on a fresh one), LEARNER (TOML overrides of
+//! [learner], `;` for newlines).
+
+use anyhow::{Context, bail};
+use softarm_config::Config;
+use softarm_config::scenario::Scenario;
+use softarm_config::waypoints::WaypointFile;
+use softarm_ipc::ExecutionStats;
+use softarm_learner::{Learner, online_learner};
+use softarm_method::learner_config::LearnerConfig;
+use softarm_method::pcc::ArmGeometry;
+use softarm_method::plant::SimConfig;
+use softarm_model::bundle::Model;
+use softarm_rehearsal::Rehearsal;
+
+fn env(k: &str) -> String {
+    std::env::var(k).unwrap_or_default()
+}
+
+/// The default sim config with SEED and the [learner] of LEARNER and ALGORITHM.
+fn config() -> anyhow::Result<Config> {
+    let mut config = Config::default_sim(".".into());
+    if !env("SEED").is_empty() {
+        let seed: u64 = env("SEED").parse().context("SEED must be a whole number")?;
+        config.learner.seed = seed;
+        config.sim.realism.seed = seed;
+    }
+    let mut lc = toml::Table::try_from(config.learner)?;
+    let overrides = env("LEARNER").replace(';', "\n");
+    lc.extend(toml::from_str::<toml::Table>(&overrides).context("LEARNER")?);
+    if !env("ALGORITHM").is_empty() {
+        lc.insert("algorithm".into(), toml::Value::String(env("ALGORITHM")));
+    }
+    config.learner = lc.try_into::<LearnerConfig>().context("LEARNER")?;
+    Ok(config)
+}
+
+fn load(var: &str, default: &str) -> anyhow::Result<WaypointFile> {
+    let path = match env(var).as_str() {
+        "" => default.to_string(),
+        p => p.to_string(),
+    };
+    WaypointFile::load(std::path::Path::new(&path)).map_err(anyhow::Error::msg)
+}
+
+/// A stack of `config` with a fresh learner of `model`, its sim on `arm`.
+fn rehearsal<'a>(
+    model: &'a Model,
+    config: &'a Config,
+    arm: ArmGeometry,
+    sim: &SimConfig,
+) -> anyhow::Result<Rehearsal<'a>> {
+    let online = online_learner(
+        model.learner.clone(),
+        model.kinematics.clone(),
+        config.learner,
+    )
+    .map_err(anyhow::Error::msg)?;
+    Rehearsal::new(model, config, Learner::new(online, config), arm, sim)
+}
+
+fn print(stats: &[ExecutionStats]) {
+    for s in stats {
+        println!(
+            "{:>3}: {} mean {:.2} max {:.2} reconditions {}",
+            s.execution,
+            s.errors_m[..s.count as usize]
+                .iter()
+                .map(|x| format!("{:6.2}", x * 1e3))
+                .collect::<String>(),
+            s.mean_m * 1e3,
+            s.max_m * 1e3,
+            s.reconditions
+        );
+    }
+}
+
+fn main() -> anyhow::Result<()> {
+    let args: Vec<String> = std::env::args().collect();
+    let Some(dir) = args.get(1) else {
+        bail!("usage: online MODEL_DIR [EXECUTIONS]");
+    };
+    let model = Model::read(std::path::Path::new(dir))?;
+    let executions: u32 = match args.get(2) {
+        Some(s) => s.parse().context("EXECUTIONS must be a whole number")?,
+        None => 20,
+    };
+    let config = config()?;
+    let scenario = Scenario::resolve(match env("SCENARIO").as_str() {
+        "" => "nominal",
+        s => s,
+    })?;
+    let (arm, sim) = scenario.apply(&config.arm, &config.sim)?;
+    let set = load("SET", "config/waypoints/demo.toml")?;
+    let mut adapted = rehearsal(&model, &config, arm, &sim)?;
+    let stats = adapted.rehearse(&set, executions)?;
+    println!(
+        "{} on {} ({}), errors at the conditioning points (mm)",
+        config.learner.algorithm.name(),
+        scenario.name,
+        scenario.describe()
+    );
+    print(&stats);
+    if !env("SECOND").is_empty() {
+        let second = load("SECOND", "")?;
+        let after = adapted.rehearse(&second, 1)?;
+        let fresh = rehearsal(&model, &config, arm, &sim)?.rehearse(&second, 1)?;
+        println!(
+            "second set, first execution: adapted {:.2} mm, unadapted {:.2} mm",
+            after[0].mean_m * 1e3,
+            fresh[0].mean_m * 1e3
+        );
+    }
+    Ok(())
+}

@@ -1,0 +1,201 @@
+//! Alg. 2 in one process, faster than real time and without iceoryx2, for tests that must fail
+//! when adaptation stops working and for tuning
+//! (`cargo run --release -p softarm-rehearsal --example online`).
+//!
+//! It is the running stack's own code with the processes and the wall clock taken out: the
+//! controller's admission ([`admit`], [`Admitted::start`]), its [`Execution`] and [`Limiter`]
+//! on a simulated tick clock, the learner's [`Learner`] answering each request and visit, and
+//! a [`Plant`] stepped as the sim driver steps it (hal-drivers/sim). Only the transport and the
+//! clock are simulated ([`Rehearsal`] says where they differ from the stack); what is tuned
+//! here is what runs.
+//!
+//! [`Admitted::start`]: softarm_controller::Admitted::start
+
+use anyhow::{Context, bail};
+use softarm_config::Config;
+use softarm_config::waypoints::WaypointFile;
+use softarm_controller::{Execution, Limiter, admit, complete_sample, rest_ticks};
+use softarm_ipc::{ACTUATORS, Actuation, ExecutionStats, WaypointSet};
+use softarm_learner::Learner;
+use softarm_method::engine::Replanner;
+use softarm_method::pcc::ArmGeometry;
+use softarm_method::plant::{Measurement, Plant, SimConfig};
+use softarm_model::bundle::Model;
+
+const NS_PER_S: f64 = 1e9;
+
+/// The sim driver in simulated time: on its own deadlines (`sim.rate_hz`) it takes the newest
+/// setpoint, steps the plant by one period and publishes the measurement, which is the newest
+/// tracker and motor sample the controller's tick reads until the next.
+struct SimArm {
+    plant: Plant,
+    period_ns: u64,
+    dt: f64,
+    /// Its next deadline (ns of simulated time).
+    due_ns: u64,
+    /// The newest setpoint (before the first, where the arm starts, as the sim holds it).
+    command: Actuation,
+    newest: Measurement,
+}
+
+impl SimArm {
+    /// The sim driver's plant, as it starts when no controller runs: at
+    /// `sim.initial_actuation`, its first measurement published at time 0.
+    fn new(arm: ArmGeometry, sim: &SimConfig) -> anyhow::Result<Self> {
+        let mut plant = Plant::new(arm, sim.realism, sim.initial_actuation)
+            .map_err(anyhow::Error::msg)
+            .context("the simulated plant")?;
+        let dt = 1.0 / sim.rate_hz;
+        let command = sim.initial_actuation;
+        let newest = plant.step(&command, dt);
+        Ok(Self {
+            plant,
+            period_ns: (dt * NS_PER_S).round() as u64,
+            dt,
+            due_ns: (dt * NS_PER_S).round() as u64,
+            command,
+            newest,
+        })
+    }
+
+    /// Every step whose deadline is at or before `now_ns`: a sample published at the instant
+    /// of a tick is read by that tick.
+    fn run_until(&mut self, now_ns: u64) {
+        while self.due_ns <= now_ns {
+            self.newest = self.plant.step(&self.command, self.dt);
+            self.due_ns += self.period_ns;
+        }
+    }
+}
+
+/// The controller's tick, the learner and the sim on one simulated clock: way-point sets run
+/// one after another on the same arm and learner, as `softarm submit` runs them on a stack.
+///
+/// Where it differs from the running stack, knowingly: the tick never overruns (`skipped` is
+/// always 0, so every point is sampled at its own tick; the stack under load samples at the
+/// first tick played after it); the learner's estimate re-conditions the set at once, where the
+/// stack's goes through two processes polling every 2 ms (a few ticks; the engine swaps a group
+/// in only while it is inactive, at least `window_s / 2` after its point, so this changes no
+/// table); a set starts as soon as it is admitted (the stack idles a few ms waiting for the
+/// first estimates, the sim stepping on); the sim's deadlines fall on the tick grid's (phase
+/// 0) and the arm starts at `sim.initial_actuation` with the plant's noise drawn from its seed
+/// on, where the stack's sim has run for a while before the set (other noise, same statistics).
+pub struct Rehearsal<'a> {
+    model: &'a Model,
+    config: &'a Config,
+    learner: Learner,
+    arm: SimArm,
+    /// Started, as the tick starts it, from the first measured state.
+    limiter: Limiter,
+    rest_ticks: i64,
+    period_ns: u64,
+    /// The simulated clock: the time of the next tick (ns).
+    now_ns: u64,
+    next_set_id: u64,
+}
+
+impl<'a> Rehearsal<'a> {
+    /// The stack of `config` with `model`, `learner`, and the sim driver on `arm` under `sim`.
+    pub fn new(
+        model: &'a Model,
+        config: &'a Config,
+        learner: Learner,
+        arm: ArmGeometry,
+        sim: &SimConfig,
+    ) -> anyhow::Result<Self> {
+        let c = &config.controller;
+        let arm = SimArm::new(arm, sim)?;
+        let limiter = Limiter::new(
+            c.actuator_min,
+            c.actuator_max,
+            c.slew_per_s,
+            c.rate_hz,
+            arm.newest.actuation,
+        );
+        Ok(Self {
+            model,
+            config,
+            learner,
+            arm,
+            limiter,
+            rest_ticks: rest_ticks(c),
+            period_ns: (NS_PER_S / c.rate_hz).round() as u64,
+            now_ns: 0,
+            next_set_id: 0,
+        })
+    }
+
+    pub fn learner(&self) -> &Learner {
+        &self.learner
+    }
+
+    /// Runs `set` `executions` times from where the arm is; each execution's stats, as the
+    /// controller publishes them on `stats`.
+    pub fn rehearse(
+        &mut self,
+        set: &WaypointFile,
+        executions: u32,
+    ) -> anyhow::Result<Vec<ExecutionStats>> {
+        let set = set.to_set(executions).map_err(anyhow::Error::msg)?;
+        let (mut execution, mut replanner) = self.start(&set)?;
+        let mut stats = Vec::with_capacity(executions as usize);
+        // The tick ends a set between executions once every one has run.
+        while !(execution.at_boundary(self.rest_ticks) && execution.through()) {
+            stats.extend(self.tick(&mut execution, &mut replanner));
+        }
+        Ok(stats)
+    }
+
+    /// As the service thread starts a set: admission, the learner's first estimates, the
+    /// engine handed to the tick and the replanner kept.
+    fn start(&mut self, set: &WaypointSet) -> anyhow::Result<(Execution, Replanner<ACTUATORS>)> {
+        let admitted = admit(self.config, Some(self.model), set).context("set rejected")?;
+        self.next_set_id += 1;
+        let set_id = self.next_set_id;
+        let request = admitted.estimate_request(set_id, set_id, self.now_ns);
+        let mut estimates = vec![None; admitted.points()];
+        for e in self.learner.request(&request) {
+            estimates[e.point as usize] = Some(e.actuation);
+        }
+        if estimates.iter().any(Option::is_none) {
+            // The stack would start from the primitives' means after a time-out: nothing to
+            // rehearse then.
+            bail!("the learner refused the set");
+        }
+        let (ready, replanner) = admitted.start(set_id, &estimates)?;
+        Ok((Execution::new(Box::new(ready), self.rest_ticks), replanner))
+    }
+
+    /// One tick, as the controller's: read the newest tracker and motor samples, step the
+    /// execution, limit, publish the setpoint; a conditioning sample goes to the learner and
+    /// its estimate re-conditions the set. The execution's stats when one ends.
+    fn tick(
+        &mut self,
+        execution: &mut Execution,
+        replanner: &mut Replanner<ACTUATORS>,
+    ) -> Option<ExecutionStats> {
+        self.arm.run_until(self.now_ns);
+        let newest = self.arm.newest;
+        let t = execution.step(Some(newest.position), self.rest_ticks, self.now_ns, 0);
+        let setpoint = self.limiter.apply(&t.target);
+        self.arm.command = setpoint;
+        if let Some(sample) = t.point {
+            let sample = complete_sample(sample, setpoint, Some(newest.actuation));
+            if let Some(e) = self.learner.visit(&sample)
+                && let Err(err) = replanner.recondition(e.point as usize, &e.actuation)
+            {
+                // As the service thread: the estimate is not used, the set runs on.
+                tracing::warn!(
+                    set_id = e.set_id,
+                    point = e.point,
+                    "estimate not used: {err}"
+                );
+            }
+        }
+        self.now_ns += self.period_ns;
+        t.finished
+    }
+}
+
+#[cfg(test)]
+mod tests;

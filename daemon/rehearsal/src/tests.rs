@@ -1,0 +1,146 @@
+//! Adaptation, rehearsed: these fail when adaptation stops working.
+
+use super::*;
+use softarm_config::scenario::Scenario;
+use softarm_learner::online_learner;
+use softarm_method::learner_config::{Algorithm, LearnerConfig};
+
+const DEMO: &str = include_str!("../../../config/waypoints/demo.toml");
+const SECOND: &str = include_str!("../../../config/waypoints/second.toml");
+
+/// The stack of the default sim config with `model` and `algorithm`, its sim on `scenario`'s
+/// arm.
+fn setup<'a>(
+    model: &'a Model,
+    config: &'a Config,
+    scenario: &str,
+    algorithm: Algorithm,
+) -> Rehearsal<'a> {
+    let (arm, sim) = Scenario::resolve(scenario)
+        .unwrap()
+        .apply(&config.arm, &config.sim)
+        .unwrap();
+    let configured = LearnerConfig {
+        algorithm,
+        ..config.learner
+    };
+    let online =
+        online_learner(model.learner.clone(), model.kinematics.clone(), configured).unwrap();
+    Rehearsal::new(model, config, Learner::new(online, config), arm, &sim).unwrap()
+}
+
+/// The mean error of each of `executions` executions of `set`.
+fn means(rehearsal: &mut Rehearsal, set: &str, executions: u32) -> Vec<f64> {
+    let set = WaypointFile::parse(set).unwrap();
+    let stats = rehearsal.rehearse(&set, executions).unwrap();
+    assert_eq!(stats.len(), executions as usize);
+    stats.iter().map(|s| s.mean_m).collect()
+}
+
+/// The demo set's mean error per execution, `executions` executions on `scenario`'s arm.
+fn run(model: &Model, scenario: &str, algorithm: Algorithm, executions: u32) -> Vec<f64> {
+    let config = Config::default_sim(".".into());
+    means(
+        &mut setup(model, &config, scenario, algorithm),
+        DEMO,
+        executions,
+    )
+}
+
+fn quick() -> Model {
+    let dir = std::env::temp_dir().join(format!(
+        "softarm-rehearsal-{}-{:?}",
+        std::process::id(),
+        std::thread::current().id()
+    ));
+    softarm_model::pipeline::quick_model(&dir);
+    let model = Model::read(&dir).unwrap();
+    let _ = std::fs::remove_dir_all(&dir);
+    model
+}
+
+fn mm(v: &[f64]) -> Vec<String> {
+    v.iter().map(|e| format!("{:.1}", e * 1e3)).collect()
+}
+
+#[test]
+fn gauss_newton_adapts_to_a_changed_arm_where_the_paper_does_not() {
+    let model = quick();
+    for scenario in ["tool-change", "creep"] {
+        let ours = run(&model, scenario, Algorithm::GaussNewton, 8);
+        let paper = run(&model, scenario, Algorithm::Paper, 8);
+        eprintln!(
+            "{scenario}: gauss-newton {:?}, paper {:?}",
+            mm(&ours),
+            mm(&paper)
+        );
+        assert!(
+            ours[4..].iter().all(|e| *e <= 0.003),
+            "{scenario}: gauss-newton from execution 5 on {:?} mm",
+            mm(&ours)
+        );
+        assert!(
+            ours.iter().all(|e| *e <= 1.5 * ours[0]),
+            "{scenario}: gauss-newton wandered {:?} mm",
+            mm(&ours)
+        );
+        assert!(
+            paper[4..].iter().any(|e| *e > 0.003),
+            "{scenario}: the paper's algorithm reached 3 mm as well {:?} mm: the test no longer \
+             tells them apart",
+            mm(&paper)
+        );
+    }
+}
+
+#[test]
+fn what_the_demo_set_taught_carries_over_to_a_second_set() {
+    let model = quick();
+    let config = Config::default_sim(".".into());
+    let mut adapted = setup(&model, &config, "tool-change", Algorithm::GaussNewton);
+    let demo = means(&mut adapted, DEMO, 8);
+    let adapted = means(&mut adapted, SECOND, 1)[0];
+    let mut fresh = setup(&model, &config, "tool-change", Algorithm::GaussNewton);
+    let unadapted = means(&mut fresh, SECOND, 1)[0];
+    eprintln!(
+        "demo set {:?} mm; second set: adapted {:.1} mm, unadapted {:.1} mm",
+        mm(&demo),
+        adapted * 1e3,
+        unadapted * 1e3
+    );
+    assert!(unadapted > 0.01, "the longer tool is felt: {unadapted} m");
+    assert!(
+        adapted <= 0.5 * unadapted,
+        "second set: adapted {adapted} m, unadapted {unadapted} m"
+    );
+}
+
+/// The tick reads what the sim driver last published: one plant step per sim period, the
+/// first at time 0, each on the setpoint newest at its deadline.
+#[test]
+fn the_sim_steps_at_its_own_rate_on_the_newest_setpoint() {
+    let sim = SimConfig::default();
+    let mut arm = SimArm::new(ArmGeometry::default(), &sim).unwrap();
+    let period = arm.period_ns;
+    assert_eq!(period, 5_000_000, "sim.rate_hz 200 Hz");
+    let steps = |arm: &SimArm| (arm.plant.time() / arm.dt).round() as u64;
+    assert_eq!(steps(&arm), 1);
+    arm.run_until(period - 1);
+    assert_eq!(steps(&arm), 1);
+    arm.run_until(period);
+    assert_eq!(
+        steps(&arm),
+        2,
+        "a sample published at a tick's instant is read by it"
+    );
+    let before = arm.newest;
+    arm.command = [1.0; ACTUATORS];
+    arm.run_until(period + 1);
+    assert_eq!(arm.newest, before, "nothing new between deadlines");
+    arm.run_until(3 * period);
+    assert_eq!(steps(&arm), 4);
+    assert!(
+        arm.plant.state()[0] > sim.initial_actuation[0],
+        "it follows the setpoint"
+    );
+}

@@ -1,0 +1,694 @@
+//! `softarm soak --minutes M`: the simulated stack run for a long time the way a lab runs it,
+//! with things going wrong on purpose, and a report of what held.
+//!
+//! - Continuous executions: way-point sets one after another, the demo set and seeded random
+//!   variations of it (new places for the learner's lattices every set).
+//! - Scenario changes between sets: the sim becomes another arm (tool change, creep, twist,
+//!   stiffer, nominal) in turn.
+//! - Random kills: sim, controller or learner SIGKILLed at seeded moments; each must come back
+//!   (restarted by the supervisor here, as `softarm up` does) and an execution must finish after.
+//! - An independent [`Watch`] checks every setpoint and statistic against the safety invariants
+//!   (limits, slew, HOLD while the sim is gone, no statistics twice or lost): violations must
+//!   be 0.
+//! - Resident memory of each process and the learner's stored lattice weights, at the start
+//!   (after the first execution) and at the end; the controller's tick latency percentiles.
+//!
+//! Exit 1 if an invariant broke, a kill was not survived or a process grew beyond the bound.
+
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, bail};
+use nix::sys::signal::{Signal, kill};
+use nix::unistd::Pid;
+use rand::rngs::StdRng;
+use rand::{RngExt, SeedableRng};
+use serde::Serialize;
+use softarm_clients::watch::{self, Limits, Watch};
+use softarm_clients::{stats, status, submit};
+use softarm_config::DEFAULT;
+use softarm_config::waypoints::{Point, WaypointFile};
+use softarm_ipc::{ControllerStatus, Latency, Node, Sub};
+use softarm_model::bundle::{Model, read_checkpoint};
+use softarm_runtime::now_ns;
+
+use crate::scratch::Scratch;
+use crate::supervisor::{self, Supervisor};
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// How long to run (minutes).
+    #[arg(long, value_parser = minutes, allow_negative_numbers = true)]
+    minutes: f64,
+    /// Seeds the sets, the kills, the plant and the learner: the same seed, the same run.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Mean time between random kills (s); 0: no kills.
+    #[arg(long, default_value_t = 45.0, value_parser = seconds, allow_negative_numbers = true)]
+    kill_every_s: f64,
+    /// Time between scenario changes (s), made between sets; 0: the nominal arm throughout.
+    #[arg(long, default_value_t = 120.0, value_parser = seconds, allow_negative_numbers = true)]
+    scenario_every_s: f64,
+    /// Where the trained model is kept between runs (default: the demo's, in the user's cache).
+    #[arg(long)]
+    model_dir: Option<PathBuf>,
+    /// The report as one JSON object on stdout, and nothing else there.
+    #[arg(long)]
+    json: bool,
+}
+
+fn minutes(s: &str) -> Result<f64, String> {
+    let v: f64 = s.parse().map_err(|_| format!("{s:?} is not a number"))?;
+    if !(v.is_finite() && v > 0.0 && v <= 7.0 * 24.0 * 60.0) {
+        return Err(format!("must be more than 0 and at most a week, got {s}"));
+    }
+    Ok(v)
+}
+
+fn seconds(s: &str) -> Result<f64, String> {
+    let v: f64 = s.parse().map_err(|_| format!("{s:?} is not a number"))?;
+    if !(v == 0.0 || (v.is_finite() && v >= 5.0)) {
+        return Err(format!("must be 0 (never) or at least 5 seconds, got {s}"));
+    }
+    Ok(v)
+}
+
+const ROLES: [&str; 3] = ["sim", "controller", "learner"];
+/// The scenarios the sim goes through, in turn.
+const SCENARIOS: [&str; 5] = ["tool-change", "creep", "twist", "stiffer", "nominal"];
+/// How far a process may grow from the start to the end of a soak (KiB).
+const RSS_BOUND_KIB: u64 = 16 * 1024;
+/// A killed process must be back, and an execution finished after it, within this.
+const RECOVERY: Duration = Duration::from_secs(90);
+
+/// Resident memory of one role over the run (KiB); the peak is over every process that held it.
+#[derive(Debug, Clone, Copy, Default, Serialize)]
+pub struct Rss {
+    pub start_kib: u64,
+    pub end_kib: u64,
+    pub peak_kib: u64,
+}
+
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct Report {
+    pub minutes: f64,
+    pub seed: u64,
+    pub sets_submitted: u64,
+    pub sets_rejected: u64,
+    pub executions: u64,
+    /// Per scenario, the learning it saw: see [`Learning`].
+    pub learning: Vec<Learning>,
+    pub scenario_changes: u64,
+    pub kills: Vec<(String, u64)>,
+    pub kills_survived: u64,
+    pub kills_not_survived: Vec<String>,
+    pub invariants: watch::Report,
+    pub rss: Vec<(String, Rss)>,
+    /// The learner's stored lattice weights (actor, critic) at the start and the end.
+    pub lattice_start: (usize, usize),
+    pub lattice_end: (usize, usize),
+    /// The last controller's tick wake-up latency (its life since its last restart), and the
+    /// worst p99 (over at least 5000 ticks) and max any controller reported.
+    pub tick: Latency,
+    pub tick_worst_p99_ns: u64,
+    pub tick_worst_max_ns: u64,
+    pub overruns: u64,
+    /// What failed the soak, in words (empty: it passed).
+    pub failures: Vec<String>,
+}
+
+/// The sets that ran on one scenario's arm: the mean error at the conditioning points of their
+/// first and of their last executions (mm), over the sets that ran at least twice.
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct Learning {
+    pub scenario: String,
+    pub sets: u64,
+    pub executions: u64,
+    pub first_mm: f64,
+    pub last_mm: f64,
+}
+
+/// A set's executions as they ended.
+struct SetSeen {
+    id: u64,
+    /// Index of the scenario it ran on.
+    scenario: usize,
+    executions: u32,
+    /// Mean error of its first and its last execution (mm).
+    first_mm: f64,
+    last_mm: f64,
+}
+
+/// A kill whose recovery is being waited for.
+struct Pending {
+    role: &'static str,
+    old: u32,
+    at: Instant,
+    back: bool,
+}
+
+/// The set under way.
+struct Running {
+    id: u64,
+    executions: u32,
+}
+
+fn say(json: bool, line: &str) {
+    if !json {
+        eprintln!("softarm soak: {line}");
+    }
+}
+
+pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<bool> {
+    let model_dir = args.model_dir.clone().unwrap_or_else(|| {
+        crate::scratch::cache_dir().join(format!("demo-model-seed{}", args.seed))
+    });
+    let seed = i64::try_from(args.seed).context("--seed must be at most 9223372036854775807")?;
+    let scratch = Scratch::new(
+        "soak",
+        DEFAULT,
+        &[
+            ("model.dir", model_dir.display().to_string().into()),
+            ("learner.seed", seed.into()),
+            ("sim.realism.seed", seed.into()),
+        ],
+    )?;
+    let mut sup = scratch.supervisor(&ROLES, "error")?;
+    say(
+        args.json,
+        &format!("stack up in namespace {}", scratch.namespace.as_str()),
+    );
+    scratch.ready_with_model(&mut sup, stop, args.seed, &|line| say(args.json, line))?;
+    let lattice_start = Model::read(&model_dir)
+        .map(|m| (m.learner.actor.len(), m.learner.critic.len()))
+        .unwrap_or_default();
+    let mut soak = Soak::start(args, stop, &scratch, sup, lattice_start)?;
+    let end = soak.started + Duration::from_secs_f64(args.minutes * 60.0);
+    while Instant::now() < end {
+        if stop.load(Ordering::Relaxed) {
+            bail!("interrupted");
+        }
+        soak.step()?;
+    }
+    let report = soak.finish();
+    if args.json {
+        println!("{}", serde_json::to_string(&report)?);
+    } else {
+        print_report(&report);
+    }
+    Ok(report.failures.is_empty())
+}
+
+/// A soak under way: the stack, what watches it, and what it has seen so far.
+struct Soak<'a> {
+    args: &'a Args,
+    stop: &'a AtomicBool,
+    scratch: &'a Scratch,
+    sup: Supervisor,
+    demo_set: WaypointFile,
+    watch: Watch,
+    follower: stats::Stats,
+    statuses: Sub<ControllerStatus>,
+    _node: Node,
+    rng: StdRng,
+    report: Report,
+    rss: Vec<(String, Rss)>,
+    /// An execution has finished: memory is sampled from then on.
+    warm: bool,
+    sets: Vec<SetSeen>,
+    /// The arms the sim has been, in order; sets name theirs by index.
+    scenarios: Vec<String>,
+    scenario: usize,
+    running: Option<Running>,
+    pending: Option<Pending>,
+    last_status: Option<ControllerStatus>,
+    started: Instant,
+    kill_at: Option<Instant>,
+    scenario_at: Option<Instant>,
+    sample_at: Instant,
+    progress_at: Instant,
+}
+
+impl<'a> Soak<'a> {
+    fn start(
+        args: &'a Args,
+        stop: &'a AtomicBool,
+        scratch: &'a Scratch,
+        sup: Supervisor,
+        lattice_start: (usize, usize),
+    ) -> anyhow::Result<Self> {
+        let ns = &scratch.namespace;
+        let demo_set = WaypointFile::parse(crate::scratch::DEMO_WAYPOINTS)
+            .map_err(anyhow::Error::msg)
+            .context("the demo way-points")?;
+        // Subscribed before the first set: nothing is missed.
+        let watch = Watch::start(ns, Limits::from_config(&scratch.config))?;
+        let follower = stats::Stats::open(ns)?;
+        let node = Node::open(ns.clone(), "soak")?;
+        let statuses = node.subscriber(&node.status()?)?;
+        let mut rng = StdRng::seed_from_u64(args.seed);
+        let kill_at = next_kill(args, &mut rng);
+        Ok(Self {
+            args,
+            stop,
+            scratch,
+            sup,
+            demo_set,
+            watch,
+            follower,
+            statuses,
+            _node: node,
+            rng,
+            report: Report {
+                minutes: args.minutes,
+                seed: args.seed,
+                lattice_start,
+                ..Report::default()
+            },
+            rss: ROLES
+                .iter()
+                .map(|r| (r.to_string(), Rss::default()))
+                .collect(),
+            warm: false,
+            sets: Vec::new(),
+            scenarios: vec!["nominal".to_string()],
+            scenario: 0,
+            running: None,
+            pending: None,
+            last_status: None,
+            started: Instant::now(),
+            kill_at,
+            scenario_at: every(args.scenario_every_s),
+            sample_at: Instant::now(),
+            progress_at: Instant::now() + Duration::from_secs(30),
+        })
+    }
+
+    fn say(&self, line: &str) {
+        say(self.args.json, line);
+    }
+
+    /// One round: what arrived, then what is due.
+    fn step(&mut self) -> anyhow::Result<()> {
+        self.sup.poll();
+        self.read_statuses();
+        self.take_executions();
+        self.check_recovery();
+        self.change_scenario()?;
+        self.submit_next()?;
+        self.kill_one()?;
+        self.sample_memory();
+        self.progress();
+        Ok(())
+    }
+
+    fn pid_of(&self, role: &str) -> Option<u32> {
+        self.sup
+            .pids()
+            .into_iter()
+            .find(|(r, _)| r == role)
+            .map(|(_, p)| p)
+    }
+
+    fn read_statuses(&mut self) {
+        while let Ok(Some(s)) = self.statuses.receive() {
+            // A young controller's percentiles are its start-up's: its max counts, its p99 not.
+            let r = &mut self.report;
+            if s.latency.samples >= 5000 {
+                r.tick_worst_p99_ns = r.tick_worst_p99_ns.max(s.latency.p99_ns);
+            }
+            r.tick_worst_max_ns = r.tick_worst_max_ns.max(s.latency.max_ns);
+            self.last_status = Some(*s);
+        }
+    }
+
+    /// Executions as they end.
+    fn take_executions(&mut self) {
+        while let Some(s) = self.follower.next(Duration::from_millis(50)) {
+            self.report.executions += 1;
+            let mm = s.mean_m * 1e3;
+            match self.sets.iter_mut().find(|x| x.id == s.set_id) {
+                Some(x) => {
+                    x.executions += 1;
+                    x.last_mm = mm;
+                }
+                None => self.sets.push(SetSeen {
+                    id: s.set_id,
+                    scenario: self.scenarios.len() - 1,
+                    executions: 1,
+                    first_mm: mm,
+                    last_mm: mm,
+                }),
+            }
+            if self
+                .running
+                .as_ref()
+                .is_some_and(|r| r.id == s.set_id && s.execution >= r.executions)
+            {
+                self.running = None;
+            }
+            if let Some(p) = self.pending.take_if(|p| p.back) {
+                self.say(&format!("{} kill survived: executing again", p.role));
+                self.report.kills_survived += 1;
+            }
+            self.warm = true;
+        }
+    }
+
+    /// A kill's recovery: the process back under a new pid and the stack answering, then an
+    /// execution finished ([`Self::take_executions`]), within [`RECOVERY`].
+    fn check_recovery(&mut self) {
+        let Some(p) = self.pending.as_ref() else {
+            return;
+        };
+        let (role, old, at, back) = (p.role, p.old, p.at, p.back);
+        if !back
+            && self.pid_of(role).is_some_and(|n| n != old)
+            && status::status(&self.scratch.namespace, Duration::from_millis(200)).is_ok_and(|r| {
+                r.running() && ROLES.iter().all(|role| r.alive.iter().any(|n| n == role))
+            })
+        {
+            if let Some(p) = self.pending.as_mut() {
+                p.back = true;
+            }
+            if role == "controller" {
+                // A new controller forgets its set.
+                self.running = None;
+            }
+        }
+        if at.elapsed() > RECOVERY {
+            let back = self.pending.as_ref().is_some_and(|p| p.back);
+            let why = format!(
+                "{role} killed {:.0} s into the soak: {} within {} s",
+                (at - self.started).as_secs_f64(),
+                if back {
+                    "back, but no execution finished"
+                } else {
+                    "not back"
+                },
+                RECOVERY.as_secs()
+            );
+            self.say(&why);
+            self.report.kills_not_survived.push(why);
+            self.pending = None;
+        }
+    }
+
+    /// Between sets: another arm, now and then.
+    fn change_scenario(&mut self) -> anyhow::Result<()> {
+        if self.running.is_some()
+            || self.pending.is_some()
+            || self.scenario_at.is_none_or(|t| Instant::now() < t)
+        {
+            return Ok(());
+        }
+        let name = SCENARIOS[self.scenario % SCENARIOS.len()];
+        self.scenario += 1;
+        self.say(&format!("the sim becomes scenario {name}"));
+        self.sup.restart_with(
+            "sim",
+            supervisor::sim_args(Some(name)),
+            Duration::from_secs(5),
+        )?;
+        self.scratch.wait_for(
+            "the scenario's sim coming up",
+            Duration::from_secs(60),
+            &mut self.sup,
+            self.stop,
+            &|r| r.alive.iter().any(|n| n == "sim") && r.running(),
+        )?;
+        self.scenarios.push(name.to_string());
+        self.report.scenario_changes += 1;
+        self.scenario_at = every(self.args.scenario_every_s);
+        Ok(())
+    }
+
+    /// The next set, once the last is done: the demo set every third, else a variation.
+    fn submit_next(&mut self) -> anyhow::Result<()> {
+        if self.running.is_some() || !self.pending.as_ref().is_none_or(|p| p.back) {
+            return Ok(());
+        }
+        let file = if self.report.sets_submitted.is_multiple_of(3) {
+            self.demo_set.clone()
+        } else {
+            variation(&self.demo_set, &mut self.rng)
+        };
+        let executions = self.rng.random_range(3..=6);
+        let set = file.to_set(executions).map_err(anyhow::Error::msg)?;
+        match submit::submit(&self.scratch.namespace, set, Duration::from_secs(5)) {
+            submit::Outcome::Accepted { set_id } => {
+                self.report.sets_submitted += 1;
+                self.running = Some(Running {
+                    id: set_id,
+                    executions,
+                });
+            }
+            submit::Outcome::Rejected { reason } => {
+                self.report.sets_submitted += 1;
+                self.report.sets_rejected += 1;
+                self.say(&format!("a set was refused: {reason}"));
+            }
+            // The controller restarting: try again.
+            submit::Outcome::Unreachable { .. } => {}
+        }
+        Ok(())
+    }
+
+    /// A random kill, mid-execution or not.
+    fn kill_one(&mut self) -> anyhow::Result<()> {
+        if self.pending.is_some() || self.kill_at.is_none_or(|t| Instant::now() < t) {
+            return Ok(());
+        }
+        let role = ROLES[self.rng.random_range(0..ROLES.len())];
+        if let Some(old) = self.pid_of(role) {
+            if role == "sim" {
+                // The supervisor restarts it after a second at the earliest.
+                let t = now_ns();
+                self.watch.outage(t, t + 900_000_000);
+            }
+            kill(Pid::from_raw(old as i32), Signal::SIGKILL)
+                .with_context(|| format!("killing the {role} ({old})"))?;
+            self.say(&format!("killed the {role} ({old})"));
+            match self.report.kills.iter_mut().find(|k| k.0 == role) {
+                Some(k) => k.1 += 1,
+                None => self.report.kills.push((role.to_string(), 1)),
+            }
+            self.pending = Some(Pending {
+                role,
+                old,
+                at: Instant::now(),
+                back: false,
+            });
+        }
+        self.kill_at = next_kill(self.args, &mut self.rng);
+        Ok(())
+    }
+
+    /// Memory, every few seconds once warm.
+    fn sample_memory(&mut self) {
+        if !self.warm || Instant::now() < self.sample_at {
+            return;
+        }
+        self.sample_at = Instant::now() + Duration::from_secs(5);
+        let pids: Vec<_> = self.sup.pids();
+        for (role, r) in self.rss.iter_mut() {
+            let pid = pids.iter().find(|(n, _)| n == role).map(|(_, p)| *p);
+            if let Some(kib) = pid.and_then(|p| supervisor::rss_kib(&p.to_string())) {
+                if r.start_kib == 0 {
+                    r.start_kib = kib;
+                }
+                r.end_kib = kib;
+                r.peak_kib = r.peak_kib.max(kib);
+            }
+        }
+    }
+
+    fn progress(&mut self) {
+        if Instant::now() < self.progress_at {
+            return;
+        }
+        self.progress_at = Instant::now() + Duration::from_secs(30);
+        let w = self.watch.report();
+        self.say(&format!(
+            "{:.1} of {} min: {} executions, {} kills, {} invariant violations",
+            self.started.elapsed().as_secs_f64() / 60.0,
+            self.args.minutes,
+            self.report.executions,
+            self.report.kills.iter().map(|k| k.1).sum::<u64>(),
+            w.violations
+        ));
+    }
+
+    /// Stops the stack and makes the report, with what fails the soak.
+    fn finish(mut self) -> Report {
+        if let Some(p) = self.pending.take() {
+            // Cut short by the end of the soak: judged by what it reached.
+            if p.back {
+                self.report.kills_survived += 1;
+            } else if p.at.elapsed() > Duration::from_secs(20) {
+                self.report
+                    .kills_not_survived
+                    .push(format!("{} killed at the end: not back in 20 s", p.role));
+            }
+        }
+        let mut report = self.report;
+        report.invariants = self.watch.finish();
+        report.lattice_end = read_checkpoint(&self.scratch.config.state_dir())
+            .map(|(s, _)| (s.actor.len(), s.critic.len()))
+            .unwrap_or(report.lattice_start);
+        if let Some(s) = self.last_status {
+            report.tick = s.latency;
+            report.overruns = s.overruns;
+        }
+        self.sup.stop(Duration::from_secs(5));
+        report.learning = learning(&self.scenarios, &self.sets);
+        report.rss = self.rss;
+        report.failures = failures(&report);
+        report
+    }
+}
+
+fn every(s: f64) -> Option<Instant> {
+    (s > 0.0).then(|| Instant::now() + Duration::from_secs_f64(s))
+}
+
+fn next_kill(args: &Args, rng: &mut StdRng) -> Option<Instant> {
+    (args.kill_every_s > 0.0).then(|| {
+        Instant::now() + Duration::from_secs_f64(args.kill_every_s * rng.random_range(0.5..1.5))
+    })
+}
+
+/// Per scenario, the mean error of the first and of the last execution of its sets that ran
+/// at least twice.
+fn learning(scenarios: &[String], sets: &[SetSeen]) -> Vec<Learning> {
+    scenarios
+        .iter()
+        .enumerate()
+        .filter_map(|(i, name)| {
+            let mine: Vec<_> = sets.iter().filter(|x| x.scenario == i).collect();
+            let twice: Vec<_> = mine.iter().filter(|x| x.executions >= 2).collect();
+            let mean = |f: &dyn Fn(&SetSeen) -> f64| {
+                twice.iter().map(|x| f(x)).sum::<f64>() / twice.len().max(1) as f64
+            };
+            (!mine.is_empty()).then(|| Learning {
+                scenario: name.clone(),
+                sets: mine.len() as u64,
+                executions: mine.iter().map(|x| u64::from(x.executions)).sum(),
+                first_mm: mean(&|x| x.first_mm),
+                last_mm: mean(&|x| x.last_mm),
+            })
+        })
+        .collect()
+}
+
+/// What fails the soak, in words.
+fn failures(report: &Report) -> Vec<String> {
+    let mut failures = Vec::new();
+    if report.invariants.violations > 0 {
+        failures.push(format!(
+            "{} safety invariants broken",
+            report.invariants.violations
+        ));
+    }
+    failures.extend(report.kills_not_survived.iter().cloned());
+    for (role, r) in &report.rss {
+        if r.end_kib > r.start_kib + RSS_BOUND_KIB {
+            failures.push(format!(
+                "the {role} grew from {} to {} MiB",
+                r.start_kib / 1024,
+                r.end_kib / 1024
+            ));
+        }
+    }
+    if report.executions == 0 {
+        failures.push("no execution finished".into());
+    }
+    failures
+}
+
+/// The demo set moved: each point up to 25 mm away on each axis, a point sometimes left out.
+fn variation(base: &WaypointFile, rng: &mut StdRng) -> WaypointFile {
+    let mut point: Vec<Point> = base
+        .point
+        .iter()
+        .map(|p| Point {
+            t_s: p.t_s,
+            position_m: p.position_m.map(|v| v + rng.random_range(-0.025..0.025)),
+        })
+        .collect();
+    if point.len() > 2 && rng.random_bool(0.3) {
+        point.remove(rng.random_range(0..point.len()));
+    }
+    WaypointFile {
+        duration_s: base.duration_s,
+        point,
+    }
+}
+
+fn print_report(r: &Report) {
+    let us = |ns: u64| ns as f64 / 1e3;
+    println!("softarm soak: {:.1} min, seed {}", r.minutes, r.seed);
+    println!(
+        "  executions           {} in {} sets ({} refused), {} scenario changes",
+        r.executions, r.sets_submitted, r.sets_rejected, r.scenario_changes
+    );
+    for l in &r.learning {
+        println!(
+            "  {:<20} {} sets, {} executions: mean error {:.2} mm on a set's first execution, \
+             {:.2} mm on its last",
+            l.scenario, l.sets, l.executions, l.first_mm, l.last_mm
+        );
+    }
+    let kills: Vec<String> = r.kills.iter().map(|(k, n)| format!("{k} {n}")).collect();
+    println!(
+        "  kills                {} ({}), survived {}",
+        r.kills.iter().map(|k| k.1).sum::<u64>(),
+        if kills.is_empty() {
+            "none".to_string()
+        } else {
+            kills.join(", ")
+        },
+        r.kills_survived
+    );
+    let w = &r.invariants;
+    println!(
+        "  invariant violations {} (over {} setpoints from {} controller runs, {} executions, \
+         {} outages checked)",
+        w.violations, w.setpoints, w.streams, w.executions, w.outages
+    );
+    for m in &w.messages {
+        println!("    {m}");
+    }
+    for (role, m) in &r.rss {
+        println!(
+            "  RSS {role:<16} start {:.1} MiB, end {:.1} MiB, peak {:.1} MiB",
+            m.start_kib as f64 / 1024.0,
+            m.end_kib as f64 / 1024.0,
+            m.peak_kib as f64 / 1024.0
+        );
+    }
+    println!(
+        "  lattice weights      actor {} -> {}, critic {} -> {}",
+        r.lattice_start.0, r.lattice_end.0, r.lattice_start.1, r.lattice_end.1
+    );
+    println!(
+        "  tick wake-up (us)    p50 {:.0}, p99 {:.0}, p99.9 {:.0}, max {:.0} over {} ticks of the \
+         last controller; worst p99 {:.0}, worst max {:.0}; {} overruns",
+        us(r.tick.p50_ns),
+        us(r.tick.p99_ns),
+        us(r.tick.p999_ns),
+        us(r.tick.max_ns),
+        r.tick.samples,
+        us(r.tick_worst_p99_ns),
+        us(r.tick_worst_max_ns),
+        r.overruns
+    );
+    if r.failures.is_empty() {
+        println!("  PASSED");
+    } else {
+        for f in &r.failures {
+            println!("  FAILED: {f}");
+        }
+    }
+}

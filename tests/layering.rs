@@ -1,0 +1,123 @@
+//! The layering Cargo enforces, checked on the resolved dependency graph (`cargo metadata`),
+//! so that a dependency added in the wrong direction fails here with the rule it breaks,
+//! rather than quietly linking iceoryx2 into the method or a driver into the controller.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::process::Command;
+
+use serde_json::Value;
+
+/// Package name -> the names of its normal (not dev, not build) dependencies, for the
+/// workspace's packages; other crates are leaves (what matters here is which of ours links
+/// them). `--no-deps`: no registry needed, the manifests say it all.
+fn graph() -> BTreeMap<String, BTreeSet<String>> {
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    let out = Command::new(cargo)
+        .args(["metadata", "--format-version", "1", "--no-deps"])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .expect("cargo metadata runs");
+    assert!(
+        out.status.success(),
+        "cargo metadata: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let m: Value = serde_json::from_slice(&out.stdout).expect("cargo metadata is JSON");
+    m["packages"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| {
+            let normal = p["dependencies"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .filter(|d| d["kind"].is_null())
+                .map(|d| d["name"].as_str().unwrap().to_string())
+                .collect();
+            (p["name"].as_str().unwrap().to_string(), normal)
+        })
+        .collect()
+}
+
+/// Everything `package` links, itself excluded.
+fn links(g: &BTreeMap<String, BTreeSet<String>>, package: &str) -> BTreeSet<String> {
+    let mut seen = BTreeSet::new();
+    let mut todo = vec![package.to_string()];
+    while let Some(p) = todo.pop() {
+        for d in g.get(&p).into_iter().flatten() {
+            if seen.insert(d.clone()) {
+                todo.push(d.clone());
+            }
+        }
+    }
+    seen
+}
+
+#[test]
+fn each_crate_links_only_what_its_layer_allows() {
+    let g = graph();
+    let ours = |set: BTreeSet<String>| -> BTreeSet<String> {
+        set.into_iter()
+            .filter(|n| n.starts_with("softarm"))
+            .collect()
+    };
+    let forbid = |package: &str, names: &[&str], why: &str| {
+        let l = links(&g, package);
+        for n in names {
+            assert!(!l.contains(*n), "{package} links {n}: {why}");
+        }
+    };
+    assert!(
+        ours(links(&g, "softarm-space")).is_empty(),
+        "softarm-space is the bottom: it links nothing of ours"
+    );
+    assert_eq!(
+        ours(links(&g, "softarm-ipc")),
+        BTreeSet::from(["softarm-space".to_string()]),
+        "the contract links nothing of ours but the space types"
+    );
+    forbid(
+        "softarm-method",
+        &[
+            "iceoryx2",
+            "softarm-ipc",
+            "softarm-runtime",
+            "softarm-config",
+        ],
+        "the method is pure math",
+    );
+    forbid(
+        "softarm-model",
+        &["iceoryx2", "softarm-config"],
+        "the model pipeline takes its settings, it reads no config and speaks no iceoryx2",
+    );
+    let drivers = [
+        "softarm-driver",
+        "softarm-sim",
+        "softarm-tendon",
+        "softarm-tracker",
+    ];
+    forbid(
+        "softarm-controller",
+        &[&drivers[..], &["softarm-emulate", "softarm-learner"]].concat(),
+        "the controller sees the arm and the learner only through services",
+    );
+    forbid(
+        "softarm-learner",
+        &[&drivers[..], &["softarm-controller"]].concat(),
+        "the learner sees the controller only through services",
+    );
+    for d in drivers {
+        forbid(
+            d,
+            &[
+                "softarm-model",
+                "safetensors",
+                "softarm-controller",
+                "softarm-learner",
+            ],
+            "a driver links neither the model pipeline nor another process",
+        );
+    }
+}
