@@ -7,8 +7,8 @@ use anyhow::bail;
 use softarm_config::Config;
 use softarm_config::waypoints::validate;
 use softarm_ipc::{ACTUATORS, Actuation, EstimateRequest, MAX_WAYPOINTS, Position, WaypointSet};
+use softarm_method::blend::{BlendError, ConditioningPoint, Planner, Replanner, Timeline};
 use softarm_method::classify::classify;
-use softarm_method::engine::{EngineError, Planner, Replanner, Timeline};
 use softarm_model::bundle::Model;
 
 use crate::execution::ReadySet;
@@ -109,7 +109,7 @@ impl Admitted {
         self,
         set_id: u64,
         estimates: &[Option<Actuation>],
-    ) -> Result<(ReadySet, Replanner<ACTUATORS>), EngineError> {
+    ) -> Result<(ReadySet, Replanner<ACTUATORS>), BlendError> {
         let initial: Vec<Actuation> = self
             .fallback
             .iter()
@@ -117,16 +117,21 @@ impl Admitted {
             .map(|(i, fallback)| estimates.get(i).copied().flatten().unwrap_or(*fallback))
             .collect();
         let points = initial.len();
-        let mut cond_ticks = [0usize; MAX_WAYPOINTS];
-        cond_ticks[..points].copy_from_slice(self.planner.conditioning_ticks());
-        let (engine, replanner) = self.planner.start(&initial)?;
+        let mut cond = [ConditioningPoint::default(); MAX_WAYPOINTS];
+        for ((c, &position), &tick) in cond
+            .iter_mut()
+            .zip(&self.desired)
+            .zip(self.planner.conditioning_ticks())
+        {
+            *c = ConditioningPoint { position, tick };
+        }
+        let (blend, replanner) = self.planner.start(&initial)?;
         let set = ReadySet {
             set_id,
             executions: self.executions,
-            points,
-            desired: self.desired,
-            cond_ticks,
-            engine,
+            count: points,
+            points: cond,
+            blend,
         };
         Ok((set, replanner))
     }

@@ -7,8 +7,8 @@ use softarm_config::Controller;
 use softarm_ipc::{
     ACTUATORS, Actuation, ConditioningSample, ExecutionStats, MAX_WAYPOINTS, Position,
 };
+use softarm_method::blend::{Blend, ConditioningPoint};
 use softarm_method::distance;
-use softarm_method::engine::TickEngine;
 
 /// The rest before each execution, in ticks.
 pub fn rest_ticks(c: &Controller) -> i64 {
@@ -27,16 +27,15 @@ pub fn complete_sample(
     s
 }
 
-/// A way-point set ready to run: its engine and what the tick needs to know. Made by
+/// A way-point set ready to run: its blend and what the tick needs to know. Made by
 /// [`Admitted::start`](crate::Admitted::start).
 pub struct ReadySet {
     pub(crate) set_id: u64,
     pub(crate) executions: u32,
-    pub(crate) points: usize,
-    pub(crate) desired: [Position; MAX_WAYPOINTS],
-    /// The tick of each conditioning point.
-    pub(crate) cond_ticks: [usize; MAX_WAYPOINTS],
-    pub(crate) engine: TickEngine<ACTUATORS>,
+    /// How many of `points` the set has.
+    pub(crate) count: usize,
+    pub(crate) points: [ConditioningPoint; MAX_WAYPOINTS],
+    pub(crate) blend: Blend<ACTUATORS>,
 }
 
 /// Executing a way-point set, `executions` times over.
@@ -48,7 +47,7 @@ pub struct Execution {
     k: i64,
     next_point: usize,
     errors: [f64; MAX_WAYPOINTS],
-    /// The engine's count of tables swapped in when the current execution's rest began.
+    /// The blend's count of tables swapped in when the current execution's rest began.
     applied_before: u64,
 }
 
@@ -71,7 +70,7 @@ impl Execution {
             k: -rest_ticks,
             next_point: 0,
             errors: [0.0; MAX_WAYPOINTS],
-            applied_before: set.engine.applied(),
+            applied_before: set.blend.applied(),
             set,
         }
     }
@@ -88,12 +87,12 @@ impl Execution {
     /// Re-conditioned tables swapped in during the current execution (its rest included: what
     /// is swapped in there is in force for it).
     pub fn reconditions(&self) -> u32 {
-        u32::try_from(self.set.engine.applied() - self.applied_before).unwrap_or(u32::MAX)
+        u32::try_from(self.set.blend.applied() - self.applied_before).unwrap_or(u32::MAX)
     }
 
     /// Group solves of this set that failed and were held at their last good value.
     pub(crate) fn held_solves(&self) -> u64 {
-        self.set.engine.held_solves()
+        self.set.blend.held_solves()
     }
 
     /// Whether it is between executions, where the set may end or give way to the next.
@@ -124,7 +123,7 @@ impl Execution {
         skipped: u64,
     ) -> ExecutionTick {
         let set = &mut self.set;
-        let last = set.engine.timeline().ticks() as i64 - 1;
+        let last = set.blend.timeline().ticks() as i64 - 1;
         self.k = self
             .k
             .saturating_add(i64::try_from(skipped).unwrap_or(i64::MAX))
@@ -132,21 +131,21 @@ impl Execution {
         if self.k < 0 {
             self.k += 1;
             return ExecutionTick {
-                target: set.engine.rest(),
+                target: set.blend.rest(),
                 point: None,
                 finished: None,
             };
         }
         let tick = self.k as usize;
-        let target = set.engine.tick(tick);
+        let target = set.blend.tick(tick);
         let mut point = None;
-        if self.next_point < set.points && set.cond_ticks[self.next_point] <= tick {
+        if self.next_point < set.count && set.points[self.next_point].tick <= tick {
             let n = self.next_point;
             let reached = reached.unwrap_or([f64::NAN; 3]);
-            let desired = set.desired[n];
+            let desired = set.points[n].position;
             self.errors[n] = distance(&desired, &reached);
             // The estimate wanted next: the following point, or the first of the next execution.
-            let (next, next_execution) = if n + 1 < set.points {
+            let (next, next_execution) = if n + 1 < set.count {
                 (n + 1, self.execution)
             } else {
                 (0, self.execution + 1)
@@ -157,31 +156,31 @@ impl Execution {
                 set_id: set.set_id,
                 execution: self.execution,
                 point: n as u32,
-                points: set.points as u32,
+                points: set.count as u32,
                 _pad: 0,
                 actuation: [0.0; ACTUATORS],
                 desired,
                 reached,
                 next_point: next as u32,
                 next_execution,
-                next_desired: set.desired[next],
+                next_desired: set.points[next].position,
                 measured: [f64::NAN; ACTUATORS],
             });
             self.next_point += 1;
         }
         self.k += 1;
         let mut finished = None;
-        if self.k > last && self.next_point == set.points {
+        if self.k > last && self.next_point == set.count {
             let reconditions = self.reconditions();
             let set = &self.set;
-            let errs = &self.errors[..set.points];
+            let errs = &self.errors[..set.count];
             finished = Some(ExecutionStats {
                 seq: 0,
                 stamp_ns: now,
                 set_id: set.set_id,
                 execution: self.execution,
                 executions: set.executions,
-                count: set.points as u32,
+                count: set.count as u32,
                 reconditions,
                 errors_m: self.errors,
                 mean_m: errs.iter().sum::<f64>() / errs.len() as f64,
@@ -190,7 +189,7 @@ impl Execution {
             self.execution += 1;
             self.k = -rest_ticks;
             self.next_point = 0;
-            self.applied_before = set.engine.applied();
+            self.applied_before = set.blend.applied();
         }
         ExecutionTick {
             target,
@@ -205,7 +204,7 @@ pub(crate) mod tests {
     use super::*;
     use nalgebra::DMatrix;
     use softarm_method::activation::ActivationConfig;
-    use softarm_method::engine::{Planner, Replanner, Timeline};
+    use softarm_method::blend::{Planner, Replanner, Timeline};
     use softarm_method::promp::{Basis, Demonstration, Primitive, TrainConfig};
 
     const REST: i64 = 5;
@@ -249,19 +248,21 @@ pub(crate) mod tests {
 
     fn ready_set_and_replanner() -> (Box<ReadySet>, Replanner<ACTUATORS>) {
         let planner = planner();
-        let mut cond_ticks = [0; MAX_WAYPOINTS];
-        cond_ticks[..2].copy_from_slice(planner.conditioning_ticks());
-        let (engine, replanner) = planner.start(&[[0.5; ACTUATORS]; 2]).unwrap();
-        let mut desired = [[0.0; 3]; MAX_WAYPOINTS];
-        desired[0] = [0.1, 0.0, -0.3];
-        desired[1] = [0.0, 0.2, -0.3];
+        let mut points = [ConditioningPoint::default(); MAX_WAYPOINTS];
+        let positions = [[0.1, 0.0, -0.3], [0.0, 0.2, -0.3]];
+        for (n, &tick) in planner.conditioning_ticks().iter().enumerate() {
+            points[n] = ConditioningPoint {
+                position: positions[n],
+                tick,
+            };
+        }
+        let (blend, replanner) = planner.start(&[[0.5; ACTUATORS]; 2]).unwrap();
         let set = Box::new(ReadySet {
             set_id: 7,
             executions: 2,
-            points: 2,
-            desired,
-            cond_ticks,
-            engine,
+            count: 2,
+            points,
+            blend,
         });
         (set, replanner)
     }
@@ -269,7 +270,7 @@ pub(crate) mod tests {
     #[test]
     fn reconditionings_are_counted_per_execution() {
         let (set, mut replanner) = ready_set_and_replanner();
-        let ticks = set.engine.timeline().ticks() as i64;
+        let ticks = set.blend.timeline().ticks() as i64;
         let mut x = Execution::new(set, REST);
         let step = |x: &mut Execution| x.step(Some(REACHED), REST, 0, 0).finished;
         for _ in 0..REST + 10 {
@@ -298,7 +299,10 @@ pub(crate) mod tests {
     #[test]
     fn executions_rest_sample_each_point_and_end_with_stats() {
         let set = ready_set();
-        let (cond, ticks) = (set.cond_ticks, set.engine.timeline().ticks() as u64);
+        let (cond, ticks) = (
+            set.points.map(|p| p.tick),
+            set.blend.timeline().ticks() as u64,
+        );
         let mut x = Execution::new(set, REST);
         assert!(x.at_boundary(REST) && !x.through());
         let (mut samples, mut stats) = (Vec::new(), Vec::new());
@@ -345,7 +349,10 @@ pub(crate) mod tests {
     #[test]
     fn skipped_periods_advance_the_execution_and_no_point_is_lost() {
         let set = ready_set();
-        let (cond, ticks) = (set.cond_ticks, set.engine.timeline().ticks() as u64);
+        let (cond, ticks) = (
+            set.points.map(|p| p.tick),
+            set.blend.timeline().ticks() as u64,
+        );
         assert_eq!((cond[0], cond[1], ticks), (50, 150, 201));
         let mut x = Execution::new(set, REST);
         let jumps = [

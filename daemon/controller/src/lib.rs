@@ -4,7 +4,7 @@
 //!
 //! The tick thread allocates nothing, locks nothing and sleeps only on absolute deadlines once
 //! it runs: way-point sets and demonstrations arrive over a bounded lock-free ring as boxes and
-//! leave the same way, to be freed by the service thread; re-conditioned groups reach the engine
+//! leave the same way, to be freed by the service thread; re-conditioned groups reach the blend
 //! through its own rings; what it publishes leaves over a ring to the io thread.
 //!
 //! The modules: the tick loop ([`tick`]), what its modes play ([`execution`] of way-point sets,

@@ -14,7 +14,7 @@ use softarm_ipc::{
     ACTUATORS, Actuation, ActuationEstimate, ControllerState, DemonstrateReply, DemonstrateRequest,
     EstimateRequest, Namespace, Node, Pub, Server, Sub, WaypointReply, WaypointSet,
 };
-use softarm_method::engine::{EngineError, Replanner};
+use softarm_method::blend::{BlendError, Replanner};
 use softarm_model::bundle::{BundleWatch, Model};
 use softarm_runtime::now_ns;
 
@@ -64,7 +64,7 @@ impl Replanners {
         set_id: u64,
         point: usize,
         actuation: &Actuation,
-    ) -> Option<Result<(), EngineError>> {
+    ) -> Option<Result<(), BlendError>> {
         let (_, r) = self.sets.iter_mut().find(|(id, _)| *id == set_id)?;
         Some(r.recondition(point, actuation))
     }
@@ -297,7 +297,7 @@ impl Service {
     }
 
     /// Once the pending set has its estimates (or waited long enough for them), builds its tick
-    /// engine and hands it to the tick.
+    /// blend and hands it to the tick.
     fn start_when_ready(&mut self) {
         if !self
             .pending

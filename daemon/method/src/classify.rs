@@ -4,7 +4,7 @@
 use nalgebra::{DMatrix, DVector};
 
 use crate::activation::ScheduleError;
-use crate::engine::EngineError;
+use crate::blend::BlendError;
 use crate::promp::{Primitive, PrimitiveError, solve_spd};
 use crate::space::Position;
 
@@ -15,9 +15,9 @@ pub fn classify(
     points: &[Position],
     phases: &[f64],
     variance_floor: f64,
-) -> Result<Vec<usize>, EngineError> {
+) -> Result<Vec<usize>, BlendError> {
     if points.len() != phases.len() {
-        return Err(EngineError::Count {
+        return Err(BlendError::Count {
             what: "conditioning phases",
             expected: points.len(),
             got: phases.len(),
@@ -28,7 +28,7 @@ pub fn classify(
     }
     for (index, p) in task_primitives.iter().enumerate() {
         if p.dofs() != 3 {
-            return Err(EngineError::PrimitiveMismatch {
+            return Err(BlendError::PrimitiveMismatch {
                 index,
                 why: format!("a task-space primitive has 3 DoF, this one {}", p.dofs()),
             });

@@ -4,8 +4,8 @@
 //! - [`space`] — actuation and task space, named once (re-exported from `softarm-space`).
 //! - [`promp`] — probabilistic movement primitives (train, condition, marginals).
 //! - [`activation`] — a_j(t) and b_i(t) of Eq. 11.
-//! - [`engine`] — Eq. 11 on the controller's tick grid ([`engine::Planner`] →
-//!   [`engine::TickEngine`] + [`engine::Replanner`]).
+//! - [`blend`] — Eq. 11, the conditioned primitives blended on the controller's tick grid
+//!   ([`blend::Planner`] → [`blend::Blend`] + [`blend::Replanner`]).
 //! - [`classify`] — ClassifyToPrimitives.
 //! - [`skill`] — demonstrations by the paper's III-B recipe and the primitives trained on them.
 //! - [`rbf`] — RBF lattices and the RBF forward-model network; [`forward`] — the
@@ -17,9 +17,9 @@
 //! - [`pcc`] — piecewise-constant-curvature kinematics; [`plant`]: the simulated plant.
 
 pub mod activation;
+pub mod blend;
 pub mod cacla;
 pub mod classify;
-pub mod engine;
 pub mod forward;
 pub mod learner_config;
 pub mod online;

@@ -1,4 +1,4 @@
-//! The tick engine against a direct evaluation of Eq. 11, and the properties the controller
+//! The Blend against a direct evaluation of Eq. 11, and the properties the controller
 //! relies on: conditioned points are reproduced, replanning never touches the past or the
 //! present, updates wait for their group to be inactive or for the rest before its next
 //! execution.
@@ -8,8 +8,8 @@ mod common;
 use common::{D, primitives};
 use nalgebra::{DMatrix, DVector};
 use softarm_method::activation::{ActivationConfig, MAX_PRIMITIVES};
+use softarm_method::blend::{Blend, BlendError, Planner, Timeline};
 use softarm_method::classify::classify;
-use softarm_method::engine::{EngineError, Planner, TickEngine, Timeline};
 use softarm_method::promp::{Basis, Demonstration, Primitive, TrainConfig, ViaPoint};
 
 const FLOOR: f64 = 1e-6;
@@ -74,7 +74,7 @@ fn engine_agrees_with_a_direct_evaluation() {
     let prims = primitives(3, 15);
     let p = planner(100.0);
     let init = initial();
-    let (engine, _r) = Planner::new(
+    let (blend, _r) = Planner::new(
         prims.clone(),
         &T_COND,
         &Q,
@@ -86,14 +86,14 @@ fn engine_agrees_with_a_direct_evaluation() {
     .start(&init)
     .unwrap();
     let mut worst = 0.0f64;
-    for tick in (0..engine.timeline().ticks()).step_by(7) {
+    for tick in (0..blend.timeline().ticks()).step_by(7) {
         let want = direct(&p, &prims, &init, tick);
-        let got = engine.evaluate(tick);
+        let got = blend.evaluate(tick);
         for d in 0..D {
             worst = worst.max((got[d] - want[d]).abs());
         }
     }
-    assert!(worst < 1e-7, "engine vs direct Eq. 11: {worst:e}");
+    assert!(worst < 1e-7, "blend vs direct Eq. 11: {worst:e}");
 }
 
 #[test]
@@ -101,9 +101,9 @@ fn conditioned_actuation_is_reproduced_at_each_point() {
     let p = planner(500.0);
     let ticks = p.conditioning_ticks().to_vec();
     let init = initial();
-    let (engine, _r) = p.start(&init).unwrap();
+    let (blend, _r) = p.start(&init).unwrap();
     for (n, &k) in ticks.iter().enumerate() {
-        let v = engine.evaluate(k);
+        let v = blend.evaluate(k);
         for d in 0..D {
             assert!(
                 (v[d] - init[n][d]).abs() < 1e-3,
@@ -121,26 +121,26 @@ fn reconditioning_the_next_group_never_changes_the_past_or_present() {
     let half_window = ActivationConfig::default().window_s / 2.0;
     for n in 0..4 {
         let next = n + 1;
-        let (mut engine, mut replanner) = planner(rate).start(&initial()).unwrap();
-        let tl = *engine.timeline();
-        let before: Vec<_> = (0..tl.ticks()).map(|k| engine.evaluate(k)).collect();
+        let (mut blend, mut replanner) = planner(rate).start(&initial()).unwrap();
+        let tl = *blend.timeline();
+        let before: Vec<_> = (0..tl.ticks()).map(|k| blend.evaluate(k)).collect();
 
         let estimate: [f64; D] = std::array::from_fn(|d| 0.6 - 0.04 * d as f64);
         replanner.recondition(next, &estimate).unwrap();
         // The controller ticks on: at T_cond[n] group n+ is inactive, so the swap happens now.
         let k_n = tl.tick_of(T_COND[n]);
-        engine.tick(k_n);
-        assert!(!engine.has_pending());
+        blend.tick(k_n);
+        assert!(!blend.has_pending());
 
         let end_of_window = tl.tick_of(T_COND[n] + half_window);
         for k in 0..=end_of_window {
-            let now = engine.evaluate(k);
+            let now = blend.evaluate(k);
             for d in 0..D {
                 assert!((now[d] - before[k][d]).abs() <= 1e-12, "n = {n}, tick {k}");
             }
         }
         let k_next = tl.tick_of(T_COND[next]);
-        let now = engine.evaluate(k_next);
+        let now = blend.evaluate(k_next);
         for d in 0..D {
             assert!(
                 (now[d] - estimate[d]).abs() < 1e-3,
@@ -153,31 +153,31 @@ fn reconditioning_the_next_group_never_changes_the_past_or_present() {
 
 #[test]
 fn an_update_waits_while_its_group_is_active() {
-    let (mut engine, mut replanner) = planner(500.0).start(&initial()).unwrap();
-    let tl = *engine.timeline();
+    let (mut blend, mut replanner) = planner(500.0).start(&initial()).unwrap();
+    let tl = *blend.timeline();
     let k2 = tl.tick_of(T_COND[2]);
-    let old = engine.evaluate(k2);
+    let old = blend.evaluate(k2);
     let estimate = [0.9; D];
     replanner.recondition(2, &estimate).unwrap();
     // Inside group 2's window: held back, v unchanged.
-    assert_eq!(engine.tick(k2), old);
-    assert!(engine.has_pending());
+    assert_eq!(blend.tick(k2), old);
+    assert!(blend.has_pending());
     // Group 2's window and hand-over are over at T_cond[3]: taken in.
-    engine.tick(tl.tick_of(T_COND[3]));
-    assert!(!engine.has_pending());
-    let v = engine.evaluate(k2);
+    blend.tick(tl.tick_of(T_COND[3]));
+    assert!(!blend.has_pending());
+    let v = blend.evaluate(k2);
     assert!(v.iter().all(|x| (x - 0.9).abs() < 1e-3), "{v:?}");
 }
 
 /// One execution as the controller plays it: `rest` ticks of rest, then the timeline, calling
 /// `at(k)` after each tick k.
-fn play(engine: &mut TickEngine<D>, rest: usize, mut at: impl FnMut(&mut TickEngine<D>, usize)) {
+fn play(blend: &mut Blend<D>, rest: usize, mut at: impl FnMut(&mut Blend<D>, usize)) {
     for _ in 0..rest {
-        engine.rest();
+        blend.rest();
     }
-    for k in 0..engine.timeline().ticks() {
-        engine.tick(k);
-        at(engine, k);
+    for k in 0..blend.timeline().ticks() {
+        blend.tick(k);
+        at(blend, k);
     }
 }
 
@@ -199,23 +199,23 @@ fn a_one_point_set_applies_each_estimate_in_its_next_execution() {
     .unwrap();
     let k0 = planner.conditioning_ticks()[0];
     let first = [0.45; D];
-    let (mut engine, mut replanner) = planner.start(&[first]).unwrap();
+    let (mut blend, mut replanner) = planner.start(&[first]).unwrap();
     let rest = 40;
 
     // Execution 1: the learner's answer to the point's sample arrives a few ticks later; the
     // group is active, so it waits, and execution 1 plays on unchanged.
     let second = [0.6; D];
     let mut played = Vec::new();
-    play(&mut engine, rest, |e, k| {
+    play(&mut blend, rest, |e, k| {
         played.push(e.evaluate(k));
         if k == k0 + 3 {
             replanner.recondition(0, &second).unwrap();
         }
     });
     assert!(near(&played[k0], &first, 1e-3), "{:?}", played[k0]);
-    assert!(engine.has_pending() && engine.applied() == 0);
+    assert!(blend.has_pending() && blend.applied() == 0);
     assert_eq!(
-        engine.evaluate(k0),
+        blend.evaluate(k0),
         played[k0],
         "nothing moved during execution 1"
     );
@@ -223,53 +223,53 @@ fn a_one_point_set_applies_each_estimate_in_its_next_execution() {
     // Execution 2 uses it; an estimate arriving after execution 2 ended is used in execution 3.
     let third = [0.35; D];
     let mut at_point = None;
-    play(&mut engine, rest, |e, k| {
+    play(&mut blend, rest, |e, k| {
         if k == k0 {
             at_point = Some(e.evaluate(k));
         }
     });
     assert!(near(&at_point.unwrap(), &second, 1e-3), "{at_point:?}");
-    assert_eq!(engine.applied(), 1);
+    assert_eq!(blend.applied(), 1);
     replanner.recondition(0, &third).unwrap();
-    play(&mut engine, rest, |e, k| {
+    play(&mut blend, rest, |e, k| {
         if k == k0 {
             at_point = Some(e.evaluate(k));
         }
     });
     assert!(near(&at_point.unwrap(), &third, 1e-3), "{at_point:?}");
-    assert_eq!(engine.applied(), 2);
+    assert_eq!(blend.applied(), 2);
 
     // Without a rest (controller.rest_s = 0), the execution's first tick takes it in.
     replanner.recondition(0, &first).unwrap();
-    play(&mut engine, 0, |_, _| {});
-    assert!(near(&engine.evaluate(k0), &first, 1e-3));
-    assert_eq!(engine.applied(), 3);
+    play(&mut blend, 0, |_, _| {});
+    assert!(near(&blend.evaluate(k0), &first, 1e-3));
+    assert_eq!(blend.applied(), 3);
 }
 
 #[test]
 fn an_estimate_for_group_0_arriving_after_the_execution_is_used_in_the_next() {
-    let (mut engine, mut replanner) = planner(100.0).start(&initial()).unwrap();
-    let tl = *engine.timeline();
+    let (mut blend, mut replanner) = planner(100.0).start(&initial()).unwrap();
+    let tl = *blend.timeline();
     let k0 = tl.tick_of(T_COND[0]);
-    play(&mut engine, 20, |_, _| {});
+    play(&mut blend, 20, |_, _| {});
     // The answer to the last point's sample comes once the execution is over.
     let estimate = [0.7; D];
     replanner.recondition(0, &estimate).unwrap();
     let mut at_point = None;
-    play(&mut engine, 20, |e, k| {
+    play(&mut blend, 20, |e, k| {
         if k == k0 {
             at_point = Some(e.evaluate(k));
         }
     });
     assert!(near(&at_point.unwrap(), &estimate, 1e-3), "{at_point:?}");
-    assert_eq!(engine.applied(), 1);
+    assert_eq!(blend.applied(), 1);
 }
 
 #[test]
 fn bad_estimates_are_refused_and_change_nothing() {
-    let (mut engine, mut replanner) = planner(100.0).start(&initial()).unwrap();
-    let before: Vec<_> = (0..engine.timeline().ticks())
-        .map(|k| engine.evaluate(k))
+    let (mut blend, mut replanner) = planner(100.0).start(&initial()).unwrap();
+    let before: Vec<_> = (0..blend.timeline().ticks())
+        .map(|k| blend.evaluate(k))
         .collect();
     let mut bad = [0.5; D];
     bad[3] = f64::NAN;
@@ -277,27 +277,27 @@ fn bad_estimates_are_refused_and_change_nothing() {
     assert!(e.to_string().contains("actuation estimate"), "{e}");
     assert!(replanner.recondition(7, &[0.5; D]).is_err());
     for (k, b) in before.iter().enumerate() {
-        assert_eq!(&engine.tick(k), b);
+        assert_eq!(&blend.tick(k), b);
     }
 }
 
 #[test]
 fn a_replanner_never_blocks_on_a_tick_that_does_not_run() {
-    let (mut engine, mut replanner) = planner(100.0).start(&initial()).unwrap();
+    let (mut blend, mut replanner) = planner(100.0).start(&initial()).unwrap();
     let groups = T_COND.len();
     // The tick takes nothing in: after one update per group waiting, the next is refused.
     for _ in 0..groups {
         replanner.recondition(1, &[0.6; D]).unwrap();
     }
     let e = replanner.recondition(1, &[0.6; D]).unwrap_err();
-    assert!(matches!(e, EngineError::Busy(n) if n == groups), "{e}");
+    assert!(matches!(e, BlendError::Busy(n) if n == groups), "{e}");
     // Once the tick runs it takes them in, and there is room again.
-    engine.tick(engine.timeline().tick_of(T_COND[3]));
+    blend.tick(blend.timeline().tick_of(T_COND[3]));
     replanner.recondition(1, &[0.7; D]).unwrap();
-    drop(engine);
+    drop(blend);
     assert!(matches!(
         replanner.recondition(1, &[0.7; D]),
-        Err(EngineError::Disconnected)
+        Err(BlendError::Disconnected)
     ));
 }
 

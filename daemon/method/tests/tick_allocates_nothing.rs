@@ -1,4 +1,4 @@
-//! A tick of the engine (rest or execution) allocates nothing, even while it takes in
+//! A tick of the blend (rest or execution) allocates nothing, even while it takes in
 //! re-conditioned groups and hands the old tables back. Proven with a counting global allocator
 //! that counts only the threads that ask, so the other tests of this binary can run beside it.
 
@@ -6,7 +6,7 @@ mod common;
 
 use common::{D, primitives};
 use softarm_method::activation::ActivationConfig;
-use softarm_method::engine::{Planner, Timeline};
+use softarm_method::blend::{Planner, Timeline};
 use softarm_test_alloc::{self as alloc, Counting};
 
 #[global_allocator]
@@ -24,8 +24,8 @@ fn ticks_allocate_and_free_nothing() {
         1e-6,
     )
     .unwrap();
-    let (mut engine, mut replanner) = planner.start(&[[0.5; D]; 5]).unwrap();
-    let tl = *engine.timeline();
+    let (mut blend, mut replanner) = planner.start(&[[0.5; D]; 5]).unwrap();
+    let tl = *blend.timeline();
 
     // The replanner runs on its own thread, as in the controller; its allocations don't count.
     let worker = std::thread::spawn(move || {
@@ -43,15 +43,15 @@ fn ticks_allocate_and_free_nothing() {
     let mut sink = 0.0;
     // The rest before the execution takes in group 0 (active from t = 0), the ticks the others.
     for _ in 0..10 {
-        sink += engine.rest()[0];
+        sink += blend.rest()[0];
     }
     for k in 0..tl.ticks() {
-        let v = engine.tick(k);
+        let v = blend.tick(k);
         sink += v[0];
     }
     let during = alloc::this_thread() - before;
     assert!(sink.is_finite());
-    assert!(!engine.has_pending(), "every update was taken in");
+    assert!(!blend.has_pending(), "every update was taken in");
     assert_eq!(
         during,
         0,

@@ -17,7 +17,7 @@ use softarm_config::waypoints::WaypointFile;
 use softarm_controller::{Execution, Limiter, admit, complete_sample, rest_ticks};
 use softarm_ipc::{ACTUATORS, Actuation, ExecutionStats, WaypointSet};
 use softarm_learner::Learner;
-use softarm_method::engine::Replanner;
+use softarm_method::blend::Replanner;
 use softarm_method::pcc::ArmGeometry;
 use softarm_method::plant::{Measurement, Plant, SimConfig};
 use softarm_model::bundle::Model;
@@ -74,7 +74,7 @@ impl SimArm {
 /// Where it differs from the running stack, knowingly: the tick never overruns (`skipped` is
 /// always 0, so every point is sampled at its own tick; the stack under load samples at the
 /// first tick played after it); the learner's estimate re-conditions the set at once, where the
-/// stack's goes through two processes polling every 2 ms (a few ticks; the engine swaps a group
+/// stack's goes through two processes polling every 2 ms (a few ticks; the blend swaps a group
 /// in only while it is inactive, at least `window_s / 2` after its point, so this changes no
 /// table); a set starts as soon as it is admitted (the stack idles a few ms waiting for the
 /// first estimates, the sim stepping on); the sim's deadlines fall on the tick grid's (phase
@@ -147,7 +147,7 @@ impl<'a> Rehearsal<'a> {
     }
 
     /// As the service thread starts a set: admission, the learner's first estimates, the
-    /// engine handed to the tick and the replanner kept.
+    /// blend handed to the tick and the replanner kept.
     fn start(&mut self, set: &WaypointSet) -> anyhow::Result<(Execution, Replanner<ACTUATORS>)> {
         let admitted = admit(self.config, Some(self.model), set).context("set rejected")?;
         self.next_set_id += 1;

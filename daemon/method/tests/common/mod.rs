@@ -1,4 +1,4 @@
-//! Synthetic primitives shared by the engine tests and benches: M classes of smooth six-actuator
+//! Synthetic primitives shared by the blend tests and benches: M classes of smooth six-actuator
 //! motions with demo-to-demo variation, so Σ_w is full of real structure.
 #![allow(dead_code)]
 

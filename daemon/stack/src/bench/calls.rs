@@ -7,8 +7,8 @@ use std::time::Instant;
 
 use serde_json::{Map, Value};
 use softarm_method::activation::ActivationConfig;
+use softarm_method::blend::{Planner, Timeline};
 use softarm_method::cacla::PretrainConfig;
-use softarm_method::engine::{Planner, Timeline};
 use softarm_method::forward::ForwardModel;
 use softarm_method::learner_config::LearnerConfig;
 use softarm_method::pcc::ArmGeometry;
@@ -53,8 +53,8 @@ pub(super) fn run(
         ActivationConfig::default(),
         1e-6,
     )?;
-    let (mut engine, mut replanner) = planner.start(&[[0.5; 6]; 5])?;
-    let engine_ticks = engine.timeline().ticks();
+    let (mut blend, mut replanner) = planner.start(&[[0.5; 6]; 5])?;
+    let engine_ticks = blend.timeline().ticks();
     out.text(&header(
         "Single calls (N=5 conditioning points, M=3 primitives, D=6, K=15, 10 s at 500 Hz)",
     ));
@@ -63,20 +63,20 @@ pub(super) fn run(
     let mut sink = 0.0;
     for i in 0..ticks {
         let start = Instant::now();
-        let v = engine.tick(std::hint::black_box(i % engine_ticks));
+        let v = blend.tick(std::hint::black_box(i % engine_ticks));
         record(&mut ns, start);
         sink += v[0];
     }
     report("eq11_tick", "Eq. 11 tick", &ns);
     interrupted()?;
 
-    let k3 = engine.timeline().tick_of(t_cond[3]);
+    let k3 = blend.timeline().tick_of(t_cond[3]);
     let mut ns = histogram();
     for i in 0..reconditions {
         let a = [0.4 + 0.002 * i as f64; 6];
         let start = Instant::now();
         replanner.recondition(1, &a)?;
-        sink += engine.tick(k3)[0];
+        sink += blend.tick(k3)[0];
         record(&mut ns, start);
     }
     report("recondition", "re-condition one group + ready", &ns);

@@ -1,5 +1,5 @@
-//! Criterion benches of the tick engine: one Eq. 11 tick, re-condition + ready, training, one
-//! conditioning. `cargo bench -p softarm-method --bench engine`. Percentiles of single ticks:
+//! Criterion benches of Eq. 11 (the Blend): one Eq. 11 tick, re-condition + ready, training, one
+//! conditioning. `cargo bench -p softarm-method --bench blend`. Percentiles of single ticks:
 //! `softarm bench`.
 
 #[path = "../tests/common/mod.rs"]
@@ -10,7 +10,7 @@ use std::hint::black_box;
 use common::{D, demonstrations, primitives};
 use criterion::{Criterion, criterion_group, criterion_main};
 use softarm_method::activation::ActivationConfig;
-use softarm_method::engine::{Planner, Timeline};
+use softarm_method::blend::{Planner, Timeline};
 use softarm_method::promp::{Basis, Primitive, TrainConfig, ViaPoint};
 
 const T_COND: [f64; 5] = [1.0, 3.0, 5.0, 7.0, 9.0];
@@ -29,24 +29,24 @@ fn planner() -> Planner<D> {
 }
 
 fn benches(c: &mut Criterion) {
-    let (mut engine, mut replanner) = planner().start(&[[0.5; D]; 5]).unwrap();
-    let ticks = engine.timeline().ticks();
+    let (mut blend, mut replanner) = planner().start(&[[0.5; D]; 5]).unwrap();
+    let ticks = blend.timeline().ticks();
     let mut k = 0;
     c.bench_function("tick (N=5 M=3 D=6 K=15)", |b| {
         b.iter(|| {
             k = (k + 1) % ticks;
-            black_box(engine.tick(black_box(k)))
+            black_box(blend.tick(black_box(k)))
         })
     });
 
     // UpdatePrim for group 1 and the tick that takes it in (at T_cond[3], group 1 is inactive).
-    let k3 = engine.timeline().tick_of(T_COND[3]);
+    let k3 = blend.timeline().tick_of(T_COND[3]);
     let mut x = 0.0;
     c.bench_function("recondition + ready (10 s at 500 Hz)", |b| {
         b.iter(|| {
             x = (x + 0.01) % 0.3;
             replanner.recondition(1, &[0.4 + x; D]).unwrap();
-            black_box(engine.tick(k3));
+            black_box(blend.tick(k3));
         })
     });
 
@@ -73,5 +73,5 @@ fn benches(c: &mut Criterion) {
     });
 }
 
-criterion_group!(engine, benches);
-criterion_main!(engine);
+criterion_group!(blend_benches, benches);
+criterion_main!(blend_benches);

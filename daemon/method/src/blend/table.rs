@@ -1,0 +1,119 @@
+//! Marginals on the tick grid, in information form, and the small dense linear algebra the
+//! tick needs (no allocation: fixed-size arrays).
+
+/// One marginal in information form.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(super) struct Information<const D: usize> {
+    /// Λ = (S + floor·I)⁻¹
+    pub(super) precision: [[f64; D]; D],
+    /// Λ μ
+    pub(super) shifted: [f64; D],
+}
+
+impl<const D: usize> Information<D> {
+    pub(super) const ZERO: Self = Self {
+        precision: [[0.0; D]; D],
+        shifted: [0.0; D],
+    };
+
+    pub(super) fn new(mean: &[f64; D], cov: &[[f64; D]; D], floor: f64) -> Self {
+        let mut s = *cov;
+        for (d, row) in s.iter_mut().enumerate() {
+            row[d] += floor;
+        }
+        let mut precision = [[0.0; D]; D];
+        match cholesky(&mut s) {
+            Some(()) => {
+                for (e, col) in (0..D).map(|e| (e, unit::<D>(e))) {
+                    let x = cholesky_solve(&s, col);
+                    for d in 0..D {
+                        precision[d][e] = x[d];
+                    }
+                }
+            }
+            // Cancellation in a conditioned covariance can leave it a hair indefinite; the
+            // diagonal keeps the mean and a sane precision.
+            None => {
+                for d in 0..D {
+                    precision[d][d] = 1.0 / (cov[d][d].max(0.0) + floor);
+                }
+            }
+        }
+        let mut shifted = [0.0; D];
+        for d in 0..D {
+            shifted[d] = (0..D).map(|e| precision[d][e] * mean[e]).sum();
+        }
+        Self { precision, shifted }
+    }
+}
+
+/// The marginals of one primitive at every tick of the timeline, in information form.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Table<const D: usize> {
+    pub(super) entries: Box<[Information<D>]>,
+}
+
+impl<const D: usize> Table<D> {
+    pub(super) fn zeroed(ticks: usize) -> Self {
+        Self {
+            entries: vec![Information::ZERO; ticks].into_boxed_slice(),
+        }
+    }
+
+    pub fn ticks(&self) -> usize {
+        self.entries.len()
+    }
+}
+
+/// A re-conditioned table for one group, on its way to the tick.
+pub struct Update<const D: usize> {
+    pub(super) group: usize,
+    pub(super) table: Table<D>,
+}
+
+pub(super) fn unit<const D: usize>(e: usize) -> [f64; D] {
+    let mut u = [0.0; D];
+    u[e] = 1.0;
+    u
+}
+
+/// In-place Cholesky: the lower triangle of `a` becomes L with A = L Lᵀ. Reads only the lower
+/// triangle. `None` if A is not positive definite.
+pub(super) fn cholesky<const D: usize>(a: &mut [[f64; D]; D]) -> Option<()> {
+    for j in 0..D {
+        let mut s = a[j][j];
+        for k in 0..j {
+            s -= a[j][k] * a[j][k];
+        }
+        if s <= 0.0 || !s.is_finite() {
+            return None;
+        }
+        let l = s.sqrt();
+        a[j][j] = l;
+        for i in j + 1..D {
+            let mut s = a[i][j];
+            for k in 0..j {
+                s -= a[i][k] * a[j][k];
+            }
+            a[i][j] = s / l;
+        }
+    }
+    Some(())
+}
+
+/// Solves L Lᵀ x = b with the factor from [`cholesky`].
+pub(super) fn cholesky_solve<const D: usize>(l: &[[f64; D]; D], mut b: [f64; D]) -> [f64; D] {
+    for i in 0..D {
+        for k in 0..i {
+            b[i] -= l[i][k] * b[k];
+        }
+        b[i] /= l[i][i];
+    }
+    for i in (0..D).rev() {
+        for k in i + 1..D {
+            b[i] -= l[k][i] * b[k];
+        }
+        b[i] /= l[i][i];
+    }
+    b
+}
