@@ -99,7 +99,8 @@ pub struct Robot {
 #[serde(deny_unknown_fields)]
 pub struct Controller {
     pub rate_hz: f64,
-    /// Tracker data older than this puts the controller in HOLD (ms).
+    /// Tracker or motor data older than this puts the controller in HOLD (ms): it times both
+    /// `tracker` and `motor_state`.
     pub tracker_timeout_ms: f64,
     /// Fastest a setpoint may change (normalised units per s).
     pub slew_per_s: f64,

@@ -30,7 +30,9 @@ impl Limiter {
         l
     }
 
-    /// Starts again from a measured state (after HOLD or e-stop), so resuming never jumps.
+    /// Starts again from a measured state, so resuming never jumps: the tick does this when it
+    /// is safe again after an e-stop (after HOLD it goes on from the held setpoint, which the
+    /// drivers kept applying).
     pub fn reset(&mut self, measured: Actuation) {
         self.last = std::array::from_fn(|i| measured[i].clamp(self.min[i], self.max[i]));
     }
