@@ -13,10 +13,8 @@ use softarm_emulate::command as emulate;
 use softarm_ipc::Namespace;
 use softarm_runtime::stop_flag;
 use softarm_stack::supervisor as up;
-use softarm_stack::{bench, soak};
+use softarm_stack::{bench, demo, soak};
 use softarm_systemd as install;
-
-mod demo;
 
 /// Task-driven skill learning for a two-module soft continuum arm: ProMPs blended by the paper's
 /// Eq. 11, conditioning points learned online by CACLA-MTL.

@@ -4,18 +4,19 @@
 //! what was learnt (`--then`), and stops everything.
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
-use softarm_clients::{plot, record, stats, status, submit};
+use softarm_clients::{plot, record, stats, submit};
 use softarm_config::scenario::Scenario;
 use softarm_config::waypoints::{WaypointFile, validate};
 use softarm_config::{Config, DEFAULT};
 use softarm_ipc::{ExecutionStats, Namespace};
 
-use softarm_stack::scratch::{self, Scratch};
-use softarm_stack::supervisor::{self, Supervisor};
+use crate::scratch::{self, Scratch};
+use crate::supervisor::{self, Supervisor};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -69,109 +70,29 @@ fn say(json: bool, line: &str) {
 }
 
 pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
-    if args.executions == 0 {
-        bail!("--executions must be at least 1");
-    }
-    let scenario = args
-        .scenario
-        .as_deref()
-        .map(Scenario::resolve)
-        .transpose()?;
-    // Refused before anything starts (a stack, minutes of training), not at the end of the run.
-    if !args.no_record {
-        record::check_output(&args.record).context("--record")?;
-        plot::check_output(&args.record.with_extension("png")).context("--record")?;
-    }
+    let scenario = check(args)?;
     let started = Instant::now();
-    let model_dir = args
-        .model_dir
-        .clone()
-        .unwrap_or_else(|| scratch::cache_dir().join(format!("demo-model-seed{}", args.seed)));
-    if model_dir.exists() && !model_dir.is_dir() {
-        bail!("the model folder {} is not a folder", model_dir.display());
-    }
-    // The embedded default, in this demo's own namespace, with its own state and seeds.
-    let seed = i64::try_from(args.seed).context("--seed must be at most 9223372036854775807")?;
-    let scratch = Scratch::new(
-        "demo",
-        DEFAULT,
-        &[
-            ("model.dir", model_dir.display().to_string().into()),
-            ("learner.seed", seed.into()),
-            (
-                "learner.algorithm",
-                match args.learner {
-                    Learner::GaussNewton => "gauss-newton",
-                    Learner::Paper => "paper",
-                }
-                .into(),
-            ),
-            ("sim.realism.seed", seed.into()),
-        ],
-    )?;
+    let scratch = scratch_for(args)?;
     let (config, ns) = (&scratch.config, &scratch.namespace);
     // The user's sets, read and checked as the controller will check them, before the stack.
-    let file = match &args.set {
-        Some(path) => load_set("--set", path, config, args.executions)?,
-        None => {
-            let file = WaypointFile::parse(scratch::DEMO_WAYPOINTS)
-                .map_err(anyhow::Error::msg)
-                .context("the demo way-points")?;
-            file.to_set(args.executions)
-                .and_then(|set| validate(&set, &config.waypoints, &config.activation))
-                .map_err(|e| anyhow::anyhow!("--executions: {e}"))?;
-            file
-        }
-    };
-    let then = args
-        .then
-        .as_deref()
-        .map(|path| load_set("--then", path, config, 1))
-        .transpose()?;
+    let (file, then) = sets(args, config)?;
 
     let mut sup = scratch.supervisor(&["sim", "controller", "learner"], "warn")?;
     say(
         args.json,
         &format!("softarm demo: stack up in namespace {}", ns.as_str()),
     );
-    let wait_for = |what: &str,
-                    limit: Duration,
-                    sup: &mut Supervisor,
-                    ok: &dyn Fn(&status::Report) -> bool| {
-        scratch.wait_for(what, limit, sup, stop, ok)
-    };
     scratch.ready_with_model(&mut sup, stop, args.seed, &|line| {
         say(args.json, &format!("softarm demo: {line}"))
     })?;
-
-    // Trained (or reused) on the nominal arm; now the sim becomes the scenario's arm.
     if let Some(s) = scenario.as_ref().filter(|s| !s.is_nominal()) {
-        say(
-            args.json,
-            &format!(
-                "softarm demo: the sim runs scenario {}: {}",
-                s.name,
-                s.describe()
-            ),
-        );
-        let arg = args.scenario.as_deref();
-        sup.restart_with("sim", supervisor::sim_args(arg), Duration::from_secs(5))?;
-        wait_for(
-            "the scenario's sim coming up",
-            Duration::from_secs(20),
-            &mut sup,
-            &|r| {
-                r.alive.iter().any(|n| n == "sim")
-                    && r.controller
-                        .is_some_and(|s| s.state == softarm_ipc::ControllerState::Idle as u32)
-            },
-        )?;
+        become_scenario(args, s, &scratch, &mut sup, stop)?;
     }
 
     // Subscribe before submitting: no execution's stats can be missed.
     let follower = stats::Stats::open(ns)?;
     // The recorder is one more subscriber, on a thread of its own, from here to the end.
-    let recording_stop = std::sync::Arc::new(AtomicBool::new(false));
+    let recording_stop = Arc::new(AtomicBool::new(false));
     let recording = (!args.no_record).then(|| {
         let (ns, out, stop) = (ns.clone(), args.record.clone(), recording_stop.clone());
         std::thread::spawn(move || record::record(&ns, &out, None, &stop))
@@ -193,27 +114,142 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
         Some(file) => Some(run_set(file, 1, &mut sup)?),
         None => None,
     };
-    recording_stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    recording_stop.store(true, Ordering::Relaxed);
     sup.stop(Duration::from_secs(5));
     if let Some(recording) = recording {
         let counts = recording
             .join()
             .map_err(|_| anyhow::anyhow!("the recorder panicked"))??;
-        let png = args.record.with_extension("png");
-        let messages = record::read(&args.record)?;
-        let data = record::plot_data(&messages, "softarm demo")?;
-        plot::render(&data, &png)?;
-        say(
-            args.json,
-            &format!(
-                "softarm demo: recorded {} ({} samples; `softarm replay` reads it), plotted {}",
-                args.record.display(),
-                counts.values().sum::<u64>(),
-                png.display()
-            ),
-        );
+        plot_recording(args, counts.values().sum())?;
     }
+    summary(args, &rows, second.as_deref(), started);
+    Ok(())
+}
 
+/// What can be refused before anything starts (a stack, minutes of training), rather than at
+/// the end of the run; the scenario, resolved.
+fn check(args: &Args) -> anyhow::Result<Option<Scenario>> {
+    if args.executions == 0 {
+        bail!("--executions must be at least 1");
+    }
+    let scenario = args
+        .scenario
+        .as_deref()
+        .map(Scenario::resolve)
+        .transpose()?;
+    if !args.no_record {
+        record::check_output(&args.record).context("--record")?;
+        plot::check_output(&args.record.with_extension("png")).context("--record")?;
+    }
+    let model_dir = model_dir(args);
+    if model_dir.exists() && !model_dir.is_dir() {
+        bail!("the model folder {} is not a folder", model_dir.display());
+    }
+    Ok(scenario)
+}
+
+fn model_dir(args: &Args) -> PathBuf {
+    args.model_dir
+        .clone()
+        .unwrap_or_else(|| scratch::cache_dir().join(format!("demo-model-seed{}", args.seed)))
+}
+
+/// The embedded default, in this demo's own namespace, with its own state, model and seeds.
+fn scratch_for(args: &Args) -> anyhow::Result<Scratch> {
+    let seed = i64::try_from(args.seed).context("--seed must be at most 9223372036854775807")?;
+    let algorithm = match args.learner {
+        Learner::GaussNewton => "gauss-newton",
+        Learner::Paper => "paper",
+    };
+    Scratch::new(
+        "demo",
+        DEFAULT,
+        &[
+            ("model.dir", model_dir(args).display().to_string().into()),
+            ("learner.seed", seed.into()),
+            ("learner.algorithm", algorithm.into()),
+            ("sim.realism.seed", seed.into()),
+        ],
+    )
+}
+
+/// The set to run (`--set`, else the demo's) and the one to run once after (`--then`), each
+/// refused where the controller would refuse it.
+fn sets(args: &Args, config: &Config) -> anyhow::Result<(WaypointFile, Option<WaypointFile>)> {
+    let file = match &args.set {
+        Some(path) => load_set("--set", path, config, args.executions)?,
+        None => {
+            let file = WaypointFile::parse(scratch::DEMO_WAYPOINTS)
+                .map_err(anyhow::Error::msg)
+                .context("the demo way-points")?;
+            file.to_set(args.executions)
+                .and_then(|set| validate(&set, &config.waypoints, &config.activation))
+                .map_err(|e| anyhow::anyhow!("--executions: {e}"))?;
+            file
+        }
+    };
+    let then = args
+        .then
+        .as_deref()
+        .map(|path| load_set("--then", path, config, 1))
+        .transpose()?;
+    Ok((file, then))
+}
+
+/// Trained (or reused) on the nominal arm; now the sim becomes the scenario's arm.
+fn become_scenario(
+    args: &Args,
+    s: &Scenario,
+    scratch: &Scratch,
+    sup: &mut Supervisor,
+    stop: &AtomicBool,
+) -> anyhow::Result<()> {
+    say(
+        args.json,
+        &format!(
+            "softarm demo: the sim runs scenario {}: {}",
+            s.name,
+            s.describe()
+        ),
+    );
+    let arg = args.scenario.as_deref();
+    sup.restart_with("sim", supervisor::sim_args(arg), Duration::from_secs(5))?;
+    scratch.wait_for(
+        "the scenario's sim coming up",
+        Duration::from_secs(20),
+        sup,
+        stop,
+        &|r| {
+            r.alive.iter().any(|n| n == "sim")
+                && r.controller
+                    .is_some_and(|s| s.state == softarm_ipc::ControllerState::Idle as u32)
+        },
+    )
+}
+
+/// The finished recording of `samples` samples drawn beside it (`.png`).
+fn plot_recording(args: &Args, samples: u64) -> anyhow::Result<()> {
+    let png = args.record.with_extension("png");
+    let messages = record::read(&args.record)?;
+    let data = record::plot_data(&messages, "softarm demo")?;
+    plot::render(&data, &png)?;
+    say(
+        args.json,
+        &format!(
+            "softarm demo: recorded {} ({samples} samples; `softarm replay` reads it), plotted {}",
+            args.record.display(),
+            png.display()
+        ),
+    );
+    Ok(())
+}
+
+fn summary(
+    args: &Args,
+    rows: &[ExecutionStats],
+    second: Option<&[ExecutionStats]>,
+    started: Instant,
+) {
     let first = rows.first().expect("at least one execution");
     let last = rows.last().expect("at least one execution");
     say(
@@ -226,7 +262,7 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
             started.elapsed().as_secs_f64()
         ),
     );
-    if let Some(s) = second.as_ref().and_then(|r| r.first()) {
+    if let Some(s) = second.and_then(|r| r.first()) {
         say(
             args.json,
             &format!(
@@ -235,7 +271,6 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
             ),
         );
     }
-    Ok(())
 }
 
 /// The way-point file of option `flag`, refused (naming both) where the controller would refuse
