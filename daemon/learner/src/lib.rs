@@ -2,8 +2,9 @@
 //! ([`softarm_method::online`]). An `EstimateRequest` (a set was accepted) is answered with the
 //! first, exploration-free estimate of every point; each `ConditioningSample` is one visit and is
 //! answered with the `ActuationEstimate` the controller asked for next.
-//! The state is checkpointed atomically after every execution and at exit, and resumed at start
-//! when it descends from the current model bundle.
+//! The state is checkpointed atomically after every execution (on a thread of its own, so a
+//! slow disk never delays an answer) and at exit, and resumed at start when it descends from
+//! the current model bundle.
 //!
 //! What it does with requests and samples is [`Learner`]'s (module `visits`), without I/O,
 //! so that `softarm-rehearsal` runs the same code in one process; this is the process around it.
@@ -12,7 +13,9 @@ mod visits;
 
 pub use visits::Learner;
 
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Condvar, Mutex};
 use std::time::{Duration, Instant};
 
 use softarm_config::Config;
@@ -103,13 +106,80 @@ fn runtime_config(trained: LearnerConfig, configured: LearnerConfig) -> LearnerC
     runtime
 }
 
-fn checkpoint(config: &Config, l: &Loaded) {
-    if let Err(e) = write_checkpoint(
-        &config.state_dir(),
-        &l.learner.online().cacla().state(),
-        &l.model_id,
-    ) {
-        tracing::error!("checkpoint not written: {e}");
+fn checkpoint(dir: &Path, state: &LearnerState, model_id: &str) {
+    let started = Instant::now();
+    match write_checkpoint(dir, state, model_id) {
+        // Slow writes are worth knowing of: they are why checkpoints are off the answering loop.
+        Ok(()) if started.elapsed() > Duration::from_millis(500) => {
+            tracing::warn!(
+                ms = started.elapsed().as_millis() as u64,
+                "slow checkpoint write"
+            )
+        }
+        Ok(()) => {}
+        Err(e) => tracing::error!("checkpoint not written: {e}"),
+    }
+}
+
+/// Writes checkpoints on a thread of its own: a write syncs three files and a folder, which on
+/// a busy disk takes seconds, and the controller wants each next estimate within about 100 ms.
+/// The newest state waiting replaces an older one not yet written; [`Checkpoints::finish`]
+/// writes what is waiting and stops.
+struct Checkpoints {
+    shared: Arc<(Mutex<Pending>, Condvar)>,
+    writer: Option<std::thread::JoinHandle<()>>,
+}
+
+#[derive(Default)]
+struct Pending {
+    next: Option<(LearnerState, String)>,
+    done: bool,
+}
+
+impl Checkpoints {
+    fn start(dir: PathBuf) -> Self {
+        let shared = Arc::new((Mutex::new(Pending::default()), Condvar::new()));
+        let writer = {
+            let shared = shared.clone();
+            std::thread::spawn(move || {
+                let (lock, wake) = &*shared;
+                loop {
+                    let job = {
+                        let mut p = lock.lock().unwrap_or_else(|e| e.into_inner());
+                        while p.next.is_none() && !p.done {
+                            p = wake.wait(p).unwrap_or_else(|e| e.into_inner());
+                        }
+                        match p.next.take() {
+                            Some(job) => job,
+                            None => return,
+                        }
+                    };
+                    checkpoint(&dir, &job.0, &job.1);
+                }
+            })
+        };
+        Self {
+            shared,
+            writer: Some(writer),
+        }
+    }
+
+    /// Queues `l`'s state, replacing one not yet written.
+    fn save(&self, l: &Loaded) {
+        let job = (l.learner.online().cacla().state(), l.model_id.clone());
+        let (lock, wake) = &*self.shared;
+        lock.lock().unwrap_or_else(|e| e.into_inner()).next = Some(job);
+        wake.notify_one();
+    }
+
+    /// Writes what is waiting, then stops the writer.
+    fn finish(&mut self) {
+        let (lock, wake) = &*self.shared;
+        lock.lock().unwrap_or_else(|e| e.into_inner()).done = true;
+        wake.notify_one();
+        if let Some(w) = self.writer.take() {
+            let _ = w.join();
+        }
     }
 }
 
@@ -179,6 +249,7 @@ struct Process<'a> {
     watchdog: Option<(Duration, Instant)>,
     /// The state last told in STATUS= (model loaded, set).
     told: Option<(bool, u64)>,
+    checkpoints: Checkpoints,
 }
 
 /// Runs the learner until `stop` is set.
@@ -193,6 +264,7 @@ pub fn run(config: &Config, stop: &AtomicBool) -> anyhow::Result<()> {
         refused_before: 0,
         watchdog: None,
         told: None,
+        checkpoints: Checkpoints::start(config.state_dir()),
     };
     // Under systemd: READY=1 now that every port is open (a model may still be missing: then
     // the learner waits for one, and says so in STATUS=); WATCHDOG=1 while this loop turns.
@@ -204,8 +276,14 @@ pub fn run(config: &Config, stop: &AtomicBool) -> anyhow::Result<()> {
         std::thread::sleep(Duration::from_millis(2));
         p.turn();
     }
+    // The last state is written after everything queued, so it is the one that stays.
+    p.checkpoints.finish();
     if let Some(l) = &p.loaded {
-        checkpoint(config, l);
+        checkpoint(
+            &config.state_dir(),
+            &l.learner.online().cacla().state(),
+            &l.model_id,
+        );
     }
     tracing::info!(refused = p.refused(), "learner stopped");
     Ok(())
@@ -299,7 +377,7 @@ impl Process<'_> {
                     if let Some(e) = l.learner.visit(&s) {
                         self.ports.send(e);
                         if s.point + 1 == s.points {
-                            checkpoint(self.config, l);
+                            self.checkpoints.save(l);
                         }
                     }
                 }

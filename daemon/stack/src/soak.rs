@@ -395,11 +395,17 @@ impl<'a> Soak<'a> {
         }
     }
 
-    /// Between sets: another arm, now and then.
+    /// Whether the sim is due to become another arm.
+    fn scenario_due(&self) -> bool {
+        self.scenario_at.is_some_and(|t| Instant::now() >= t)
+    }
+
+    /// Between sets: another arm, once due. Not while a killed process is still away; once it is
+    /// back the change may come before the execution that proves its recovery.
     fn change_scenario(&mut self) -> anyhow::Result<()> {
         if self.running.is_some()
-            || self.pending.is_some()
-            || self.scenario_at.is_none_or(|t| Instant::now() < t)
+            || !self.pending.as_ref().is_none_or(|p| p.back)
+            || !self.scenario_due()
         {
             return Ok(());
         }
@@ -455,9 +461,13 @@ impl<'a> Soak<'a> {
         Ok(())
     }
 
-    /// A random kill, mid-execution or not.
+    /// A random kill, mid-execution or not; none while a scenario change is due, so that kills
+    /// coming one after another on a loaded machine never keep the arm from changing.
     fn kill_one(&mut self) -> anyhow::Result<()> {
-        if self.pending.is_some() || self.kill_at.is_none_or(|t| Instant::now() < t) {
+        if self.pending.is_some()
+            || self.scenario_due()
+            || self.kill_at.is_none_or(|t| Instant::now() < t)
+        {
             return Ok(());
         }
         let role = ROLES[self.rng.random_range(0..ROLES.len())];

@@ -19,7 +19,7 @@ pub const DEMO_WAYPOINTS: &str = concat!(
 );
 
 /// A test's own stack: `dir` holds its config (`config`), model, state and logs; `up` is
-/// `softarm up` once started. Dropping it stops `up` and removes `dir`.
+/// `softarm up` once started. Dropping it stops `up` and removes `dir` (kept when the test failed).
 #[derive(Debug)]
 pub struct TestStack {
     pub bin: PathBuf,
@@ -273,9 +273,18 @@ impl TestStack {
 }
 
 impl Drop for TestStack {
+    /// Stops the stack; removes its folder, but keeps it (and says where) when the test failed:
+    /// its logs and state are what tells why.
     fn drop(&mut self) {
         self.stop();
-        let _ = std::fs::remove_dir_all(&self.dir);
+        if std::thread::panicking() {
+            eprintln!(
+                "the stack's folder is kept for inspection: {}",
+                self.dir.display()
+            );
+        } else {
+            let _ = std::fs::remove_dir_all(&self.dir);
+        }
     }
 }
 
