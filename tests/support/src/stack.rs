@@ -352,10 +352,11 @@ mod tests {
         assert!(alive(me));
         let mut child = Command::new("sleep").arg("30").spawn().unwrap();
         let pid = child.id() as i32;
-        // Right after the spawn the child may still be in exec, its command line empty.
+        // Right after the spawn the child may still be in exec, its command line empty; another
+        // test of this binary may have a `sleep 30` of its own: wait for this one's.
         let mut mine = children_of(me);
         for _ in 0..5000 {
-            if mine.iter().any(|c| c.0 == "30") {
+            if mine.contains(&("30".to_string(), pid)) {
                 break;
             }
             std::thread::sleep(Duration::from_millis(1));
