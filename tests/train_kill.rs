@@ -226,11 +226,19 @@ fn train_killed_anywhere_leaves_a_whole_bundle_old_or_new() {
             // Each killed writer leaves at most its one temporary.
             assert!(left.len() <= 1, "seed {seed}, {when}: {left:?}");
             left_since_complete += left.len();
-            assert_eq!(
-                temporaries(&model).len(),
-                left_since_complete,
-                "seed {seed}, {when}"
-            );
+            let temporaries = temporaries(&model).len();
+            if now != current {
+                // Its bundle got in place before the kill landed (on a loaded machine the kill
+                // can come that late): its clean-up of earlier writers' temporaries may have
+                // run too, but nothing may have been added.
+                assert!(
+                    temporaries <= left_since_complete,
+                    "seed {seed}, {when}: {temporaries} temporaries"
+                );
+                left_since_complete = temporaries;
+            } else {
+                assert_eq!(temporaries, left_since_complete, "seed {seed}, {when}");
+            }
             let at_write = matches!(how, Kill::TensorsTemporary | Kill::MetadataTemporary);
             if at_write && !left.is_empty() {
                 mid_write.push(how);
