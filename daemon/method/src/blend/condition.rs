@@ -7,15 +7,15 @@ use super::*;
 /// Everything about a way-point set that does not change while it runs: the primitives'
 /// marginals on the tick grid, ready to condition any group in a few milliseconds.
 pub struct Planner<const D: usize> {
-    pub(super) primitives: Vec<Primitive>,
-    pub(super) schedule: Schedule,
-    pub(super) timeline: Timeline,
-    pub(super) cond_ticks: Vec<usize>,
+    primitives: Vec<Primitive>,
+    schedule: Schedule,
+    timeline: Timeline,
+    cond_ticks: Vec<usize>,
     /// Basis values φ(z_k), ticks × K, row-major.
-    pub(super) phi: Vec<f64>,
-    pub(super) base_mean: Vec<Vec<[f64; D]>>,
-    pub(super) base_cov: Vec<Vec<[[f64; D]; D]>>,
-    pub(super) variance_floor: f64,
+    phi: Vec<f64>,
+    base_mean: Vec<Vec<[f64; D]>>,
+    base_cov: Vec<Vec<[[f64; D]; D]>>,
+    variance_floor: f64,
 }
 
 impl<const D: usize> Planner<D> {
@@ -111,7 +111,7 @@ impl<const D: usize> Planner<D> {
     }
 
     /// The unconditioned marginals of primitive j as a table.
-    pub(super) fn base_table(&self, j: usize) -> Table<D> {
+    fn base_table(&self, j: usize) -> Table<D> {
         let mut t = Table::zeroed(self.timeline.ticks());
         for (e, (m, c)) in t
             .entries
@@ -263,7 +263,7 @@ impl<const D: usize> Planner<D> {
 }
 
 /// The unconditioned marginal of `p` at every tick: μ = Ψᵀ μ_w and S[d][e] = φᵀ Σ_w[d,e] φ.
-pub(super) fn base_marginals<const D: usize>(
+fn base_marginals<const D: usize>(
     p: &Primitive,
     phi: &[f64],
     k: usize,
@@ -301,8 +301,8 @@ pub(super) fn base_marginals<const D: usize>(
 
 /// Re-conditions groups off the tick thread and hands the result to the [`Blend`].
 pub struct Replanner<const D: usize> {
-    pub(super) planner: Planner<D>,
-    pub(super) updates: Producer<Update<D>>,
+    planner: Planner<D>,
+    updates: Producer<Update<D>>,
     pub(super) retired: Consumer<Table<D>>,
 }
 

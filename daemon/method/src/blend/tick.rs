@@ -70,7 +70,7 @@ impl<const D: usize> Blend<D> {
     /// Takes in what the replanner sent, then swaps in the waiting groups that are inactive at
     /// `tick` (every one if `None`). A table leaves only through the retired ring, and only when
     /// it has room: otherwise the swap waits for the next tick, so nothing is ever freed here.
-    pub(super) fn take_updates(&mut self, tick: Option<usize>) {
+    fn take_updates(&mut self, tick: Option<usize>) {
         while let Ok(u) = self.updates.peek() {
             let group = u.group;
             if self.pending[group].is_some() && self.retired.is_full() {
@@ -170,7 +170,7 @@ impl<const D: usize> Blend<D> {
 
     /// v at a tick, keeping each group's last good value and counting the held ones: a group
     /// whose solve fails keeps its share b_i of v at that value, instead of pulling v toward 0.
-    pub(super) fn evaluate_holding(&mut self, tick: usize) -> [f64; D] {
+    fn evaluate_holding(&mut self, tick: usize) -> [f64; D] {
         let (tick, a) = self.activations(tick);
         let mut v = [0.0; D];
         for (group, b) in self.schedule.groups(self.timeline.time_of(tick)).iter() {
