@@ -31,9 +31,10 @@ fn main() -> ExitCode {
     let arm = ArmGeometry::default();
     let target = arm.position(&[0.3, 0.6, 0.7, 0.55, 0.4, 0.5]);
     let (mut sum, mut improved, mut n) = (0.0, 0, 0);
+    let mut memory = None;
     for k in 0..20000 {
-        let a = l.act(0, &target, true);
-        let v = l.observe(0, &target, &a, &arm.position(&a));
+        let a = l.act(memory.as_ref(), &target, true);
+        let v = l.observe(&mut memory, &target, &a, &arm.position(&a));
         sum += v.error;
         n += 1;
         improved += v.actor_updated as u32;

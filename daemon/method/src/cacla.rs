@@ -18,13 +18,11 @@ use crate::rbf::{Features, LinearRbf};
 use crate::space::{ACTUATORS, Actuation, Position, distance};
 
 /// Alg. 1's memory of one conditioning point: k_n, and the state and error of its last visit,
-/// which the next visit's δ needs. Part of [`LearnerState`], so bundles and checkpoints carry it.
-///
-/// The online learner keeps more per point (`online::RunningPoint`: tries, Jacobian, trust
-/// region, error filter) apart from this, on purpose: pre-training runs Alg. 1 without it, and
-/// that state is of the running set only (never checkpointed), so the stored format stays
-/// Alg. 1's as the paper defines it.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+/// which the next visit's δ needs. Held by whoever visits the points, not by [`CaclaMtl`] (which
+/// holds what every point shares, the actor and the critic): the online learner keeps it in its
+/// one per-point state (`online::Point`), pre-training in its own list. Of the running set only:
+/// never stored in a bundle or checkpoint.
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PointMemory {
     /// k_n: visits so far.
     pub visits: u64,
@@ -51,7 +49,6 @@ pub struct LearnerState {
     pub config: LearnerConfig,
     pub actor: Vec<(u64, Actuation)>,
     pub critic: Vec<(u64, [f64; 1])>,
-    pub memory: Vec<Option<PointMemory>>,
 }
 
 /// The critic V(p_desired, p_current): linear in normalised RBF features on a sparse 6-D
@@ -115,13 +112,12 @@ impl Actor {
     }
 }
 
-/// CACLA-MTL: one actor and one critic shared by every conditioning point, and per point n its
-/// memory (k_n, the last reached position, the last error).
+/// CACLA-MTL: one actor and one critic shared by every conditioning point. Each point's own
+/// memory ([`PointMemory`]) is passed in by the caller.
 pub struct CaclaMtl {
     config: LearnerConfig,
     actor: Actor,
     critic: Critic,
-    memory: Vec<Option<PointMemory>>,
     rng: StdRng,
 }
 
@@ -136,7 +132,6 @@ impl CaclaMtl {
                 config.actor_max_centres,
             )),
             critic: Critic::new(LinearRbf::new(critic, [0.0], config.critic_max_centres)),
-            memory: Vec::new(),
             rng: StdRng::seed_from_u64(config.seed),
             config,
         })
@@ -144,15 +139,6 @@ impl CaclaMtl {
 
     pub fn config(&self) -> &LearnerConfig {
         &self.config
-    }
-
-    pub fn memory(&self, point: usize) -> Option<&PointMemory> {
-        self.memory.get(point).and_then(Option::as_ref)
-    }
-
-    /// Forgets every point's history (a new way-point set); the actor and critic stay.
-    pub fn forget_points(&mut self) {
-        self.memory.clear();
     }
 
     /// Centres with stored weights: (actor, critic).
@@ -182,11 +168,17 @@ impl CaclaMtl {
         self.critic.value(target, current)
     }
 
-    /// The actuation to try at point `point`: a ~ N(Ac(p_desired), σ(g_prev)² I), clipped to
-    /// [0, 1]. Without exploration, or on a first visit (no g_prev yet), the actor's mean.
-    pub fn act(&mut self, point: usize, target: &Position, explore: bool) -> Actuation {
+    /// The actuation to try at a point whose memory is `memory`: a ~ N(Ac(p_desired),
+    /// σ(g_prev)² I), clipped to [0, 1]. Without exploration, or on a first visit (no g_prev
+    /// yet), the actor's mean.
+    pub fn act(
+        &mut self,
+        memory: Option<&PointMemory>,
+        target: &Position,
+        explore: bool,
+    ) -> Actuation {
         let mean = self.actor(target);
-        let prev = self.memory(point).filter(|m| m.target == *target).copied();
+        let prev = memory.filter(|m| m.target == *target).copied();
         match prev {
             Some(m) if explore => {
                 let sigma = self.sigma(m.error);
@@ -199,23 +191,21 @@ impl CaclaMtl {
         }
     }
 
-    /// One visit of Alg. 1: `action` was executed for `point` and the end effector reached
-    /// `reached`. r = g_prev − g; δ = r + γ V(p_d, p_reached) − V(p_d, p_prev); the critic
-    /// always moves by α_V δ; the actor moves toward `action` only if δ > 0.
+    /// One visit of Alg. 1: `action` was executed for the point whose memory is `memory` and
+    /// the end effector reached `reached`. r = g_prev − g; δ = r + γ V(p_d, p_reached) −
+    /// V(p_d, p_prev); the critic always moves by α_V δ; the actor moves toward `action` only if
+    /// δ > 0. `memory` becomes this visit's.
     pub fn observe(
         &mut self,
-        point: usize,
+        memory: &mut Option<PointMemory>,
         target: &Position,
         action: &Actuation,
         reached: &Position,
     ) -> Visit {
         let error = distance(target, reached);
-        if self.memory.len() <= point {
-            self.memory.resize(point + 1, None);
-        }
-        let prev = self.memory[point].filter(|m| m.target == *target);
+        let prev = memory.filter(|m| m.target == *target);
         let visits = prev.map_or(0, |m| m.visits) + 1;
-        self.memory[point] = Some(PointMemory {
+        *memory = Some(PointMemory {
             visits,
             target: *target,
             position: *reached,
@@ -266,7 +256,6 @@ impl CaclaMtl {
             config: self.config,
             actor: self.actor.weights.to_entries(),
             critic: self.critic.weights.to_entries(),
-            memory: self.memory.clone(),
         }
     }
 
@@ -292,7 +281,6 @@ impl CaclaMtl {
             )
             .map_err(|e| format!("critic: {e}"))?,
         );
-        l.memory = state.memory.clone();
         Ok(l)
     }
 }
@@ -345,18 +333,19 @@ pub fn pretrain(
         return report;
     }
     let mut targets = vec![[0.0; 3]; config.targets_per_epoch];
+    let mut memory = vec![None; config.targets_per_epoch];
     while report.epochs < config.max_epochs && keep_going(&report) {
-        learner.forget_points();
+        memory.fill(None);
         for t in &mut targets {
             *t = pool[learner.rng.random_range(0..pool.len())];
         }
         let mut converged = false;
         for _ in 0..config.visits_per_epoch {
             let mut worst = 0.0f64;
-            for (n, target) in targets.iter().enumerate() {
-                let a = learner.act(n, target, true);
+            for (target, memory) in targets.iter().zip(&mut memory) {
+                let a = learner.act(memory.as_ref(), target, true);
                 let reached = model.position(&a);
-                let v = learner.observe(n, target, &a, &reached);
+                let v = learner.observe(memory, target, &a, &reached);
                 report.updates += v.td_error.is_some() as u64;
                 worst = worst.max(v.error);
             }
@@ -368,7 +357,6 @@ pub fn pretrain(
         report.epochs += 1;
         report.converged_epochs += converged as u64;
     }
-    learner.forget_points();
     report
 }
 
@@ -401,40 +389,43 @@ mod tests {
     fn first_visit_has_no_td_update_and_targets_reset_memory() {
         let mut l = CaclaMtl::new(LearnerConfig::default()).unwrap();
         let target = [0.1, 0.0, -0.45];
-        let a = l.act(0, &target, true);
+        let mut memory = None;
+        let a = l.act(memory.as_ref(), &target, true);
         assert!(
             a.iter().all(|v| (v - 0.5).abs() < 1e-12),
             "first visit: the untrained mean, no exploration"
         );
-        let v = l.observe(0, &target, &a, &[0.0, 0.0, -0.5]);
+        let v = l.observe(&mut memory, &target, &a, &[0.0, 0.0, -0.5]);
         assert_eq!(v.td_error, None);
         assert_eq!(l.stored_centres(), (0, 0));
-        let v = l.observe(0, &target, &a, &[0.05, 0.0, -0.48]);
+        let v = l.observe(&mut memory, &target, &a, &[0.05, 0.0, -0.48]);
         assert!(v.td_error.unwrap() > 0.0 && v.actor_updated);
-        assert_eq!(l.memory(0).unwrap().visits, 2);
-        // Another target at the same index starts over.
-        let v = l.observe(0, &[0.0, 0.1, -0.45], &a, &[0.0, 0.0, -0.5]);
+        assert_eq!(memory.unwrap().visits, 2);
+        // Another target with the same memory starts over.
+        let v = l.observe(&mut memory, &[0.0, 0.1, -0.45], &a, &[0.0, 0.0, -0.5]);
         assert_eq!(v.td_error, None);
     }
 
-    /// A learner whose critic is not zero around two points with different histories.
-    fn trained_critic() -> (CaclaMtl, [Position; 2]) {
+    /// A learner whose critic is not zero around two points with different histories, and
+    /// the two points' memories.
+    fn trained_critic() -> (CaclaMtl, [Position; 2], [Option<PointMemory>; 2]) {
         let mut l = CaclaMtl::new(LearnerConfig::default()).unwrap();
         let targets = [[0.1, 0.0, -0.45], [0.02, 0.08, -0.48]];
+        let mut memory = [None; 2];
         let a = [0.5; 6];
         for k in 0..6 {
-            for (n, t) in targets.iter().enumerate() {
+            for (n, (t, m)) in targets.iter().zip(&mut memory).enumerate() {
                 let off = 0.02 / (k + 1) as f64 * (n + 1) as f64;
-                l.observe(n, t, &a, &[t[0] + off, t[1], t[2] - off]);
+                l.observe(m, t, &a, &[t[0] + off, t[1], t[2] - off]);
             }
         }
-        (l, targets)
+        (l, targets, memory)
     }
 
     #[test]
     fn the_td_error_uses_the_points_own_previous_state_not_the_printed_mix() {
-        let (mut l, t) = trained_critic();
-        let (own, other) = (*l.memory(0).unwrap(), *l.memory(1).unwrap());
+        let (mut l, t, mut memory) = trained_critic();
+        let (own, other) = (memory[0].unwrap(), memory[1].unwrap());
         let reached = [t[0][0] + 0.003, t[0][1], t[0][2]];
         let g = distance(&t[0], &reached);
         let gamma = l.config().gamma;
@@ -450,21 +441,26 @@ mod tests {
             (corrected - printed).abs() > 1e-5,
             "{corrected} vs {printed}"
         );
-        let v = l.observe(0, &t[0], &[0.5; 6], &reached);
+        let v = l.observe(&mut memory[0], &t[0], &[0.5; 6], &reached);
         assert!((v.td_error.unwrap() - corrected).abs() < 1e-12);
     }
 
     #[test]
     fn the_actor_moves_toward_the_action_only_when_delta_is_positive() {
-        let (mut l, t) = trained_critic();
+        let (mut l, t, [mut memory, _]) = trained_critic();
         let before = l.actor(&t[0]);
         let action = [0.9; 6];
         // Much worse than last time: δ < 0, the actor stays.
-        let v = l.observe(0, &t[0], &action, &[t[0][0] + 0.08, t[0][1], t[0][2]]);
+        let v = l.observe(
+            &mut memory,
+            &t[0],
+            &action,
+            &[t[0][0] + 0.08, t[0][1], t[0][2]],
+        );
         assert!(v.td_error.unwrap() <= 0.0 && !v.actor_updated, "{v:?}");
         assert_eq!(l.actor(&t[0]), before);
         // On the point: δ > 0, the actor moves toward the action.
-        let v = l.observe(0, &t[0], &action, &t[0]);
+        let v = l.observe(&mut memory, &t[0], &action, &t[0]);
         assert!(v.td_error.unwrap() > 0.0 && v.actor_updated, "{v:?}");
         let after = l.actor(&t[0]);
         assert!((0..6).all(|i| (action[i] - after[i]).abs() < (action[i] - before[i]).abs()));
@@ -480,7 +476,7 @@ mod tests {
             ..Default::default()
         };
         pretrain(&mut l, &arm, &pool, &cfg, |_| true);
-        l.observe(3, &pool[0], &[0.4; 6], &[0.1, 0.0, -0.5]);
+        l.observe(&mut None, &pool[0], &[0.4; 6], &[0.1, 0.0, -0.5]);
         let state = l.state();
         let text = serde_json::to_string(&state).unwrap();
         let back: LearnerState = serde_json::from_str(&text).unwrap();

@@ -18,7 +18,7 @@
 
 use nalgebra::{DMatrix, Matrix3, SVector, Vector3};
 
-use crate::cacla::{CaclaMtl, Visit};
+use crate::cacla::{CaclaMtl, PointMemory, Visit};
 use crate::forward::{ForwardModel, Jacobian};
 use crate::learner_config::{Algorithm, GaussNewtonConfig};
 use crate::poly::Polynomial;
@@ -51,12 +51,14 @@ struct Try {
     error: f64,
 }
 
-/// What the online learner knows of one conditioning point of the running set, beyond Alg. 1's
-/// [`crate::cacla::PointMemory`]. Kept apart from it: this is of the running set only (a new
-/// set, or a restarted learner joining one, starts it over), never checkpointed, and Alg. 1 and
-/// its pre-training need none of it.
+/// Everything the online learner knows of one conditioning point of the running set: Alg. 1's
+/// memory and the Gauss-Newton state. Of the running set only: a new set, or a restarted
+/// learner joining one, starts it over, and it is never checkpointed (what carries over between
+/// sets is the actor, the critic and the transfer).
 #[derive(Debug, Clone, Copy, PartialEq)]
-struct RunningPoint {
+struct Point {
+    /// Alg. 1's k_n and last visit, which its δ needs (both algorithms run Alg. 1's update).
+    memory: Option<PointMemory>,
     /// Unknown when the learner joined a set already running (after a restart) until a sample
     /// names it.
     target: Option<Position>,
@@ -241,7 +243,7 @@ pub struct OnlineLearner {
     cacla: CaclaMtl,
     kinematics: Polynomial,
     transfer: Transfer,
-    set: Vec<RunningPoint>,
+    set: Vec<Point>,
 }
 
 impl OnlineLearner {
@@ -287,11 +289,11 @@ impl OnlineLearner {
         if !(1..=MAX_WAYPOINTS).contains(&points) {
             return Err(OnlineError::SetSize(points));
         }
-        self.cacla.forget_points();
         self.set.clear();
         self.set.resize(
             points,
-            RunningPoint {
+            Point {
+                memory: None,
                 target: None,
                 first: None,
                 model: None,
@@ -312,7 +314,7 @@ impl OnlineLearner {
     }
 
     /// Checks `point` and `target` against the set and fills in an unknown target.
-    fn point(&mut self, point: usize, target: &Position) -> Result<&mut RunningPoint, OnlineError> {
+    fn point(&mut self, point: usize, target: &Position) -> Result<&mut Point, OnlineError> {
         let points = self.set.len();
         let p = self
             .set
@@ -416,7 +418,8 @@ impl OnlineLearner {
                 self.transfer.set(&c, target, minus(&best.measured, &model));
             }
         }
-        Ok(self.cacla.observe(point, target, action, reached))
+        let memory = &mut self.set[point].memory;
+        Ok(self.cacla.observe(memory, target, action, reached))
     }
 
     /// The actuation to send for `point`'s next visit; with `explore` false (a set's first
@@ -429,7 +432,8 @@ impl OnlineLearner {
     ) -> Result<Actuation, OnlineError> {
         self.point(point, target)?;
         if self.algorithm() == Algorithm::Paper {
-            return Ok(self.cacla.act(point, target, explore));
+            let memory = self.set[point].memory;
+            return Ok(self.cacla.act(memory.as_ref(), target, explore));
         }
         let c = self.cacla.config().gauss_newton;
         let p = self.set[point];
@@ -709,7 +713,7 @@ mod tests {
             OnlineError::NotFinite
         );
         assert_eq!(l.transfer_points(), 0);
-        assert_eq!(l.cacla().memory(0), None);
+        assert_eq!(l.set[0].memory, None);
         assert_eq!(l.start_set(&[]).unwrap_err(), OnlineError::SetSize(0));
         // A learner that joined a running set learns the targets from the samples.
         l.begin(2).unwrap();

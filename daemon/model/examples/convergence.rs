@@ -165,13 +165,15 @@ fn main() -> anyhow::Result<()> {
 
     // Update latency: one visit (act + observe) at a conditioning point.
     let mut ns = Vec::with_capacity(20_000);
+    let mut memory = [None; 5];
     for i in 0..20_000 {
         // Five points visited in turn, a new set every 20 visits each.
         let target = targets[(i / 100 * 5 + i % 5) % targets.len()];
-        let a = learner.act(i % 5, &target, true);
+        let memory = &mut memory[i % 5];
+        let a = learner.act(memory.as_ref(), &target, true);
         let reached = arm.position(&a);
         let t = Instant::now();
-        std::hint::black_box(learner.observe(i % 5, &target, &a, &reached));
+        std::hint::black_box(learner.observe(memory, &target, &a, &reached));
         ns.push(t.elapsed().as_nanos() as u64);
     }
     let ns = histogram(ns);

@@ -16,7 +16,7 @@ use nalgebra::{DMatrix, DVector};
 use safetensors::{Dtype, SafeTensors, tensor::TensorView};
 use serde::{Deserialize, Serialize};
 
-use softarm_method::cacla::{LearnerState, PointMemory};
+use softarm_method::cacla::LearnerState;
 use softarm_method::learner_config::LearnerConfig;
 use softarm_method::poly::Polynomial;
 use softarm_method::promp::{Basis, Primitive};
@@ -332,26 +332,6 @@ fn put_learner(t: &mut Tensors, s: &LearnerState) {
     let w: Vec<f64> = s.critic.iter().map(|e| e.1[0]).collect();
     t.put_u64("critic.keys", &keys);
     t.put_f64("critic.weights", &[keys.len()], &w);
-    // One row per point: present, visits, target (3), position (3), error.
-    let rows: Vec<f64> = s
-        .memory
-        .iter()
-        .flat_map(|m| match m {
-            Some(m) => [
-                1.0,
-                m.visits as f64,
-                m.target[0],
-                m.target[1],
-                m.target[2],
-                m.position[0],
-                m.position[1],
-                m.position[2],
-                m.error,
-            ],
-            None => [0.0; 9],
-        })
-        .collect();
-    t.put_f64("memory", &[s.memory.len(), 9], &rows);
 }
 
 fn get_learner(t: &Tensors, config: LearnerConfig) -> Result<LearnerState, String> {
@@ -365,23 +345,12 @@ fn get_learner(t: &Tensors, config: LearnerConfig) -> Result<LearnerState, Strin
     let keys = t.u64s("critic.keys")?;
     let (_, w) = t.f64s("critic.weights", &[Some(keys.len())])?;
     let critic = keys.iter().zip(&w).map(|(k, v)| (*k, [*v])).collect();
-    let (_, rows) = t.f64s("memory", &[None, Some(9)])?;
-    let memory = rows
-        .chunks_exact(9)
-        .map(|r| {
-            (r[0] == 1.0).then(|| PointMemory {
-                visits: r[1] as u64,
-                target: [r[2], r[3], r[4]],
-                position: [r[5], r[6], r[7]],
-                error: r[8],
-            })
-        })
-        .collect();
+    // Bundles and checkpoints written before per-point memory moved to the running set hold
+    // a "memory" tensor too; it is of a set long gone, and not read.
     Ok(LearnerState {
         config,
         actor,
         critic,
-        memory,
     })
 }
 
@@ -600,7 +569,12 @@ mod tests {
         let (mut m, _) =
             from_plant(&ArmGeometry::default(), &recipe, 3, &training, |_| true).unwrap();
         let mut l = CaclaMtl::restore(&m.learner).unwrap();
-        l.observe(1, &[0.1, 0.0, -0.45], &[0.4; 6], &[0.11, 0.0, -0.46]);
+        l.observe(
+            &mut None,
+            &[0.1, 0.0, -0.45],
+            &[0.4; 6],
+            &[0.11, 0.0, -0.46],
+        );
         m.learner = l.state();
         m
     }

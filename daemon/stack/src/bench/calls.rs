@@ -100,13 +100,15 @@ pub(super) fn run(
     let (mut learner, _) = pipeline::learner(&warm, &arm, &demos.actuations, positions, |_| true)?;
     let updates = ticks.min(100_000);
     let mut ns = histogram();
+    let mut memory = [None; 5];
     for i in 0..updates {
         let point = i % 5;
         let target = positions[(i / 100 * 5 + point) * 37 % positions.len()];
-        let a = learner.act(point, &target, true);
+        let memory = &mut memory[point];
+        let a = learner.act(memory.as_ref(), &target, true);
         let reached = arm.position(&a);
         let start = Instant::now();
-        let visit = learner.observe(point, &target, &a, &reached);
+        let visit = learner.observe(memory, &target, &a, &reached);
         record(&mut ns, start);
         sink += visit.error;
     }
