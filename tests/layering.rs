@@ -88,6 +88,26 @@ fn each_crate_links_only_what_its_layer_allows() {
         "the method is pure math",
     );
     forbid(
+        "softarm-method",
+        &["softarm-learning"],
+        "the method lies beneath the learning code",
+    );
+    forbid(
+        "softarm-learning",
+        &[
+            "iceoryx2",
+            "softarm-ipc",
+            "softarm-runtime",
+            "softarm-config",
+        ],
+        "the learning code is pure math",
+    );
+    forbid(
+        "softarm-config",
+        &["softarm-learning", "softarm-model"],
+        "every process reads the config: it links no learning code and no pipeline",
+    );
+    forbid(
         "softarm-model",
         &["iceoryx2", "softarm-config"],
         "the model pipeline takes its settings, it reads no config and speaks no iceoryx2",
@@ -112,12 +132,13 @@ fn each_crate_links_only_what_its_layer_allows() {
         forbid(
             d,
             &[
+                "softarm-learning",
                 "softarm-model",
                 "safetensors",
                 "softarm-controller",
                 "softarm-learner",
             ],
-            "a driver links neither the model pipeline nor another process",
+            "a driver links neither the learning code, the model pipeline nor another process",
         );
     }
 }

@@ -18,8 +18,7 @@ use softarm_method::plant::SimConfig;
 use softarm_method::space::{Actuation, Position};
 
 use softarm_method::activation::ActivationConfig;
-use softarm_method::cacla::PretrainConfig;
-use softarm_method::learner_config::LearnerConfig;
+use softarm_method::learner_config::{LearnerConfig, PretrainConfig};
 use softarm_method::poly::{MAX_DEGREE, PolynomialConfig};
 use softarm_method::rbf::NetworkConfig;
 use softarm_method::skill::DemoRecipe;

@@ -1,5 +1,5 @@
 //! The learner process: CACLA-MTL at the conditioning points, under `learner.algorithm`
-//! ([`softarm_method::online`]). An `EstimateRequest` (a set was accepted) is answered with the
+//! ([`softarm_learning::online`]). An `EstimateRequest` (a set was accepted) is answered with the
 //! first, exploration-free estimate of every point; each `ConditioningSample` is one visit and is
 //! answered with the `ActuationEstimate` the controller asked for next.
 //! The state is checkpointed atomically after every execution (on a thread of its own, so a
@@ -22,9 +22,9 @@ use softarm_config::Config;
 use softarm_ipc::{
     ActuationEstimate, ConditioningSample, EstimateRequest, Namespace, Node, Pub, Sub,
 };
-use softarm_method::cacla::{CaclaMtl, LearnerState};
+use softarm_learning::cacla::{CaclaMtl, LearnerState};
+use softarm_learning::online::OnlineLearner;
 use softarm_method::learner_config::LearnerConfig;
-use softarm_method::online::OnlineLearner;
 use softarm_method::poly::Polynomial;
 use softarm_model::bundle::{BundleError, BundleWatch, Model, read_checkpoint, write_checkpoint};
 use softarm_runtime::now_ns;

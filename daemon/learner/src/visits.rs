@@ -7,7 +7,7 @@ use softarm_config::Config;
 use softarm_ipc::{
     Actuation, ActuationEstimate, ConditioningSample, EstimateRequest, MAX_WAYPOINTS,
 };
-use softarm_method::online::OnlineLearner;
+use softarm_learning::online::OnlineLearner;
 use softarm_method::space::Workspace;
 
 /// How far outside the way-point workspace an arm's position is still believed (m). Farther, a
@@ -454,7 +454,7 @@ mod tests {
         //! answers is a finite actuation in [0, 1].
         use super::*;
         use proptest::prelude::*;
-        use softarm_method::cacla::CaclaMtl;
+        use softarm_learning::cacla::CaclaMtl;
         use softarm_method::learner_config::LearnerConfig;
         use softarm_method::pcc::ArmGeometry;
         use softarm_method::poly::{Polynomial, PolynomialConfig};

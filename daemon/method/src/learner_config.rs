@@ -1,9 +1,13 @@
-//! The `[learner]` section: Alg. 1's hyper-parameters ([`crate::cacla`]) and the online
-//! learner's settings ([`crate::online`]): which algorithm runs, and the steps of the
-//! Gauss-Newton one.
+//! The learner's parameters: the `[learner]` section (Alg. 1's hyper-parameters, read by
+//! `softarm_learning::cacla`, and the online learner's settings, read by
+//! `softarm_learning::online`: which algorithm runs, and the steps of the Gauss-Newton one) and
+//! `[pretrain]`.
 //!
-//! One type for the one section, beneath both modules, so neither imports the other's config:
-//! `cacla` reads the Alg. 1 fields, `online` the rest. Not split in two: the section's keys sit
+//! Here, in the method, not beside the code that reads them: the config (and so every process,
+//! the drivers too) reads these sections, and must not link the learning code for it (Cargo
+//! enforces it; `tests/layering.rs` checks it). One type for the `[learner]` section, so
+//! neither learning module imports the other's config: `cacla` reads the Alg. 1 fields,
+//! `online` the rest. Not split in two: the section's keys sit
 //! side by side in the TOML (and `deny_unknown_fields` does not work with `#[serde(flatten)]`),
 //! and bundles and checkpoints store this type; its online-only fields are never serialised, so
 //! the stored form is exactly Alg. 1's.
@@ -204,7 +208,7 @@ impl LearnerConfig {
     }
 
     /// The actor's 3-D and the critic's 6-D lattice.
-    pub(crate) fn lattices(&self) -> Result<(Lattice, Lattice), RbfError> {
+    pub fn lattices(&self) -> Result<(Lattice, Lattice), RbfError> {
         let (lo, hi) = (self.workspace_min_m, self.workspace_max_m);
         let actor = Lattice::new(
             &lo,
@@ -352,6 +356,33 @@ impl GaussNewtonConfig {
             );
         }
         Ok(())
+    }
+}
+
+/// Offline pre-training: epochs of random targets inside the demonstrated subspace, each
+/// visited in turn (as the conditioning points of one execution are) until all are within the
+/// threshold or the cap.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PretrainConfig {
+    pub targets_per_epoch: usize,
+    pub threshold_m: f64,
+    /// Visits of each target at most per epoch.
+    pub visits_per_epoch: usize,
+    pub max_epochs: u64,
+    /// Wall-clock budget (s) for whoever runs the pre-training (`softarm train`).
+    pub budget_s: f64,
+}
+
+impl Default for PretrainConfig {
+    fn default() -> Self {
+        Self {
+            targets_per_epoch: 5,
+            threshold_m: 0.005,
+            visits_per_epoch: 100,
+            max_epochs: u64::MAX,
+            budget_s: 30.0,
+        }
     }
 }
 

@@ -10,19 +10,15 @@
 //! - [`skill`] — demonstrations by the paper's III-B recipe and the primitives trained on them.
 //! - [`rbf`] — RBF lattices and the RBF forward-model network; [`forward`] — the
 //!   `ForwardModel` trait.
-//! - [`cacla`] — CACLA-MTL (Alg. 1): [`cacla::Actor`], [`cacla::Critic`], pre-training.
-//! - [`online`] — the online learner over a running set: Alg. 1 as printed, or damped
-//!   Gauss-Newton steps ([`learner_config::Algorithm`]).
-//! - [`learner_config`] — the `[learner]` section, beneath both.
+//! - [`learner_config`] — the learner's parameters (`[learner]`, `[pretrain]`), read by the
+//!   config; the learning itself (CACLA-MTL, the online learner) is crate `softarm-learning`.
 //! - [`pcc`] — piecewise-constant-curvature kinematics; [`plant`]: the simulated plant.
 
 pub mod activation;
 pub mod blend;
-pub mod cacla;
 pub mod classify;
 pub mod forward;
 pub mod learner_config;
-pub mod online;
 pub mod pcc;
 pub mod plant;
 pub mod poly;

@@ -16,7 +16,7 @@ use nalgebra::{DMatrix, DVector};
 use safetensors::{Dtype, SafeTensors, tensor::TensorView};
 use serde::{Deserialize, Serialize};
 
-use softarm_method::cacla::LearnerState;
+use softarm_learning::cacla::LearnerState;
 use softarm_method::learner_config::LearnerConfig;
 use softarm_method::poly::Polynomial;
 use softarm_method::promp::{Basis, Primitive};
@@ -541,7 +541,8 @@ pub fn read_checkpoint(dir: &Path) -> Result<(LearnerState, String), BundleError
 mod tests {
     use super::*;
     use crate::pipeline::{Training, from_plant};
-    use softarm_method::cacla::{CaclaMtl, PretrainConfig};
+    use softarm_learning::cacla::CaclaMtl;
+    use softarm_method::learner_config::PretrainConfig;
     use softarm_method::pcc::ArmGeometry;
     use softarm_method::rbf::NetworkConfig;
     use softarm_method::skill::DemoRecipe;

@@ -8,12 +8,13 @@
 //! model with [`from_plant`]. Pure: no iceoryx2, no files, no clock — pre-training runs until
 //! its epoch cap or until the caller's `keep_going` says stop, as [`cacla::pretrain`] does.
 //!
-//! [`cacla::pretrain`]: softarm_method::cacla::pretrain
+//! [`cacla::pretrain`]: softarm_learning::cacla::pretrain
 
+use softarm_learning::cacla::{self, CaclaMtl, PretrainReport};
 use softarm_method::activation::MAX_PRIMITIVES;
-use softarm_method::cacla::{self, CaclaMtl, PretrainConfig, PretrainReport};
 use softarm_method::forward::ForwardModel;
 use softarm_method::learner_config::LearnerConfig;
+use softarm_method::learner_config::PretrainConfig;
 use softarm_method::poly::{Polynomial, PolynomialConfig};
 use softarm_method::promp::{Primitive, PrimitiveError};
 use softarm_method::rbf::{NetworkConfig, RbfError, RbfNetwork};
@@ -411,7 +412,7 @@ mod tests {
     }
 
     use super::*;
-    use softarm_method::cacla::evaluate;
+    use softarm_learning::cacla::evaluate;
     use softarm_method::pcc::ArmGeometry;
 
     fn quick() -> Training {

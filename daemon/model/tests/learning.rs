@@ -4,8 +4,9 @@
 //! result is the same on every machine; small enough for a debug build. Full figures:
 //! `cargo run --release -p softarm-model --example convergence`.
 
-use softarm_method::cacla::{PretrainConfig, evaluate, pretrain};
+use softarm_learning::cacla::{evaluate, pretrain};
 use softarm_method::learner_config::LearnerConfig;
+use softarm_method::learner_config::PretrainConfig;
 use softarm_method::pcc::ArmGeometry;
 use softarm_method::rbf::NetworkConfig;
 use softarm_method::skill::DemoRecipe;

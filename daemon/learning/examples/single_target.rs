@@ -1,11 +1,11 @@
 //! Diagnostic: CACLA-MTL on one target against the PCC model; prints the moving error.
 //!
-//! `LEARNER="alpha_actor = 0.3; sigma_max = 0.02" cargo run --release -p softarm-method \
+//! `LEARNER="alpha_actor = 0.3; sigma_max = 0.02" cargo run --release -p softarm-learning \
 //!  --example single_target` overrides `[learner]` keys (`;` separates them).
 
 use std::process::ExitCode;
 
-use softarm_method::cacla::CaclaMtl;
+use softarm_learning::cacla::CaclaMtl;
 use softarm_method::distance;
 use softarm_method::learner_config::LearnerConfig;
 use softarm_method::pcc::ArmGeometry;

@@ -3,7 +3,7 @@
 //! Pure math: no I/O, no clock (pre-training is given its budget as a closure).
 //!
 //! The critic V(p_desired, p_current) and the actor Ac(p_desired) → 6 actuations are linear
-//! in normalised RBF features on sparse lattices ([`crate::rbf`]). Per point n the learner keeps
+//! in normalised RBF features on sparse lattices ([`softarm_method::rbf`]). Per point n the learner keeps
 //! k_n, the last reached position and the last error. Three corrections to the printed paper
 //! (see docs/ARCHITECTURE.md, "Where the paper lives") are marked `Correction` below.
 
@@ -12,10 +12,10 @@ use rand::{RngExt, SeedableRng};
 use rand_distr::{Distribution, StandardNormal};
 use serde::{Deserialize, Serialize};
 
-use crate::forward::ForwardModel;
-use crate::learner_config::LearnerConfig;
-use crate::rbf::{Features, LinearRbf};
-use crate::space::{ACTUATORS, Actuation, Position, distance};
+use softarm_method::forward::ForwardModel;
+use softarm_method::learner_config::{LearnerConfig, PretrainConfig};
+use softarm_method::rbf::{Features, LinearRbf};
+use softarm_method::space::{ACTUATORS, Actuation, Position, distance};
 
 /// Alg. 1's memory of one conditioning point: k_n, and the state and error of its last visit,
 /// which the next visit's δ needs. Held by whoever visits the points, not by [`CaclaMtl`] (which
@@ -285,33 +285,6 @@ impl CaclaMtl {
     }
 }
 
-/// Offline pre-training: epochs of random targets inside the demonstrated subspace, each
-/// visited in turn (as the conditioning points of one execution are) until all are within the
-/// threshold or the cap.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct PretrainConfig {
-    pub targets_per_epoch: usize,
-    pub threshold_m: f64,
-    /// Visits of each target at most per epoch.
-    pub visits_per_epoch: usize,
-    pub max_epochs: u64,
-    /// Wall-clock budget (s) for whoever runs the pre-training (`softarm train`).
-    pub budget_s: f64,
-}
-
-impl Default for PretrainConfig {
-    fn default() -> Self {
-        Self {
-            targets_per_epoch: 5,
-            threshold_m: 0.005,
-            visits_per_epoch: 100,
-            max_epochs: u64::MAX,
-            budget_s: 30.0,
-        }
-    }
-}
-
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct PretrainReport {
     pub epochs: u64,
@@ -375,7 +348,7 @@ pub fn evaluate(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::pcc::ArmGeometry;
+    use softarm_method::pcc::ArmGeometry;
 
     #[test]
     fn sigma_shrinks_with_the_error() {

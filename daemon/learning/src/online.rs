@@ -12,17 +12,17 @@
 //!
 //! What one set taught carries over to the next ([`Transfer`]): a set's first estimates are
 //! what the trained model would send (the actor's mean refined against the polynomial
-//! kinematics, [`crate::poly`]), plus the correction that the visited points needed, carried
+//! kinematics, [`softarm_method::poly`]), plus the correction that the visited points needed, carried
 //! over task space.
 //! Pure: no I/O, no clock; allocation only when a set starts.
 
 use nalgebra::{DMatrix, Matrix3, SVector, Vector3};
 
 use crate::cacla::{CaclaMtl, PointMemory, Visit};
-use crate::forward::{ForwardModel, Jacobian};
-use crate::learner_config::{Algorithm, GaussNewtonConfig};
-use crate::poly::Polynomial;
-use crate::space::{ACTUATORS, Actuation, MAX_WAYPOINTS, Position, distance};
+use softarm_method::forward::{ForwardModel, Jacobian};
+use softarm_method::learner_config::{Algorithm, GaussNewtonConfig};
+use softarm_method::poly::Polynomial;
+use softarm_method::space::{ACTUATORS, Actuation, MAX_WAYPOINTS, Position, distance};
 
 /// A visit or estimate that does not fit the running set.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -526,11 +526,11 @@ impl OnlineLearner {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::learner_config::LearnerConfig;
-    use crate::pcc::ArmGeometry;
-    use crate::poly::PolynomialConfig;
     use rand::rngs::StdRng;
     use rand::{RngExt, SeedableRng};
+    use softarm_method::learner_config::LearnerConfig;
+    use softarm_method::pcc::ArmGeometry;
+    use softarm_method::poly::PolynomialConfig;
 
     /// A polynomial of the nominal arm and an actor that imitated it.
     fn learner(algorithm: Algorithm) -> OnlineLearner {

@@ -1,0 +1,13 @@
+//! How softarm learns the conditioning points, pure math: no I/O, no clock, no iceoryx2 (Cargo
+//! enforces it). Apart from the method so that what only the learner, the model pipeline and
+//! the rehearsal need is linked by nothing else: the controller and the drivers read the
+//! learner's parameters (`softarm_method::learner_config`) without linking this.
+//!
+//! - [`cacla`] — CACLA-MTL (Alg. 1): [`cacla::Actor`], [`cacla::Critic`], one visit's update,
+//!   pre-training; what every point shares.
+//! - [`online`] — the online learner over a running set: its one per-point state
+//!   (`online::Point`), Alg. 1 as printed or damped Gauss-Newton steps
+//!   (`softarm_method::learner_config::Algorithm`), and the transfer between sets.
+
+pub mod cacla;
+pub mod online;
