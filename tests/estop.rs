@@ -1,6 +1,7 @@
 //! End to end: the e-stop outlives the processes that saw it. An e-stop, then the controller and
 //! the sim killed with SIGKILL and restarted by `softarm up`: both come back stopped; a reset
-//! releases them all, and never sets the arm moving by itself.
+//! releases them all, and never sets the arm moving by itself. A set submitted while STOPPED is
+//! refused with what to do, and nothing is queued.
 
 use std::path::Path;
 use std::time::{Duration, Instant};
@@ -90,7 +91,15 @@ fn an_estop_survives_restarts_until_reset_and_a_reset_moves_nothing() {
     assert!(s.logs().contains("the e-stop is latched"), "{}", s.logs());
     assert_eq!(s.status()["controller"]["state"], "STOPPED");
 
-    // Released everywhere; the dropped set does not start again by itself.
+    // A set submitted while STOPPED is refused, saying what to do, and nothing is queued.
+    let (code, out, err) = s.submit(Path::new(DEMO_WAYPOINTS), 1);
+    assert_ne!(code, 0, "accepted while STOPPED: {out}{err}");
+    assert!(
+        err.contains("e-stop is engaged") && err.contains("softarm estop --reset"),
+        "{out}{err}"
+    );
+
+    // Released everywhere; neither the dropped set nor the refused one starts by itself.
     let out = s.run(&["estop", "--reset"]);
     assert!(out.status.success(), "{out:?}");
     s.wait_status("IDLE after reset", Duration::from_secs(10), |st| {
@@ -100,6 +109,7 @@ fn an_estop_survives_restarts_until_reset_and_a_reset_moves_nothing() {
     std::thread::sleep(Duration::from_secs(2));
     let st = s.status();
     assert_eq!(st["controller"]["state"], "IDLE", "{st}");
+
     assert_eq!(
         s.stats(set).len(),
         finished,

@@ -10,7 +10,10 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, anyhow, bail, ensure};
 use indicatif::{ProgressBar, ProgressStyle};
 use softarm_config::Config;
-use softarm_ipc::{ControllerState, DemonstrateRequest, Namespace, Node};
+use softarm_ipc::{
+    Actuation, Client, ControllerState, DemonstrateReply, DemonstrateRequest, MotorState,
+    Namespace, Node, Setpoint, Sub, TrackerSample,
+};
 use softarm_method::skill::Recording;
 use softarm_model::pipeline::{self, IMITATION_PASSES, Training, TrainingData};
 use softarm_runtime::now_ns;
@@ -77,97 +80,16 @@ struct Sample {
 /// Records demonstrations through the running stack in `namespace`: (samples, demonstrations,
 /// seconds it took).
 fn record(namespace: &Namespace, seed: u64) -> Result<(Vec<Sample>, usize, f64)> {
-    let ipc = Node::open(namespace.clone(), "train")
-        .with_context(|| format!("joining namespace {:?}", namespace.as_str()))?;
-    let setpoints = ipc
-        .subscriber(&ipc.setpoint().context("the setpoint service")?)
-        .context("subscribing to setpoints")?;
-    let motors = ipc
-        .subscriber(&ipc.motor_state().context("the motor_state service")?)
-        .context("subscribing to motor_state")?;
-    let tracker = ipc
-        .subscriber(&ipc.tracker().context("the tracker service")?)
-        .context("subscribing to the tracker")?;
-    let client = ipc
-        .client(&ipc.demonstrate().context("the demonstrate service")?)
-        .context("a client of the demonstrate service")?;
-    let pending = client
-        .send_copy(DemonstrateRequest {
-            seq: now_ns(),
-            stamp_ns: now_ns(),
-            seed,
-        })
-        .map_err(|x| anyhow!("sending the request: {x:?}"))?;
-    let reply = crate::poll(Duration::from_secs(5), || {
-        pending.receive().ok().flatten().map(|r| *r)
-    })
-    .ok_or_else(|| {
-        anyhow!(crate::unreachable(
-            namespace.as_str(),
-            "the demonstration request"
-        ))
-    })?;
-    ensure!(
-        reply.accepted == 1,
-        "the controller refused to demonstrate: it is busy (executing, planning or in HOLD); \
-         wait for it to be IDLE"
-    );
-    let demos = reply.demos as usize;
-    let expected = reply.duration_s;
-    tracing::info!(demos, seconds = expected, "playing demonstrations");
-    let deadline = deadline(expected).ok_or_else(|| {
-        anyhow!(
-            "the controller announced {demos} demonstrations taking {expected} s, which is no \
-             usable duration; nothing was written"
-        )
-    })?;
+    let mut r = Recorder::open(namespace)?;
+    let (demos, deadline) = r.request(namespace, seed)?;
     let progress = bar(demos as u64, "demonstrations");
     let start = Instant::now();
-    let mut samples = Vec::new();
-    let mut setpoint = None;
-    let mut measured = None;
-    let mut seen_last = false;
-    let mut demonstrating = false;
     loop {
         std::thread::sleep(Duration::from_millis(1));
-        while let Ok(Some(s)) = setpoints.receive() {
-            setpoint = Some(*s);
-        }
-        while let Ok(Some(m)) = motors.receive() {
-            measured = Some(m.actuation);
-        }
-        while let Ok(Some(t)) = tracker.receive() {
-            if let (Some(sp), Some(m)) = (setpoint, measured)
-                && sp.demo != u32::MAX
-                && sp.state == ControllerState::Demonstrate as u32
-            {
-                samples.push(Sample {
-                    demo: sp.demo,
-                    class: sp.demo_class,
-                    stamp_ns: t.stamp_ns,
-                    commanded: sp.actuation,
-                    measured: m,
-                    position: t.position,
-                });
-                progress.set_position(sp.demo as u64);
-                seen_last |= sp.demo as usize + 1 == demos;
-            }
-        }
-        if let Some(sp) = setpoint {
-            let state = ControllerState::from_u32(sp.state);
-            if seen_last && sp.demo == u32::MAX {
-                break;
-            }
-            demonstrating |= state == Some(ControllerState::Demonstrate);
-            if demonstrating && state == Some(ControllerState::Idle) {
-                bail!(
-                    "the controller stopped demonstrating before the last demonstration; \
-                     nothing was written"
-                );
-            }
-            if matches!(state, Some(ControllerState::Stopped)) {
-                bail!("the e-stop was engaged during the demonstrations; nothing was written");
-            }
+        r.take_setpoints_and_motor_states();
+        r.take_tracker_samples(demos, &progress);
+        if r.finished()? {
+            break;
         }
         if start.elapsed() > deadline {
             bail!(
@@ -178,7 +100,140 @@ fn record(namespace: &Namespace, seed: u64) -> Result<(Vec<Sample>, usize, f64)>
         }
     }
     progress.finish_and_clear();
-    Ok((samples, demos, start.elapsed().as_secs_f64()))
+    Ok((r.samples, demos, start.elapsed().as_secs_f64()))
+}
+
+/// The recording of one `softarm train`: its ports, the latest setpoint and motor state, and
+/// a sample per tracker sample taken while a demonstration plays.
+struct Recorder {
+    setpoints: Sub<Setpoint>,
+    motors: Sub<MotorState>,
+    tracker: Sub<TrackerSample>,
+    demonstrate: Client<DemonstrateRequest, DemonstrateReply>,
+    setpoint: Option<Setpoint>,
+    measured: Option<Actuation>,
+    samples: Vec<Sample>,
+    seen_last: bool,
+    demonstrating: bool,
+    /// Last, so the ports go before it.
+    _node: Node,
+}
+
+impl Recorder {
+    fn open(namespace: &Namespace) -> Result<Self> {
+        let node = Node::open(namespace.clone(), "train")
+            .with_context(|| format!("joining namespace {:?}", namespace.as_str()))?;
+        Ok(Self {
+            setpoints: node
+                .subscriber(&node.setpoint().context("the setpoint service")?)
+                .context("subscribing to setpoints")?,
+            motors: node
+                .subscriber(&node.motor_state().context("the motor_state service")?)
+                .context("subscribing to motor_state")?,
+            tracker: node
+                .subscriber(&node.tracker().context("the tracker service")?)
+                .context("subscribing to the tracker")?,
+            demonstrate: node
+                .client(&node.demonstrate().context("the demonstrate service")?)
+                .context("a client of the demonstrate service")?,
+            setpoint: None,
+            measured: None,
+            samples: Vec::new(),
+            seen_last: false,
+            demonstrating: false,
+            _node: node,
+        })
+    }
+
+    /// Asks the controller to play the demonstrations: (how many, how long to wait at most).
+    fn request(&self, namespace: &Namespace, seed: u64) -> Result<(usize, Duration)> {
+        let pending = self
+            .demonstrate
+            .send_copy(DemonstrateRequest {
+                seq: now_ns(),
+                stamp_ns: now_ns(),
+                seed,
+            })
+            .map_err(|x| anyhow!("sending the request: {x:?}"))?;
+        let reply = crate::poll(Duration::from_secs(5), || {
+            pending.receive().ok().flatten().map(|r| *r)
+        })
+        .ok_or_else(|| {
+            anyhow!(crate::unreachable(
+                namespace.as_str(),
+                "the demonstration request"
+            ))
+        })?;
+        ensure!(
+            reply.accepted == 1,
+            "the controller refused to demonstrate: it is busy (executing, planning or in HOLD); \
+             wait for it to be IDLE"
+        );
+        let demos = reply.demos as usize;
+        let expected = reply.duration_s;
+        tracing::info!(demos, seconds = expected, "playing demonstrations");
+        let deadline = deadline(expected).ok_or_else(|| {
+            anyhow!(
+                "the controller announced {demos} demonstrations taking {expected} s, which is no \
+                 usable duration; nothing was written"
+            )
+        })?;
+        Ok((demos, deadline))
+    }
+
+    fn take_setpoints_and_motor_states(&mut self) {
+        while let Ok(Some(s)) = self.setpoints.receive() {
+            self.setpoint = Some(*s);
+        }
+        while let Ok(Some(m)) = self.motors.receive() {
+            self.measured = Some(m.actuation);
+        }
+    }
+
+    /// A sample per tracker sample while a demonstration plays, with the latest setpoint and
+    /// motor state.
+    fn take_tracker_samples(&mut self, demos: usize, progress: &ProgressBar) {
+        while let Ok(Some(t)) = self.tracker.receive() {
+            if let (Some(sp), Some(m)) = (self.setpoint, self.measured)
+                && sp.demo != u32::MAX
+                && sp.state == ControllerState::Demonstrate as u32
+            {
+                self.samples.push(Sample {
+                    demo: sp.demo,
+                    class: sp.demo_class,
+                    stamp_ns: t.stamp_ns,
+                    commanded: sp.actuation,
+                    measured: m,
+                    position: t.position,
+                });
+                progress.set_position(sp.demo as u64);
+                self.seen_last |= sp.demo as usize + 1 == demos;
+            }
+        }
+    }
+
+    /// True once the last demonstration has played; an error if the controller stopped
+    /// demonstrating before (idle again, or the e-stop).
+    fn finished(&mut self) -> Result<bool> {
+        let Some(sp) = self.setpoint else {
+            return Ok(false);
+        };
+        let state = ControllerState::from_u32(sp.state);
+        if self.seen_last && sp.demo == u32::MAX {
+            return Ok(true);
+        }
+        self.demonstrating |= state == Some(ControllerState::Demonstrate);
+        if self.demonstrating && state == Some(ControllerState::Idle) {
+            bail!(
+                "the controller stopped demonstrating before the last demonstration; \
+                 nothing was written"
+            );
+        }
+        if matches!(state, Some(ControllerState::Stopped)) {
+            bail!("the e-stop was engaged during the demonstrations; nothing was written");
+        }
+        Ok(false)
+    }
 }
 
 /// How long to wait for demonstrations the controller says take `expected` s: half as long

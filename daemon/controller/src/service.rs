@@ -79,6 +79,10 @@ impl Replanners {
     }
 }
 
+/// Why a set is refused while the e-stop is engaged: nothing is queued, so the user knows the
+/// set will not start by itself once the e-stop is released.
+const STOPPED_REASON: &str = "the e-stop is engaged (STOPPED): nothing was queued; release it with `softarm estop --reset`, then submit again";
+
 /// The model the controller plans with, reloaded when `softarm train` writes a new bundle.
 struct ModelSlot {
     watch: BundleWatch,
@@ -199,7 +203,12 @@ impl Service {
     fn admit_sets(&mut self) {
         while let Ok(Some(req)) = self.ports.waypoints.receive() {
             let set = *req.payload();
-            let reply = match admit(&self.config, self.slot.model.as_ref(), &set) {
+            let admission = if self.stopped() {
+                Err(anyhow::anyhow!(STOPPED_REASON))
+            } else {
+                admit(&self.config, self.slot.model.as_ref(), &set)
+            };
+            let reply = match admission {
                 Ok(admitted) => {
                     let set_id = self.request_estimates(&set, admitted);
                     WaypointReply::accepted(set.seq, now_ns(), set_id)
@@ -307,6 +316,14 @@ impl Service {
             return;
         }
         let p = self.pending.take().expect("checked above");
+        if self.stopped() {
+            // The e-stop came while the set waited for its estimates: the tick would drop it.
+            tracing::warn!(
+                set_id = p.set_id,
+                "e-stop engaged before the set started: dropped; `softarm estop --reset`, then submit again"
+            );
+            return;
+        }
         if p.estimates.iter().any(Option::is_none) {
             tracing::warn!(
                 set_id = p.set_id,
@@ -321,6 +338,11 @@ impl Service {
             }
             Err(err) => tracing::error!(set_id = p.set_id, "planning failed: {err}"),
         }
+    }
+
+    /// The e-stop holds the arm (the tick's state, at most a tick old).
+    fn stopped(&self) -> bool {
+        self.shared.state.load(Ordering::Relaxed) == ControllerState::Stopped as u32
     }
 
     /// Hands the tick a message, waiting (this thread only) while its ring is full; false if

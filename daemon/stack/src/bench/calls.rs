@@ -27,133 +27,166 @@ pub(super) fn run(
     stop: &AtomicBool,
 ) -> anyhow::Result<Value> {
     out.progress("timing single calls");
-    let interrupted = || -> anyhow::Result<()> {
-        if stop.load(Ordering::Relaxed) {
+    let mut t = Timed {
+        out,
+        stop,
+        results: Map::new(),
+        sink: 0.0,
+    };
+    let arm = ArmGeometry::default();
+    let demos = TrainingData::from_plant(&arm, &DemoRecipe::default(), 1)?;
+    t.blend(&demos, ticks, reconditions)?;
+    t.cacla_update(&arm, &demos, ticks.min(100_000))?;
+    t.forward_models(&demos, ticks.min(100_000))?;
+    std::hint::black_box(t.sink);
+    Ok(Value::Object(t.results))
+}
+
+/// The sections' rows and JSON, and a sink the timed results go into so none is optimised away.
+struct Timed<'a> {
+    out: &'a Out,
+    stop: &'a AtomicBool,
+    results: Map<String, Value>,
+    sink: f64,
+}
+
+impl Timed<'_> {
+    /// The row and the JSON entry of one call's histogram; an error once interrupted.
+    fn report(
+        &mut self,
+        key: &str,
+        name: &str,
+        ns: &hdrhistogram::Histogram<u64>,
+    ) -> anyhow::Result<()> {
+        let s = Stats::of(ns).expect("at least one call timed");
+        self.out.text(&row(name, &s, ""));
+        self.results.insert(key.to_string(), s.json());
+        if self.stop.load(Ordering::Relaxed) {
             anyhow::bail!("interrupted");
         }
         Ok(())
-    };
-    let mut results = Map::new();
-    let mut report = |key: &str, name: &str, ns: &hdrhistogram::Histogram<u64>| {
-        let s = Stats::of(ns).expect("at least one call timed");
-        out.text(&row(name, &s, ""));
-        results.insert(key.to_string(), s.json());
-    };
-
-    let arm = ArmGeometry::default();
-    let recipe = DemoRecipe::default();
-    let demos = TrainingData::from_plant(&arm, &recipe, 1)?;
-    let (actuation, _task) = pipeline::primitives(&demos.recordings, 15)?;
-    let t_cond = [1.0, 3.0, 5.0, 7.0, 9.0];
-    let planner = Planner::<6>::new(
-        actuation,
-        &t_cond,
-        &[0, 1, 2, 1, 0],
-        Timeline::new(10.0, 500.0)?,
-        ActivationConfig::default(),
-        1e-6,
-    )?;
-    let (mut blend, mut replanner) = planner.start(&[[0.5; 6]; 5])?;
-    let engine_ticks = blend.timeline().ticks();
-    out.text(&header(
-        "Single calls (N=5 conditioning points, M=3 primitives, D=6, K=15, 10 s at 500 Hz)",
-    ));
-
-    let mut ns = histogram();
-    let mut sink = 0.0;
-    for i in 0..ticks {
-        let start = Instant::now();
-        let v = blend.tick(std::hint::black_box(i % engine_ticks));
-        record(&mut ns, start);
-        sink += v[0];
     }
-    report("eq11_tick", "Eq. 11 tick", &ns);
-    interrupted()?;
 
-    let k3 = blend.timeline().tick_of(t_cond[3]);
-    let mut ns = histogram();
-    for i in 0..reconditions {
-        let a = [0.4 + 0.002 * i as f64; 6];
-        let start = Instant::now();
-        replanner.recondition(1, &a)?;
-        sink += blend.tick(k3)[0];
-        record(&mut ns, start);
-    }
-    report("recondition", "re-condition one group + ready", &ns);
-    interrupted()?;
-
-    // A CACLA-MTL update at a conditioning point, five points visited in turn as in an
-    // execution, on a learner warmed up by one imitation pass and a short pre-training on the
-    // kinematic model.
-    let warm = Training {
-        basis_functions: 15,
-        forward: NetworkConfig::default(),
-        kinematics: Default::default(),
-        learner: LearnerConfig::default(),
-        pretrain: PretrainConfig {
-            max_epochs: 2_000,
-            ..Default::default()
-        },
-        imitation_passes: 1,
-    };
-    let positions = &demos.positions;
-    let (mut learner, _) = pipeline::learner(&warm, &arm, &demos.actuations, positions, |_| true)?;
-    let updates = ticks.min(100_000);
-    let mut ns = histogram();
-    let mut memory = [None; 5];
-    for i in 0..updates {
-        let point = i % 5;
-        let target = positions[(i / 100 * 5 + point) * 37 % positions.len()];
-        let memory = &mut memory[point];
-        let a = learner.act(memory.as_ref(), &target, true);
-        let reached = arm.position(&a);
-        let start = Instant::now();
-        let visit = learner.observe(memory, &target, &a, &reached);
-        record(&mut ns, start);
-        sink += visit.error;
-    }
-    report(
-        "cacla_update",
-        "CACLA-MTL update at a conditioning point",
-        &ns,
-    );
-    interrupted()?;
-
-    // The forward models as `softarm train` fits them (the shipped [forward_model] and
-    // [kinematics] settings) on D_fwd of the demonstrations above, evaluated at the demonstrated
-    // actuations in turn.
-    let net = RbfNetwork::fit(&demos.actuations, positions, &NetworkConfig::default())?;
-    let poly = Polynomial::fit(&demos.actuations, positions, &PolynomialConfig::default())
-        .map_err(anyhow::Error::msg)?;
-    let evaluations = ticks.min(100_000);
-    let models: [(&str, String, &dyn ForwardModel); 2] = [
-        (
-            "rbf_forward",
-            format!("RBF forward model, one call ({} centres)", net.centres()),
-            &net,
-        ),
-        (
-            "poly_forward",
-            format!(
-                "polynomial kinematics, one call ({} terms)",
-                poly.weights().len()
-            ),
-            &poly,
-        ),
-    ];
-    let inputs = &demos.actuations;
-    for (key, name, model) in models {
+    /// The Eq. 11 tick, and re-conditioning one group then ticking where it is needed.
+    fn blend(
+        &mut self,
+        demos: &TrainingData,
+        ticks: usize,
+        reconditions: usize,
+    ) -> anyhow::Result<()> {
+        let (actuation, _task) = pipeline::primitives(&demos.recordings, 15)?;
+        let t_cond = [1.0, 3.0, 5.0, 7.0, 9.0];
+        let planner = Planner::<6>::new(
+            actuation,
+            &t_cond,
+            &[0, 1, 2, 1, 0],
+            Timeline::new(10.0, 500.0)?,
+            ActivationConfig::default(),
+            1e-6,
+        )?;
+        let (mut blend, mut replanner) = planner.start(&[[0.5; 6]; 5])?;
+        let engine_ticks = blend.timeline().ticks();
+        self.out.text(&header(
+            "Single calls (N=5 conditioning points, M=3 primitives, D=6, K=15, 10 s at 500 Hz)",
+        ));
         let mut ns = histogram();
-        for i in 0..evaluations {
-            let a = std::hint::black_box(&inputs[i * 7 % inputs.len()]);
+        for i in 0..ticks {
             let start = Instant::now();
-            let p = model.position(a);
+            let v = blend.tick(std::hint::black_box(i % engine_ticks));
             record(&mut ns, start);
-            sink += p[0];
+            self.sink += v[0];
         }
-        report(key, &name, &ns);
-        interrupted()?;
+        self.report("eq11_tick", "Eq. 11 tick", &ns)?;
+
+        let k3 = blend.timeline().tick_of(t_cond[3]);
+        let mut ns = histogram();
+        for i in 0..reconditions {
+            let a = [0.4 + 0.002 * i as f64; 6];
+            let start = Instant::now();
+            replanner.recondition(1, &a)?;
+            self.sink += blend.tick(k3)[0];
+            record(&mut ns, start);
+        }
+        self.report("recondition", "re-condition one group + ready", &ns)
     }
-    std::hint::black_box(sink);
-    Ok(Value::Object(results))
+
+    /// A CACLA-MTL update at a conditioning point, five points visited in turn as in an
+    /// execution, on a learner warmed up by one imitation pass and a short pre-training on the
+    /// kinematic model.
+    fn cacla_update(
+        &mut self,
+        arm: &ArmGeometry,
+        demos: &TrainingData,
+        updates: usize,
+    ) -> anyhow::Result<()> {
+        let warm = Training {
+            basis_functions: 15,
+            forward: NetworkConfig::default(),
+            kinematics: Default::default(),
+            learner: LearnerConfig::default(),
+            pretrain: PretrainConfig {
+                max_epochs: 2_000,
+                ..Default::default()
+            },
+            imitation_passes: 1,
+        };
+        let positions = &demos.positions;
+        let (mut learner, _) =
+            pipeline::learner(&warm, arm, &demos.actuations, positions, |_| true)?;
+        let mut ns = histogram();
+        let mut memory = [None; 5];
+        for i in 0..updates {
+            let point = i % 5;
+            let target = positions[(i / 100 * 5 + point) * 37 % positions.len()];
+            let memory = &mut memory[point];
+            let a = learner.act(memory.as_ref(), &target, true);
+            let reached = arm.position(&a);
+            let start = Instant::now();
+            let visit = learner.observe(memory, &target, &a, &reached);
+            record(&mut ns, start);
+            self.sink += visit.error;
+        }
+        self.report(
+            "cacla_update",
+            "CACLA-MTL update at a conditioning point",
+            &ns,
+        )
+    }
+
+    /// The forward models as `softarm train` fits them (the shipped [forward_model] and
+    /// [kinematics] settings) on D_fwd of the demonstrations, evaluated at the demonstrated
+    /// actuations in turn.
+    fn forward_models(&mut self, demos: &TrainingData, evaluations: usize) -> anyhow::Result<()> {
+        let (inputs, positions) = (&demos.actuations, &demos.positions);
+        let net = RbfNetwork::fit(inputs, positions, &NetworkConfig::default())?;
+        let poly = Polynomial::fit(inputs, positions, &PolynomialConfig::default())
+            .map_err(anyhow::Error::msg)?;
+        let models: [(&str, String, &dyn ForwardModel); 2] = [
+            (
+                "rbf_forward",
+                format!("RBF forward model, one call ({} centres)", net.centres()),
+                &net,
+            ),
+            (
+                "poly_forward",
+                format!(
+                    "polynomial kinematics, one call ({} terms)",
+                    poly.weights().len()
+                ),
+                &poly,
+            ),
+        ];
+        for (key, name, model) in models {
+            let mut ns = histogram();
+            for i in 0..evaluations {
+                let a = std::hint::black_box(&inputs[i * 7 % inputs.len()]);
+                let start = Instant::now();
+                let p = model.position(a);
+                record(&mut ns, start);
+                self.sink += p[0];
+            }
+            self.report(key, &name, &ns)?;
+        }
+        Ok(())
+    }
 }

@@ -16,9 +16,10 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, anyhow, bail};
 use serde_json::{Map, Value, json};
+use softarm_ipc::iceoryx2::port::listener::Listener;
 use softarm_ipc::iceoryx2::prelude::{ServiceName, ipc};
 use softarm_ipc::iceoryx2::service::port_factory::event::PortFactory as EventService;
-use softarm_ipc::{Namespace, Node, PubSub, Setpoint};
+use softarm_ipc::{Namespace, Node, PubSub, Setpoint, Sub};
 use softarm_runtime::clock::Ticker;
 use softarm_runtime::now_ns;
 
@@ -142,100 +143,104 @@ pub(super) fn run(
     out.progress(&format!(
         "timing {samples} messages per variant from another process at {rate_hz} Hz"
     ));
-    let total = WARMUP + samples;
-    let mut peer = Peer(
-        Command::new(std::env::current_exe().context("finding my own executable")?)
-            .args(["bench", "--peer", &namespace, "--peer-socket"])
-            .arg(&socket)
-            .args([
-                "--samples",
-                &samples.to_string(),
-                "--ipc-rate-hz",
-                &rate_hz.to_string(),
-            ])
-            .stdin(Stdio::null())
-            .stdout(Stdio::null())
-            .spawn()
-            .context("starting the peer")?,
-    );
+    let mut peer = Peer::start(&namespace, &socket, samples, rate_hz)?;
     let mut stream = accept(&server, &mut peer.0, stop)?;
     stream.set_read_timeout(Some(SILENCE))?;
-    let interrupted = || stop.load(Ordering::Relaxed);
-    let last = total as u64 - 1;
+    let last = (WARMUP + samples) as u64 - 1;
 
-    // 1. Busy-polling.
     stream.write_all(&[GO])?;
-    let mut r1 = Received::new();
+    let r1 = busy_polled(&polled, last, stop);
+    stream.write_all(&[GO])?;
+    let r2 = event_woken(&woken, &listener, last, stop)?;
+    stream.write_all(&[GO])?;
+    let r3 = socket_read(&mut stream, last, stop);
+    if stop.load(Ordering::Relaxed) {
+        bail!("interrupted");
+    }
+    peer.wait()?;
+    report(samples, rate_hz, out, [&r1, &r2, &r3])
+}
+
+/// 1. The subscriber busy-polling, until message `last` or [`SILENCE`].
+fn busy_polled(polled: &Sub<Setpoint>, last: u64, stop: &AtomicBool) -> Received {
+    let mut r = Received::new();
     let mut heard = Instant::now();
     let mut spins = 0u64;
     loop {
         if let Ok(Some(s)) = polled.receive() {
-            r1.take(s.seq, s.stamp_ns);
+            r.take(s.seq, s.stamp_ns);
             heard = Instant::now();
             if s.seq >= last {
-                break;
+                return r;
             }
             continue;
         }
         spins += 1;
-        if spins.is_multiple_of(4096) && (interrupted() || heard.elapsed() > SILENCE) {
-            break;
+        if spins.is_multiple_of(4096) && (stop.load(Ordering::Relaxed) || heard.elapsed() > SILENCE)
+        {
+            return r;
         }
         std::hint::spin_loop();
     }
+}
 
-    // 2. Woken by the event.
-    stream.write_all(&[GO])?;
-    let mut r2 = Received::new();
-    'woken: loop {
-        if interrupted() {
-            break;
-        }
+/// 2. The subscriber woken by the peer's event after each sample.
+fn event_woken(
+    woken: &Sub<Setpoint>,
+    listener: &Listener<ipc::Service>,
+    last: u64,
+    stop: &AtomicBool,
+) -> anyhow::Result<Received> {
+    let mut r = Received::new();
+    while !stop.load(Ordering::Relaxed) {
         let events = match listener.timed_wait(|_| {}, SILENCE) {
             Ok(n) => n,
-            Err(_) if interrupted() => break,
+            Err(_) if stop.load(Ordering::Relaxed) => break,
             Err(e) => bail!("waiting on the bench's listener: {e:?}"),
         };
         while let Ok(Some(s)) = woken.receive() {
-            r2.take(s.seq, s.stamp_ns);
+            r.take(s.seq, s.stamp_ns);
             if s.seq >= last {
-                break 'woken;
+                return Ok(r);
             }
         }
         if events == 0 {
             break;
         }
     }
+    Ok(r)
+}
 
-    // 3. The socket.
-    stream.write_all(&[GO])?;
-    let mut r3 = Received::new();
+/// 3. The same bytes over the Unix-domain socket, a blocking read.
+fn socket_read(stream: &mut UnixStream, last: u64, stop: &AtomicBool) -> Received {
+    let mut r = Received::new();
     let mut buf = [0u8; SIZE];
-    while !interrupted() && stream.read_exact(&mut buf).is_ok() {
+    while !stop.load(Ordering::Relaxed) && stream.read_exact(&mut buf).is_ok() {
         let (seq, stamp) = decode(&buf);
-        r3.take(seq, stamp);
+        r.take(seq, stamp);
         if seq >= last {
             break;
         }
     }
-    if interrupted() {
-        bail!("interrupted");
-    }
-    peer.wait()?;
+    r
+}
 
+/// The three variants' table, and the `ipc` object of the JSON output.
+fn report(samples: usize, rate_hz: f64, out: &Out, r: [&Received; 3]) -> anyhow::Result<Value> {
     out.text(&header(&format!(
         "A setpoint ({SIZE} bytes) from another process, one way: stamp -> received ({samples} \
          per variant at {rate_hz} Hz, after {WARMUP} untimed)"
     )));
+    let total = WARMUP + samples;
     let mut results = Map::new();
     for (key, name, r) in [
-        ("iceoryx2_poll", "iceoryx2, subscriber busy-polling", &r1),
+        ("iceoryx2_poll", "iceoryx2, subscriber busy-polling", r[0]),
         (
             "iceoryx2_event",
             "iceoryx2, woken by an iceoryx2 event",
-            &r2,
+            r[1],
         ),
-        ("unix_socket", "Unix-domain socket, blocking read", &r3),
+        ("unix_socket", "Unix-domain socket, blocking read", r[2]),
     ] {
         let s = Stats::of(&r.hist)
             .ok_or_else(|| anyhow!("{name}: no message arrived from the peer"))?;
@@ -291,6 +296,25 @@ fn accept(
 struct Peer(Child);
 
 impl Peer {
+    /// `softarm bench --peer`: sends `samples` timed messages (after [`WARMUP`]) per variant at
+    /// `rate_hz`, connecting to `socket`.
+    fn start(namespace: &str, socket: &Path, samples: usize, rate_hz: f64) -> anyhow::Result<Self> {
+        let child = Command::new(std::env::current_exe().context("finding my own executable")?)
+            .args(["bench", "--peer", namespace, "--peer-socket"])
+            .arg(socket)
+            .args([
+                "--samples",
+                &samples.to_string(),
+                "--ipc-rate-hz",
+                &rate_hz.to_string(),
+            ])
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .spawn()
+            .context("starting the peer")?;
+        Ok(Self(child))
+    }
+
     /// Waits (a few seconds at most) for it to end, and insists it ended well.
     fn wait(&mut self) -> anyhow::Result<()> {
         let limit = Instant::now() + Duration::from_secs(10);
