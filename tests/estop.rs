@@ -94,9 +94,10 @@ fn an_estop_survives_restarts_until_reset_and_a_reset_moves_nothing() {
     // A set submitted while STOPPED is refused, saying what to do, and nothing is queued.
     let (code, out, err) = s.submit(Path::new(DEMO_WAYPOINTS), 1);
     assert_ne!(code, 0, "accepted while STOPPED: {out}{err}");
+    let said = format!("{out}{err}");
     assert!(
-        err.contains("e-stop is engaged") && err.contains("softarm estop --reset"),
-        "{out}{err}"
+        said.contains("e-stop is engaged") && said.contains("softarm estop --reset"),
+        "{said}"
     );
 
     // Released everywhere; neither the dropped set nor the refused one starts by itself.
