@@ -53,9 +53,15 @@ pub struct Args {
     /// Time between scenario changes (s), made between sets; 0: the nominal arm throughout.
     #[arg(long, default_value_t = 120.0, value_parser = seconds, allow_negative_numbers = true)]
     scenario_every_s: f64,
-    /// Where the trained model is kept between runs (default: the demo's, in the user's cache).
+    /// Where the trained model is kept between runs (default: the demo's, in the user's cache;
+    /// with `--config`, that config's `model.dir`).
     #[arg(long)]
     model_dir: Option<PathBuf>,
+    /// Soaks the stack this config describes instead of the simulated arm: its drivers, devices
+    /// and model (e.g. the config `softarm emulate --write-config` wrote, for the real arm's
+    /// code path against emulated devices). Without a sim there are no scenario changes.
+    #[arg(long, value_name = "FILE")]
+    config: Option<PathBuf>,
     /// The report as one JSON object on stdout, and nothing else there.
     #[arg(long)]
     json: bool,
@@ -77,7 +83,8 @@ fn seconds(s: &str) -> Result<f64, String> {
     Ok(v)
 }
 
-const ROLES: [&str; 3] = ["sim", "controller", "learner"];
+/// The processes besides the drivers the config names.
+const PROCESSES: [&str; 2] = ["controller", "learner"];
 /// The scenarios the sim goes through, in turn.
 const SCENARIOS: [&str; 5] = ["tool-change", "creep", "twist", "stiffer", "nominal"];
 /// How far a process may grow from the start to the end of a soak (KiB).
@@ -117,29 +124,28 @@ fn say(json: bool, line: &str) {
 }
 
 pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<bool> {
-    let model_dir = args.model_dir.clone().unwrap_or_else(|| {
-        crate::scratch::cache_dir().join(format!("demo-model-seed{}", args.seed))
-    });
-    let seed = i64::try_from(args.seed).context("--seed must be at most 9223372036854775807")?;
-    let scratch = Scratch::new(
-        "soak",
-        DEFAULT,
-        &[
-            ("model.dir", model_dir.display().to_string().into()),
-            ("learner.seed", seed.into()),
-            ("sim.realism.seed", seed.into()),
-        ],
-    )?;
-    let mut sup = scratch.supervisor(&ROLES, "error")?;
+    let scratch = scratch(args)?;
+    let model_dir = scratch.config.model_dir();
+    let roles = roles(&scratch.config);
+    let mut sup = scratch.supervisor(&roles, "error")?;
     say(
         args.json,
-        &format!("stack up in namespace {}", scratch.namespace.as_str()),
+        &format!(
+            "stack up in namespace {}: {}{}",
+            scratch.namespace.as_str(),
+            roles.join(", "),
+            if roles.contains(&"sim") {
+                ""
+            } else {
+                " (no sim: no scenario changes)"
+            }
+        ),
     );
     scratch.ready_with_model(&mut sup, stop, args.seed, &|line| say(args.json, line))?;
     let lattice_start = Model::read(&model_dir)
         .map(|m| (m.learner.actor.len(), m.learner.critic.len()))
         .unwrap_or_default();
-    let mut soak = Soak::start(args, stop, &scratch, sup, lattice_start)?;
+    let mut soak = Soak::start(args, stop, &scratch, sup, roles, lattice_start)?;
     let end = soak.started + Duration::from_secs_f64(args.minutes * 60.0);
     while Instant::now() < end {
         if stop.load(Ordering::Relaxed) {
@@ -156,12 +162,51 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<bool> {
     Ok(report.failures.is_empty())
 }
 
+/// The soak's own stack: the simulated arm of the shipped config, or the stack `--config`
+/// describes; the soak's seed for the learner (and the sim's realism).
+fn scratch(args: &Args) -> anyhow::Result<Scratch> {
+    let seed = i64::try_from(args.seed).context("--seed must be at most 9223372036854775807")?;
+    let (text, own) = match &args.config {
+        Some(path) => (
+            std::fs::read_to_string(path)
+                .with_context(|| format!("reading the config {}", path.display()))?,
+            Some(softarm_config::Config::load(path)?),
+        ),
+        None => (DEFAULT.to_string(), None),
+    };
+    // The copy lives in the soak's folder: a relative model folder must not move with it.
+    let model_dir = match (&args.model_dir, &own) {
+        (Some(dir), _) => dir.clone(),
+        (None, Some(c)) => c.model_dir(),
+        (None, None) => crate::scratch::cache_dir().join(format!("demo-model-seed{}", args.seed)),
+    };
+    let mut overrides = vec![
+        ("learner.seed", seed.into()),
+        ("model.dir", model_dir.display().to_string().into()),
+    ];
+    if own.is_none_or(|c| c.robot.drivers.iter().any(|d| d == "sim")) {
+        overrides.push(("sim.realism.seed", seed.into()));
+    }
+    Scratch::new("soak", &text, &overrides)
+}
+
+/// The processes the soak runs and kills: the config's drivers, the controller, the learner.
+fn roles(config: &softarm_config::Config) -> Vec<&'static str> {
+    softarm_config::DRIVERS
+        .into_iter()
+        .filter(|d| config.robot.drivers.iter().any(|c| c == d))
+        .chain(PROCESSES)
+        .collect()
+}
+
 /// A soak under way: the stack, what watches it, and what it has seen so far.
 struct Soak<'a> {
     args: &'a Args,
     stop: &'a AtomicBool,
     scratch: &'a Scratch,
     sup: Supervisor,
+    /// What runs and may be killed: the drivers first, then controller and learner.
+    roles: Vec<&'static str>,
     demo_set: WaypointFile,
     watch: Watch,
     follower: stats::Stats,
@@ -192,6 +237,7 @@ impl<'a> Soak<'a> {
         stop: &'a AtomicBool,
         scratch: &'a Scratch,
         sup: Supervisor,
+        roles: Vec<&'static str>,
         lattice_start: (usize, usize),
     ) -> anyhow::Result<Self> {
         let ns = &scratch.namespace;
@@ -222,7 +268,7 @@ impl<'a> Soak<'a> {
                 lattice_start,
                 ..Report::default()
             },
-            rss: ROLES
+            rss: roles
                 .iter()
                 .map(|r| (r.to_string(), Rss::default()))
                 .collect(),
@@ -235,7 +281,9 @@ impl<'a> Soak<'a> {
             last_status: None,
             started: Instant::now(),
             kill_at,
-            scenario_at: every(args.scenario_every_s),
+            // Only a sim becomes another arm.
+            scenario_at: every(args.scenario_every_s).filter(|_| roles.contains(&"sim")),
+            roles,
             sample_at: Instant::now(),
             progress_at: Instant::now() + Duration::from_secs(30),
         })
@@ -322,7 +370,11 @@ impl<'a> Soak<'a> {
         if !back
             && self.pid_of(role).is_some_and(|n| n != old)
             && status::status(&self.scratch.namespace, Duration::from_millis(200)).is_ok_and(|r| {
-                r.running() && ROLES.iter().all(|role| r.alive.iter().any(|n| n == role))
+                r.running()
+                    && self
+                        .roles
+                        .iter()
+                        .all(|role| r.alive.iter().any(|n| n == role))
             })
         {
             if let Some(p) = self.pending.as_mut() {
@@ -426,10 +478,11 @@ impl<'a> Soak<'a> {
         {
             return Ok(());
         }
-        let role = ROLES[self.rng.random_range(0..ROLES.len())];
+        let role = self.roles[self.rng.random_range(0..self.roles.len())];
         if let Some(old) = self.pid_of(role) {
-            if role == "sim" {
-                // The supervisor restarts it after a second at the earliest.
+            if softarm_config::DRIVERS.contains(&role) {
+                // The arm's data stops: HOLD is right. The supervisor restarts the driver after
+                // a second at the earliest.
                 let t = now_ns();
                 self.watch.outage(t, t + 900_000_000);
             }
