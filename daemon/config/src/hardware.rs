@@ -601,7 +601,9 @@ mod tests {
     /// (or removed when empty).
     fn hardware_with(line: &str) -> String {
         let text = include_str!("../../../config/hardware.toml");
-        let at = text.find("\nhemisphere = ").expect("hardware.toml sets the hemisphere");
+        let at = text
+            .find("\nhemisphere = ")
+            .expect("hardware.toml sets the hemisphere");
         let end = at + 1 + text[at + 1..].find('\n').unwrap();
         format!("{}\n{line}{}", &text[..at], &text[end..])
     }

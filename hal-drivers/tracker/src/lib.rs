@@ -5,7 +5,7 @@
 //! running and selects the configured hemisphere, read back where the unit allows
 //! (module `setup`). A silent device is reported and asked again with back-off; a lost
 //! port is reopened; the loop never blocks longer than a read time-out (an open, with its drain
-//! and read-back, about 1.2 s at most), so it always hears its stop signal.
+//! and read-back, about 1.4 s at most), so it always hears its stop signal.
 
 use std::io::{ErrorKind, Read, Write};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -27,7 +27,7 @@ use bird::{Decoder, RecordFormat};
 pub use setup::{READBACK_TIMEOUT, ReadBack, StopBy, hemisphere_of};
 
 /// How long one read waits: the loop's longest pause (opening the port, with its drain and
-/// read-back, takes longer: at most about 1.2 s).
+/// read-back, takes longer: at most about 1.4 s).
 const READ_TIMEOUT: Duration = Duration::from_millis(10);
 
 fn format_of(t: &TrackerConfig) -> RecordFormat {

@@ -62,7 +62,7 @@ pub(crate) struct Opened {
 /// The longest the read-back answer may take.
 pub const READBACK_TIMEOUT: Duration = Duration::from_millis(150);
 /// The longest a drain waits for the line to go quiet before deciding the unit still streams.
-const DRAIN_LIMIT: Duration = Duration::from_millis(500);
+const DRAIN_LIMIT: Duration = Duration::from_millis(600);
 
 /// The protocol's name of a configured hemisphere.
 pub fn hemisphere_of(h: TrackerHemisphere) -> Hemisphere {
@@ -134,9 +134,10 @@ fn quiesce(
     Ok(StopBy::Point)
 }
 
-/// No byte for this long: the unit is not streaming. Three record periods, within 30–200 ms.
+/// No byte for this long: the unit is not streaming. Five record periods, within 100–300 ms:
+/// long enough that a stream stalled by a busy host is not taken for a stopped one.
 fn quiet_window(t: &TrackerConfig) -> Duration {
-    Duration::from_secs_f64((3.0 / t.rate_hz).clamp(0.03, 0.2))
+    Duration::from_secs_f64((5.0 / t.rate_hz).clamp(0.1, 0.3))
 }
 
 struct Drained {
