@@ -239,9 +239,9 @@ impl<'a> Reader<'a> {
                 self.unverified_reported = true;
                 tracing::warn!(
                     hemisphere = h,
-                    "the tracker does not answer EXAMINE VALUE of the hemisphere (parameter 22, \
-                     missing before software revision 3.66): HEMISPHERE was sent but cannot be \
-                     verified"
+                    "the tracker did not answer the hemisphere read-back (EXAMINE VALUE of \
+                     parameter 22, which units before software revision 3.66 lack; or the unit \
+                     is silent): HEMISPHERE was sent but is not verified (said once)"
                 );
             }
             ReadBack::Garbled(bytes) => tracing::warn!(
