@@ -72,6 +72,92 @@ pub enum TrackerMode {
     Point,
 }
 
+/// The half-space around the transmitter the tracker reports positions in (its HEMISPHERE
+/// setting). The transmitter's field is symmetric through its centre, so the unit cannot tell a
+/// sensor at p from one at -p: it reports every position in the selected hemisphere, and a
+/// sensor on the other side of the boundary plane comes out mirrored through the transmitter's
+/// centre. The names are the Bird's, on the tracker's own axes (X forward, Y right, Z down),
+/// not the room's.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TrackerHemisphere {
+    /// +X (the unit's own default).
+    #[default]
+    Forward,
+    /// -X.
+    Aft,
+    /// -Z (Z points down on a Bird).
+    Upper,
+    /// +Z.
+    Lower,
+    /// -Y.
+    Left,
+    /// +Y.
+    Right,
+}
+
+impl TrackerHemisphere {
+    /// Every hemisphere, in the order the docs list them.
+    pub const ALL: [Self; 6] = [
+        Self::Forward,
+        Self::Aft,
+        Self::Upper,
+        Self::Lower,
+        Self::Left,
+        Self::Right,
+    ];
+
+    /// The config spelling.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Forward => "forward",
+            Self::Aft => "aft",
+            Self::Upper => "upper",
+            Self::Lower => "lower",
+            Self::Left => "left",
+            Self::Right => "right",
+        }
+    }
+
+    /// The unit vector (tracker frame) pointing into the hemisphere.
+    pub fn direction(self) -> [f64; 3] {
+        match self {
+            Self::Forward => [1.0, 0.0, 0.0],
+            Self::Aft => [-1.0, 0.0, 0.0],
+            Self::Upper => [0.0, 0.0, -1.0],
+            Self::Lower => [0.0, 0.0, 1.0],
+            Self::Left => [0.0, -1.0, 0.0],
+            Self::Right => [0.0, 1.0, 0.0],
+        }
+    }
+}
+
+// By hand rather than derived: serde's message for an unknown variant names neither the key
+// nor, in this layout, the words a user can write instead.
+impl<'de> Deserialize<'de> for TrackerHemisphere {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct Names;
+        impl serde::de::Visitor<'_> for Names {
+            type Value = TrackerHemisphere;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("tracker.hemisphere: one of forward, aft, upper, lower, left, right")
+            }
+            fn visit_str<E: serde::de::Error>(self, s: &str) -> Result<Self::Value, E> {
+                TrackerHemisphere::ALL
+                    .into_iter()
+                    .find(|h| h.name() == s)
+                    .ok_or_else(|| {
+                        E::custom(format!(
+                            "tracker.hemisphere: must be one of forward, aft, upper, lower, \
+                             left, right, got {s:?}"
+                        ))
+                    })
+            }
+        }
+        d.deserialize_str(Names)
+    }
+}
+
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct TrackerConfig {
@@ -92,6 +178,10 @@ pub struct TrackerConfig {
     pub translation_m: Position,
     /// Roll, pitch, yaw (°) about the tracker's x, y, z: R = Rz(yaw) · Ry(pitch) · Rx(roll).
     pub rotation_deg: [f64; 3],
+    /// The side of the transmitter the sensor stays on, in the tracker's frame (before
+    /// `rotation_deg`/`translation_m`); sent at open. Absent: forward, the unit's default.
+    #[serde(default)]
+    pub hemisphere: TrackerHemisphere,
 }
 
 /// A failed check: the dotted key and a message that does not repeat it.
@@ -486,6 +576,7 @@ mod tests {
             max_speed_m_per_s: 2.0,
             translation_m: [0.1, -0.2, 0.3],
             rotation_deg: [0.0, 0.0, 90.0],
+            hemisphere: TrackerHemisphere::Forward,
         };
         let f = Frame::new(&c);
         // Yaw 90°: the tracker's x is the base's y.
@@ -504,5 +595,59 @@ mod tests {
         c.validate().unwrap();
         c.silent_after_ms = 5.0;
         assert_eq!(c.validate().unwrap_err().0, "tracker.silent_after_ms");
+    }
+
+    /// The shipped hardware config with its `[tracker]` `hemisphere` line replaced by `line`
+    /// (or removed when empty).
+    fn hardware_with(line: &str) -> String {
+        let text = include_str!("../../../config/hardware.toml");
+        let at = text
+            .find("\nhemisphere = ")
+            .expect("hardware.toml sets the hemisphere");
+        let end = at + 1 + text[at + 1..].find('\n').unwrap();
+        format!("{}\n{line}{}", &text[..at], &text[end..])
+    }
+
+    #[test]
+    fn the_hemisphere_defaults_to_forward_and_reads_every_name() {
+        let parse = |line: &str| crate::Config::parse(&hardware_with(line), "h.toml", ".".into());
+        let c = parse("").unwrap();
+        assert_eq!(
+            c.tracker.unwrap().hemisphere,
+            TrackerHemisphere::Forward,
+            "absent: the unit's own default"
+        );
+        for h in TrackerHemisphere::ALL {
+            let c = parse(&format!("hemisphere = \"{}\"", h.name())).unwrap();
+            assert_eq!(c.tracker.unwrap().hemisphere, h);
+        }
+        // Each points along one axis, and opposite names point opposite ways.
+        for (a, b) in [(0, 1), (2, 3), (4, 5)] {
+            let (a, b) = (TrackerHemisphere::ALL[a], TrackerHemisphere::ALL[b]);
+            let dot: f64 = (0..3).map(|i| a.direction()[i] * b.direction()[i]).sum();
+            assert_eq!(dot, -1.0, "{a:?} {b:?}");
+        }
+    }
+
+    #[test]
+    fn a_bad_hemisphere_is_refused_naming_the_key_and_the_choices() {
+        for bad in ["\"up\"", "\"Forward\"", "\"\"", "1"] {
+            let text = hardware_with(&format!("hemisphere = {bad}"));
+            let e = crate::Config::parse(&text, "h.toml", ".".into()).unwrap_err();
+            let line = text
+                .lines()
+                .position(|l| l.starts_with("hemisphere"))
+                .unwrap()
+                + 1;
+            assert_eq!(e.line, Some(line), "{e}");
+            assert!(e.message.contains("tracker.hemisphere"), "{bad}: {e}");
+            if bad.starts_with('"') {
+                assert!(
+                    e.message
+                        .contains("forward, aft, upper, lower, left, right"),
+                    "{bad}: {e}"
+                );
+            }
+        }
     }
 }

@@ -17,11 +17,26 @@
 //!   [`softarm_tracker::bird::change_value_len`]): POSITION SCALING 0/1 switches the position
 //!   full scale to 36/72 in; other parameters are accepted and ignored. An unknown parameter
 //!   (length unknown) consumes no data.
-//! - HEMISPHERE (`L` + 2), ANGLE ALIGN / REFERENCE FRAME (`J`/`H` + 12, `q`/`r` + 6),
+//! - HEMISPHERE (`L` + axis + sign): selects the hemisphere positions are reported in (below);
+//!   EXAMINE VALUE and CHANGE VALUE of parameter 22 read and set it (two bytes, axis and sign).
+//!   Axis `0x00` is X, `0x06` Y, `0x0C` Z; sign 0 the positive half, 1 the negative; other bytes
+//!   leave the selection as it was (logged at debug).
+//! - ANGLE ALIGN / REFERENCE FRAME (`J`/`H` + 12, `q`/`r` + 6),
 //!   BUTTON MODE (`M` + 1), NEXT TRANSMITTER (`0` + 1), SYNC (`A` + 1), super-expanded RS232 TO
 //!   FBB (`0xA0` + address): data consumed, otherwise ignored.
 //! - RS232 TO FBB prefixes (`0xE0..=0xFF`), which hosts of a flock put before every command, are
 //!   accepted silently: this unit answers whatever address is named.
+//!
+//! Hemisphere folding, as a real unit does it: the transmitter's field is the same at p and -p,
+//! so a sensor on the far side of the selected hemisphere's boundary plane (p · h < 0, with h
+//! the hemisphere's direction: +X forward, -X aft, -Z upper, +Z lower, -Y left, +Y right) is
+//! reported at -p: X, Y and Z all negated. Its angles are reported as they are (the field
+//! vectors the sensor sees, and so the orientation worked out from them, are the same at both
+//! points). A sensor on the plane is reported as it is. The unit starts in the forward
+//! hemisphere.
+//!
+//! Two switches of [`BirdFaults`] make it an older unit: one that ignores STREAM STOP (only
+//! POINT ends its stream) and one that does not answer EXAMINE VALUE of the hemisphere.
 //!
 //! Any other byte is ignored (logged at debug). Only the POSITION and POSITION/ANGLES formats are
 //! modelled; the other format commands (ANGLES, MATRIX, QUATERNION, ...) are ignored, and GROUP
@@ -73,6 +88,11 @@ pub struct BirdFaults {
     /// 0 = never; else, about once per this many records sent, replace a byte with a garbage
     /// byte, insert a garbage byte, or drop a byte (one of the three at random).
     pub corrupt_one_in: AtomicU32,
+    /// An older Flock of Birds: STREAM STOP (`?`) is not a command it knows.
+    pub ignore_stream_stop: AtomicBool,
+    /// An older unit (software revision before 3.66): EXAMINE VALUE of the hemisphere gets no
+    /// answer.
+    pub no_hemisphere_readback: AtomicBool,
 }
 
 impl BirdFaults {
@@ -99,6 +119,56 @@ enum Pending {
     },
     /// `left` data bytes of a command to consume and ignore.
     Skip { left: usize },
+    /// The data of HEMISPHERE: the axis byte, once it has come.
+    HemisphereData { axis: Option<u8> },
+}
+
+/// A selected hemisphere: the axis (0 = X, 1 = Y, 2 = Z) and whether it is the negative half.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Selected {
+    pub axis: usize,
+    pub negative: bool,
+}
+
+impl Selected {
+    /// The unit's default: forward, +X.
+    pub const FORWARD: Self = Self {
+        axis: 0,
+        negative: false,
+    };
+
+    /// From the two bytes of HEMISPHERE (axis, sign), written from the command's description:
+    /// the axis byte is 0, 6 or 12 for X, Y, Z and the sign byte 0 or 1.
+    pub fn from_bytes(axis: u8, sign: u8) -> Option<Self> {
+        let axis = match axis {
+            0x00 => 0,
+            0x06 => 1,
+            0x0C => 2,
+            _ => return None,
+        };
+        let negative = match sign {
+            0 => false,
+            1 => true,
+            _ => return None,
+        };
+        Some(Self { axis, negative })
+    }
+
+    /// The two bytes (axis, sign) EXAMINE VALUE answers.
+    pub fn bytes(self) -> [u8; 2] {
+        [6 * self.axis as u8, u8::from(self.negative)]
+    }
+
+    /// Where a sensor truly at `p` is reported: mirrored through the origin when it is on the
+    /// other side of the boundary plane.
+    pub fn fold(self, p: [f64; 3]) -> [f64; 3] {
+        let outside = if self.negative {
+            p[self.axis] > 0.0
+        } else {
+            p[self.axis] < 0.0
+        };
+        if outside { p.map(|v| -v) } else { p }
+    }
 }
 
 /// The longest CHANGE VALUE data (14 bytes) the device keeps.
@@ -114,6 +184,9 @@ pub struct BirdDevice {
     pending: Pending,
     change_data: [u8; MAX_CHANGE_DATA],
     records: u64,
+    hemisphere: Selected,
+    knows_stream_stop: bool,
+    answers_hemisphere: bool,
 }
 
 impl BirdDevice {
@@ -136,7 +209,22 @@ impl BirdDevice {
             pending: Pending::Command,
             change_data: [0; MAX_CHANGE_DATA],
             records: 0,
+            hemisphere: Selected::FORWARD,
+            knows_stream_stop: true,
+            answers_hemisphere: true,
         }
+    }
+
+    /// Makes this an older unit: without STREAM STOP (`knows_stream_stop` false), without the
+    /// hemisphere parameter of EXAMINE VALUE (`answers_hemisphere` false).
+    pub fn set_model(&mut self, knows_stream_stop: bool, answers_hemisphere: bool) {
+        self.knows_stream_stop = knows_stream_stop;
+        self.answers_hemisphere = answers_hemisphere;
+    }
+
+    /// The selected hemisphere.
+    pub fn hemisphere(&self) -> Selected {
+        self.hemisphere
     }
 
     /// Feeds bytes the host wrote; returns what the device answers right away (a POINT gets one
@@ -186,6 +274,11 @@ impl BirdDevice {
                         }
                     }
                 }
+                Pending::HemisphereData { axis: None } => Pending::HemisphereData { axis: Some(b) },
+                Pending::HemisphereData { axis: Some(axis) } => {
+                    self.select(axis, b);
+                    Pending::Command
+                }
                 Pending::Skip { left } => {
                     if left <= 1 {
                         Pending::Command
@@ -219,12 +312,12 @@ impl BirdDevice {
                 }
             }
             STREAM => self.streaming = true,
-            STREAM_STOP => self.streaming = false,
+            STREAM_STOP if self.knows_stream_stop => self.streaming = false,
             RUN => self.asleep = false,
             SLEEP => self.asleep = true,
             EXAMINE_VALUE => return Pending::ExamineParameter,
             CHANGE_VALUE => return Pending::ChangeParameter,
-            HEMISPHERE => return skip(2),
+            HEMISPHERE => return Pending::HemisphereData { axis: None },
             ANGLE_ALIGN1 | REFERENCE_FRAME1 => return skip(12),
             ANGLE_ALIGN2 | REFERENCE_FRAME2 => return skip(6),
             BUTTON_MODE | NEXT_TRANSMITTER | SYNC | RS232_TO_FBB_SUPER_EXPANDED => return skip(1),
@@ -234,9 +327,20 @@ impl BirdDevice {
         Pending::Command
     }
 
+    /// Selects the hemisphere HEMISPHERE or CHANGE VALUE names (bytes that name none: ignored).
+    fn select(&mut self, axis: u8, sign: u8) {
+        match Selected::from_bytes(axis, sign) {
+            Some(h) => self.hemisphere = h,
+            None => debug!(axis, sign, "bird: no such hemisphere; selection unchanged"),
+        }
+    }
+
     /// Answers EXAMINE VALUE of `parameter`.
     fn examine(&self, parameter: u8, out: &mut Vec<u8>) {
         let word: u16 = match parameter {
+            param::HEMISPHERE if self.answers_hemisphere => {
+                u16::from_le_bytes(self.hemisphere.bytes())
+            }
             param::BIRD_STATUS => {
                 let format = u16::from(self.format.command() - POSITION + 1) << 1;
                 let mut s = status::MASTER | status::INITIALIZED | format;
@@ -262,6 +366,7 @@ impl BirdDevice {
     /// Applies CHANGE VALUE of `parameter` once its `len` data bytes are in.
     fn change(&mut self, parameter: u8, len: usize) {
         match parameter {
+            param::HEMISPHERE => self.select(self.change_data[0], self.change_data[1]),
             param::POSITION_SCALING => {
                 match u16::from_le_bytes([self.change_data[0], self.change_data[1]]) {
                     0 => self.full_scale_in = FULL_SCALE_STANDARD_IN,
@@ -280,7 +385,7 @@ impl BirdDevice {
     /// Appends one record of the pose in the current format.
     fn record(&mut self, position_in: [f64; 3], angles_deg: [f64; 3], out: &mut Vec<u8>) {
         let record = Record {
-            position_in,
+            position_in: self.hemisphere.fold(position_in),
             angles_deg: Some(angles_deg),
         };
         let mut buf = [0u8; MAX_RECORD_BYTES];
@@ -485,6 +590,10 @@ fn serve_loop(
         out.clear();
         let before = dev.records_sent();
         let silent = faults.silent.load(Ordering::Acquire);
+        dev.set_model(
+            !faults.ignore_stream_stop.load(Ordering::Relaxed),
+            !faults.no_hemisphere_readback.load(Ordering::Relaxed),
+        );
 
         // Commands, until the next deadline (whole milliseconds; 0 just polls).
         let wait = next.saturating_duration_since(Instant::now()).min(MAX_WAIT);
@@ -891,6 +1000,202 @@ mod tests {
         stop.store(true, Ordering::Release);
         server.join().unwrap().unwrap();
         drop(port);
+    }
+
+    #[test]
+    fn hemisphere_is_selected_read_back_and_folds_positions_not_angles() {
+        use softarm_tracker::bird::Hemisphere;
+        let mut dev = BirdDevice::new(FS);
+        let mut out = Vec::new();
+        let examine = |dev: &mut BirdDevice| {
+            let mut out = Vec::new();
+            dev.receive(&[EXAMINE_VALUE, param::HEMISPHERE], P, A, &mut out);
+            out
+        };
+        // The unit's default: forward, answered as axis 0, sign 0.
+        assert_eq!(dev.hemisphere(), Selected::FORWARD);
+        assert_eq!(examine(&mut dev), [0, 0]);
+
+        let behind = [-10.5, 7.25, -3.0];
+        let mirrored = [10.5, -7.25, 3.0];
+        let point = |dev: &mut BirdDevice, p: [f64; 3]| {
+            let mut out = Vec::new();
+            dev.receive(&[POSITION_ANGLES, POINT], p, A, &mut out);
+            decode_all(RecordFormat::PositionAngles, FS, &out).0[0]
+        };
+        // Forward: a sensor behind the transmitter comes out in front, all three coordinates
+        // negated, its angles as they are.
+        let r = point(&mut dev, behind);
+        assert!(close(&r, mirrored, Some(A), FS), "{r:?}");
+        assert!(close(&point(&mut dev, P), P, Some(A), FS));
+
+        // Every hemisphere the driver can send is taken, read back as sent, and keeps the
+        // positions on its side and mirrors the others.
+        for h in Hemisphere::ALL {
+            out.clear();
+            dev.receive(&h.command(), P, A, &mut out);
+            assert!(out.is_empty(), "HEMISPHERE has no answer");
+            assert_eq!(examine(&mut dev), h.bytes(), "{h:?}");
+            let sel = dev.hemisphere();
+            let d: [f64; 3] = std::array::from_fn(|i| {
+                if i == sel.axis {
+                    if sel.negative { -1.0 } else { 1.0 }
+                } else {
+                    0.0
+                }
+            });
+            for p in [P, behind, [1.0, 2.0, 3.0], [-1.0, -2.0, -3.0]] {
+                let inside = (0..3).map(|i| p[i] * d[i]).sum::<f64>() >= 0.0;
+                let want = if inside { p } else { p.map(|v| -v) };
+                let r = point(&mut dev, p);
+                assert!(close(&r, want, Some(A), FS), "{h:?} {p:?}: {r:?}");
+            }
+        }
+
+        // CHANGE VALUE of parameter 22 sets it too; bytes that name no hemisphere change nothing.
+        dev.receive(
+            &[CHANGE_VALUE, param::HEMISPHERE, 0x00, 0x01],
+            P,
+            A,
+            &mut out,
+        );
+        assert_eq!(examine(&mut dev), Hemisphere::Aft.bytes());
+        dev.receive(&[HEMISPHERE, 0x03, 0x01, POINT], P, A, &mut out);
+        assert_eq!(examine(&mut dev), Hemisphere::Aft.bytes());
+
+        // An older unit: no answer to the read-back, and STREAM STOP is not a command to it.
+        dev.set_model(false, false);
+        assert!(examine(&mut dev).is_empty());
+        dev.receive(&[STREAM, STREAM_STOP], P, A, &mut out);
+        assert!(dev.streaming(), "only POINT stops an older unit's stream");
+    }
+
+    /// A sensor crossing the forward/aft plane, seen through the tracker driver's own open
+    /// sequence and decoder (`Reader`) against this emulator on a pseudo-terminal, with
+    /// `tracker.hemisphere` as given: for each scripted position (inches, tracker frame) the
+    /// samples that follow it (m, base frame = tracker frame here).
+    fn through_the_driver(
+        hemisphere: softarm_config::hardware::TrackerHemisphere,
+        faults: BirdFaults,
+        path_in: &[[f64; 3]],
+    ) -> (Vec<[f64; 3]>, softarm_tracker::Reader<'static>) {
+        use softarm_config::hardware::{TrackerConfig, TrackerMode, TrackerRecord};
+        use std::sync::Mutex;
+        let pty = Pty::open().unwrap();
+        let t: &'static TrackerConfig = Box::leak(Box::new(TrackerConfig {
+            port: pty.path().to_owned(),
+            baud: 115_200,
+            record: TrackerRecord::Position,
+            mode: TrackerMode::Stream,
+            rate_hz: 100.0,
+            full_scale_in: FS,
+            silent_after_ms: 2000.0,
+            max_speed_m_per_s: 2.0,
+            translation_m: [0.0; 3],
+            rotation_deg: [0.0; 3],
+            hemisphere,
+        }));
+        let pose = Arc::new(Mutex::new(path_in[0]));
+        let faults = Arc::new(faults);
+        let stop = Arc::new(AtomicBool::new(false));
+        let sent = Arc::new(AtomicU64::new(0));
+        let server = {
+            let (pose, faults, stop, sent) =
+                (pose.clone(), faults.clone(), stop.clone(), sent.clone());
+            thread::spawn(move || {
+                let pose = move || (*pose.lock().unwrap(), A);
+                serve(pty, 100.0, FS, pose, faults, stop, sent)
+            })
+        };
+        if faults.ignore_stream_stop.load(Ordering::Relaxed) {
+            // A session before this one left the unit streaming.
+            let port = serial2::SerialPort::open(&t.port, 115_200).unwrap();
+            port.write_all(&[STREAM]).unwrap();
+            let start = sent.load(Ordering::Relaxed);
+            while sent.load(Ordering::Relaxed) < start + 3 {
+                thread::sleep(Duration::from_millis(5));
+            }
+        }
+        let mut reader = softarm_tracker::Reader::open(t).unwrap();
+        let mut seen = Vec::new();
+        for &p in path_in {
+            *pose.lock().unwrap() = p;
+            // Records made from here on carry the new pose (one may be in the making): wait
+            // until the driver has read past them, by count, then take three fresh samples.
+            let after = sent.load(Ordering::Acquire) + 2;
+            let deadline = Instant::now() + Duration::from_secs(30);
+            while reader.stats().records < after && Instant::now() < deadline {
+                reader.step(|_| {});
+            }
+            let mut fresh = Vec::new();
+            while fresh.len() < 3 && Instant::now() < deadline {
+                reader.step(|s| fresh.push(s.position));
+            }
+            assert_eq!(fresh.len(), 3, "samples at {p:?} in 30 s");
+            assert!(
+                fresh.windows(2).all(|w| w[0] == w[1]),
+                "{p:?}: a still sensor gives one position: {fresh:?}"
+            );
+            seen.push(fresh[2]);
+        }
+        stop.store(true, Ordering::Release);
+        server.join().unwrap().unwrap();
+        (seen, reader)
+    }
+
+    #[test]
+    fn a_sensor_crossing_the_plane_is_right_in_its_hemisphere_and_mirrored_outside() {
+        use softarm_config::hardware::TrackerHemisphere;
+        use softarm_tracker::ReadBack;
+        // The sensor works behind the transmitter (x < 0) and crosses to x > 0.
+        let path = [
+            [-8.0, 3.0, 10.0],
+            [-4.0, -2.0, 10.0],
+            [-0.5, 3.0, -6.0],
+            [0.5, 3.0, -6.0],
+            [4.0, -2.0, 10.0],
+        ];
+        let m = |p: [f64; 3]| p.map(|v| v * 0.0254);
+        let near = |a: [f64; 3], b: [f64; 3]| (0..3).all(|i| (a[i] - b[i]).abs() < 2e-4);
+        for (hemisphere, behind_right) in [
+            (TrackerHemisphere::Aft, true),
+            (TrackerHemisphere::Forward, false),
+        ] {
+            let (seen, reader) = through_the_driver(hemisphere, BirdFaults::new(), &path);
+            assert_eq!(reader.readback(), ReadBack::Confirmed, "{hemisphere:?}");
+            for (p, got) in path.iter().zip(&seen) {
+                let on_its_side = (p[0] < 0.0) == behind_right;
+                let want = if on_its_side { m(*p) } else { m(p.map(|v| -v)) };
+                assert!(
+                    near(*got, want),
+                    "{hemisphere:?}: sensor at {p:?} in reported at {got:?} m, want {want:?} \
+                     ({})",
+                    if on_its_side { "true" } else { "mirrored" }
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn an_older_unit_is_stopped_with_point_and_its_answer_is_not_a_sample() {
+        use softarm_config::hardware::TrackerHemisphere;
+        use softarm_tracker::{ReadBack, StopBy};
+        let faults = BirdFaults::new();
+        faults.ignore_stream_stop.store(true, Ordering::Relaxed);
+        faults.no_hemisphere_readback.store(true, Ordering::Relaxed);
+        let path = [[-6.0, 1.0, 2.0], [-2.0, -1.0, 4.0]];
+        let (seen, reader) = through_the_driver(TrackerHemisphere::Aft, faults, &path);
+        assert_eq!(reader.stop_by(), StopBy::Point);
+        assert_eq!(reader.readback(), ReadBack::NotAnswered);
+        for (p, got) in path.iter().zip(&seen) {
+            let want = p.map(|v| v * 0.0254);
+            assert!(
+                (0..3).all(|i| (got[i] - want[i]).abs() < 2e-4),
+                "{p:?}: {got:?}"
+            );
+        }
+        // The answer to POINT went with the drain, or the decoder swallowed it: at most one.
+        assert!(reader.stats().discarded <= 1, "{:?}", reader.stats());
     }
 
     #[test]

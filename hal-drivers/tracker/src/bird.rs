@@ -24,6 +24,35 @@
 //!   STREAM STOP could not be confirmed in any of these (they predate the trakSTAR and stop a
 //!   stream with POINT, which every Bird accepts); it is kept as the trakSTAR guide names it.
 //!
+//! # The hemisphere
+//!
+//! The transmitter's field is the same at p and -p, so a Bird cannot tell which side of its
+//! centre a sensor is on: it reports every position in the selected hemisphere (default
+//! FORWARD, +X), and a sensor beyond the boundary plane comes out with X, Y and Z all negated.
+//! The angles are left as they are: the field vectors the sensor measures are the same at both
+//! points, so the orientation computed from them is too. (Polhemus, *FASTRAK Manual* rev. G,
+//! "H – Hemisphere of Operation", says the same of its AC trackers: "an ambiguity (usually sign
+//! flips) in the X, Y, Z measurements"; the Flock guide's chapter on HEMISPHERE could not be
+//! consulted here, so this reading rests on that and on the symmetry of a dipole field.)
+//!
+//! HEMISPHERE is `L` followed by two bytes, HEMI AXIS then HEMI SIGN ([`Hemisphere::bytes`]):
+//!
+//! ```text
+//! FORWARD  0x00 0x00    +X        AFT    0x00 0x01    -X
+//! LOWER    0x0C 0x00    +Z        UPPER  0x0C 0x01    -Z   (Z points down on a Bird)
+//! RIGHT    0x06 0x00    +Y        LEFT   0x06 0x01    -Y
+//! ```
+//!
+//! Source: IGSTK `igstkAscensionCommandInterpreter.h` (from the Atamai Flock of Birds C
+//! interface), `enum AscensionHemisphere`: `FB_FORWARD = 0x0000, FB_AFT = 0x0100, FB_UPPER =
+//! 0x010C, FB_LOWER = 0x000C, FB_LEFT = 0x0106, FB_RIGHT = 0x0006`, sent after `L` with
+//! `SendCommandWords`, i.e. as a 16-bit word LS byte first: the axis byte, then the sign byte.
+//! The same header gives the parameter of EXAMINE/CHANGE VALUE, `FB_P_HEMISPHERE = 22`
+//! ([`param::HEMISPHERE`]), whose value is that same word: EXAMINE VALUE `O 22` is answered with
+//! two plain bytes, axis then sign. IGSTK's own test notes that "the FB_P_HEMISPHERE is not
+//! available on old bird units" (software revision below 3.66), so a missing answer is not an
+//! error (the driver logs it once and goes on).
+//!
 //! # Record layout
 //!
 //! A record is `words` 16-bit words, each sent as two bytes, LS byte first. Each word carries 14
@@ -91,6 +120,9 @@ pub mod param {
     pub const POSITION_SCALING: u8 = 3;
     /// Measurement rate (2 bytes).
     pub const MEASUREMENT_RATE: u8 = 7;
+    /// Hemisphere (2 bytes: axis, sign, as after the HEMISPHERE command; see
+    /// [`super::Hemisphere`]). Units before software revision 3.66 do not answer it.
+    pub const HEMISPHERE: u8 = 22;
     /// Group mode (1 byte): when 1, every record gets the Bird's address byte appended. Not
     /// supported by [`super::Decoder`].
     pub const GROUP_MODE: u8 = 35;
@@ -150,6 +182,59 @@ pub fn examine_value_len(parameter: u8) -> Option<usize> {
         param::FBB_AUTO_CONFIG => 5,
         _ => return None,
     })
+}
+
+/// The hemisphere a Bird reports positions in (see the module docs).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Hemisphere {
+    /// +X, the unit's default.
+    Forward,
+    /// -X.
+    Aft,
+    /// -Z.
+    Upper,
+    /// +Z.
+    Lower,
+    /// -Y.
+    Left,
+    /// +Y.
+    Right,
+}
+
+impl Hemisphere {
+    /// Every hemisphere.
+    pub const ALL: [Self; 6] = [
+        Self::Forward,
+        Self::Aft,
+        Self::Upper,
+        Self::Lower,
+        Self::Left,
+        Self::Right,
+    ];
+
+    /// HEMI AXIS, HEMI SIGN: the two bytes after [`HEMISPHERE`], and the answer to EXAMINE
+    /// VALUE of [`param::HEMISPHERE`].
+    pub fn bytes(self) -> [u8; 2] {
+        match self {
+            Self::Forward => [0x00, 0x00],
+            Self::Aft => [0x00, 0x01],
+            Self::Upper => [0x0C, 0x01],
+            Self::Lower => [0x0C, 0x00],
+            Self::Left => [0x06, 0x01],
+            Self::Right => [0x06, 0x00],
+        }
+    }
+
+    /// The hemisphere two bytes name, if they name one.
+    pub fn from_bytes(bytes: [u8; 2]) -> Option<Self> {
+        Self::ALL.into_iter().find(|h| h.bytes() == bytes)
+    }
+
+    /// The whole command: [`HEMISPHERE`], axis, sign.
+    pub fn command(self) -> [u8; 3] {
+        let [axis, sign] = self.bytes();
+        [HEMISPHERE, axis, sign]
+    }
 }
 
 /// The record formats this module decodes.
@@ -212,6 +297,9 @@ pub struct DecoderStats {
     pub malformed: u64,
     /// Bytes without the phasing bit that came while no record had started.
     pub dropped_bytes: u64,
+    /// Complete records not handed out because [`Decoder::discard_next`] asked (also counted in
+    /// `records`).
+    pub discarded: u64,
 }
 
 /// The 16-bit two's-complement value of a word from its two bytes as sent (bit 7 of each byte,
@@ -267,6 +355,8 @@ pub struct Decoder {
     buf: [u8; MAX_RECORD_BYTES],
     len: usize,
     stats: DecoderStats,
+    /// Complete records still to be swallowed (see [`Decoder::discard_next`]).
+    discard: u32,
 }
 
 impl Decoder {
@@ -287,6 +377,7 @@ impl Decoder {
             buf: [0; MAX_RECORD_BYTES],
             len: 0,
             stats: DecoderStats::default(),
+            discard: 0,
         }
     }
 
@@ -321,6 +412,11 @@ impl Decoder {
         }
         self.len = 0;
         self.stats.records += 1;
+        if self.discard > 0 {
+            self.discard -= 1;
+            self.stats.discarded += 1;
+            return None;
+        }
         Some(decode_unchecked(
             self.format,
             self.full_scale_in,
@@ -338,7 +434,20 @@ impl Decoder {
         self.len
     }
 
+    /// Swallow the next `n` complete records (replacing any count still pending): the record a
+    /// Bird sends when POINT ends its stream answers the stop, not a question about the pose
+    /// now, and must not come out as a fresh sample. Malformed partials do not use it up.
+    pub fn discard_next(&mut self, n: u32) {
+        self.discard = n;
+    }
+
+    /// Complete records still to be swallowed.
+    pub fn discard_pending(&self) -> u32 {
+        self.discard
+    }
+
     /// Forget a partial record (e.g. after the port was reopened); does not count it malformed.
+    /// A pending [`Decoder::discard_next`] stays.
     pub fn reset(&mut self) {
         self.len = 0;
     }
@@ -447,6 +556,72 @@ mod tests {
         assert_eq!(change_value_len(param::GROUP_MODE), Some(1));
         assert_eq!(change_value_len(param::FBB_AUTO_CONFIG), Some(1));
         assert_eq!(change_value_len(200), None);
+    }
+
+    #[test]
+    fn hemisphere_bytes_are_the_documented_ones() {
+        // IGSTK's AscensionHemisphere words, LS byte (axis) first.
+        let table = [
+            (Hemisphere::Forward, 0x0000u16),
+            (Hemisphere::Aft, 0x0100),
+            (Hemisphere::Upper, 0x010C),
+            (Hemisphere::Lower, 0x000C),
+            (Hemisphere::Left, 0x0106),
+            (Hemisphere::Right, 0x0006),
+        ];
+        for (h, word) in table {
+            assert_eq!(h.bytes(), word.to_le_bytes(), "{h:?}");
+            assert_eq!(h.command(), [b'L', word as u8, (word >> 8) as u8], "{h:?}");
+            assert_eq!(Hemisphere::from_bytes(h.bytes()), Some(h));
+        }
+        assert_eq!(HEMISPHERE, 0x4c);
+        assert_eq!(param::HEMISPHERE, 22);
+        assert_eq!(examine_value_len(param::HEMISPHERE), Some(2));
+        assert_eq!(change_value_len(param::HEMISPHERE), Some(2));
+        // Anything else is not a hemisphere (a garbled read-back, a stray record byte).
+        for bytes in [
+            [0x00, 0x02],
+            [0x01, 0x00],
+            [0x0C, 0x80],
+            [0x80, 0x00],
+            [0x12, 0x00],
+        ] {
+            assert_eq!(Hemisphere::from_bytes(bytes), None, "{bytes:?}");
+        }
+    }
+
+    #[test]
+    fn the_record_after_point_is_discarded_not_handed_out() {
+        let (bytes, want) = three_records();
+        let mut d = Decoder::new(RecordFormat::PositionAngles, FS);
+        // Half a streamed record is in the line when POINT ends the stream; its answer follows.
+        assert!(feed(&mut d, &bytes[..5]).is_empty());
+        d.discard_next(1);
+        assert_eq!(d.discard_pending(), 1);
+        // The partial record and the POINT answer: neither comes out, only the answer counts
+        // as discarded (the partial as malformed).
+        assert!(feed(&mut d, &bytes[12..24]).is_empty());
+        assert_eq!(d.discard_pending(), 0);
+        // The next record is a fresh one again.
+        assert_eq!(feed(&mut d, &bytes[24..]), want[2..]);
+        assert_eq!(
+            d.stats(),
+            DecoderStats {
+                records: 2,
+                malformed: 1,
+                dropped_bytes: 0,
+                discarded: 1,
+            }
+        );
+        // A reset (a reopened port) keeps a discard that is still owed; 0 cancels it.
+        d.discard_next(2);
+        d.reset();
+        assert!(feed(&mut d, &bytes[..24]).is_empty());
+        assert_eq!(feed(&mut d, &bytes[..12]), want[..1]);
+        d.discard_next(1);
+        d.discard_next(0);
+        assert_eq!(feed(&mut d, &bytes[..12]), want[..1]);
+        assert_eq!(d.stats().discarded, 3);
     }
 
     #[test]
@@ -618,7 +793,8 @@ mod tests {
             DecoderStats {
                 records: 2,
                 malformed: 0,
-                dropped_bytes: 7
+                dropped_bytes: 7,
+                discarded: 0
             }
         );
     }
@@ -634,7 +810,8 @@ mod tests {
             DecoderStats {
                 records: 2,
                 malformed: 1,
-                dropped_bytes: 0
+                dropped_bytes: 0,
+                discarded: 0
             }
         );
 
@@ -648,7 +825,8 @@ mod tests {
             DecoderStats {
                 records: 2,
                 malformed: 0,
-                dropped_bytes: 11
+                dropped_bytes: 11,
+                discarded: 0
             }
         );
     }
@@ -669,7 +847,8 @@ mod tests {
             DecoderStats {
                 records: 3,
                 malformed: 1,
-                dropped_bytes: 6
+                dropped_bytes: 6,
+                discarded: 0
             }
         );
     }

@@ -1,9 +1,11 @@
 //! The `tracker` driver process: an electromagnetic tracker speaking the Ascension Bird RS-232
 //! protocol (trakSTAR class). Configures the record format, streams (or polls) records, finds
 //! their boundaries by the phasing bit ([`bird::Decoder`]), converts them to metres in the base
-//! frame and publishes `tracker` samples stamped on arrival. A silent device is reported and
-//! asked again with back-off; a lost port is reopened; the process never blocks longer than a
-//! read time-out, so it always hears its stop signal.
+//! frame and publishes `tracker` samples stamped on arrival. At open it stops a stream left
+//! running and selects the configured hemisphere, read back where the unit allows
+//! (module `setup`). A silent device is reported and asked again with back-off; a lost
+//! port is reopened; the loop never blocks longer than a read time-out (an open, with its drain
+//! and read-back, about 1.4 s at most), so it always hears its stop signal.
 
 use std::io::{ErrorKind, Read, Write};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -19,10 +21,13 @@ use softarm_runtime::clock::Backoff;
 use softarm_runtime::now_ns;
 
 pub mod bird;
+mod setup;
 
 use bird::{Decoder, RecordFormat};
+pub use setup::{READBACK_TIMEOUT, ReadBack, StopBy, hemisphere_of};
 
-/// How long one read waits: the loop's longest pause.
+/// How long one read waits: the loop's longest pause (opening the port, with its drain and
+/// read-back, takes longer: at most about 1.4 s).
 const READ_TIMEOUT: Duration = Duration::from_millis(10);
 
 fn format_of(t: &TrackerConfig) -> RecordFormat {
@@ -30,41 +35,6 @@ fn format_of(t: &TrackerConfig) -> RecordFormat {
         TrackerRecord::Position => RecordFormat::Position,
         TrackerRecord::PositionAngles => RecordFormat::PositionAngles,
     }
-}
-
-fn open(t: &TrackerConfig) -> anyhow::Result<SerialPort> {
-    let mut port = SerialPort::open(&t.port, t.baud).with_context(|| {
-        format!(
-            "cannot open the tracker {} (tracker.port); is it plugged in and are you in the \
-             `dialout` group?",
-            t.port.display()
-        )
-    })?;
-    port.set_read_timeout(READ_TIMEOUT)?;
-    port.set_write_timeout(Duration::from_millis(100))?;
-    // Whatever the device sent before is from another session.
-    let _ = port.discard_buffers();
-    start(&mut port, t)?;
-    Ok(port)
-}
-
-/// Sets the position scaling the config expects (a device left at the other one would
-/// report every position off by a factor of two), asks for the configured record format and,
-/// in stream mode, starts the stream.
-fn start(port: &mut SerialPort, t: &TrackerConfig) -> std::io::Result<()> {
-    // POSITION SCALING: 0 = 36 in, 1 = 72 in, a little-endian word.
-    let scaling = u8::from(t.full_scale_in == bird::FULL_SCALE_EXTENDED_IN);
-    port.write_all(&[
-        bird::CHANGE_VALUE,
-        bird::param::POSITION_SCALING,
-        scaling,
-        0,
-    ])?;
-    port.write_all(&[format_of(t).command()])?;
-    if t.mode == TrackerMode::Stream {
-        port.write_all(&[bird::STREAM])?;
-    }
-    Ok(())
 }
 
 /// Bird records carry no checksum: a garbled data byte decodes to a wrong position. A record
@@ -145,28 +115,18 @@ pub fn run(config: &Config, namespace: Namespace, stop: &AtomicBool) -> anyhow::
     let node = Node::open(namespace, "tracker")?;
     let publisher = node.publisher(&node.tracker()?)?;
     let mut reader = Reader::open(t)?;
-    let mut buf = [0u8; 256];
     while !stop.load(Ordering::Relaxed) {
-        let now = now_ns();
-        if !reader.reopen(now) {
-            continue;
-        }
-        let Some(n) = reader.exchange(now, &mut buf) else {
-            continue;
-        };
-        let arrived = now_ns();
-        let got_record = reader.decode(&buf[..n], arrived, |sample| {
+        reader.step(|sample| {
             let _ = publisher.send_copy(sample);
         });
-        reader.report_line();
-        reader.watch_silence(got_record, arrived);
     }
     reader.leave();
     Ok(())
 }
 
-/// The tracker's line and what was learnt from it between reads.
-struct Reader<'a> {
+/// The tracker's line and what was learnt from it between reads: the driver without its
+/// iceoryx2 publisher (so tests can drive it against an emulated unit).
+pub struct Reader<'a> {
     t: &'a TrackerConfig,
     frame: Frame,
     /// `None` while the port is closed (being reopened).
@@ -187,25 +147,35 @@ struct Reader<'a> {
     /// A lost port: reopened at doubling intervals.
     port_faults: u64,
     reopen: Backoff,
+    /// How this unit stops a stream, learnt at the first open.
+    stop_by: StopBy,
+    /// The last open's hemisphere read-back, and whether an unverified one was reported (once:
+    /// a unit that lacks the parameter lacks it at every reopen).
+    readback: ReadBack,
+    unverified_reported: bool,
 }
 
 impl<'a> Reader<'a> {
-    fn open(t: &'a TrackerConfig) -> anyhow::Result<Self> {
-        let port = open(t)?;
+    /// Opens `t.port` and sets the unit up: the stream a previous session left stopped, the
+    /// hemisphere selected and read back, the scaling, the format, and the stream (or polling).
+    pub fn open(t: &'a TrackerConfig) -> anyhow::Result<Self> {
+        let format = format_of(t);
+        let mut decoder = Decoder::new(format, t.full_scale_in);
+        let opened = setup::open(t, &mut decoder, StopBy::StreamStop)?;
         tracing::info!(
             port = %t.port.display(),
             baud = t.baud,
             record = ?t.record,
             mode = ?t.mode,
+            hemisphere = t.hemisphere.name(),
+            stop_by = ?opened.stop_by,
             "tracker open"
         );
-        let format = format_of(t);
-        let decoder = Decoder::new(format, t.full_scale_in);
         let silent_ns = (t.silent_after_ms * 1e6) as u64;
-        Ok(Self {
+        let mut reader = Self {
             t,
             frame: Frame::new(t),
-            port: Some(port),
+            port: Some(opened.port),
             format,
             reported: decoder.stats(),
             decoder,
@@ -220,7 +190,68 @@ impl<'a> Reader<'a> {
             ask: Backoff::new(silent_ns, 2_000_000_000),
             port_faults: 0,
             reopen: Backoff::new(10_000_000, 2_000_000_000),
-        })
+            stop_by: opened.stop_by,
+            readback: opened.readback,
+            unverified_reported: false,
+        };
+        reader.report_readback();
+        Ok(reader)
+    }
+
+    /// One turn of the loop: reopen a lost port when due, poll, read (at most [`READ_TIMEOUT`]),
+    /// and hand every plausible record to `publish` as a sample in the base frame.
+    pub fn step(&mut self, publish: impl FnMut(TrackerSample)) {
+        let now = now_ns();
+        if !self.reopen(now) {
+            return;
+        }
+        let mut buf = [0u8; 256];
+        let Some(n) = self.exchange(now, &mut buf) else {
+            return;
+        };
+        let arrived = now_ns();
+        let got_record = self.decode(&buf[..n], arrived, publish);
+        self.report_line();
+        self.watch_silence(got_record, arrived);
+    }
+
+    /// Counts of the records read so far.
+    pub fn stats(&self) -> bird::DecoderStats {
+        self.decoder.stats()
+    }
+
+    /// What the last open's hemisphere read-back said.
+    pub fn readback(&self) -> ReadBack {
+        self.readback
+    }
+
+    /// How this unit's stream is stopped.
+    pub fn stop_by(&self) -> StopBy {
+        self.stop_by
+    }
+
+    /// Says what the read-back said: confirmed at debug; unverified at most once per process.
+    fn report_readback(&mut self) {
+        let h = self.t.hemisphere.name();
+        match self.readback {
+            ReadBack::Confirmed => tracing::debug!(hemisphere = h, "tracker hemisphere confirmed"),
+            ReadBack::NotAnswered if !self.unverified_reported => {
+                self.unverified_reported = true;
+                tracing::warn!(
+                    hemisphere = h,
+                    "the tracker did not answer the hemisphere read-back (EXAMINE VALUE of \
+                     parameter 22, which units before software revision 3.66 lack; or the unit \
+                     is silent): HEMISPHERE was sent but is not verified (said once)"
+                );
+            }
+            ReadBack::Garbled(bytes) => tracing::warn!(
+                hemisphere = h,
+                ?bytes,
+                "the tracker's hemisphere read-back names no hemisphere (a noisy line?): \
+                 HEMISPHERE was sent but is not verified"
+            ),
+            ReadBack::NotAnswered => {}
+        }
     }
 
     /// Whether the port is open; a closed one is opened again once the back-off allows (and
@@ -233,11 +264,14 @@ impl<'a> Reader<'a> {
             std::thread::sleep(READ_TIMEOUT);
             return false;
         }
-        match open(self.t) {
-            Ok(p) => {
+        self.decoder.reset();
+        match setup::open(self.t, &mut self.decoder, self.stop_by) {
+            Ok(opened) => {
                 tracing::info!("tracker port opened");
-                self.decoder.reset();
-                self.port = Some(p);
+                self.port = Some(opened.port);
+                self.stop_by = opened.stop_by;
+                self.readback = opened.readback;
+                self.report_readback();
                 self.reopen.succeeded();
             }
             Err(e) => {
@@ -365,16 +399,22 @@ impl<'a> Reader<'a> {
         }
     }
 
-    /// Leaves the device quiet for the next one to open it, and says what happened.
-    fn leave(&mut self) {
+    /// Leaves the device quiet for the next one to open it, and says what happened. A unit
+    /// that needs POINT to stop answers with a record nobody reads: the next open drains it.
+    pub fn leave(&mut self) {
         if let Some(p) = self.port.as_mut() {
-            let _ = p.write_all(&[bird::POINT]);
+            let stop = match self.stop_by {
+                StopBy::StreamStop => bird::STREAM_STOP,
+                StopBy::Point => bird::POINT,
+            };
+            let _ = p.write_all(&[stop]);
         }
         let s = self.decoder.stats();
         tracing::info!(
             records = s.records,
             malformed = s.malformed,
             dropped_bytes = s.dropped_bytes,
+            discarded = s.discarded,
             implausible = self.plausible.rejected,
             silent_episodes = self.silent_episodes,
             port_faults = self.port_faults,
