@@ -24,10 +24,20 @@ pub struct Args {
     initial: f64,
     /// A noisy motor bus: each byte of a status packet is replaced with this probability
     /// (0.02 = 2 %).
-    #[arg(long, value_name = "RATE", default_value_t = 0.0, allow_negative_numbers = true)]
+    #[arg(
+        long,
+        value_name = "RATE",
+        default_value_t = 0.0,
+        allow_negative_numbers = true
+    )]
     corrupt_bytes: f64,
     /// A lossy motor bus: each status packet is lost with this probability (0.02 = 2 %).
-    #[arg(long, value_name = "RATE", default_value_t = 0.0, allow_negative_numbers = true)]
+    #[arg(
+        long,
+        value_name = "RATE",
+        default_value_t = 0.0,
+        allow_negative_numbers = true
+    )]
     drop_replies: f64,
     /// Seeds the motor bus's fault draws, so a noisy run can be repeated.
     #[arg(long, value_name = "N", default_value_t = 1)]

@@ -609,7 +609,11 @@ fn serve_until(pty: &mut Pty, bus: &Mutex<Bus>, stop: &AtomicBool) -> io::Result
             let took = started.elapsed();
             if took > Duration::from_millis(20) {
                 // A full line (nobody reading the driver's side) blocks the write.
-                tracing::warn!(bytes = out.len(), ?took, "status packets waited to be written");
+                tracing::warn!(
+                    bytes = out.len(),
+                    ?took,
+                    "status packets waited to be written"
+                );
             }
             out.clear();
         }
