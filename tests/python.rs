@@ -144,7 +144,7 @@ fn rust_layouts() -> Vec<Layout> {
             state,
             loss_permille,
             hardware_error,
-            _pad2
+            age_cycles
         }),
         layout!(ConditioningSample {
             seq,

@@ -190,7 +190,7 @@ class MotorState(_Payload):
         ("state", ctypes.c_uint32),  # DriverState
         ("loss_permille", ctypes.c_uint32),  # replies lost per 1000 over the last second
         ("hardware_error", ctypes.c_uint8 * ACTUATORS),  # Dynamixel error bits per motor
-        ("_pad2", ctypes.c_uint8 * 2),
+        ("age_cycles", ctypes.c_uint16),  # driver cycles since the oldest data was asked for
     ]
 
 

@@ -157,7 +157,9 @@ pub struct MotorState {
     /// Per motor, the hardware-error status it reports (0 = none; Dynamixel bits: 0x01 input
     /// voltage, 0x04 overheating, 0x08 encoder, 0x10 electrical shock, 0x20 overload).
     pub hardware_error: [u8; ACTUATORS],
-    pub _pad2: [u8; 2],
+    /// The driver's cycles since the oldest motor's data was asked for, at publishing (a
+    /// freshness in the driver's own time: a loaded machine slows both alike).
+    pub age_cycles: u16,
 }
 
 impl MotorState {

@@ -33,6 +33,7 @@ pub(crate) struct Health {
 
 /// While the bus is not good, a summary this often.
 const LOG_EVERY_NS: u64 = 10_000_000_000;
+const CHANGE_EVERY_NS: u64 = 1_000_000_000;
 
 impl Health {
     pub fn new(rate_hz: f64) -> Self {
@@ -82,8 +83,11 @@ impl Health {
 
     /// Says so when the bus changes, and every 10 s while it is not good.
     pub fn log(&mut self, now: u64, bus: Bus, age_ns: Option<u64>, c: &Totals) {
-        let changed = bus != self.last;
-        let due = bus != Bus::Good && now.saturating_sub(self.logged_ns) >= LOG_EVERY_NS;
+        // A bus losing some replies flips between the three often: a change is said at
+        // most once a second, the state in force every 10 s.
+        let since = now.saturating_sub(self.logged_ns);
+        let changed = bus != self.last && since >= CHANGE_EVERY_NS;
+        let due = bus != Bus::Good && since >= LOG_EVERY_NS;
         if !(changed || due) {
             return;
         }

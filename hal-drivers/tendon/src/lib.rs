@@ -74,13 +74,20 @@ pub mod fuzz {
             let mut missing = self.one(Ask::Data)?;
             if status || self.link.alert {
                 self.link.alert = false;
+                // Packets that came with the answers, after the last one asked for, go with
+                // that read, not the next.
+                std::thread::sleep(Duration::from_millis(2));
                 missing += self.one(Ask::Status)?;
             }
             Ok(missing)
         }
 
         fn one(&mut self, ask: Ask) -> Result<usize, String> {
-            self.link.ask(ask).map_err(|f| f.to_string())?;
+            // What came after the last read closed answers no read of this one.
+            self.link
+                .take_replies(&mut self.reading, &mut self.counts, Duration::ZERO)
+                .map_err(|f| f.to_string())?;
+            self.link.ask(ask, 0).map_err(|f| f.to_string())?;
             let deadline = std::time::Instant::now() + WAIT;
             loop {
                 let left = deadline.saturating_duration_since(std::time::Instant::now());
@@ -125,7 +132,7 @@ pub fn run(config: &Config, namespace: Namespace, stop: &AtomicBool) -> anyhow::
         let now = now_ns();
         let poll = commands.poll(now, driver.timeouts.hold_after_ns);
         driver.cycle(now, &poll);
-        if let Some(state) = driver.motor_state(now) {
+        if let Some(state) = driver.motor_state() {
             let _ = publisher.send_copy(state);
         }
     }
@@ -366,7 +373,7 @@ impl<'a> Driver<'a> {
         } else {
             Ask::Data
         };
-        if let Err(f) = l.ask(ask) {
+        if let Err(f) = l.ask(ask, self.cycle) {
             match f {
                 Fault::Port(m) => self.close(&format!("writing: {m}")),
                 Fault::Bus(_) => self.write_faults += 1,
@@ -384,6 +391,13 @@ impl<'a> Driver<'a> {
             state = DriverState::Degraded;
         }
         self.health.log(now, bus, age, &self.totals());
+        // FOLLOWING <-> DEGRADED is the bus's to say (`Health::log`, rate-limited).
+        let bus_only = [self.reported, state]
+            .iter()
+            .all(|s| matches!(s, DriverState::Following | DriverState::Degraded));
+        if state != self.reported && bus_only {
+            self.reported = state;
+        }
         if state != self.reported {
             if state == DriverState::Following {
                 tracing::info!(
@@ -467,7 +481,7 @@ impl<'a> Driver<'a> {
             garbage += l.wire.counts.garbage_bytes.load(Relaxed);
         }
         Totals {
-            dropped: self.counts.dropped,
+            dropped: self.counts.dropped(crc),
             crc_errors: crc,
             garbage_bytes: garbage,
             timeouts: self.counts.timeouts,
@@ -477,7 +491,7 @@ impl<'a> Driver<'a> {
 
     /// What to publish, stamped when the oldest motor's newest data was asked for: data that
     /// is old looks old to the controller. `None` before every motor answered once.
-    fn motor_state(&mut self, _now: u64) -> Option<MotorState> {
+    fn motor_state(&mut self) -> Option<MotorState> {
         let stamp_ns = self.reading.stamp_ns()?;
         self.seq += 1;
         let c = self.totals();
@@ -495,7 +509,7 @@ impl<'a> Driver<'a> {
             state: self.reported as u32,
             loss_permille: self.health.loss_permille(),
             hardware_error: self.reading.hardware_error,
-            ..MotorState::default()
+            age_cycles: self.reading.age_cycles(self.cycle).min(u64::from(u16::MAX)) as u16,
         })
     }
 

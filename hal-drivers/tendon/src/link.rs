@@ -46,8 +46,10 @@ pub(crate) struct Reading {
     pub ticks: [i32; ACTUATORS],
     pub current_a: [f64; ACTUATORS],
     pub hardware_error: [u8; ACTUATORS],
-    /// Per motor, when the read its newest position answered was sent (ns).
+    /// Per motor, when the read its newest position answered was sent (ns), and in which
+    /// driver cycle.
     pub asked_ns: [Option<u64>; ACTUATORS],
+    pub asked_cycle: [u64; ACTUATORS],
 }
 
 impl Reading {
@@ -62,22 +64,42 @@ impl Reading {
             .iter()
             .try_fold(u64::MAX, |oldest, a| a.map(|a| oldest.min(a)))
     }
+
+    /// Driver cycles since the oldest motor's newest data was asked for.
+    pub fn age_cycles(&self, cycle: u64) -> u64 {
+        cycle.saturating_sub(self.asked_cycle.iter().copied().min().unwrap_or(0))
+    }
 }
 
 /// The bus's events since the driver started, each counted once.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub(crate) struct Counts {
-    /// Replies asked for that did not come whole by the next cycle.
-    pub dropped: u64,
-    /// Reads that ended with a reply missing.
-    pub timeouts: u64,
-    /// Replies asked for.
+    /// Replies asked for, in reads closed.
     pub asked: u64,
+    /// Replies that came whole (late ones included).
+    pub answered: u64,
     /// Replies with an error number (the motor refused the read).
     pub refused: u64,
-    /// Replies no open read asked for.
+    /// Replies that came after their read closed (a loaded machine delivers late).
+    pub late: u64,
+    /// Reads that ended with a reply missing.
+    pub timeouts: u64,
+    /// Replies no read asked for.
     pub stray: u64,
 }
+
+impl Counts {
+    /// Replies asked for that never came whole: neither answered (late or not) nor refused
+    /// nor seen with a bad CRC (`crc_errors`, counted by the line). A reply the machine
+    /// delivers after its read closed moves from here to `late` when it comes.
+    pub fn dropped(&self, crc_errors: u64) -> u64 {
+        self.asked
+            .saturating_sub(self.answered + self.refused + crc_errors)
+    }
+}
+
+/// Closed reads are kept this long for their late replies.
+const KEEP_CLOSED_NS: u64 = 1_000_000_000;
 
 /// Which read is out.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -102,6 +124,7 @@ impl Ask {
 struct Pending {
     ask: Ask,
     sent_ns: u64,
+    sent_cycle: u64,
     answered: [bool; ACTUATORS],
     refused: [bool; ACTUATORS],
 }
@@ -114,9 +137,8 @@ pub(crate) struct Link {
     /// ask a motor. While set, an `Off` writes torque-off.
     pub torque: bool,
     pending: Option<Pending>,
-    /// Bad-CRC packets the line had seen when the open read was sent: a reply that came with a
-    /// bad CRC is counted there, not again as dropped.
-    crc_at_ask: u64,
+    /// Reads closed in the last second with replies missing, for their late replies.
+    closed: std::collections::VecDeque<Pending>,
     /// A reply carried the alert bit: the next read is the status.
     pub alert: bool,
     /// When a reply last came (ns).
@@ -151,7 +173,7 @@ impl Link {
             ids: t.ids,
             torque: false,
             pending: None,
-            crc_at_ask: 0,
+            closed: std::collections::VecDeque::new(),
             alert: false,
             last_reply_ns: now_ns(),
         };
@@ -215,7 +237,6 @@ impl Link {
                 .send(BROADCAST_ID, instruction::SYNC_READ, &params)
                 .context("asking the motors for their settings")?;
             counts.asked += ask.len() as u64;
-            let crc_before = self.crc_errors();
             let deadline = std::time::Instant::now() + START_REPLY_TIMEOUT;
             let mut waiting = ask.len();
             while waiting > 0 {
@@ -230,6 +251,7 @@ impl Link {
                                     && s.params.len() == usize::from(SURVEY_LEN) =>
                             {
                                 settings[i] = Some(s.params);
+                                counts.answered += 1;
                                 waiting -= 1;
                             }
                             _ => counts.stray += 1,
@@ -240,7 +262,6 @@ impl Link {
                 }
             }
             if waiting > 0 {
-                counts.dropped += self.not_crc(waiting, crc_before);
                 counts.timeouts += 1;
             }
         }
@@ -305,12 +326,12 @@ impl Link {
                 .send(id, instruction::WRITE, &params)
                 .with_context(|| format!("writing address {address}"))?;
             counts.asked += 1;
-            let crc_before = self.crc_errors();
             let deadline = std::time::Instant::now() + START_REPLY_TIMEOUT;
             loop {
                 let left = deadline.saturating_duration_since(std::time::Instant::now());
                 match self.wire.receive(left) {
                     Some(Arrival::Status(s, _)) if s.id == id && s.params.is_empty() => {
+                        counts.answered += 1;
                         if s.error & 0x7F != 0 {
                             bail!(
                                 "the motor refused a write at address {address}: error {:#04x}",
@@ -324,7 +345,6 @@ impl Link {
                     None => break,
                 }
             }
-            counts.dropped += self.not_crc(1, crc_before);
             counts.timeouts += 1;
         }
         bail!("no answer to a write at address {address}")
@@ -402,8 +422,9 @@ impl Link {
         }
     }
 
-    /// Sends a sync read; its replies are taken by [`Link::take_replies`].
-    pub fn ask(&mut self, ask: Ask) -> Result<(), Fault> {
+    /// Sends a sync read in driver cycle `cycle`; its replies are taken by
+    /// [`Link::take_replies`].
+    pub fn ask(&mut self, ask: Ask, cycle: u64) -> Result<(), Fault> {
         let (address, len) = ask.address_len();
         let mut params = address.to_le_bytes().to_vec();
         params.extend(len.to_le_bytes());
@@ -411,10 +432,10 @@ impl Link {
         self.wire
             .send(BROADCAST_ID, instruction::SYNC_READ, &params)
             .map_err(write_fault)?;
-        self.crc_at_ask = self.crc_errors();
         self.pending = Some(Pending {
             ask,
             sent_ns: now_ns(),
+            sent_cycle: cycle,
             answered: [false; ACTUATORS],
             refused: [false; ACTUATORS],
         });
@@ -444,7 +465,21 @@ impl Link {
                 Some(Arrival::PortError(e)) => return Err(Fault::Port(e)),
                 Some(Arrival::Status(s, _)) => {
                     self.last_reply_ns = now_ns();
-                    if !self.take(&s, reading) {
+                    let (ids, torque, alert) = (&self.ids, &mut self.torque, &mut self.alert);
+                    if let Some(p) = self.pending.as_mut()
+                        && take(p, ids, &s, reading, torque, alert)
+                    {
+                        continue;
+                    }
+                    // Late: for the oldest closed read still missing this motor's answer.
+                    if self
+                        .closed
+                        .iter_mut()
+                        .any(|p| take(p, ids, &s, reading, torque, alert))
+                    {
+                        counts.late += 1;
+                        counts.answered += 1;
+                    } else {
                         counts.stray += 1;
                     }
                 }
@@ -452,75 +487,33 @@ impl Link {
         }
     }
 
-    /// One reply for the open read: true when it was asked for.
-    fn take(&mut self, s: &Status, reading: &mut Reading) -> bool {
-        let (Some(p), Some(i)) = (
-            self.pending.as_mut(),
-            self.ids.iter().position(|&id| id == s.id),
-        ) else {
-            return false;
-        };
-        if p.answered[i] || p.refused[i] {
-            return false;
-        }
-        // An answer with an error number still carries the motor's alert bit.
-        self.alert |= s.error & 0x80 != 0;
-        if s.error & 0x7F != 0 {
-            p.refused[i] = true;
-            return true;
-        }
-        let d = &s.params;
-        match p.ask {
-            Ask::Data if d.len() == 10 => {
-                reading.current_a[i] =
-                    f64::from(i16::from_le_bytes([d[0], d[1]])) * table::CURRENT_UNIT_A;
-                reading.ticks[i] = i32::from_le_bytes([d[6], d[7], d[8], d[9]]);
-                reading.asked_ns[i] = Some(p.sent_ns);
-            }
-            Ask::Status if d.len() == 7 => {
-                // A motor found on while the driver thinks all are off: the next `Off`
-                // resends.
-                self.torque |= d[0] != 0;
-                // Sticky: cleared only by restarting the driver, once the cause is fixed.
-                reading.hardware_error[i] |= d[6];
-            }
-            _ => return false,
-        }
-        p.answered[i] = true;
-        true
-    }
-
-    /// Closes the open read: a reply that has not come is lost, counted once, as a CRC error
-    /// if the line saw one meanwhile, else as dropped.
+    /// Closes the open read: a reply that has not come is lost (dropped, or a CRC error the
+    /// line counted), unless it comes late, within a second.
     pub fn close_read(&mut self, counts: &mut Counts) -> Option<Closed> {
         let p = self.pending.take()?;
         let answered = p.answered.iter().filter(|&&a| a).count();
         let refused = p.refused.iter().filter(|&&r| r).count();
         let missing = ACTUATORS - answered - refused;
         counts.asked += ACTUATORS as u64;
+        counts.answered += answered as u64;
         counts.refused += refused as u64;
-        counts.dropped += self.not_crc(missing, self.crc_at_ask);
+        let now = now_ns();
+        while self
+            .closed
+            .front()
+            .is_some_and(|c| now.saturating_sub(c.sent_ns) > KEEP_CLOSED_NS)
+        {
+            self.closed.pop_front();
+        }
         if missing > 0 {
             counts.timeouts += 1;
+            self.closed.push_back(p);
         }
         Some(Closed {
             answered,
             refused,
             missing,
         })
-    }
-
-    /// Bad-CRC packets this port has seen.
-    pub fn crc_errors(&self) -> u64 {
-        self.wire
-            .counts
-            .crc_errors
-            .load(std::sync::atomic::Ordering::Relaxed)
-    }
-
-    /// Of `missing` replies, those not explained by a bad CRC seen since `crc_before`.
-    fn not_crc(&self, missing: usize, crc_before: u64) -> u64 {
-        (missing as u64).saturating_sub(self.crc_errors() - crc_before)
     }
 }
 
@@ -533,4 +526,52 @@ pub(crate) struct Closed {
     pub refused: usize,
     /// Replies that did not come (dropped or with a bad CRC).
     pub missing: usize,
+}
+
+/// One reply for read `p`: true when `p` asked for it and had not had it. An answer with an
+/// error number is the motor refusing (it still carries the alert bit); a late answer's data
+/// is kept only where it is newer than what the reading has.
+fn take(
+    p: &mut Pending,
+    ids: &[u8; ACTUATORS],
+    s: &Status,
+    reading: &mut Reading,
+    torque: &mut bool,
+    alert: &mut bool,
+) -> bool {
+    let Some(i) = ids.iter().position(|&id| id == s.id) else {
+        return false;
+    };
+    let d = &s.params;
+    let fits = match p.ask {
+        Ask::Data => d.len() == 10,
+        Ask::Status => d.len() == 7,
+    };
+    let refused = s.error & 0x7F != 0;
+    if p.answered[i] || p.refused[i] || !(fits || refused) {
+        return false;
+    }
+    *alert |= s.error & 0x80 != 0;
+    if refused {
+        p.refused[i] = true;
+        return true;
+    }
+    match p.ask {
+        Ask::Data if reading.asked_ns[i].is_none_or(|a| a < p.sent_ns) => {
+            reading.current_a[i] =
+                f64::from(i16::from_le_bytes([d[0], d[1]])) * table::CURRENT_UNIT_A;
+            reading.ticks[i] = i32::from_le_bytes([d[6], d[7], d[8], d[9]]);
+            reading.asked_ns[i] = Some(p.sent_ns);
+            reading.asked_cycle[i] = p.sent_cycle;
+        }
+        Ask::Data => {}
+        Ask::Status => {
+            // A motor found on while the driver thinks all are off: the next `Off` resends.
+            *torque |= d[0] != 0;
+            // Sticky: cleared only by restarting the driver, once the cause is fixed.
+            reading.hardware_error[i] |= d[6];
+        }
+    }
+    p.answered[i] = true;
+    true
 }
