@@ -411,3 +411,123 @@ fn lost_replies_bad_crcs_and_garbage_are_counted_once_each() {
     assert!(counters(&rig).corrupted_crcs > 10);
     assert!(driver.stop(LIMIT).success());
 }
+
+/// Setpoints at the controller's rate (500 Hz) until `stop`, as a running controller sends.
+fn controller_like(
+    namespace: String,
+    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+) -> std::thread::JoinHandle<()> {
+    std::thread::spawn(move || {
+        let n = Node::open(Namespace::new(&namespace).unwrap(), "setpoints").unwrap();
+        let setpoints = n.publisher(&n.setpoint().unwrap()).unwrap();
+        while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+            send(&setpoints, 0.5);
+            std::thread::sleep(Duration::from_millis(2));
+        }
+    })
+}
+
+/// The wall-clock figures of issue 20, measured (not asserted): the driver alone at
+/// `tendon.rate_hz` (100 Hz) with setpoints at 500 Hz, 10 s per noise: goal writes per second
+/// against the configured rate, the longest gap between two goal writes at the emulated
+/// motors, and the share of `motor_state` samples fresher than the controller's input time-out
+/// (in the driver's cycles, and in milliseconds when this thread received them). Also how
+/// long a driver takes from its start to FOLLOWING. Run on a quiet machine:
+/// `cargo test --test e2e noisy_bus_figures -- --ignored --nocapture`.
+#[test]
+#[ignore = "a measurement: wall-clock figures, printed"]
+fn noisy_bus_figures() {
+    use std::sync::Arc;
+    use std::sync::atomic::AtomicBool;
+    let (s, c, rig) = stack("hw-noise-figures", false);
+    let t = c.tendon.clone().unwrap();
+    let timeout_ns = (c.controller.tracker_timeout_ms * 1e6) as u64;
+    let n = node(&s);
+    let motors = n.subscriber(&n.motor_state().unwrap()).unwrap();
+    let stop = Arc::new(AtomicBool::new(false));
+    let feeder = controller_like(s.namespace.clone(), stop.clone());
+    let started = Instant::now();
+    let driver = Guard(s.spawn(&["tendon"]));
+    let first = eventually("following", LIMIT, || {
+        motors
+            .receive()
+            .ok()
+            .flatten()
+            .filter(|m| m.driver_state() == Some(DriverState::Following))
+            .map(|m| *m)
+    });
+    println!(
+        "start: FOLLOWING {:.0} ms after the process was started, at its {}th motor_state",
+        started.elapsed().as_secs_f64() * 1e3,
+        first.seq
+    );
+    let phases = [
+        ("clean", BusFaults::default()),
+        (
+            "2 % bytes corrupted",
+            BusFaults {
+                corrupt_byte_ppm: 20_000,
+                ..Default::default()
+            },
+        ),
+        (
+            "2 % replies dropped",
+            BusFaults {
+                drop_reply_ppm: 20_000,
+                ..Default::default()
+            },
+        ),
+        (
+            "10 % bytes corrupted",
+            BusFaults {
+                corrupt_byte_ppm: 100_000,
+                ..Default::default()
+            },
+        ),
+    ];
+    println!(
+        "| bus | goal writes/s (of {:.0}) | longest gap ms (periods) | fresh, driver cycles | \
+         fresh, ms at receipt | oldest ms at receipt | replies lost | states |",
+        t.rate_hz
+    );
+    println!("|---|---|---|---|---|---|---|---|");
+    for (what, faults) in phases {
+        noise(&rig, faults, 7);
+        rig.bus.lock().unwrap().record_goal_writes(true);
+        let (mut seen, mut fresh_ms, mut oldest_ms) = (Seen::default(), 0u64, 0.0f64);
+        let start = Instant::now();
+        let before = counters(&rig);
+        while start.elapsed() < Duration::from_secs(10) {
+            while let Ok(Some(m)) = motors.receive() {
+                seen.take(&m, fresh_cycles(&c));
+                let age = now_ns().saturating_sub(m.stamp_ns);
+                fresh_ms += u64::from(age < timeout_ns);
+                oldest_ms = oldest_ms.max(age as f64 / 1e6);
+            }
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        let elapsed = start.elapsed().as_secs_f64();
+        let after = counters(&rig);
+        let times = rig.bus.lock().unwrap().goal_write_times().to_vec();
+        rig.bus.lock().unwrap().record_goal_writes(false);
+        let gap = times.windows(2).map(|w| w[1] - w[0]).fold(0.0, f64::max);
+        let rate = (after.goal_writes - before.goal_writes) as f64 / elapsed;
+        let (l, f) = (seen.last.unwrap(), seen.first.unwrap());
+        let lost = (l.dropped + l.crc_errors) - (f.dropped + f.crc_errors);
+        let asked = 6 * seen.cycles;
+        println!(
+            "| {what} | {rate:.1} ({:.1} %) | {:.1} ({:.2}) | {:.4} | {:.4} | {oldest_ms:.0} | \
+             {:.1} % | {:?} |",
+            100.0 * rate / t.rate_hz,
+            gap * 1e3,
+            gap * t.rate_hz,
+            seen.fresh_share(),
+            fresh_ms as f64 / seen.samples.max(1) as f64,
+            100.0 * lost as f64 / asked.max(1) as f64,
+            seen.states,
+        );
+    }
+    stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    feeder.join().unwrap();
+    assert!(driver.stop(LIMIT).success());
+}

@@ -350,6 +350,8 @@ impl<'a> Driver<'a> {
             }
             Err(Fault::Port(m)) => self.close(&format!("writing: {m}")),
             Err(f @ Fault::Bus(_)) => {
+                // The line is backed up: this cycle's read would only add to it.
+                self.read_backoff.failed(now_ns());
                 self.write_faults += 1;
                 if self.write_faults.is_power_of_two() {
                     tracing::error!(write_faults = self.write_faults, "{f}");

@@ -34,7 +34,7 @@ impl std::fmt::Display for Fault {
 
 fn write_fault(e: std::io::Error) -> Fault {
     if is_timeout(&e) {
-        Fault::Bus(format!("a write did not go out within 50 ms ({e})"))
+        Fault::Bus(format!("a write did not go out in time ({e})"))
     } else {
         Fault::Port(e.to_string())
     }
@@ -162,7 +162,10 @@ impl Link {
     /// always go out. Start-up is one or two exchanges, not five per motor.
     pub fn open(t: &TendonConfig, strict: bool, counts: &mut Counts) -> anyhow::Result<Self> {
         let port = t.port.display();
-        let wire = Wire::open(&t.port, t.baud).with_context(|| {
+        // A write finds room in the kernel's buffer at once unless the line is stuck: waiting
+        // longer than half a period for one would only stall the next cycle's writes.
+        let write_timeout = Duration::from_secs_f64((0.5 / t.rate_hz).clamp(0.002, 0.05));
+        let wire = Wire::open(&t.port, t.baud, write_timeout).with_context(|| {
             format!(
                 "cannot open the motor bus {port} (tendon.port); is the adapter plugged in and \
                  are you in the `dialout` group?"

@@ -219,10 +219,11 @@ pub struct Wire {
 }
 
 impl Wire {
-    pub fn open(path: &Path, baud: u32) -> io::Result<Self> {
+    /// Opens the port; a write that cannot go out within `write_timeout` fails with a
+    /// time-out (serial2's default of 3 s would stall the loop).
+    pub fn open(path: &Path, baud: u32, write_timeout: Duration) -> io::Result<Self> {
         let mut port = SerialPort::open(path, baud)?;
-        // A write that cannot go out must not stall the loop (serial2's default is 3 s).
-        port.set_write_timeout(Duration::from_millis(50))?;
+        port.set_write_timeout(write_timeout)?;
         let mut reading = port.try_clone()?;
         // Short, so the thread hears its stop signal.
         reading.set_read_timeout(Duration::from_millis(20))?;
