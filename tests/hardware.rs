@@ -291,7 +291,10 @@ fn tendon_survives_a_noisy_and_a_silent_bus_and_stops_commanding_a_faulted_motor
     });
     // The replies lost in the last second say DEGRADED, with the rate; then FOLLOWING again.
     assert_eq!(m.driver_state(), Some(DriverState::Degraded));
-    assert!(m.loss_permille > 0 && m.crc_errors > 0 && m.garbage_bytes > 0, "{m:?}");
+    assert!(
+        m.loss_permille > 0 && m.crc_errors > 0 && m.garbage_bytes > 0,
+        "{m:?}"
+    );
     eventually("FOLLOWING once the lost replies are a second old", || {
         send(&setpoints, 0.55);
         newest(&motors).filter(|m| m.driver_state() == Some(DriverState::Following))

@@ -63,6 +63,7 @@ struct Seen {
     max_age_cycles: u16,
     states: std::collections::BTreeMap<&'static str, u64>,
     max_loss_permille: u32,
+    loss_permille_sum: u64,
     first: Option<MotorState>,
     last: Option<MotorState>,
     following_seqs: Vec<u64>,
@@ -84,6 +85,7 @@ impl Seen {
             self.following_seqs.push(m.seq);
         }
         self.max_loss_permille = self.max_loss_permille.max(m.loss_permille);
+        self.loss_permille_sum += u64::from(m.loss_permille);
     }
 
     fn following_after(&self, seq: u64) -> u64 {
@@ -487,7 +489,8 @@ fn noisy_bus_figures() {
     ];
     println!(
         "| bus | goal writes/s (of {:.0}) | longest gap ms (periods) | fresh, driver cycles | \
-         fresh, ms at receipt | oldest ms at receipt | replies lost | states |",
+         fresh, ms at receipt | oldest ms at receipt | replies lost (mean of the driver's \
+         last-second rate) | states |",
         t.rate_hz
     );
     println!("|---|---|---|---|---|---|---|---|");
@@ -512,18 +515,15 @@ fn noisy_bus_figures() {
         rig.bus.lock().unwrap().record_goal_writes(false);
         let gap = times.windows(2).map(|w| w[1] - w[0]).fold(0.0, f64::max);
         let rate = (after.goal_writes - before.goal_writes) as f64 / elapsed;
-        let (l, f) = (seen.last.unwrap(), seen.first.unwrap());
-        let lost = (l.dropped + l.crc_errors) - (f.dropped + f.crc_errors);
-        let asked = 6 * seen.cycles;
+        let loss = seen.loss_permille_sum as f64 / seen.samples.max(1) as f64 / 10.0;
         println!(
             "| {what} | {rate:.1} ({:.1} %) | {:.1} ({:.2}) | {:.4} | {:.4} | {oldest_ms:.0} | \
-             {:.1} % | {:?} |",
+             {loss:.1} % | {:?} |",
             100.0 * rate / t.rate_hz,
             gap * 1e3,
             gap * t.rate_hz,
             seen.fresh_share(),
             fresh_ms as f64 / seen.samples.max(1) as f64,
-            100.0 * lost as f64 / asked.max(1) as f64,
             seen.states,
         );
     }
