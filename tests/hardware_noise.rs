@@ -162,13 +162,16 @@ fn demo_through(name: &str, faults: BusFaults) {
     let writes = after.goal_writes - before.goal_writes;
     let last = seen.last.unwrap();
     let first = seen.first.unwrap();
+    let wanted = last.setpoint_cycles - first.setpoint_cycles;
     eprintln!(
-        "{name}: {writes} goal writes in {} driver cycles ({:.3} per cycle), {} motor states, \
+        "{name}: {writes} goal writes at the motors in {} driver cycles with a fresh setpoint \
+         ({:.3} per cycle; {} cycles in all), {} motor states, \
          {:.4} fresher than the controller's time-out (oldest {} cycles), states {:?}, loss up \
          to {} per mille, {} HOLD setpoints; bus {:?}; driver: dropped {} crc {} garbage {} \
          time-outs {} reopens {}",
+        wanted,
+        writes as f64 / wanted as f64,
         seen.cycles,
-        writes as f64 / seen.cycles as f64,
         seen.samples,
         seen.fresh_share(),
         seen.max_age_cycles,
@@ -189,10 +192,15 @@ fn demo_through(name: &str, faults: BusFaults) {
         lost > 20,
         "{name}: the noise reached too few replies: {lost}"
     );
+    // The writes wait for nothing: one per cycle with a setpoint, sent and arrived.
+    assert_eq!(
+        last.goal_writes - first.goal_writes,
+        wanted,
+        "{name}: goal writes sent in cycles with a fresh setpoint"
+    );
     assert!(
-        writes as f64 >= 0.95 * seen.cycles as f64,
-        "{name}: {writes} goal writes in {} cycles",
-        seen.cycles
+        writes as f64 >= 0.95 * wanted as f64,
+        "{name}: {writes} goal writes arrived in {wanted} cycles with a setpoint"
     );
     assert!(
         seen.fresh_share() >= 0.99,
@@ -279,10 +287,16 @@ fn a_failing_bus_is_safe_and_said_so() {
         seen.states,
         seen.max_loss_permille
     );
+    let (first, last) = (seen.first.unwrap(), seen.last.unwrap());
+    let wanted = last.setpoint_cycles - first.setpoint_cycles;
+    assert_eq!(
+        last.goal_writes - first.goal_writes,
+        wanted,
+        "goal writes sent"
+    );
     assert!(
-        writes as f64 >= 0.95 * seen.cycles as f64,
-        "{writes} in {}",
-        seen.cycles
+        writes as f64 >= 0.95 * wanted as f64,
+        "{writes} goal writes arrived in {wanted} cycles with a setpoint"
     );
     assert!(seen.max_loss_permille >= 500, "{}", seen.max_loss_permille);
     // The loss rate covers the last second: a few cycles pass before it shows.
@@ -347,7 +361,7 @@ fn lost_replies_bad_crcs_and_garbage_are_counted_once_each() {
     let setpoints = n.publisher(&n.setpoint().unwrap()).unwrap();
     let motors = n.subscriber(&n.motor_state().unwrap()).unwrap();
     let driver = Guard(s.spawn(&["tendon"]));
-    eventually("following", LIMIT, || {
+    let first = eventually("following", LIMIT, || {
         send(&setpoints, 0.5);
         std::thread::sleep(Duration::from_millis(10));
         motors
@@ -355,8 +369,14 @@ fn lost_replies_bad_crcs_and_garbage_are_counted_once_each() {
             .ok()
             .flatten()
             .filter(|m| m.driver_state() == Some(DriverState::Following))
-            .map(|_| ())
+            .map(|m| *m)
     });
+    // Up and following at once: one exchange at start, then the first cycles' reads.
+    assert!(
+        first.seq <= 3,
+        "FOLLOWING at the driver's {}th cycle",
+        first.seq
+    );
     let phases = [
         (
             "dropped",
@@ -405,8 +425,8 @@ fn lost_replies_bad_crcs_and_garbage_are_counted_once_each() {
             "{what}: faults, each once"
         );
         assert!(
-            m.timeouts <= m.dropped + m.crc_errors,
-            "{what}: a read with a reply missing, once"
+            m.dropped + m.crc_errors == 0 || m.timeouts > 0,
+            "{what}: reads with a reply missing"
         );
     }
     assert!(counters(&rig).dropped_replies > 10);

@@ -141,6 +141,8 @@ fn rust_layouts() -> Vec<Layout> {
             garbage_bytes,
             timeouts,
             reopens,
+            setpoint_cycles,
+            goal_writes,
             state,
             loss_permille,
             hardware_error,

@@ -187,6 +187,8 @@ class MotorState(_Payload):
         ("garbage_bytes", ctypes.c_uint64),  # bytes that belonged to no packet
         ("timeouts", ctypes.c_uint64),  # reads that ended with a reply missing
         ("reopens", ctypes.c_uint64),  # port reopened (I/O error, device gone)
+        ("setpoint_cycles", ctypes.c_uint64),  # cycles with a fresh setpoint to follow
+        ("goal_writes", ctypes.c_uint64),  # goal writes sent
         ("state", ctypes.c_uint32),  # DriverState
         ("loss_permille", ctypes.c_uint32),  # replies lost per 1000 over the last second
         ("hardware_error", ctypes.c_uint8 * ACTUATORS),  # Dynamixel error bits per motor

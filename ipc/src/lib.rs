@@ -150,6 +150,10 @@ pub struct MotorState {
     pub timeouts: u64,
     /// Times the port was closed and opened again (an I/O error, the device gone).
     pub reopens: u64,
+    /// Cycles that had a fresh setpoint to follow, and the goal writes sent: equal while the
+    /// writes wait for nothing.
+    pub setpoint_cycles: u64,
+    pub goal_writes: u64,
     /// `DriverState` as u32.
     pub state: u32,
     /// Replies lost (dropped or bad checksum) per thousand asked for, over the last second.

@@ -193,6 +193,7 @@ struct Driver<'a> {
     refused_engage: u64,
     write_faults: u64,
     goal_writes: u64,
+    setpoint_cycles: u64,
     seq: u64,
     cycle: u64,
     reported: DriverState,
@@ -245,6 +246,7 @@ impl<'a> Driver<'a> {
             refused_engage: 0,
             write_faults: 0,
             goal_writes: 0,
+            setpoint_cycles: 0,
             seq: 0,
             cycle: 0,
             reported: DriverState::Off,
@@ -259,6 +261,7 @@ impl<'a> Driver<'a> {
     /// state reported.
     fn cycle(&mut self, now: u64, poll: &Poll) {
         self.cycle += 1;
+        self.setpoint_cycles += u64::from(poll.setpoint.is_some());
         let fault = self.reading.hardware_error.iter().any(|&e| e != 0);
         let action = self.supervisor.update(now, poll, fault);
         self.keep_port(now);
@@ -508,6 +511,8 @@ impl<'a> Driver<'a> {
             garbage_bytes: c.garbage_bytes,
             timeouts: c.timeouts,
             reopens: c.reopens,
+            setpoint_cycles: self.setpoint_cycles,
+            goal_writes: self.goal_writes,
             state: self.reported as u32,
             loss_permille: self.health.loss_permille(),
             hardware_error: self.reading.hardware_error,

@@ -451,7 +451,11 @@ mod tests {
             x ^= x >> 7;
             x ^= x << 17;
             // Headers often, so that lengths and CRCs are exercised.
-            let b = if x.is_multiple_of(7) { 0xFF } else { (x >> 8) as u8 };
+            let b = if x.is_multiple_of(7) {
+                0xFF
+            } else {
+                (x >> 8) as u8
+            };
             d.push(&[b]);
             while d.next(&counts).is_some() {}
         }
