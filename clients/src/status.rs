@@ -126,9 +126,12 @@ pub fn text(r: &Report) -> String {
             .map(|(i, e)| format!("actuator {} {e:#04x}", i + 1))
             .collect();
         out += &format!(
-            "driver: {state}{}; replies lost {:.1} % over the last second; dropped {}, CRC \
-             errors {}, garbage {} bytes, read time-outs {}, reopens {}; hardware errors: {}\n",
+            "driver: {state}{}; goal writes {} in {} cycles with a setpoint; replies lost {:.1} % \
+             over the last second; dropped {}, CRC errors {}, garbage {} bytes, read time-outs {}, \
+             reopens {}; hardware errors: {}\n",
             bus_verdict(m),
+            m.goal_writes,
+            m.setpoint_cycles,
             f64::from(m.loss_permille) / 10.0,
             m.dropped,
             m.crc_errors,
@@ -184,6 +187,8 @@ pub fn json(r: &Report) -> String {
                 "garbage_bytes": m.garbage_bytes,
                 "timeouts": m.timeouts,
                 "reopens": m.reopens,
+                "setpoint_cycles": m.setpoint_cycles,
+                "goal_writes": m.goal_writes,
             },
             "hardware_error": m.hardware_error,
             "current_a": m.current_a.iter().map(|c| c.is_finite().then_some(*c)).collect::<Vec<_>>(),
@@ -248,9 +253,9 @@ mod tests {
         assert_eq!(c["held_solves"], 6);
         assert!(
             t.contains(
-                "driver: FAULT (bus degraded: replies being lost); replies lost 12.3 % over the \
-                 last second; dropped 7, CRC errors 5, garbage 40 bytes, read time-outs 6, \
-                 reopens 0; hardware errors: actuator 3 0x20"
+                "driver: FAULT (bus degraded: replies being lost); goal writes 0 in 0 cycles with \
+                 a setpoint; replies lost 12.3 % over the last second; dropped 7, CRC errors 5, \
+                 garbage 40 bytes, read time-outs 6, reopens 0; hardware errors: actuator 3 0x20"
             ),
             "{t}"
         );
@@ -258,7 +263,8 @@ mod tests {
         assert_eq!(
             j["driver"]["bus"],
             serde_json::json!({"loss_permille": 123, "dropped": 7, "crc_errors": 5,
-                "garbage_bytes": 40, "timeouts": 6, "reopens": 0})
+                "garbage_bytes": 40, "timeouts": 6, "reopens": 0, "setpoint_cycles": 0,
+                "goal_writes": 0})
         );
         assert_eq!(j["driver"]["hardware_error"][2], 0x20);
     }
