@@ -98,8 +98,9 @@ impl Counts {
     }
 }
 
-/// Closed reads are kept this long for their late replies.
-const KEEP_CLOSED_NS: u64 = 1_000_000_000;
+/// Closed reads are kept this long for their late replies: a loaded machine was seen to hold
+/// a pseudo-terminal's bytes for seconds (the kernel's flip-buffer work waiting for a CPU).
+const KEEP_CLOSED_NS: u64 = 3_000_000_000;
 
 /// Which read is out.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -137,7 +138,7 @@ pub(crate) struct Link {
     /// ask a motor. While set, an `Off` writes torque-off.
     pub torque: bool,
     pending: Option<Pending>,
-    /// Reads closed in the last second with replies missing, for their late replies.
+    /// Reads closed in the last 3 s with replies missing, for their late replies.
     closed: std::collections::VecDeque<Pending>,
     /// A reply carried the alert bit: the next read is the status.
     pub alert: bool,
@@ -491,7 +492,7 @@ impl Link {
     }
 
     /// Closes the open read: a reply that has not come is lost (dropped, or a CRC error the
-    /// line counted), unless it comes late, within a second.
+    /// line counted), unless it comes late, within 3 s.
     pub fn close_read(&mut self, counts: &mut Counts) -> Option<Closed> {
         let p = self.pending.take()?;
         let answered = p.answered.iter().filter(|&&a| a).count();
