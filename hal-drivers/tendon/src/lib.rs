@@ -87,7 +87,7 @@ pub mod fuzz {
             self.link
                 .take_replies(&mut self.reading, &mut self.counts, Duration::ZERO)
                 .map_err(|f| f.to_string())?;
-            self.link.ask(ask, 0).map_err(|f| f.to_string())?;
+            self.link.ask(ask, 0, None).map_err(|f| f.to_string())?;
             let deadline = std::time::Instant::now() + WAIT;
             loop {
                 let left = deadline.saturating_duration_since(std::time::Instant::now());
@@ -204,6 +204,14 @@ struct Driver<'a> {
     /// When the port's device was last checked while the bus is silent.
     device_checked_ns: u64,
 }
+
+/// Present current (with velocity and position) is read every this many cycles; the
+/// position alone in the others.
+const DATA_EVERY: u64 = 4;
+
+/// The share of a period the first read of a cycle gets before the motors that did not answer
+/// are asked again.
+const RETRY_AFTER: f64 = 0.4;
 
 /// A bus silent this long has its device checked (gone, or another one behind the name).
 const CHECK_DEVICE_AFTER_NS: u64 = 500_000_000;
@@ -326,7 +334,7 @@ impl<'a> Driver<'a> {
             return;
         }
         if let Some(closed) = l.close_read(&mut self.counts) {
-            self.health.add(closed.missing, ACTUATORS);
+            self.health.add(closed.missing, closed.asked);
             if closed.answered + closed.refused == 0 {
                 self.read_backoff.failed(now);
             } else {
@@ -364,7 +372,10 @@ impl<'a> Driver<'a> {
     }
 
     /// Sends this cycle's read, when the read back-off allows: the status when due or after
-    /// an alert bit, else present current and position.
+    /// an alert bit, present current and position every [`DATA_EVERY`] cycles, else the
+    /// position alone. The goals are out already, so the rest of the cycle is the reads': the
+    /// motors whose position did not come within [`RETRY_AFTER`] of the period are asked once
+    /// more, so a noisy line costs a motor's data a cycle only when both replies are lost.
     fn ask(&mut self, now: u64) {
         let Some(l) = self.link.as_mut() else {
             return;
@@ -375,14 +386,47 @@ impl<'a> Driver<'a> {
         let ask = if l.alert || self.cycle.is_multiple_of(self.status_every) {
             l.alert = false;
             Ask::Status
-        } else {
+        } else if self.cycle.is_multiple_of(DATA_EVERY) {
             Ask::Data
+        } else {
+            Ask::Position
         };
-        if let Err(f) = l.ask(ask, self.cycle) {
+        let mut sent = l.ask(ask, self.cycle, None);
+        if sent.is_ok() && ask != Ask::Status {
+            sent = self.ask_again();
+        }
+        if let Err(f) = sent {
             match f {
                 Fault::Port(m) => self.close(&format!("writing: {m}")),
                 Fault::Bus(_) => self.write_faults += 1,
             }
+        }
+    }
+
+    /// Waits [`RETRY_AFTER`] of a period for the positions asked, then asks the motors that
+    /// did not answer once more (their replies are taken next cycle).
+    fn ask_again(&mut self) -> Result<(), Fault> {
+        let Some(l) = self.link.as_mut() else {
+            return Ok(());
+        };
+        let deadline =
+            std::time::Instant::now() + Duration::from_secs_f64(RETRY_AFTER / self.t.rate_hz);
+        loop {
+            let left = deadline.saturating_duration_since(std::time::Instant::now());
+            if l.take_replies(&mut self.reading, &mut self.counts, left)? {
+                return Ok(());
+            }
+            if left.is_zero() {
+                break;
+            }
+        }
+        let Some(c) = l.close_read(&mut self.counts) else {
+            return Ok(());
+        };
+        self.health.add(c.missing, c.asked);
+        match c.missing_motors {
+            Some(missing) => l.ask(Ask::Position, self.cycle, Some(missing)),
+            None => Ok(()),
         }
     }
 

@@ -105,7 +105,10 @@ const KEEP_CLOSED_NS: u64 = 3_000_000_000;
 /// Which read is out.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) enum Ask {
-    /// Present Current, Velocity and Position (126..136), every cycle.
+    /// Present Position (132..136): most cycles. The shortest reply (15 bytes) survives a
+    /// noisy line best.
+    Position,
+    /// Present Current, Velocity and Position (126..136): every few cycles.
     Data,
     /// Torque Enable .. Hardware Error Status (64..71), at 5 Hz and after an alert bit.
     Status,
@@ -114,6 +117,7 @@ pub(crate) enum Ask {
 impl Ask {
     fn address_len(self) -> (u16, u16) {
         match self {
+            Ask::Position => (table::PRESENT_POSITION, 4),
             Ask::Data => (table::PRESENT_CURRENT, 10),
             Ask::Status => (table::TORQUE_ENABLE, 7),
         }
@@ -124,6 +128,8 @@ impl Ask {
 #[derive(Debug, Clone, Copy)]
 struct Pending {
     ask: Ask,
+    /// The motors this read asked (all, or those a first read of the cycle missed).
+    asked: [bool; ACTUATORS],
     sent_ns: u64,
     sent_cycle: u64,
     answered: [bool; ACTUATORS],
@@ -426,18 +432,25 @@ impl Link {
         }
     }
 
-    /// Sends a sync read in driver cycle `cycle`; its replies are taken by
-    /// [`Link::take_replies`].
-    pub fn ask(&mut self, ask: Ask, cycle: u64) -> Result<(), Fault> {
+    /// Sends a sync read to the motors `only` names (all when `None`) in driver cycle `cycle`;
+    /// its replies are taken by [`Link::take_replies`].
+    pub fn ask(
+        &mut self,
+        ask: Ask,
+        cycle: u64,
+        only: Option<[bool; ACTUATORS]>,
+    ) -> Result<(), Fault> {
+        let asked = only.unwrap_or([true; ACTUATORS]);
         let (address, len) = ask.address_len();
         let mut params = address.to_le_bytes().to_vec();
         params.extend(len.to_le_bytes());
-        params.extend(self.ids);
+        params.extend((0..ACTUATORS).filter(|&i| asked[i]).map(|i| self.ids[i]));
         self.wire
             .send(BROADCAST_ID, instruction::SYNC_READ, &params)
             .map_err(write_fault)?;
         self.pending = Some(Pending {
             ask,
+            asked,
             sent_ns: now_ns(),
             sent_cycle: cycle,
             answered: [false; ACTUATORS],
@@ -456,10 +469,7 @@ impl Link {
     ) -> Result<bool, Fault> {
         let mut wait = wait;
         loop {
-            if self
-                .pending
-                .is_some_and(|p| (0..ACTUATORS).all(|i| p.answered[i] || p.refused[i]))
-            {
+            if self.pending.is_some_and(|p| p.missing().is_none()) {
                 return Ok(true);
             }
             let arrival = self.wire.receive(wait);
@@ -497,8 +507,9 @@ impl Link {
         let p = self.pending.take()?;
         let answered = p.answered.iter().filter(|&&a| a).count();
         let refused = p.refused.iter().filter(|&&r| r).count();
-        let missing = ACTUATORS - answered - refused;
-        counts.asked += ACTUATORS as u64;
+        let asked = p.asked.iter().filter(|&&a| a).count();
+        let missing = asked - answered - refused;
+        counts.asked += asked as u64;
         counts.answered += answered as u64;
         counts.refused += refused as u64;
         let now = now_ns();
@@ -514,6 +525,8 @@ impl Link {
             self.closed.push_back(p);
         }
         Some(Closed {
+            asked,
+            missing_motors: p.missing(),
             answered,
             refused,
             missing,
@@ -521,9 +534,21 @@ impl Link {
     }
 }
 
+impl Pending {
+    /// The motors asked that have not answered, if any.
+    fn missing(&self) -> Option<[bool; ACTUATORS]> {
+        let m: [bool; ACTUATORS] =
+            std::array::from_fn(|i| self.asked[i] && !self.answered[i] && !self.refused[i]);
+        m.iter().any(|&m| m).then_some(m)
+    }
+}
+
 /// A read closed.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct Closed {
+    pub asked: usize,
+    /// The motors that did not answer, if any.
+    pub missing_motors: Option<[bool; ACTUATORS]>,
     /// Replies with data.
     pub answered: usize,
     /// Replies with an error number.
@@ -546,8 +571,12 @@ fn take(
     let Some(i) = ids.iter().position(|&id| id == s.id) else {
         return false;
     };
+    if !p.asked[i] {
+        return false;
+    }
     let d = &s.params;
     let fits = match p.ask {
+        Ask::Position => d.len() == 4,
         Ask::Data => d.len() == 10,
         Ask::Status => d.len() == 7,
     };
@@ -568,7 +597,12 @@ fn take(
             reading.asked_ns[i] = Some(p.sent_ns);
             reading.asked_cycle[i] = p.sent_cycle;
         }
-        Ask::Data => {}
+        Ask::Position if reading.asked_ns[i].is_none_or(|a| a < p.sent_ns) => {
+            reading.ticks[i] = i32::from_le_bytes([d[0], d[1], d[2], d[3]]);
+            reading.asked_ns[i] = Some(p.sent_ns);
+            reading.asked_cycle[i] = p.sent_cycle;
+        }
+        Ask::Data | Ask::Position => {}
         Ask::Status => {
             // A motor found on while the driver thinks all are off: the next `Off` resends.
             *torque |= d[0] != 0;
