@@ -102,7 +102,7 @@ const CASES: &[Case] = &[
     case("emulate --initial nan", &["emulate", "--config", "hardware.toml", "--initial", "nan"], FAILED, &["--initial must be in [0, 1], got NaN"]),
     case("emulate --corrupt-bytes above 1", &["emulate", "--config", "hardware.toml", "--corrupt-bytes", "2"], FAILED, &["--corrupt-bytes must be a probability in [0, 1], got 2"]),
     case("emulate --drop-replies nan", &["emulate", "--config", "hardware.toml", "--drop-replies", "nan"], FAILED, &["--drop-replies must be a probability in [0, 1], got NaN"]),
-    case("emulate --fault-seed negative", &["emulate", "--config", "hardware.toml", "--fault-seed", "-1"], USAGE, &["--fault-seed"]),
+    case("emulate --fault-seed not a number", &["emulate", "--config", "hardware.toml", "--fault-seed", "x"], USAGE, &["invalid value 'x' for '--fault-seed"]),
     case("bench --seconds 0", &["bench", "--seconds", "0"], FAILED, &["--seconds must be in [1, 600]"]),
     case("bench --seconds inf", &["bench", "--seconds", "inf"], FAILED, &["--seconds must be in [1, 600]"]),
     case("bench --samples 0", &["bench", "--samples", "0"], FAILED, &["--samples must be in [1, 1000000]"]),

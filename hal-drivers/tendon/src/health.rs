@@ -61,6 +61,18 @@ impl Health {
         self.asked += asked as u64;
     }
 
+    /// `n` replies counted lost came after all (late): they were not lost on the line.
+    pub fn found(&mut self, n: u64) {
+        let n = n.min(self.lost);
+        self.lost -= n;
+        let mut left = n;
+        for (l, _) in self.window.iter_mut().rev() {
+            let take = u64::from(*l).min(left);
+            *l -= take as u32;
+            left -= take;
+        }
+    }
+
     /// Replies lost per thousand asked for, over the last second.
     pub fn loss_permille(&self) -> u32 {
         (self.lost * 1000)
@@ -145,5 +157,7 @@ mod tests {
         assert_eq!(h.bus(Some(0), 100), Bus::Degraded);
         assert_eq!(h.bus(Some(101), 100), Bus::Failing, "stale data");
         assert_eq!(h.bus(None, 100), Bus::Failing, "no data");
+        h.found(1);
+        assert_eq!(h.loss_permille(), 0, "the lost reply came late");
     }
 }

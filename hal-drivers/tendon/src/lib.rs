@@ -329,13 +329,16 @@ impl<'a> Driver<'a> {
         let Some(l) = self.link.as_mut() else {
             return;
         };
+        let late = self.counts.late;
         if let Err(f) = l.take_replies(&mut self.reading, &mut self.counts, Duration::ZERO) {
             self.close(&f.to_string());
             return;
         }
+        self.health.found(self.counts.late - late);
         if let Some(closed) = l.close_read(&mut self.counts) {
             self.health.add(closed.missing, closed.asked);
-            if closed.answered + closed.refused == 0 {
+            // A silent bus, not a second ask of one motor whose reply was garbled again.
+            if closed.asked == ACTUATORS && closed.answered + closed.refused == 0 {
                 self.read_backoff.failed(now);
             } else {
                 self.read_backoff.succeeded();
@@ -413,7 +416,10 @@ impl<'a> Driver<'a> {
             std::time::Instant::now() + Duration::from_secs_f64(RETRY_AFTER / self.t.rate_hz);
         loop {
             let left = deadline.saturating_duration_since(std::time::Instant::now());
-            if l.take_replies(&mut self.reading, &mut self.counts, left)? {
+            let late = self.counts.late;
+            let done = l.take_replies(&mut self.reading, &mut self.counts, left)?;
+            self.health.found(self.counts.late - late);
+            if done {
                 return Ok(());
             }
             if left.is_zero() {

@@ -225,6 +225,7 @@ impl Link {
         let velocity = link.for_motors(|_| Some(t.profile_velocity.to_le_bytes()));
         link.sync_write(table::PROFILE_VELOCITY, &velocity)
             .map_err(|f| anyhow::anyhow!("writing the profile velocity on {port}: {f}"))?;
+        link.wire.counts.running();
         Ok(link)
     }
 

@@ -39,8 +39,11 @@ pub mod instruction {
 
 /// The longest status packet the driver asks for has 54 parameters (the settings read at
 /// start, Operating Mode .. Torque Enable), 72 stuffed at worst; a length field above this is
-/// not a reply of ours.
-const MAX_STATUS_LENGTH: usize = 4 + 72;
+/// not a reply of ours. Once running, the longest has 10 (14 stuffed):
+/// [`LineCounts::running`] narrows the limit, so a garbled length field is refused at once
+/// instead of swallowing the replies behind it until enough bytes came.
+pub const START_MAX_LENGTH: usize = 4 + 72;
+pub const RUNNING_MAX_LENGTH: usize = 4 + 14;
 
 /// CRC-16 (polynomial 0x8005, initial value 0, not reflected), as the e-Manual's table code.
 const CRC_TABLE: [u16; 256] = {
@@ -117,11 +120,25 @@ pub struct LineCounts {
     pub crc_errors: AtomicU64,
     /// Bytes that belonged to no packet.
     pub garbage_bytes: AtomicU64,
+    /// The longest length field taken for a reply of ours (0: [`START_MAX_LENGTH`]).
+    pub max_length: std::sync::atomic::AtomicUsize,
 }
 
 impl LineCounts {
     fn add(counter: &AtomicU64, n: u64) {
         counter.fetch_add(n, Ordering::Relaxed);
+    }
+
+    /// From now on only the replies of a running driver are expected.
+    pub fn running(&self) {
+        self.max_length.store(RUNNING_MAX_LENGTH, Ordering::Relaxed);
+    }
+
+    fn max_length(&self) -> usize {
+        match self.max_length.load(Ordering::Relaxed) {
+            0 => START_MAX_LENGTH,
+            n => n,
+        }
     }
 }
 
@@ -156,7 +173,7 @@ impl Decoder {
                 return None;
             }
             let length = usize::from(u16::from_le_bytes([self.buf[5], self.buf[6]]));
-            if !(4..=MAX_STATUS_LENGTH).contains(&length) {
+            if !(4..=counts.max_length()).contains(&length) {
                 // Not a reply of ours (a garbled length): its first byte is garbage, and a
                 // real packet may start inside.
                 LineCounts::add(&counts.garbage_bytes, 1);
