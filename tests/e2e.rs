@@ -17,6 +17,7 @@ mod estop;
 mod faults;
 mod hardware;
 mod hardware_faults;
+mod hardware_noise;
 mod install;
 mod iox2;
 mod layering;

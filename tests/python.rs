@@ -136,10 +136,17 @@ fn rust_layouts() -> Vec<Layout> {
             actuation,
             current_a,
             faults,
+            dropped,
+            crc_errors,
+            garbage_bytes,
+            timeouts,
+            reopens,
+            setpoint_cycles,
+            goal_writes,
             state,
-            _pad,
+            loss_permille,
             hardware_error,
-            _pad2
+            age_cycles
         }),
         layout!(ConditioningSample {
             seq,

@@ -102,6 +102,9 @@ class DriverState(enum.IntEnum):
     """The e-stop is latched: setpoints are ignored until a reset."""
     FAULT = 4
     """A motor reported a hardware error: it gets no more commands, the others hold."""
+    DEGRADED = 5
+    """Applying each setpoint while the bus loses replies (``loss_permille``) or the motor
+    data is older than the controller's input time-out."""
 
     @classmethod
     def name_of(cls, value: int) -> str:
@@ -172,17 +175,24 @@ class TrackerSample(_Payload):
 class MotorState(_Payload):
     """``motor_state``: what the actuators reached and what the driver says about them."""
 
-    TYPE_NAME = "softarm::MotorState.v3"
+    TYPE_NAME = "softarm::MotorState.v4"
     _fields_ = [
         ("seq", ctypes.c_uint64),
         ("stamp_ns", ctypes.c_uint64),
         ("actuation", Actuation),
         ("current_a", Actuation),  # motor currents (A); NaN where not measured (the sim)
-        ("faults", ctypes.c_uint64),  # communication faults since the driver started
+        ("faults", ctypes.c_uint64),  # replies lost (dropped + crc_errors) plus reopens
+        ("dropped", ctypes.c_uint64),  # replies asked for that never came whole
+        ("crc_errors", ctypes.c_uint64),  # replies with a wrong checksum
+        ("garbage_bytes", ctypes.c_uint64),  # bytes that belonged to no packet
+        ("timeouts", ctypes.c_uint64),  # reads that ended with a reply missing
+        ("reopens", ctypes.c_uint64),  # port reopened (I/O error, device gone)
+        ("setpoint_cycles", ctypes.c_uint64),  # cycles with a fresh setpoint to follow
+        ("goal_writes", ctypes.c_uint64),  # goal writes sent
         ("state", ctypes.c_uint32),  # DriverState
-        ("_pad", ctypes.c_uint32),
+        ("loss_permille", ctypes.c_uint32),  # replies lost per 1000 over the last second
         ("hardware_error", ctypes.c_uint8 * ACTUATORS),  # Dynamixel error bits per motor
-        ("_pad2", ctypes.c_uint8 * 2),
+        ("age_cycles", ctypes.c_uint16),  # driver cycles since the oldest data was asked for
     ]
 
 

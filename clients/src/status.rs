@@ -126,8 +126,18 @@ pub fn text(r: &Report) -> String {
             .map(|(i, e)| format!("actuator {} {e:#04x}", i + 1))
             .collect();
         out += &format!(
-            "driver: {state}, {} communication faults, hardware errors: {}\n",
-            m.faults,
+            "driver: {state}{}; goal writes {} in {} cycles with a setpoint; replies lost {:.1} % \
+             over the last second; dropped {}, CRC errors {}, garbage {} bytes, read time-outs {}, \
+             reopens {}; hardware errors: {}\n",
+            bus_verdict(m),
+            m.goal_writes,
+            m.setpoint_cycles,
+            f64::from(m.loss_permille) / 10.0,
+            m.dropped,
+            m.crc_errors,
+            m.garbage_bytes,
+            m.timeouts,
+            m.reopens,
             if errors.is_empty() {
                 "none".into()
             } else {
@@ -136,6 +146,15 @@ pub fn text(r: &Report) -> String {
         );
     }
     out
+}
+
+/// What the loss rate says about the bus, in words (the thresholds the tendon driver uses).
+fn bus_verdict(m: &MotorState) -> &'static str {
+    match m.loss_permille {
+        500.. => " (bus failing: most replies lost)",
+        10.. => " (bus degraded: replies being lost)",
+        _ => "",
+    }
 }
 
 pub fn json(r: &Report) -> String {
@@ -161,6 +180,16 @@ pub fn json(r: &Report) -> String {
         serde_json::json!({
             "state": DriverState::from_u32(m.state).map_or("?", |s| s.name()),
             "faults": m.faults,
+            "bus": {
+                "loss_permille": m.loss_permille,
+                "dropped": m.dropped,
+                "crc_errors": m.crc_errors,
+                "garbage_bytes": m.garbage_bytes,
+                "timeouts": m.timeouts,
+                "reopens": m.reopens,
+                "setpoint_cycles": m.setpoint_cycles,
+                "goal_writes": m.goal_writes,
+            },
             "hardware_error": m.hardware_error,
             "current_a": m.current_a.iter().map(|c| c.is_finite().then_some(*c)).collect::<Vec<_>>(),
         })
@@ -191,6 +220,11 @@ mod tests {
             motors: Some(MotorState {
                 state: DriverState::Fault as u32,
                 faults: 12,
+                dropped: 7,
+                crc_errors: 5,
+                garbage_bytes: 40,
+                timeouts: 6,
+                loss_permille: 123,
                 hardware_error: [0, 0, 0x20, 0, 0, 0],
                 ..Default::default()
             }),
@@ -218,10 +252,20 @@ mod tests {
         );
         assert_eq!(c["held_solves"], 6);
         assert!(
-            t.contains("driver: FAULT, 12 communication faults, hardware errors: actuator 3 0x20"),
+            t.contains(
+                "driver: FAULT (bus degraded: replies being lost); goal writes 0 in 0 cycles with \
+                 a setpoint; replies lost 12.3 % over the last second; dropped 7, CRC errors 5, \
+                 garbage 40 bytes, read time-outs 6, reopens 0; hardware errors: actuator 3 0x20"
+            ),
             "{t}"
         );
         assert_eq!(j["driver"]["state"], "FAULT");
+        assert_eq!(
+            j["driver"]["bus"],
+            serde_json::json!({"loss_permille": 123, "dropped": 7, "crc_errors": 5,
+                "garbage_bytes": 40, "timeouts": 6, "reopens": 0, "setpoint_cycles": 0,
+                "goal_writes": 0})
+        );
         assert_eq!(j["driver"]["hardware_error"][2], 0x20);
     }
 }

@@ -96,12 +96,16 @@ pub enum DriverState {
     Stopped = 3,
     /// A motor reported a hardware error: it gets no more commands, the others hold.
     Fault = 4,
+    /// Applying each setpoint, but the bus is losing replies (`MotorState::loss_permille`)
+    /// or the motor data is older than the controller's input time-out: the goals go out, what
+    /// the motors report arrives late or not at all (the controller holds on stale data).
+    Degraded = 5,
 }
 
 impl DriverState {
     pub fn from_u32(v: u32) -> Option<Self> {
         use DriverState::*;
-        [Following, Holding, Off, Stopped, Fault]
+        [Following, Holding, Off, Stopped, Fault, Degraded]
             .into_iter()
             .find(|s| *s as u32 == v)
     }
@@ -113,6 +117,7 @@ impl DriverState {
             DriverState::Off => "OFF",
             DriverState::Stopped => "STOPPED",
             DriverState::Fault => "FAULT",
+            DriverState::Degraded => "DEGRADED",
         }
     }
 }
@@ -120,26 +125,45 @@ impl DriverState {
 /// What the actuators actually reached, normalised, and what the driver and the hardware say
 /// about them.
 #[derive(Debug, Clone, Copy, Default, ZeroCopySend, serde::Serialize)]
-// v3: the driver's state, currents, hardware errors and fault count (v2 had only `stopped`);
-// a peer built before cannot connect and misread it.
-#[type_name("softarm::MotorState.v3")]
+// v4: the bus counts, each event counted once, and the loss rate (v3 had one `faults` count
+// that counted a lost reply several times); a peer built before cannot connect and misread it.
+#[type_name("softarm::MotorState.v4")]
 #[repr(C)]
 pub struct MotorState {
     pub seq: u64,
+    /// When the data was asked for: the oldest motor's newest answer (its request's send
+    /// time, so data that is old looks old).
     pub stamp_ns: u64,
     pub actuation: Actuation,
     /// Motor currents (A) where the driver measures them; NaN where it does not (the sim).
     pub current_a: Actuation,
-    /// Communication faults since the driver started (time-outs, bad checksums, garbage,
-    /// a lost port).
+    /// Communication faults since the driver started: replies lost (`dropped` +
+    /// `crc_errors`) plus `reopens`, each event once.
     pub faults: u64,
+    /// Replies asked for that never came whole (a garbled header counts here).
+    pub dropped: u64,
+    /// Replies that came whole with a wrong checksum.
+    pub crc_errors: u64,
+    /// Bytes on the line that belonged to no packet.
+    pub garbage_bytes: u64,
+    /// Reads that ended with a reply missing (one per read, whatever the number missing).
+    pub timeouts: u64,
+    /// Times the port was closed and opened again (an I/O error, the device gone).
+    pub reopens: u64,
+    /// Cycles that had a fresh setpoint to follow, and the goal writes sent: equal while the
+    /// writes wait for nothing.
+    pub setpoint_cycles: u64,
+    pub goal_writes: u64,
     /// `DriverState` as u32.
     pub state: u32,
-    pub _pad: u32,
+    /// Replies lost (dropped or bad checksum) per thousand asked for, over the last second.
+    pub loss_permille: u32,
     /// Per motor, the hardware-error status it reports (0 = none; Dynamixel bits: 0x01 input
     /// voltage, 0x04 overheating, 0x08 encoder, 0x10 electrical shock, 0x20 overload).
     pub hardware_error: [u8; ACTUATORS],
-    pub _pad2: [u8; 2],
+    /// The driver's cycles since the oldest motor's data was asked for, at publishing (a
+    /// freshness in the driver's own time: a loaded machine slows both alike).
+    pub age_cycles: u16,
 }
 
 impl MotorState {

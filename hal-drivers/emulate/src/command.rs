@@ -22,6 +22,34 @@ pub struct Args {
     /// Where the motors stand at start (normalised actuation).
     #[arg(long, default_value_t = 0.5, allow_negative_numbers = true)]
     initial: f64,
+    /// A noisy motor bus: each byte of a status packet is replaced with this probability
+    /// (0.02 = 2 %).
+    #[arg(
+        long,
+        value_name = "RATE",
+        default_value_t = 0.0,
+        allow_negative_numbers = true
+    )]
+    corrupt_bytes: f64,
+    /// A lossy motor bus: each status packet is lost with this probability (0.02 = 2 %).
+    #[arg(
+        long,
+        value_name = "RATE",
+        default_value_t = 0.0,
+        allow_negative_numbers = true
+    )]
+    drop_replies: f64,
+    /// Seeds the motor bus's fault draws, so a noisy run can be repeated.
+    #[arg(long, value_name = "N", default_value_t = 1)]
+    fault_seed: u64,
+}
+
+/// A probability given on the command line, in parts per million; `flag` names it in the error.
+fn ppm(flag: &str, rate: f64) -> anyhow::Result<u32> {
+    if !(0.0..=1.0).contains(&rate) {
+        anyhow::bail!("--{flag} must be a probability in [0, 1], got {rate}");
+    }
+    Ok((rate * 1e6).round() as u32)
 }
 
 fn text_of(p: &Path) -> String {
@@ -91,12 +119,28 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
     if !(0.0..=1.0).contains(&args.initial) {
         anyhow::bail!("--initial must be in [0, 1], got {}", args.initial);
     }
+    let faults = crate::dynamixel::BusFaults {
+        corrupt_byte_ppm: ppm("corrupt-bytes", args.corrupt_bytes)?,
+        drop_reply_ppm: ppm("drop-replies", args.drop_replies)?,
+        ..Default::default()
+    };
     if let Some(out) = &args.write_config {
         check_write_config(out, &args.config)?;
     }
     let text = std::fs::read_to_string(&args.config)
         .with_context(|| format!("reading {}", args.config.display()))?;
     let rig = Rig::start(&c, args.initial)?;
+    if let Ok(mut bus) = rig.bus.lock() {
+        bus.set_fault_seed(args.fault_seed);
+        bus.set_faults(faults);
+    }
+    if faults != crate::dynamixel::BusFaults::default() {
+        println!(
+            "motor bus noise: {} of the status bytes replaced, {} of the status packets lost \
+             (seed {})",
+            args.corrupt_bytes, args.drop_replies, args.fault_seed
+        );
+    }
     println!(
         "tendon motors (Dynamixel 2.0): {}",
         rig.tendon_path().display()

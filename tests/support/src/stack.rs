@@ -121,6 +121,12 @@ impl TestStack {
         (s, c, started)
     }
 
+    /// Puts a quick model bundle in the stack's model folder (a stack made by
+    /// [`TestStack::with_devices`] has none).
+    pub fn add_quick_model(&self) {
+        quick_model(&self.dir.join("model"));
+    }
+
     /// `softarm` without arguments (nor this stack's config).
     pub fn command(&self) -> Command {
         Command::new(&self.bin)

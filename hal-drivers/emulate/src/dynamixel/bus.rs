@@ -33,6 +33,12 @@ pub struct BusFaults {
     /// Put 1 to 8 random bytes (never 0xFF, so never a header) before one status packet in this
     /// many, at random (0 = never, 1 = always).
     pub garbage_one_in: u32,
+    /// Each byte of a status packet is replaced by another with this probability, in parts
+    /// per million (20 000 = 2 %): a noisy line, hitting header, length, data and CRC alike.
+    pub corrupt_byte_ppm: u32,
+    /// A status packet is not sent at all with this probability, in parts per million (the
+    /// instruction is still executed, as when the reply is lost on the line).
+    pub drop_reply_ppm: u32,
 }
 
 /// What the bus has done so far.
@@ -52,6 +58,18 @@ pub struct BusCounters {
     pub status_packets: u64,
     /// Status packets not sent because of [`BusFaults::silent`].
     pub silenced: u64,
+    /// Status packets not sent because of [`BusFaults::drop_reply_ppm`].
+    pub dropped_replies: u64,
+    /// Status packets sent with their CRC corrupted ([`BusFaults::corrupt_crc_one_in`]).
+    pub corrupted_crcs: u64,
+    /// Status packets sent with at least one byte replaced ([`BusFaults::corrupt_byte_ppm`]),
+    /// and the bytes replaced.
+    pub corrupted_packets: u64,
+    pub corrupted_bytes: u64,
+    /// Garbage bytes put before status packets ([`BusFaults::garbage_one_in`]).
+    pub garbage_sent: u64,
+    /// SYNC WRITEs of Goal Position executed.
+    pub goal_writes: u64,
 }
 
 /// A bus of motors: feed it the bytes the master wrote, it appends the status packets the
@@ -65,6 +83,10 @@ pub struct Bus {
     rng: u64,
     counters: BusCounters,
     inject: Vec<u8>,
+    /// Seconds of [`Bus::step`] time since the start: the bus's own clock.
+    clock_s: f64,
+    /// When each goal write arrived (bus clock), while [`Bus::record_goal_writes`] asks.
+    goal_write_times: Option<Vec<f64>>,
 }
 
 impl Bus {
@@ -87,6 +109,8 @@ impl Bus {
             rng: 0x9E37_79B9_7F4A_7C15,
             counters: BusCounters::default(),
             inject: Vec::new(),
+            clock_s: 0.0,
+            goal_write_times: None,
         }
     }
 
@@ -150,6 +174,23 @@ impl Bus {
         self.counters
     }
 
+    /// Starts (or stops and forgets) keeping the time of every goal write, for tests that
+    /// measure the gaps between them.
+    pub fn record_goal_writes(&mut self, on: bool) {
+        self.goal_write_times = on.then(Vec::new);
+    }
+
+    /// When each goal write arrived since [`Bus::record_goal_writes`], in seconds of the
+    /// bus's clock (the real time [`serve`] steps it by).
+    pub fn goal_write_times(&self) -> &[f64] {
+        self.goal_write_times.as_deref().unwrap_or(&[])
+    }
+
+    /// The bus's clock: seconds of [`Bus::step`] time since it was made.
+    pub fn clock_s(&self) -> f64 {
+        self.clock_s
+    }
+
     /// Advances the physics by `dt` seconds. With the torque on in a position mode (3, 4, 5) the
     /// present position approaches the goal as a first-order lag of 20 ms, its speed capped at
     /// 50 rev/min and at the Velocity Limit and (if not 0) Profile Velocity; the present current
@@ -162,6 +203,7 @@ impl Bus {
             return;
         }
         self.rx_idle_s += dt;
+        self.clock_s += dt;
         if self.rx_idle_s > RECEIVE_TIMEOUT_S && !self.rx.is_empty() {
             if self.rx.len() >= HEADER.len() {
                 self.counters.timeouts += 1;
@@ -379,6 +421,12 @@ impl Bus {
                     self.counters.malformed += 1;
                     return;
                 }
+                if address == GOAL_POSITION {
+                    self.counters.goal_writes += 1;
+                    if let Some(times) = &mut self.goal_write_times {
+                        times.push(self.clock_s);
+                    }
+                }
                 for chunk in data.chunks(len + 1) {
                     if let Some(i) = self.first_with_id(chunk[0]) {
                         // No status packet: a refused write goes unnoticed, as on the real bus.
@@ -459,17 +507,35 @@ impl Bus {
             self.counters.silenced += 1;
             return;
         }
+        if self.chance(self.faults.drop_reply_ppm) {
+            self.counters.dropped_replies += 1;
+            return;
+        }
         out.append(&mut self.inject);
         if self.roll(self.faults.garbage_one_in) {
             let n = 1 + self.next_random() % 8;
             for _ in 0..n {
                 out.push((self.next_random() % 0xFF) as u8);
             }
+            self.counters.garbage_sent += n;
         }
         if self.roll(self.faults.corrupt_crc_one_in)
             && let Some(last) = packet.last_mut()
         {
             *last ^= 0xA5;
+            self.counters.corrupted_crcs += 1;
+        }
+        let mut hit = 0;
+        for b in packet.iter_mut() {
+            if self.chance(self.faults.corrupt_byte_ppm) {
+                // XOR with 1..=255: the byte always changes.
+                *b ^= 1 + (self.next_random() % 255) as u8;
+                hit += 1;
+            }
+        }
+        if hit > 0 {
+            self.counters.corrupted_packets += 1;
+            self.counters.corrupted_bytes += hit;
         }
         out.extend_from_slice(&packet);
         self.counters.status_packets += 1;
@@ -481,6 +547,11 @@ impl Bus {
             1 => true,
             n => self.next_random().is_multiple_of(u64::from(n)),
         }
+    }
+
+    /// True with probability `ppm` parts per million.
+    fn chance(&mut self, ppm: u32) -> bool {
+        ppm > 0 && self.next_random() % 1_000_000 < u64::from(ppm)
     }
 
     /// xorshift64*.
@@ -498,22 +569,52 @@ fn lock(bus: &Mutex<Bus>) -> MutexGuard<'_, Bus> {
 
 /// Serves `bus` on `pty` until `stop`: reads with a short timeout, feeds [`Bus::receive`],
 /// writes the answers, calls [`Bus::step`] with the real elapsed time. The lock is never held
-/// while waiting for bytes or writing them.
+/// while waiting for bytes or writing them. How it ended is logged (a stopped emulator and one
+/// whose line failed look alike to a driver: no answers), and an I/O error is returned naming
+/// the direction.
 pub fn serve(mut pty: Pty, bus: Arc<Mutex<Bus>>, stop: Arc<AtomicBool>) -> io::Result<()> {
+    let path = pty.path().display().to_string();
+    tracing::info!(path, "motor bus emulator serving");
+    let result = serve_until(&mut pty, &bus, &stop);
+    let counters = lock(&bus).counters();
+    match &result {
+        Ok(()) => tracing::info!(path, ?counters, "motor bus emulator stopped"),
+        Err(e) => tracing::error!(path, ?counters, "motor bus emulator ended: {e}"),
+    }
+    result
+}
+
+fn serve_until(pty: &mut Pty, bus: &Mutex<Bus>, stop: &AtomicBool) -> io::Result<()> {
     let mut buf = [0u8; 4096];
     let mut out = Vec::new();
     let mut last = Instant::now();
     while !stop.load(Ordering::Relaxed) {
-        let n = pty.read_timeout(&mut buf, Duration::from_millis(2))?;
+        let n = match pty.read_timeout(&mut buf, Duration::from_millis(2)) {
+            Ok(n) => n,
+            // A signal to the process is no reason to stop serving.
+            Err(e) if e.kind() == io::ErrorKind::Interrupted => 0,
+            Err(e) => return Err(io::Error::new(e.kind(), format!("reading the master: {e}"))),
+        };
         {
-            let mut bus = lock(&bus);
+            let mut bus = lock(bus);
             let now = Instant::now();
             bus.step(now.duration_since(last).as_secs_f64());
             last = now;
             bus.receive(&buf[..n], &mut out);
         }
         if !out.is_empty() {
-            pty.write_all(&out)?;
+            let started = Instant::now();
+            pty.write_all(&out)
+                .map_err(|e| io::Error::new(e.kind(), format!("writing the master: {e}")))?;
+            let took = started.elapsed();
+            if took > Duration::from_millis(20) {
+                // A full line (nobody reading the driver's side) blocks the write.
+                tracing::warn!(
+                    bytes = out.len(),
+                    ?took,
+                    "status packets waited to be written"
+                );
+            }
             out.clear();
         }
     }
@@ -918,7 +1019,7 @@ mod tests {
         bus.set_faults(BusFaults {
             garbage_one_in: 4,
             corrupt_crc_one_in: 4,
-            silent: false,
+            ..Default::default()
         });
         let mut n_garbage = 0;
         for _ in 0..200 {

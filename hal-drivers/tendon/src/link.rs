@@ -1,0 +1,616 @@
+//! The motor bus as the driver uses it: opening it (one sync read finds every motor and its
+//! settings), the writes (sync writes, no reply), and reads that never make anything wait:
+//! a read is sent, its replies are taken at the start of the next cycle, matched to the read by
+//! motor id, and what has not come by then is counted as dropped, once.
+
+use std::time::Duration;
+
+use anyhow::{Context, bail};
+use softarm_config::hardware::TendonConfig;
+use softarm_driver::Action;
+use softarm_ipc::ACTUATORS;
+use softarm_runtime::now_ns;
+
+use crate::table;
+use crate::wire::{Arrival, BROADCAST_ID, Status, Wire, instruction, is_timeout};
+
+/// A failed exchange on the bus.
+#[derive(Debug)]
+pub(crate) enum Fault {
+    /// A write could not go out in time: try again next cycle.
+    Bus(String),
+    /// The port itself failed (unplugged adapter): reopen it.
+    Port(String),
+}
+
+impl std::fmt::Display for Fault {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Fault::Bus(m) => write!(f, "bus: {m}"),
+            Fault::Port(m) => write!(f, "port: {m}"),
+        }
+    }
+}
+
+fn write_fault(e: std::io::Error) -> Fault {
+    if is_timeout(&e) {
+        Fault::Bus(format!("a write did not go out in time ({e})"))
+    } else {
+        Fault::Port(e.to_string())
+    }
+}
+
+/// What the motors last reported.
+#[derive(Debug, Clone, Copy, Default)]
+pub(crate) struct Reading {
+    pub ticks: [i32; ACTUATORS],
+    pub current_a: [f64; ACTUATORS],
+    pub hardware_error: [u8; ACTUATORS],
+    /// Per motor, when the read its newest position answered was sent (ns), and in which
+    /// driver cycle.
+    pub asked_ns: [Option<u64>; ACTUATORS],
+    pub asked_cycle: [u64; ACTUATORS],
+}
+
+impl Reading {
+    pub fn faulted(&self, i: usize) -> bool {
+        self.hardware_error[i] != 0
+    }
+
+    /// The oldest motor's newest answer: the data is at least this fresh. `None` until every
+    /// motor answered once.
+    pub fn stamp_ns(&self) -> Option<u64> {
+        self.asked_ns
+            .iter()
+            .try_fold(u64::MAX, |oldest, a| a.map(|a| oldest.min(a)))
+    }
+
+    /// Driver cycles since the oldest motor's newest data was asked for.
+    pub fn age_cycles(&self, cycle: u64) -> u64 {
+        cycle.saturating_sub(self.asked_cycle.iter().copied().min().unwrap_or(0))
+    }
+}
+
+/// The bus's events since the driver started, each counted once.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub(crate) struct Counts {
+    /// Replies asked for, in reads closed.
+    pub asked: u64,
+    /// Replies that came whole (late ones included).
+    pub answered: u64,
+    /// Replies with an error number (the motor refused the read).
+    pub refused: u64,
+    /// Replies that came after their read closed (a loaded machine delivers late).
+    pub late: u64,
+    /// Reads that ended with a reply missing.
+    pub timeouts: u64,
+    /// Replies no read asked for.
+    pub stray: u64,
+}
+
+impl Counts {
+    /// Replies asked for that never came whole: neither answered (late or not) nor refused
+    /// nor seen with a bad CRC (`crc_errors`, counted by the line). A reply the machine
+    /// delivers after its read closed moves from here to `late` when it comes.
+    pub fn dropped(&self, crc_errors: u64) -> u64 {
+        self.asked
+            .saturating_sub(self.answered + self.refused + crc_errors)
+    }
+}
+
+/// Closed reads are kept this long for their late replies: a loaded machine was seen to hold
+/// a pseudo-terminal's bytes for seconds (the kernel's flip-buffer work waiting for a CPU).
+const KEEP_CLOSED_NS: u64 = 3_000_000_000;
+
+/// Which read is out.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Ask {
+    /// Present Position (132..136): most cycles. The shortest reply (15 bytes) survives a
+    /// noisy line best.
+    Position,
+    /// Present Current, Velocity and Position (126..136): every few cycles.
+    Data,
+    /// Torque Enable .. Hardware Error Status (64..71), at 5 Hz and after an alert bit.
+    Status,
+}
+
+impl Ask {
+    fn address_len(self) -> (u16, u16) {
+        match self {
+            Ask::Position => (table::PRESENT_POSITION, 4),
+            Ask::Data => (table::PRESENT_CURRENT, 10),
+            Ask::Status => (table::TORQUE_ENABLE, 7),
+        }
+    }
+}
+
+/// A read that was sent and whose replies are being collected.
+#[derive(Debug, Clone, Copy)]
+struct Pending {
+    ask: Ask,
+    /// The motors this read asked (all, or those a first read of the cycle missed).
+    asked: [bool; ACTUATORS],
+    sent_ns: u64,
+    sent_cycle: u64,
+    answered: [bool; ACTUATORS],
+    refused: [bool; ACTUATORS],
+}
+
+/// An open bus and what the driver knows of its motors.
+pub(crate) struct Link {
+    pub wire: Wire,
+    ids: [u8; ACTUATORS],
+    /// The torque may be on somewhere: the driver turned it on, or found it on, or could not
+    /// ask a motor. While set, an `Off` writes torque-off.
+    pub torque: bool,
+    pending: Option<Pending>,
+    /// Reads closed in the last 3 s with replies missing, for their late replies.
+    closed: std::collections::VecDeque<Pending>,
+    /// A reply carried the alert bit: the next read is the status.
+    pub alert: bool,
+    /// When a reply last came (ns).
+    pub last_reply_ns: u64,
+}
+
+/// At start every motor gets this long to answer, three times: a loaded machine may deliver
+/// a reply tens of milliseconds late, and a restarted driver should not be refused for it.
+const START_REPLY_TIMEOUT: Duration = Duration::from_millis(100);
+const START_ATTEMPTS: usize = 3;
+
+/// The settings read at start: Operating Mode (11) .. Torque Enable (64).
+const SURVEY_FROM: u16 = table::OPERATING_MODE;
+const SURVEY_LEN: u16 = table::TORQUE_ENABLE - table::OPERATING_MODE + 1;
+
+impl Link {
+    /// Opens the port and finds every motor and its settings with one sync read (repeated
+    /// for those that did not answer), writes position control and the limits where they
+    /// differ, and the profile velocity. At start (`strict`) a motor that does not answer is
+    /// an error naming it; on a reopen the link is kept with what answers, so torque-off can
+    /// always go out. Start-up is one or two exchanges, not five per motor.
+    pub fn open(t: &TendonConfig, strict: bool, counts: &mut Counts) -> anyhow::Result<Self> {
+        let port = t.port.display();
+        // A write finds room in the kernel's buffer at once unless the line is stuck: waiting
+        // longer than half a period for one would only stall the next cycle's writes.
+        let write_timeout = Duration::from_secs_f64((0.5 / t.rate_hz).clamp(0.002, 0.05));
+        let wire = Wire::open(&t.port, t.baud, write_timeout).with_context(|| {
+            format!(
+                "cannot open the motor bus {port} (tendon.port); is the adapter plugged in and \
+                 are you in the `dialout` group?"
+            )
+        })?;
+        let mut link = Self {
+            wire,
+            ids: t.ids,
+            torque: false,
+            pending: None,
+            closed: std::collections::VecDeque::new(),
+            alert: false,
+            last_reply_ns: now_ns(),
+        };
+        let settings = link.survey(counts)?;
+        let mut missing = Vec::new();
+        for i in 0..ACTUATORS {
+            let id = t.ids[i];
+            let Some(s) = &settings[i] else {
+                missing.push(format!("id {id} (actuator {})", i + 1));
+                // Unknown: assume it is driven, so that an `Off` reaches it.
+                link.torque = true;
+                continue;
+            };
+            let on = link.configure(t, i, s, counts).with_context(|| {
+                format!("configuring motor id {id} (actuator {}) on {port}", i + 1)
+            });
+            match on {
+                Ok(on) => link.torque |= on,
+                Err(e) if strict => return Err(e),
+                Err(e) => {
+                    tracing::error!("{e:#}");
+                    link.torque = true;
+                }
+            }
+        }
+        if !missing.is_empty() {
+            let message = format!(
+                "no answer on {port} at {} baud from motor {}: check the motors' power and \
+                 wiring, and tendon.ids and tendon.baud against the motors' settings",
+                t.baud,
+                missing.join(", ")
+            );
+            if strict {
+                bail!(message);
+            }
+            tracing::error!("{message}");
+        }
+        // RAM, lost at a power cycle: written every open, to every motor (no reply).
+        let velocity = link.for_motors(|_| Some(t.profile_velocity.to_le_bytes()));
+        link.sync_write(table::PROFILE_VELOCITY, &velocity)
+            .map_err(|f| anyhow::anyhow!("writing the profile velocity on {port}: {f}"))?;
+        link.wire.counts.running();
+        Ok(link)
+    }
+
+    /// Every motor's settings (Operating Mode .. Torque Enable), `None` for one that did not
+    /// answer after [`START_ATTEMPTS`] sync reads.
+    fn survey(&mut self, counts: &mut Counts) -> anyhow::Result<[Option<Vec<u8>>; ACTUATORS]> {
+        let mut settings: [Option<Vec<u8>>; ACTUATORS] = Default::default();
+        for _ in 0..START_ATTEMPTS {
+            let ask: Vec<u8> = (0..ACTUATORS)
+                .filter(|&i| settings[i].is_none())
+                .map(|i| self.ids[i])
+                .collect();
+            if ask.is_empty() {
+                break;
+            }
+            let mut params = SURVEY_FROM.to_le_bytes().to_vec();
+            params.extend(SURVEY_LEN.to_le_bytes());
+            params.extend(&ask);
+            self.wire
+                .send(BROADCAST_ID, instruction::SYNC_READ, &params)
+                .context("asking the motors for their settings")?;
+            counts.asked += ask.len() as u64;
+            let deadline = std::time::Instant::now() + START_REPLY_TIMEOUT;
+            let mut waiting = ask.len();
+            while waiting > 0 {
+                let left = deadline.saturating_duration_since(std::time::Instant::now());
+                match self.wire.receive(left) {
+                    Some(Arrival::Status(s, _)) => {
+                        let i = self.ids.iter().position(|&id| id == s.id);
+                        match i {
+                            Some(i)
+                                if settings[i].is_none()
+                                    && ask.contains(&s.id)
+                                    && s.params.len() == usize::from(SURVEY_LEN) =>
+                            {
+                                settings[i] = Some(s.params);
+                                counts.answered += 1;
+                                waiting -= 1;
+                            }
+                            _ => counts.stray += 1,
+                        }
+                    }
+                    Some(Arrival::PortError(e)) => bail!("reading the motor bus: {e}"),
+                    None => break,
+                }
+            }
+            if waiting > 0 {
+                counts.timeouts += 1;
+            }
+        }
+        if settings.iter().any(|s| s.is_some()) {
+            self.last_reply_ns = now_ns();
+        }
+        Ok(settings)
+    }
+
+    /// Writes position control and the limits where they differ from the config (they live in
+    /// EEPROM, which wears, and can be written only with the torque off). Returns whether the
+    /// motor's torque is on: a driver restarted beside a running controller leaves a holding
+    /// motor holding, so the arm does not drop.
+    fn configure(
+        &mut self,
+        t: &TendonConfig,
+        i: usize,
+        s: &[u8],
+        counts: &mut Counts,
+    ) -> anyhow::Result<bool> {
+        use table::*;
+        let at = |address: u16| usize::from(address - SURVEY_FROM);
+        let u32_at = |address: u16| {
+            let a = at(address);
+            u32::from_le_bytes([s[a], s[a + 1], s[a + 2], s[a + 3]])
+        };
+        let limits = [
+            (MAX_POSITION_LIMIT, t.max_ticks[i] as u32),
+            (MIN_POSITION_LIMIT, t.min_ticks[i] as u32),
+        ];
+        let mode_ok = s[at(OPERATING_MODE)] == POSITION_CONTROL;
+        let limits_ok = limits.map(|(address, value)| u32_at(address) == value);
+        if mode_ok && limits_ok == [true; 2] {
+            return Ok(s[at(TORQUE_ENABLE)] != 0);
+        }
+        let id = self.ids[i];
+        tracing::info!(id, "writing operating mode and limits (torque off)");
+        self.write(id, TORQUE_ENABLE, &[0], counts)?;
+        if !mode_ok {
+            self.write(id, OPERATING_MODE, &[POSITION_CONTROL], counts)?;
+        }
+        for (ok, (address, value)) in limits_ok.into_iter().zip(limits) {
+            if !ok {
+                self.write(id, address, &value.to_le_bytes(), counts)?;
+            }
+        }
+        Ok(false)
+    }
+
+    /// A WRITE with its reply awaited (start only), tried [`START_ATTEMPTS`] times.
+    fn write(
+        &mut self,
+        id: u8,
+        address: u16,
+        data: &[u8],
+        counts: &mut Counts,
+    ) -> anyhow::Result<()> {
+        let mut params = address.to_le_bytes().to_vec();
+        params.extend_from_slice(data);
+        for _ in 0..START_ATTEMPTS {
+            self.wire
+                .send(id, instruction::WRITE, &params)
+                .with_context(|| format!("writing address {address}"))?;
+            counts.asked += 1;
+            let deadline = std::time::Instant::now() + START_REPLY_TIMEOUT;
+            loop {
+                let left = deadline.saturating_duration_since(std::time::Instant::now());
+                match self.wire.receive(left) {
+                    Some(Arrival::Status(s, _)) if s.id == id && s.params.is_empty() => {
+                        counts.answered += 1;
+                        if s.error & 0x7F != 0 {
+                            bail!(
+                                "the motor refused a write at address {address}: error {:#04x}",
+                                s.error
+                            );
+                        }
+                        return Ok(());
+                    }
+                    Some(Arrival::Status(..)) => counts.stray += 1,
+                    Some(Arrival::PortError(e)) => bail!("reading the motor bus: {e}"),
+                    None => break,
+                }
+            }
+            counts.timeouts += 1;
+        }
+        bail!("no answer to a write at address {address}")
+    }
+
+    /// Sync-write parameters for the motors `value` gives a value for.
+    pub fn for_motors<const N: usize>(
+        &self,
+        value: impl Fn(usize) -> Option<[u8; N]>,
+    ) -> Vec<(u8, [u8; N])> {
+        (0..ACTUATORS)
+            .filter_map(|i| value(i).map(|v| (self.ids[i], v)))
+            .collect()
+    }
+
+    /// One SYNC WRITE (no reply): the same item to several motors.
+    pub fn sync_write<const N: usize>(
+        &mut self,
+        address: u16,
+        data: &[(u8, [u8; N])],
+    ) -> Result<(), Fault> {
+        if data.is_empty() {
+            return Ok(());
+        }
+        let mut params = address.to_le_bytes().to_vec();
+        params.extend((N as u16).to_le_bytes());
+        for (id, v) in data {
+            params.push(*id);
+            params.extend_from_slice(v);
+        }
+        self.wire
+            .send(BROADCAST_ID, instruction::SYNC_WRITE, &params)
+            .map_err(write_fault)
+    }
+
+    /// Torque off for every motor (no reply: sent again each cycle while it is wanted).
+    pub fn torque_off(&mut self) -> Result<(), Fault> {
+        let data = self.for_motors(|_| Some([0u8]));
+        self.sync_write(table::TORQUE_ENABLE, &data)?;
+        self.torque = false;
+        Ok(())
+    }
+
+    /// What the safety logic decided, on the bus, at once: writes need no reply, so nothing
+    /// on the read side holds them back. A motor with a hardware error gets torque-off every
+    /// cycle and nothing else (its Shutdown setting may not have turned it off).
+    pub fn apply(
+        &mut self,
+        action: Action,
+        goals: &[i32; ACTUATORS],
+        engage: bool,
+        reading: &Reading,
+    ) -> Result<(), Fault> {
+        if reading.hardware_error.iter().any(|&e| e != 0) {
+            let data = self.for_motors(|i| reading.faulted(i).then_some([0u8]));
+            self.sync_write(table::TORQUE_ENABLE, &data)?;
+        }
+        match action {
+            Action::Off => self.torque_off(),
+            Action::Hold => Ok(()),
+            Action::Follow(_) if !self.torque && !engage => Ok(()),
+            Action::Follow(_) => {
+                // The goal first: the torque then holds where the controller wants, not
+                // wherever the goal register was left.
+                let data =
+                    self.for_motors(|i| (!reading.faulted(i)).then_some(goals[i].to_le_bytes()));
+                self.sync_write(table::GOAL_POSITION, &data)?;
+                if !self.torque {
+                    let data = self.for_motors(|i| (!reading.faulted(i)).then_some([1u8]));
+                    self.sync_write(table::TORQUE_ENABLE, &data)?;
+                    self.torque = true;
+                }
+                Ok(())
+            }
+        }
+    }
+
+    /// Sends a sync read to the motors `only` names (all when `None`) in driver cycle `cycle`;
+    /// its replies are taken by [`Link::take_replies`].
+    pub fn ask(
+        &mut self,
+        ask: Ask,
+        cycle: u64,
+        only: Option<[bool; ACTUATORS]>,
+    ) -> Result<(), Fault> {
+        let asked = only.unwrap_or([true; ACTUATORS]);
+        let (address, len) = ask.address_len();
+        let mut params = address.to_le_bytes().to_vec();
+        params.extend(len.to_le_bytes());
+        params.extend((0..ACTUATORS).filter(|&i| asked[i]).map(|i| self.ids[i]));
+        self.wire
+            .send(BROADCAST_ID, instruction::SYNC_READ, &params)
+            .map_err(write_fault)?;
+        self.pending = Some(Pending {
+            ask,
+            asked,
+            sent_ns: now_ns(),
+            sent_cycle: cycle,
+            answered: [false; ACTUATORS],
+            refused: [false; ACTUATORS],
+        });
+        Ok(())
+    }
+
+    /// Takes every reply that has arrived (waiting at most `wait` for the first) into
+    /// `reading`. Returns whether the open read is complete. A port error ends the link.
+    pub fn take_replies(
+        &mut self,
+        reading: &mut Reading,
+        counts: &mut Counts,
+        wait: Duration,
+    ) -> Result<bool, Fault> {
+        let mut wait = wait;
+        loop {
+            if self.pending.is_some_and(|p| p.missing().is_none()) {
+                return Ok(true);
+            }
+            let arrival = self.wire.receive(wait);
+            wait = Duration::ZERO;
+            match arrival {
+                None => return Ok(false),
+                Some(Arrival::PortError(e)) => return Err(Fault::Port(e)),
+                Some(Arrival::Status(s, _)) => {
+                    self.last_reply_ns = now_ns();
+                    let (ids, torque, alert) = (&self.ids, &mut self.torque, &mut self.alert);
+                    if let Some(p) = self.pending.as_mut()
+                        && take(p, ids, &s, reading, torque, alert)
+                    {
+                        continue;
+                    }
+                    // Late: for the oldest closed read still missing this motor's answer.
+                    if self
+                        .closed
+                        .iter_mut()
+                        .any(|p| take(p, ids, &s, reading, torque, alert))
+                    {
+                        counts.late += 1;
+                        counts.answered += 1;
+                    } else {
+                        counts.stray += 1;
+                    }
+                }
+            }
+        }
+    }
+
+    /// Closes the open read: a reply that has not come is lost (dropped, or a CRC error the
+    /// line counted), unless it comes late, within 3 s.
+    pub fn close_read(&mut self, counts: &mut Counts) -> Option<Closed> {
+        let p = self.pending.take()?;
+        let answered = p.answered.iter().filter(|&&a| a).count();
+        let refused = p.refused.iter().filter(|&&r| r).count();
+        let asked = p.asked.iter().filter(|&&a| a).count();
+        let missing = asked - answered - refused;
+        counts.asked += asked as u64;
+        counts.answered += answered as u64;
+        counts.refused += refused as u64;
+        let now = now_ns();
+        while self
+            .closed
+            .front()
+            .is_some_and(|c| now.saturating_sub(c.sent_ns) > KEEP_CLOSED_NS)
+        {
+            self.closed.pop_front();
+        }
+        if missing > 0 {
+            counts.timeouts += 1;
+            self.closed.push_back(p);
+        }
+        Some(Closed {
+            asked,
+            missing_motors: p.missing(),
+            answered,
+            refused,
+            missing,
+        })
+    }
+}
+
+impl Pending {
+    /// The motors asked that have not answered, if any.
+    fn missing(&self) -> Option<[bool; ACTUATORS]> {
+        let m: [bool; ACTUATORS] =
+            std::array::from_fn(|i| self.asked[i] && !self.answered[i] && !self.refused[i]);
+        m.iter().any(|&m| m).then_some(m)
+    }
+}
+
+/// A read closed.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Closed {
+    pub asked: usize,
+    /// The motors that did not answer, if any.
+    pub missing_motors: Option<[bool; ACTUATORS]>,
+    /// Replies with data.
+    pub answered: usize,
+    /// Replies with an error number.
+    pub refused: usize,
+    /// Replies that did not come (dropped or with a bad CRC).
+    pub missing: usize,
+}
+
+/// One reply for read `p`: true when `p` asked for it and had not had it. An answer with an
+/// error number is the motor refusing (it still carries the alert bit); a late answer's data
+/// is kept only where it is newer than what the reading has.
+fn take(
+    p: &mut Pending,
+    ids: &[u8; ACTUATORS],
+    s: &Status,
+    reading: &mut Reading,
+    torque: &mut bool,
+    alert: &mut bool,
+) -> bool {
+    let Some(i) = ids.iter().position(|&id| id == s.id) else {
+        return false;
+    };
+    if !p.asked[i] {
+        return false;
+    }
+    let d = &s.params;
+    let fits = match p.ask {
+        Ask::Position => d.len() == 4,
+        Ask::Data => d.len() == 10,
+        Ask::Status => d.len() == 7,
+    };
+    let refused = s.error & 0x7F != 0;
+    if p.answered[i] || p.refused[i] || !(fits || refused) {
+        return false;
+    }
+    *alert |= s.error & 0x80 != 0;
+    if refused {
+        p.refused[i] = true;
+        return true;
+    }
+    match p.ask {
+        Ask::Data if reading.asked_ns[i].is_none_or(|a| a < p.sent_ns) => {
+            reading.current_a[i] =
+                f64::from(i16::from_le_bytes([d[0], d[1]])) * table::CURRENT_UNIT_A;
+            reading.ticks[i] = i32::from_le_bytes([d[6], d[7], d[8], d[9]]);
+            reading.asked_ns[i] = Some(p.sent_ns);
+            reading.asked_cycle[i] = p.sent_cycle;
+        }
+        Ask::Position if reading.asked_ns[i].is_none_or(|a| a < p.sent_ns) => {
+            reading.ticks[i] = i32::from_le_bytes([d[0], d[1], d[2], d[3]]);
+            reading.asked_ns[i] = Some(p.sent_ns);
+            reading.asked_cycle[i] = p.sent_cycle;
+        }
+        Ask::Data | Ask::Position => {}
+        Ask::Status => {
+            // A motor found on while the driver thinks all are off: the next `Off` resends.
+            *torque |= d[0] != 0;
+            // Sticky: cleared only by restarting the driver, once the cause is fixed.
+            reading.hardware_error[i] |= d[6];
+        }
+    }
+    p.answered[i] = true;
+    true
+}

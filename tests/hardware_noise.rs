@@ -1,0 +1,553 @@
+//! The motor bus as a real RS-485 bus is every day: noisy. The emulated bus
+//! (`softarm_emulate::dynamixel`, in the test process) corrupts reply bytes or loses replies at
+//! a seeded rate, and the real `tendon` driver, with the whole hardware stack or alone, must
+//! keep the goals going, keep its motor data fresh, report the bus honestly and count each
+//! lost reply once.
+//!
+//! Everything asserted is a count, a ratio or an invariant in the driver's own cycles (goal
+//! writes per cycle, the share of `motor_state` samples younger than the controller's input
+//! time-out in the driver's cycles), so the tests hold with both cores busy. The wall-clock
+//! figures (writes per second, the longest gap, freshness in milliseconds) are measured by the
+//! ignored `noisy_bus_figures`.
+
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+use softarm_clients::watch::{Limits, Watch};
+use softarm_config::Config;
+use softarm_emulate::dynamixel::{BusCounters, BusFaults};
+use softarm_emulate::rig::Rig;
+use softarm_ipc::{ControllerState, DriverState, MotorState, Namespace, Node, Pub, Setpoint, Sub};
+use softarm_runtime::now_ns;
+use softarm_test_support::{DEMO_WAYPOINTS, Guard, TestStack, eventually, set_id};
+
+const BIN: &str = env!("CARGO_BIN_EXE_softarm");
+const LIMIT: Duration = Duration::from_secs(60);
+
+/// A hardware stack (quick model) on an emulated bus in this process.
+fn stack(name: &str, up: bool) -> (TestStack, Config, Rig) {
+    let (mut s, c, rig) = TestStack::with_devices(BIN, name, |c| {
+        let rig = Rig::start(c, 0.5).unwrap();
+        let (tendon, tracker) = (rig.tendon_path().into(), rig.tracker_path().into());
+        (rig, tendon, tracker)
+    });
+    if up {
+        s.add_quick_model();
+        s.up();
+    }
+    (s, c, rig)
+}
+
+fn node(s: &TestStack) -> Node {
+    Node::open(Namespace::new(&s.namespace).unwrap(), "test").unwrap()
+}
+
+fn noise(rig: &Rig, faults: BusFaults, seed: u64) {
+    let mut bus = rig.bus.lock().unwrap();
+    bus.set_fault_seed(seed);
+    bus.set_faults(faults);
+}
+
+fn counters(rig: &Rig) -> BusCounters {
+    rig.bus.lock().unwrap().counters()
+}
+
+/// What the driver published over a while, in its own cycles.
+#[derive(Debug, Default, Clone)]
+struct Seen {
+    samples: u64,
+    /// Driver cycles covered (the sequence numbers' span; samples missed count too).
+    cycles: u64,
+    /// Samples whose data was younger than the controller's input time-out.
+    fresh: u64,
+    max_age_cycles: u16,
+    states: std::collections::BTreeMap<&'static str, u64>,
+    max_loss_permille: u32,
+    loss_permille_sum: u64,
+    first: Option<MotorState>,
+    last: Option<MotorState>,
+    following_seqs: Vec<u64>,
+}
+
+impl Seen {
+    fn take(&mut self, m: &MotorState, fresh_cycles: u16) {
+        if let Some(l) = &self.last {
+            self.cycles += m.seq.saturating_sub(l.seq);
+        }
+        self.first.get_or_insert(*m);
+        self.last = Some(*m);
+        self.samples += 1;
+        self.fresh += u64::from(m.age_cycles < fresh_cycles);
+        self.max_age_cycles = self.max_age_cycles.max(m.age_cycles);
+        let state = m.driver_state().map_or("?", |s| s.name());
+        *self.states.entry(state).or_default() += 1;
+        if m.driver_state() == Some(DriverState::Following) {
+            self.following_seqs.push(m.seq);
+        }
+        self.max_loss_permille = self.max_loss_permille.max(m.loss_permille);
+        self.loss_permille_sum += u64::from(m.loss_permille);
+    }
+
+    fn following_after(&self, seq: u64) -> u64 {
+        self.following_seqs.iter().filter(|&&s| s > seq).count() as u64
+    }
+
+    fn fresh_share(&self) -> f64 {
+        self.fresh as f64 / self.samples.max(1) as f64
+    }
+}
+
+fn first_seq(seen: &Seen) -> u64 {
+    seen.first.map_or(0, |m| m.seq)
+}
+
+/// Cycles of the driver that fit in the controller's input time-out.
+fn fresh_cycles(c: &Config) -> u16 {
+    let t = c.tendon.as_ref().unwrap();
+    (c.controller.tracker_timeout_ms / 1000.0 * t.rate_hz).floor() as u16
+}
+
+/// Reads `motor_state` (and counts HOLD setpoints) until `done` says so.
+fn watch_bus(
+    motors: &Sub<MotorState>,
+    setpoints: &Sub<Setpoint>,
+    fresh: u16,
+    mut done: impl FnMut(&Seen) -> bool,
+) -> (Seen, u64) {
+    let mut seen = Seen::default();
+    let mut holds = 0;
+    let start = Instant::now();
+    let mut checked = Instant::now();
+    loop {
+        while let Ok(Some(m)) = motors.receive() {
+            seen.take(&m, fresh);
+        }
+        while let Ok(Some(p)) = setpoints.receive() {
+            holds += u64::from(p.state == ControllerState::Hold as u32);
+        }
+        if checked.elapsed() > Duration::from_millis(500) {
+            checked = Instant::now();
+            if done(&seen) {
+                return (seen, holds);
+            }
+        }
+        assert!(start.elapsed() < LIMIT * 3, "{seen:#?}");
+        std::thread::sleep(Duration::from_millis(2));
+    }
+}
+
+/// The demo set, two executions, run through a noisy bus: the goals keep up with the driver's
+/// cycles, the motor data stays fresh, the set executes and the controller never holds.
+fn demo_through(name: &str, faults: BusFaults) {
+    let (mut s, c, rig) = stack(name, true);
+    let n = node(&s);
+    let motors = n.subscriber(&n.motor_state().unwrap()).unwrap();
+    let setpoints = n.subscriber(&n.setpoint().unwrap()).unwrap();
+    let watch = Watch::start(
+        &Namespace::new(&s.namespace).unwrap(),
+        Limits::from_config(&c),
+    )
+    .unwrap();
+    noise(&rig, faults, 20);
+    let before = counters(&rig);
+    let (code, out, err) = s.submit(Path::new(DEMO_WAYPOINTS), 2);
+    assert_eq!(code, 0, "{out}{err}");
+    let set = set_id(&out);
+    let (seen, holds) = watch_bus(&motors, &setpoints, fresh_cycles(&c), |_| {
+        watch.executions_of(set) >= 2
+    });
+    let after = counters(&rig);
+    noise(&rig, BusFaults::default(), 20);
+    let report = watch.finish();
+    let writes = after.goal_writes - before.goal_writes;
+    let last = seen.last.unwrap();
+    let first = seen.first.unwrap();
+    let wanted = last.setpoint_cycles - first.setpoint_cycles;
+    eprintln!(
+        "{name}: {writes} goal writes at the motors in {} driver cycles with a fresh setpoint \
+         ({:.3} per cycle; {} cycles in all), {} motor states, \
+         {:.4} fresher than the controller's time-out (oldest {} cycles), states {:?}, loss up \
+         to {} per mille, {} HOLD setpoints; bus {:?}; driver: dropped {} crc {} garbage {} \
+         time-outs {} reopens {}",
+        wanted,
+        writes as f64 / wanted as f64,
+        seen.cycles,
+        seen.samples,
+        seen.fresh_share(),
+        seen.max_age_cycles,
+        seen.states,
+        seen.max_loss_permille,
+        holds,
+        after,
+        last.dropped - first.dropped,
+        last.crc_errors - first.crc_errors,
+        last.garbage_bytes - first.garbage_bytes,
+        last.timeouts - first.timeouts,
+        last.reopens,
+    );
+    let lost = after.dropped_replies + after.corrupted_packets
+        - before.dropped_replies
+        - before.corrupted_packets;
+    assert!(
+        lost > 20,
+        "{name}: the noise reached too few replies: {lost}"
+    );
+    // The writes wait for nothing: one per cycle with a setpoint, sent and arrived.
+    assert_eq!(
+        last.goal_writes - first.goal_writes,
+        wanted,
+        "{name}: goal writes sent in cycles with a fresh setpoint"
+    );
+    assert!(
+        writes as f64 >= 0.95 * wanted as f64,
+        "{name}: {writes} goal writes arrived in {wanted} cycles with a setpoint"
+    );
+    assert!(
+        seen.fresh_share() >= 0.99,
+        "{name}: motor data fresh in {:.4} of the samples",
+        seen.fresh_share()
+    );
+    assert_eq!(holds, 0, "{name}: the controller held\n{}", s.logs());
+    assert_eq!(
+        last.reopens, 0,
+        "{name}: a noisy bus is no reason to reopen the port"
+    );
+    assert!(
+        seen.states.get("DEGRADED").copied().unwrap_or(0) > 0,
+        "{name}: lost replies and never DEGRADED: {:?}",
+        seen.states
+    );
+    assert_eq!(report.violations, 0, "{name}: {:#?}", report.messages);
+    assert_eq!(report.executions, 2);
+    s.stop();
+}
+
+#[test]
+fn noisy_bus_corrupted_bytes_keeps_the_arm_going() {
+    demo_through(
+        "hw-noise-bytes",
+        BusFaults {
+            corrupt_byte_ppm: 20_000,
+            ..Default::default()
+        },
+    );
+}
+
+#[test]
+fn noisy_bus_dropped_replies_keeps_the_arm_going() {
+    demo_through(
+        "hw-noise-drops",
+        BusFaults {
+            drop_reply_ppm: 20_000,
+            ..Default::default()
+        },
+    );
+}
+
+/// 10 % of the reply bytes corrupted: most replies are lost. The goals still go out, the
+/// driver says the bus is failing (DEGRADED, most replies lost; `status` in words), the
+/// controller holds on the stale data, and no invariant breaks; clean again, it follows.
+#[test]
+fn a_failing_bus_is_safe_and_said_so() {
+    let (mut s, c, rig) = stack("hw-noise-failing", true);
+    let n = node(&s);
+    let motors = n.subscriber(&n.motor_state().unwrap()).unwrap();
+    let setpoints = n.subscriber(&n.setpoint().unwrap()).unwrap();
+    let watch = Watch::start(
+        &Namespace::new(&s.namespace).unwrap(),
+        Limits::from_config(&c),
+    )
+    .unwrap();
+    let (code, out, err) = s.submit(Path::new(DEMO_WAYPOINTS), 50);
+    assert_eq!(code, 0, "{out}{err}");
+    s.wait_status("EXECUTE", LIMIT, |st| {
+        st["controller"]["state"] == "EXECUTE"
+    });
+    noise(
+        &rig,
+        BusFaults {
+            corrupt_byte_ppm: 100_000,
+            ..Default::default()
+        },
+        10,
+    );
+    let before = counters(&rig);
+    let start = Instant::now();
+    let (seen, holds) = watch_bus(&motors, &setpoints, fresh_cycles(&c), |_| {
+        start.elapsed() > Duration::from_secs(6)
+    });
+    let after = counters(&rig);
+    let text = String::from_utf8_lossy(&s.run(&["status"]).stdout).to_string();
+    let writes = after.goal_writes - before.goal_writes;
+    eprintln!(
+        "10 %: {writes} goal writes in {} cycles, fresh {:.3}, states {:?}, loss up to {} \
+         per mille, {holds} HOLD setpoints\n{text}",
+        seen.cycles,
+        seen.fresh_share(),
+        seen.states,
+        seen.max_loss_permille
+    );
+    let (first, last) = (seen.first.unwrap(), seen.last.unwrap());
+    let wanted = last.setpoint_cycles - first.setpoint_cycles;
+    assert_eq!(
+        last.goal_writes - first.goal_writes,
+        wanted,
+        "goal writes sent"
+    );
+    assert!(
+        writes as f64 >= 0.95 * wanted as f64,
+        "{writes} goal writes arrived in {wanted} cycles with a setpoint"
+    );
+    assert!(seen.max_loss_permille >= 500, "{}", seen.max_loss_permille);
+    // The loss rate covers the last second: a few cycles pass before it shows.
+    assert!(
+        seen.following_after(first_seq(&seen) + 20) == 0,
+        "FOLLOWING on a failing bus: {:?}",
+        seen.states
+    );
+    assert!(text.contains("DEGRADED (bus failing"), "{text}");
+    assert!(holds > 0, "the controller should hold on stale motor data");
+    // Clean again: following, fresh.
+    noise(&rig, BusFaults::default(), 10);
+    eventually("FOLLOWING on a clean bus", LIMIT, || {
+        motors
+            .receive()
+            .ok()
+            .flatten()
+            .filter(|m| m.driver_state() == Some(DriverState::Following) && m.age_cycles < 3)
+            .map(|_| ())
+    });
+    let report = watch.finish();
+    assert_eq!(report.violations, 0, "{:#?}", report.messages);
+    s.stop();
+}
+
+fn send(setpoints: &Pub<Setpoint>, a: f64) {
+    setpoints
+        .send_copy(Setpoint {
+            stamp_ns: now_ns(),
+            actuation: [a; 6],
+            ..Setpoint::default()
+        })
+        .unwrap();
+}
+
+/// The newest motor state after a few more cycles, every read of the noise closed.
+fn settled(motors: &Sub<MotorState>, setpoints: &Pub<Setpoint>, cycles: u64) -> MotorState {
+    let mut first = None;
+    eventually("a few more cycles", LIMIT, || {
+        send(setpoints, 0.5);
+        std::thread::sleep(Duration::from_millis(5));
+        let mut last = None;
+        while let Ok(Some(m)) = motors.receive() {
+            last = Some(*m);
+        }
+        let m = last?;
+        let f = *first.get_or_insert(m.seq);
+        (m.seq >= f + cycles).then_some(m)
+    })
+}
+
+/// Each lost reply counted once, each bad CRC once, each garbage byte once: the driver's counts
+/// equal the emulator's, exactly. (The driver at 20 Hz, so a reply the loaded machine delivers
+/// late is still inside its read.)
+#[test]
+fn lost_replies_bad_crcs_and_garbage_are_counted_once_each() {
+    let (s, _c, rig) = stack("hw-noise-count", false);
+    let text = std::fs::read_to_string(&s.config).unwrap();
+    let text = softarm_test_support::with_overrides(&text, &[("tendon.rate_hz", 20.0.into())]);
+    std::fs::write(&s.config, text).unwrap();
+    let n = node(&s);
+    let setpoints = n.publisher(&n.setpoint().unwrap()).unwrap();
+    let motors = n.subscriber(&n.motor_state().unwrap()).unwrap();
+    let driver = Guard(s.spawn(&["tendon"]));
+    let first = eventually("following", LIMIT, || {
+        send(&setpoints, 0.5);
+        std::thread::sleep(Duration::from_millis(10));
+        motors
+            .receive()
+            .ok()
+            .flatten()
+            .filter(|m| m.driver_state() == Some(DriverState::Following))
+            .map(|m| *m)
+    });
+    // Up and following at once: one exchange at start, then the first cycles' reads.
+    assert!(
+        first.seq <= 3,
+        "FOLLOWING at the driver's {}th cycle",
+        first.seq
+    );
+    let phases = [
+        (
+            "dropped",
+            BusFaults {
+                drop_reply_ppm: 50_000,
+                ..Default::default()
+            },
+        ),
+        (
+            "bad CRCs",
+            BusFaults {
+                corrupt_crc_one_in: 20,
+                ..Default::default()
+            },
+        ),
+        (
+            "garbage",
+            BusFaults {
+                garbage_one_in: 10,
+                ..Default::default()
+            },
+        ),
+    ];
+    for (seed, (what, faults)) in phases.into_iter().enumerate() {
+        noise(&rig, faults, seed as u64 + 1);
+        let start = Instant::now();
+        while start.elapsed() < Duration::from_secs(4) {
+            send(&setpoints, 0.5);
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        noise(&rig, BusFaults::default(), 0);
+        let m = settled(&motors, &setpoints, 3);
+        let e = counters(&rig);
+        eprintln!(
+            "after {what}: driver dropped {} crc {} garbage {} time-outs {} reopens {} faults \
+             {}; emulator {e:?}",
+            m.dropped, m.crc_errors, m.garbage_bytes, m.timeouts, m.reopens, m.faults
+        );
+        assert_eq!(m.dropped, e.dropped_replies, "{what}: dropped replies");
+        assert_eq!(m.crc_errors, e.corrupted_crcs, "{what}: CRC errors");
+        assert_eq!(m.garbage_bytes, e.garbage_sent, "{what}: garbage bytes");
+        assert_eq!(m.reopens, 0, "{what}");
+        assert_eq!(
+            m.faults,
+            m.dropped + m.crc_errors,
+            "{what}: faults, each once"
+        );
+        assert!(
+            m.dropped + m.crc_errors == 0 || m.timeouts > 0,
+            "{what}: reads with a reply missing"
+        );
+    }
+    assert!(counters(&rig).dropped_replies > 10);
+    assert!(counters(&rig).corrupted_crcs > 10);
+    assert!(driver.stop(LIMIT).success());
+}
+
+/// Setpoints at the controller's rate (500 Hz) until `stop`, as a running controller sends.
+fn controller_like(
+    namespace: String,
+    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+) -> std::thread::JoinHandle<()> {
+    std::thread::spawn(move || {
+        let n = Node::open(Namespace::new(&namespace).unwrap(), "setpoints").unwrap();
+        let setpoints = n.publisher(&n.setpoint().unwrap()).unwrap();
+        while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+            send(&setpoints, 0.5);
+            std::thread::sleep(Duration::from_millis(2));
+        }
+    })
+}
+
+/// The wall-clock figures of issue 20, measured (not asserted): the driver alone at
+/// `tendon.rate_hz` (100 Hz) with setpoints at 500 Hz, 10 s per noise: goal writes per second
+/// against the configured rate, the longest gap between two goal writes at the emulated
+/// motors, and the share of `motor_state` samples fresher than the controller's input time-out
+/// (in the driver's cycles, and in milliseconds when this thread received them). Also how
+/// long a driver takes from its start to FOLLOWING. Run on a quiet machine:
+/// `cargo test --test e2e noisy_bus_figures -- --ignored --nocapture`.
+#[test]
+#[ignore = "a measurement: wall-clock figures, printed"]
+fn noisy_bus_figures() {
+    use std::sync::Arc;
+    use std::sync::atomic::AtomicBool;
+    let (s, c, rig) = stack("hw-noise-figures", false);
+    let t = c.tendon.clone().unwrap();
+    let timeout_ns = (c.controller.tracker_timeout_ms * 1e6) as u64;
+    let n = node(&s);
+    let motors = n.subscriber(&n.motor_state().unwrap()).unwrap();
+    let stop = Arc::new(AtomicBool::new(false));
+    let feeder = controller_like(s.namespace.clone(), stop.clone());
+    let started = Instant::now();
+    let driver = Guard(s.spawn(&["tendon"]));
+    let first = eventually("following", LIMIT, || {
+        motors
+            .receive()
+            .ok()
+            .flatten()
+            .filter(|m| m.driver_state() == Some(DriverState::Following))
+            .map(|m| *m)
+    });
+    println!(
+        "start: FOLLOWING {:.0} ms after the process was started, at its {}th motor_state",
+        started.elapsed().as_secs_f64() * 1e3,
+        first.seq
+    );
+    let phases = [
+        ("clean", BusFaults::default()),
+        (
+            "2 % bytes corrupted",
+            BusFaults {
+                corrupt_byte_ppm: 20_000,
+                ..Default::default()
+            },
+        ),
+        (
+            "2 % replies dropped",
+            BusFaults {
+                drop_reply_ppm: 20_000,
+                ..Default::default()
+            },
+        ),
+        (
+            "10 % bytes corrupted",
+            BusFaults {
+                corrupt_byte_ppm: 100_000,
+                ..Default::default()
+            },
+        ),
+    ];
+    println!(
+        "| bus | goal writes/s (of {:.0}) | longest gap ms (periods) | fresh, driver cycles | \
+         fresh, ms at receipt | oldest ms at receipt | replies lost (mean of the driver's \
+         last-second rate) | states |",
+        t.rate_hz
+    );
+    println!("|---|---|---|---|---|---|---|---|");
+    for (what, faults) in phases {
+        noise(&rig, faults, 7);
+        rig.bus.lock().unwrap().record_goal_writes(true);
+        let (mut seen, mut fresh_ms, mut oldest_ms) = (Seen::default(), 0u64, 0.0f64);
+        let start = Instant::now();
+        let before = counters(&rig);
+        while start.elapsed() < Duration::from_secs(10) {
+            while let Ok(Some(m)) = motors.receive() {
+                seen.take(&m, fresh_cycles(&c));
+                let age = now_ns().saturating_sub(m.stamp_ns);
+                fresh_ms += u64::from(age < timeout_ns);
+                oldest_ms = oldest_ms.max(age as f64 / 1e6);
+            }
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        let elapsed = start.elapsed().as_secs_f64();
+        let after = counters(&rig);
+        let times = rig.bus.lock().unwrap().goal_write_times().to_vec();
+        rig.bus.lock().unwrap().record_goal_writes(false);
+        let gap = times.windows(2).map(|w| w[1] - w[0]).fold(0.0, f64::max);
+        let rate = (after.goal_writes - before.goal_writes) as f64 / elapsed;
+        let loss = seen.loss_permille_sum as f64 / seen.samples.max(1) as f64 / 10.0;
+        println!(
+            "| {what} | {rate:.1} ({:.1} %) | {:.1} ({:.2}) | {:.4} | {:.4} | {oldest_ms:.0} | \
+             {loss:.1} % | {:?} |",
+            100.0 * rate / t.rate_hz,
+            gap * 1e3,
+            gap * t.rate_hz,
+            seen.fresh_share(),
+            fresh_ms as f64 / seen.samples.max(1) as f64,
+            seen.states,
+        );
+    }
+    stop.store(true, std::sync::atomic::Ordering::Relaxed);
+    feeder.join().unwrap();
+    assert!(driver.stop(LIMIT).success());
+}
