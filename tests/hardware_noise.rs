@@ -244,6 +244,48 @@ fn noisy_bus_dropped_replies_keeps_the_arm_going() {
     );
 }
 
+/// A tendon driver restarted while 2 % of the reply bytes are garbled finds all six motors and
+/// drives them again: its start-up survey's long replies arrive whole only about a quarter of
+/// the time, so it must ask again until each motor has answered.
+#[test]
+fn a_driver_restarted_on_a_noisy_bus_finds_every_motor() {
+    let (s, _c, rig) = stack("hw-noise-restart", true);
+    let n = node(&s);
+    let motors = n.subscriber(&n.motor_state().unwrap()).unwrap();
+    noise(
+        &rig,
+        BusFaults {
+            corrupt_byte_ppm: 20_000,
+            ..BusFaults::default()
+        },
+        21,
+    );
+    let tendon = |s: &TestStack| s.children().into_iter().find(|c| c.0 == "tendon");
+    let (_, old) = tendon(&s).expect("a tendon driver");
+    nix::sys::signal::kill(
+        nix::unistd::Pid::from_raw(old),
+        nix::sys::signal::Signal::SIGKILL,
+    )
+    .unwrap();
+    let killed_ns = now_ns();
+    eventually("a new tendon driver with motor data", LIMIT, || {
+        let mut driving = false;
+        while let Ok(Some(m)) = motors.receive() {
+            driving |= m.stamp_ns > killed_ns
+                && matches!(
+                    m.driver_state(),
+                    Some(DriverState::Following | DriverState::Degraded)
+                );
+        }
+        (driving && tendon(&s).is_some_and(|(_, pid)| pid != old)).then_some(())
+    });
+    assert!(
+        !s.logs().contains("no answer on"),
+        "a start-up on the noisy bus missed a motor: {}",
+        s.logs()
+    );
+}
+
 /// 10 % of the reply bytes corrupted: most replies are lost. The goals still go out, the
 /// driver says the bus is failing (DEGRADED, most replies lost; `status` in words), the
 /// controller holds on the stale data, and no invariant breaks; clean again, it follows.
