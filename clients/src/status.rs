@@ -23,6 +23,10 @@ impl Report {
     }
 }
 
+/// How long `status` waits for a driver's `motor_state` once the controller's status is in:
+/// many of the drivers' periods (5 to 10 ms), so only a driver that is not publishing is missed.
+const MOTOR_STATE_WAIT: Duration = Duration::from_millis(200);
+
 /// Looks at a namespace: the node list and the newest controller status (waiting up to
 /// `timeout` for it).
 pub fn status(namespace: &Namespace, timeout: Duration) -> Result<Report, softarm_ipc::Error> {
@@ -31,14 +35,20 @@ pub fn status(namespace: &Namespace, timeout: Duration) -> Result<Report, softar
     let motor_sub = ipc.subscriber(&ipc.motor_state()?)?;
     let mut newest = None;
     let mut motors = None;
+    let mut status_at = None;
     crate::poll(timeout, || {
         while let Ok(Some(s)) = sub.receive() {
             newest = Some(*s);
+            status_at.get_or_insert_with(std::time::Instant::now);
         }
         while let Ok(Some(m)) = motor_sub.receive() {
             motors = Some(*m);
         }
-        newest.map(|_| ())
+        // The controller's status may come at once (the service keeps the last); the driver's
+        // next motor_state is a period away. Without this wait the driver's line was missing now
+        // and then (seen in a test reading DEGRADED from it).
+        let driver_had_its_chance = status_at.is_some_and(|t| t.elapsed() >= MOTOR_STATE_WAIT);
+        (newest.is_some() && (motors.is_some() || driver_had_its_chance)).then_some(())
     });
     let mut alive: Vec<String> = ipc
         .alive_nodes()?
