@@ -1004,7 +1004,7 @@ mod tests {
 
     #[test]
     fn hemisphere_is_selected_read_back_and_folds_positions_not_angles() {
-        use softarm_tracker::bird::Hemisphere;
+        use softarm_tracker::bird::{Hemisphere, HemisphereBytes};
         let mut dev = BirdDevice::new(FS);
         let mut out = Vec::new();
         let examine = |dev: &mut BirdDevice| {

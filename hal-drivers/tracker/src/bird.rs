@@ -184,37 +184,23 @@ pub fn examine_value_len(parameter: u8) -> Option<usize> {
     })
 }
 
-/// The hemisphere a Bird reports positions in (see the module docs).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Hemisphere {
-    /// +X, the unit's default.
-    Forward,
-    /// -X.
-    Aft,
-    /// -Z.
-    Upper,
-    /// +Z.
-    Lower,
-    /// -Y.
-    Left,
-    /// +Y.
-    Right,
-}
+/// The hemisphere a Bird reports positions in (see the module docs): the config's type, one
+/// meaning in one place; its bytes on the wire are [`HemisphereBytes`].
+pub use softarm_config::hardware::TrackerHemisphere as Hemisphere;
 
-impl Hemisphere {
-    /// Every hemisphere.
-    pub const ALL: [Self; 6] = [
-        Self::Forward,
-        Self::Aft,
-        Self::Upper,
-        Self::Lower,
-        Self::Left,
-        Self::Right,
-    ];
-
+/// A hemisphere as the protocol spells it.
+pub trait HemisphereBytes: Sized {
     /// HEMI AXIS, HEMI SIGN: the two bytes after [`HEMISPHERE`], and the answer to EXAMINE
     /// VALUE of [`param::HEMISPHERE`].
-    pub fn bytes(self) -> [u8; 2] {
+    fn bytes(self) -> [u8; 2];
+    /// The hemisphere two bytes name, if they name one.
+    fn from_bytes(bytes: [u8; 2]) -> Option<Self>;
+    /// The whole command: [`HEMISPHERE`], axis, sign.
+    fn command(self) -> [u8; 3];
+}
+
+impl HemisphereBytes for Hemisphere {
+    fn bytes(self) -> [u8; 2] {
         match self {
             Self::Forward => [0x00, 0x00],
             Self::Aft => [0x00, 0x01],
@@ -225,13 +211,11 @@ impl Hemisphere {
         }
     }
 
-    /// The hemisphere two bytes name, if they name one.
-    pub fn from_bytes(bytes: [u8; 2]) -> Option<Self> {
+    fn from_bytes(bytes: [u8; 2]) -> Option<Self> {
         Self::ALL.into_iter().find(|h| h.bytes() == bytes)
     }
 
-    /// The whole command: [`HEMISPHERE`], axis, sign.
-    pub fn command(self) -> [u8; 3] {
+    fn command(self) -> [u8; 3] {
         let [axis, sign] = self.bytes();
         [HEMISPHERE, axis, sign]
     }

@@ -24,7 +24,7 @@ pub mod bird;
 mod setup;
 
 use bird::{Decoder, RecordFormat};
-pub use setup::{READBACK_TIMEOUT, ReadBack, StopBy, hemisphere_of};
+pub use setup::{READBACK_TIMEOUT, ReadBack, StopBy};
 
 /// How long one read waits: the loop's longest pause (opening the port, with its drain and
 /// read-back, takes longer: at most about 1.4 s).

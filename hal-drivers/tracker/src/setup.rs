@@ -26,9 +26,9 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use serial2::SerialPort;
-use softarm_config::hardware::{TrackerConfig, TrackerHemisphere, TrackerMode};
+use softarm_config::hardware::{TrackerConfig, TrackerMode};
 
-use crate::bird::{self, Decoder, Hemisphere};
+use crate::bird::{self, Decoder, Hemisphere, HemisphereBytes};
 use crate::{READ_TIMEOUT, format_of, read};
 
 /// How a stream is stopped on this unit.
@@ -64,18 +64,6 @@ pub const READBACK_TIMEOUT: Duration = Duration::from_millis(150);
 /// The longest a drain waits for the line to go quiet before deciding the unit still streams.
 const DRAIN_LIMIT: Duration = Duration::from_millis(600);
 
-/// The protocol's name of a configured hemisphere.
-pub fn hemisphere_of(h: TrackerHemisphere) -> Hemisphere {
-    match h {
-        TrackerHemisphere::Forward => Hemisphere::Forward,
-        TrackerHemisphere::Aft => Hemisphere::Aft,
-        TrackerHemisphere::Upper => Hemisphere::Upper,
-        TrackerHemisphere::Lower => Hemisphere::Lower,
-        TrackerHemisphere::Left => Hemisphere::Left,
-        TrackerHemisphere::Right => Hemisphere::Right,
-    }
-}
-
 /// Opens `t.port` and sets the unit up (see the module docs). `decoder` is the one the driver
 /// reads records with: a POINT answer still owed when this returns is left for it to discard.
 pub(crate) fn open(
@@ -96,7 +84,7 @@ pub(crate) fn open(
     let _ = port.discard_buffers();
     let on = |what: &str| format!("tracker {}: {what}", t.port.display());
     let stop_by = quiesce(&mut port, t, decoder, stop_by).with_context(|| on("stopping"))?;
-    let readback = select_hemisphere(&mut port, hemisphere_of(t.hemisphere))
+    let readback = select_hemisphere(&mut port, t.hemisphere)
         .with_context(|| on("selecting the hemisphere (tracker.hemisphere)"))?;
     start(&mut port, t).with_context(|| on("starting"))?;
     Ok(Opened {
