@@ -55,7 +55,8 @@ fn newest<T: Copy + std::fmt::Debug + ZeroCopySend>(sub: &Sub<T>) -> Option<T> {
     last
 }
 
-fn send(setpoints: &Pub<Setpoint>, a: f64) {
+/// A setpoint of `a` on every actuator, stamped now (also used by `hardware_noise`).
+pub(crate) fn send(setpoints: &Pub<Setpoint>, a: f64) {
     setpoints
         .send_copy(Setpoint {
             stamp_ns: now_ns(),

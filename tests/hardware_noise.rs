@@ -21,6 +21,8 @@ use softarm_ipc::{ControllerState, DriverState, MotorState, Namespace, Node, Pub
 use softarm_runtime::now_ns;
 use softarm_test_support::{DEMO_WAYPOINTS, Guard, TestStack, eventually, set_id};
 
+use crate::hardware::send;
+
 const BIN: &str = env!("CARGO_BIN_EXE_softarm");
 const LIMIT: Duration = Duration::from_secs(60);
 
@@ -362,16 +364,6 @@ fn a_failing_bus_is_safe_and_said_so() {
     let report = watch.finish();
     assert_eq!(report.violations, 0, "{:#?}", report.messages);
     s.stop();
-}
-
-fn send(setpoints: &Pub<Setpoint>, a: f64) {
-    setpoints
-        .send_copy(Setpoint {
-            stamp_ns: now_ns(),
-            actuation: [a; 6],
-            ..Setpoint::default()
-        })
-        .unwrap();
 }
 
 /// The newest motor state after a few more cycles, every read of the noise closed.
