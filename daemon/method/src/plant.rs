@@ -196,6 +196,14 @@ impl Plant {
         &self.geometry
     }
 
+    /// The arm changes under the plant (a tool swapped, an actuator crept); the actuators stay
+    /// where they are.
+    pub fn set_geometry(&mut self, geometry: ArmGeometry) -> Result<(), String> {
+        geometry.validate()?;
+        self.geometry = geometry;
+        Ok(())
+    }
+
     pub fn time(&self) -> f64 {
         self.time
     }

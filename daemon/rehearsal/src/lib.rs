@@ -129,6 +129,11 @@ impl<'a> Rehearsal<'a> {
         &self.learner
     }
 
+    /// The sim's arm changes between sets, as when the sim restarts with another scenario.
+    pub fn change_arm(&mut self, arm: ArmGeometry) -> anyhow::Result<()> {
+        self.arm.plant.set_geometry(arm).map_err(anyhow::Error::msg)
+    }
+
     /// Runs `set` `executions` times from where the arm is; each execution's stats, as the
     /// controller publishes them on `stats`.
     pub fn rehearse(
