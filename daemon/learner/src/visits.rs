@@ -5,8 +5,9 @@
 
 use softarm_config::Config;
 use softarm_ipc::{
-    Actuation, ActuationEstimate, ConditioningSample, EstimateRequest, MAX_WAYPOINTS,
+    Actuation, ActuationEstimate, ConditioningSample, EstimateRequest, MAX_WAYPOINTS, Position,
 };
+use softarm_learning::arm::Seen;
 use softarm_learning::online::OnlineLearner;
 use softarm_method::space::Workspace;
 
@@ -26,6 +27,8 @@ pub struct Learner {
     /// The set, execution and point last learnt from.
     last_visit: Option<(u64, u32, u32)>,
     refused: u64,
+    /// Arm changes seen since the start.
+    arm_changes: u64,
 }
 
 impl Learner {
@@ -41,7 +44,40 @@ impl Learner {
             set_id: 0,
             last_visit: None,
             refused: 0,
+            arm_changes: 0,
         }
+    }
+
+    /// Arm changes seen since the start.
+    pub fn arm_changes(&self) -> u64 {
+        self.arm_changes
+    }
+
+    /// One sample of the arm (the actuators' measured state and the tracked position, at
+    /// `stamp_ns`). When it shows that the arm has changed, what was learnt of the old one is
+    /// forgotten, and the running set's points get new first estimates, which go back.
+    pub fn observe_arm(
+        &mut self,
+        stamp_ns: u64,
+        measured: &Actuation,
+        position: &Position,
+    ) -> Vec<ActuationEstimate> {
+        let Seen::Changed(off) = self.online.observe_arm(stamp_ns, measured, position) else {
+            return Vec::new();
+        };
+        self.arm_changes += 1;
+        let estimates = self.online.first_estimates();
+        tracing::info!(
+            off_mm = off * 1e3,
+            arm_changes = self.arm_changes,
+            set_id = self.set_id,
+            estimates = estimates.len(),
+            "the arm has changed: what was learnt of it is forgotten, the set starts over"
+        );
+        estimates
+            .into_iter()
+            .map(|(point, a)| estimate(self.set_id, point as u32, a))
+            .collect()
     }
 
     pub fn online(&self) -> &OnlineLearner {

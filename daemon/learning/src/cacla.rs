@@ -202,6 +202,32 @@ impl CaclaMtl {
         action: &Actuation,
         reached: &Position,
     ) -> Visit {
+        self.visit(memory, target, action, reached, true)
+    }
+
+    /// A visit that moves the critic and `memory` as [`CaclaMtl::observe`] does, but never the
+    /// actor: the actor stays what pre-training made it, the prior of an arm whose changes are
+    /// learnt elsewhere (the online learner's corrections under gauss-newton, which can be
+    /// forgotten when the arm changes; an actor that absorbed the actions of an arm that is gone
+    /// is wrong on the next).
+    pub fn judge(
+        &mut self,
+        memory: &mut Option<PointMemory>,
+        target: &Position,
+        action: &Actuation,
+        reached: &Position,
+    ) -> Visit {
+        self.visit(memory, target, action, reached, false)
+    }
+
+    fn visit(
+        &mut self,
+        memory: &mut Option<PointMemory>,
+        target: &Position,
+        action: &Actuation,
+        reached: &Position,
+        move_actor: bool,
+    ) -> Visit {
         let error = distance(target, reached);
         let prev = memory.filter(|m| m.target == *target);
         let visits = prev.map_or(0, |m| m.visits) + 1;
@@ -227,7 +253,7 @@ impl CaclaMtl {
         let prev_value = self.value(target, &prev.position);
         let td = reward + self.config.gamma * next_value - prev_value;
         self.critic.update(self.config.alpha_critic, td);
-        let actor_updated = td > 0.0;
+        let actor_updated = move_actor && td > 0.0;
         if actor_updated {
             // Ac(p_desired) moves the fraction α_Ac of the way toward the executed action.
             self.actor

@@ -7,7 +7,10 @@
 //!   pre-training; what every point shares.
 //! - [`online`] — the online learner over a running set: its one per-point state
 //!   (`online::Point`), Alg. 1 as printed or damped Gauss-Newton steps
-//!   (`softarm_method::learner_config::Algorithm`), and the transfer between sets.
+//!   (`softarm_method::learner_config::Algorithm`).
+//! - [`arm`] — what the online learner knows of the arm beyond its trained model: the
+//!   corrections carried between sets, and the footprint that says when the arm has changed.
 
+pub mod arm;
 pub mod cacla;
 pub mod online;

@@ -10,14 +10,18 @@
 //!   per point from what each step did on the real arm, inside a per-point trust region that
 //!   shrinks when a step makes things worse.
 //!
-//! What one set taught carries over to the next ([`Transfer`]): a set's first estimates are
+//! What one set taught carries over to the next ([`Corrections`]): a set's first estimates are
 //! what the trained model would send (the actor's mean refined against the polynomial
-//! kinematics, [`softarm_method::poly`]), plus the correction that the visited points needed, carried
-//! over task space.
+//! kinematics, [`softarm_method::poly`]), plus the correction that the visited points needed,
+//! carried over task space. Under gauss-newton the actor stays the trained prior and the
+//! corrections hold all that an arm taught, so when the arm's [`Footprint`] says the arm has
+//! changed they are forgotten at once, and the learner is never worse than one that knows
+//! nothing of the arm.
 //! Pure: no I/O, no clock; allocation only when a set starts.
 
-use nalgebra::{DMatrix, Matrix3, SVector, Vector3};
+use nalgebra::{Matrix3, SVector, Vector3};
 
+use crate::arm::{Corrections, Footprint, Sample, Seen};
 use crate::cacla::{CaclaMtl, PointMemory, Visit};
 use softarm_method::forward::{ForwardModel, Jacobian};
 use softarm_method::learner_config::{Algorithm, GaussNewtonConfig};
@@ -80,98 +84,21 @@ struct Point {
     retry: bool,
 }
 
-/// What the corrections learnt carries over to targets never visited: a Gaussian process over
-/// task space of the corrections Δa = a_measured − a_model of the points visited (a_measured:
-/// where the actuators were at the point's best try; a_model: what the trained model alone
-/// would send there), around their mean m:
-///
-///   Δa(p) = m + Σ_i κ(p, p_i) α_i,   κ(p, p') = σ_f² exp(−‖p − p'‖² / 2ℓ²),
-///   α = (K + σ_n² I)⁻¹ (ΔA − m).
-///
-/// A correction of the actuation, not of the forward model: the corrections of a changed arm
-/// lead off the demonstrations (a longer tool is made up for by shortening every actuator,
-/// which no demonstration did), where the trained model extrapolates by centimetres, so a model
-/// corrected at the visited actuations is wrong exactly where the next set goes (measured on
-/// `tool-change`: a second set's first execution 18 mm with a refitted model, 9 mm with this).
-/// From where the actuators were, not from the setpoint: the lag at a conditioning time depends
-/// on the path into it, which differs from set to set; the arm's change does not.
-struct Transfer {
-    /// (target, Δa), at most `transfer_points`, one per target.
-    points: Vec<(Position, Actuation)>,
-    mean: Actuation,
-    /// α, one per point.
-    alpha: Vec<Actuation>,
-}
-
-/// Targets closer than this are the same point of the transfer (m).
-const SAME_TARGET_M: f64 = 1e-3;
-
-impl Transfer {
-    fn new() -> Self {
+impl Point {
+    /// A point nothing is known of, its trust region at `radius`.
+    fn new(radius: f64) -> Self {
         Self {
-            points: Vec::new(),
-            mean: [0.0; ACTUATORS],
-            alpha: Vec::new(),
+            memory: None,
+            target: None,
+            first: None,
+            model: None,
+            last: None,
+            best: None,
+            radius,
+            jacobian: None,
+            bias: None,
+            retry: false,
         }
-    }
-
-    fn len(&self) -> usize {
-        self.points.len()
-    }
-
-    fn kernel(c: &GaussNewtonConfig, p: &Position, q: &Position) -> f64 {
-        let l = c.transfer_length_m;
-        c.transfer_spread.powi(2) * (-distance(p, q).powi(2) / (2.0 * l * l)).exp()
-    }
-
-    /// Records `correction` for `target` and solves for α again: a Cholesky of at most
-    /// `transfer_points`² (well under a millisecond for 64), once per visit, in the learner.
-    fn set(&mut self, c: &GaussNewtonConfig, target: &Position, correction: Actuation) {
-        match self
-            .points
-            .iter_mut()
-            .find(|(p, _)| distance(p, target) < SAME_TARGET_M)
-        {
-            Some(p) => p.1 = correction,
-            None => {
-                if self.points.len() >= c.transfer_points {
-                    self.points.remove(0);
-                }
-                self.points.push((*target, correction));
-            }
-        }
-        let n = self.points.len();
-        self.mean =
-            std::array::from_fn(|i| self.points.iter().map(|p| p.1[i]).sum::<f64>() / n as f64);
-        let k = DMatrix::from_fn(n, n, |i, j| {
-            Self::kernel(c, &self.points[i].0, &self.points[j].0)
-                + if i == j {
-                    c.transfer_noise.powi(2)
-                } else {
-                    0.0
-                }
-        });
-        let r = DMatrix::from_fn(n, ACTUATORS, |i, d| self.points[i].1[d] - self.mean[d]);
-        // K + σ_n² I is positive definite; should rounding say otherwise, the mean alone.
-        self.alpha = match k.cholesky() {
-            Some(ch) => {
-                let a = ch.solve(&r);
-                (0..n).map(|i| std::array::from_fn(|d| a[(i, d)])).collect()
-            }
-            None => vec![[0.0; ACTUATORS]; n],
-        };
-    }
-
-    /// Δa(p); zero before any point was corrected.
-    fn at(&self, c: &GaussNewtonConfig, p: &Position) -> Actuation {
-        let mut out = self.mean;
-        for ((q, _), alpha) in self.points.iter().zip(&self.alpha) {
-            let k = Self::kernel(c, p, q);
-            for (o, a) in out.iter_mut().zip(alpha) {
-                *o += k * a;
-            }
-        }
-        out
     }
 }
 
@@ -242,18 +169,45 @@ fn error_vector(target: &Position, p: &Position) -> Vector3<f64> {
 pub struct OnlineLearner {
     cacla: CaclaMtl,
     kinematics: Polynomial,
-    transfer: Transfer,
+    corrections: Corrections,
+    footprint: Footprint,
     set: Vec<Point>,
+}
+
+/// What the online learner knows of the arm beyond its trained model; kept in the learner's
+/// checkpoint so that a restarted learner knows the arm it left.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ArmState {
+    /// (target, Δa) of [`Corrections::points`].
+    pub corrections: Vec<(Position, Actuation)>,
+    /// [`Footprint::samples`].
+    pub footprint: Vec<Sample>,
 }
 
 impl OnlineLearner {
     pub fn new(cacla: CaclaMtl, kinematics: Polynomial) -> Self {
         Self {
-            transfer: Transfer::new(),
+            corrections: Corrections::default(),
+            footprint: Footprint::default(),
             cacla,
             kinematics,
             set: Vec::with_capacity(MAX_WAYPOINTS),
         }
+    }
+
+    /// What it knows of the arm, for a checkpoint.
+    pub fn arm_state(&self) -> ArmState {
+        ArmState {
+            corrections: self.corrections.points().to_vec(),
+            footprint: self.footprint.samples().to_vec(),
+        }
+    }
+
+    /// Takes up what a checkpoint knew of the arm.
+    pub fn restore_arm(&mut self, arm: &ArmState) {
+        let c = self.cacla.config().gauss_newton;
+        self.corrections = Corrections::from_points(&c, &arm.corrections);
+        self.footprint = Footprint::from_samples(&arm.footprint);
     }
 
     pub fn algorithm(&self) -> Algorithm {
@@ -264,9 +218,53 @@ impl OnlineLearner {
         &self.cacla
     }
 
-    /// Targets whose corrections the transfer holds.
+    /// Targets whose corrections it holds.
     pub fn transfer_points(&self) -> usize {
-        self.transfer.len()
+        self.corrections.len()
+    }
+
+    /// One sample of the arm between or during executions: the actuators' measured state and the
+    /// tracked position at `stamp_ns`. When it says the arm has changed (the footprint, see
+    /// [`Footprint`]), what was learnt of the old arm is forgotten: the corrections, and every
+    /// point's history in the running set. The caller then sends [`OnlineLearner::first_estimates`].
+    pub fn observe_arm(
+        &mut self,
+        stamp_ns: u64,
+        measured: &Actuation,
+        position: &Position,
+    ) -> Seen {
+        if !measured.iter().chain(position).all(|v| v.is_finite())
+            || self.algorithm() != Algorithm::GaussNewton
+        {
+            return Seen::Nothing;
+        }
+        let threshold = self.cacla.config().gauss_newton.change_threshold_m;
+        let seen = self
+            .footprint
+            .observe(threshold, stamp_ns, measured, position);
+        if let Seen::Changed(_) = seen {
+            self.corrections = Corrections::default();
+            let radius = self.cacla.config().gauss_newton.trust_initial;
+            for p in &mut self.set {
+                *p = Point {
+                    target: p.target,
+                    model: p.model,
+                    ..Point::new(radius)
+                };
+            }
+        }
+        seen
+    }
+
+    /// The exploration-free estimate of every point of the running set whose target is known:
+    /// what a set's first execution runs, and what replaces a changed arm's estimates.
+    pub fn first_estimates(&mut self) -> Vec<(usize, Actuation)> {
+        (0..self.set.len())
+            .filter_map(|n| {
+                let target = self.set[n].target?;
+                self.estimate(n, &target, false).ok().map(|a| (n, a))
+            })
+            .collect()
     }
 
     /// A new set: every point's history starts over; returns the estimates of its first
@@ -290,21 +288,8 @@ impl OnlineLearner {
             return Err(OnlineError::SetSize(points));
         }
         self.set.clear();
-        self.set.resize(
-            points,
-            Point {
-                memory: None,
-                target: None,
-                first: None,
-                model: None,
-                last: None,
-                best: None,
-                radius: self.cacla.config().gauss_newton.trust_initial,
-                jacobian: None,
-                bias: None,
-                retry: false,
-            },
-        );
+        let radius = self.cacla.config().gauss_newton.trust_initial;
+        self.set.resize(points, Point::new(radius));
         Ok(())
     }
 
@@ -412,14 +397,19 @@ impl OnlineLearner {
                 None => p.best = Some(now),
             }
             p.last = Some(now);
-            // What this point needed beyond the trained model, for the sets to come. Unknown
-            // for a point whose first estimate this learner did not make (it restarted).
-            if let (Some(model), Some(best)) = (p.model, p.best) {
-                self.transfer.set(&c, target, minus(&best.measured, &model));
+            // What this point needed beyond the trained model, for the sets to come.
+            if let Some(best) = p.best {
+                let model = self.model(point, target);
+                self.corrections
+                    .set(&c, target, minus(&best.measured, &model));
             }
         }
         let memory = &mut self.set[point].memory;
-        Ok(self.cacla.observe(memory, target, action, reached))
+        Ok(if gauss_newton {
+            self.cacla.judge(memory, target, action, reached)
+        } else {
+            self.cacla.observe(memory, target, action, reached)
+        })
     }
 
     /// The actuation to send for `point`'s next visit; with `explore` false (a set's first
@@ -469,11 +459,21 @@ impl OnlineLearner {
         if let Some(first) = p.first {
             return Ok(first);
         }
-        let model = self.refine(target);
-        let first = plus(&model, &self.transfer.at(&c, target));
-        self.set[point].model = Some(model);
+        let model = self.model(point, target);
+        let first = plus(&model, &self.corrections.at(&c, target));
         self.set[point].first = Some(first);
         Ok(first)
+    }
+
+    /// What the trained model alone would send for `point` (at `target`), worked out once per
+    /// point: under gauss-newton the actor never changes online, so neither does this.
+    fn model(&mut self, point: usize, target: &Position) -> Actuation {
+        if let Some(m) = self.set[point].model {
+            return m;
+        }
+        let m = self.refine(target);
+        self.set[point].model = Some(m);
+        m
     }
 
     /// What the trained model alone would send: the actor's mean, refined by Gauss-Newton

@@ -291,15 +291,20 @@ pub struct GaussNewtonConfig {
     /// A point's Jacobian learns from a step only if the step was meant to move the end
     /// effector more than this (m, ‖J Δa‖): the noise of smaller moves would dominate.
     pub broyden_min_m: f64,
+    /// The arm has changed when, where its actuators stood still, it is this far (m) from
+    /// where it was before at the same actuation (most of the last checks): what was learnt of
+    /// it is forgotten then. Over tracker noise and creep between visits, under any step of
+    /// the arm that matters.
+    pub change_threshold_m: f64,
 }
 
 impl Default for GaussNewtonConfig {
     fn default() -> Self {
         Self {
-            gain: 0.8,
+            gain: 1.0,
             damping_m: 0.005,
-            trust_initial: 0.2,
-            trust_max: 0.3,
+            trust_initial: 0.5,
+            trust_max: 0.8,
             trust_min: 0.01,
             noise_m: 0.002,
             refine_steps: 10,
@@ -308,6 +313,7 @@ impl Default for GaussNewtonConfig {
             transfer_spread: 0.05,
             transfer_noise: 0.02,
             broyden_min_m: 0.005,
+            change_threshold_m: 0.004,
         }
     }
 }
@@ -328,6 +334,7 @@ impl GaussNewtonConfig {
             ("transfer_spread", self.transfer_spread, 0.0, 1.0),
             ("transfer_noise", self.transfer_noise, 0.0, 1.0),
             ("broyden_min_m", self.broyden_min_m, 0.0, 1.0),
+            ("change_threshold_m", self.change_threshold_m, 0.0, 1.0),
         ];
         for (k, v, lo, hi) in ranges {
             if !(v.is_finite() && v > lo && v <= hi) {

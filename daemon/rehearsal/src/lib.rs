@@ -15,7 +15,7 @@ use anyhow::{Context, bail};
 use softarm_config::Config;
 use softarm_config::waypoints::WaypointFile;
 use softarm_controller::{Execution, Limiter, admit, complete_sample, rest_ticks};
-use softarm_ipc::{ACTUATORS, Actuation, ExecutionStats, WaypointSet};
+use softarm_ipc::{ACTUATORS, Actuation, ActuationEstimate, ExecutionStats, WaypointSet};
 use softarm_learner::Learner;
 use softarm_method::blend::Replanner;
 use softarm_method::pcc::ArmGeometry;
@@ -23,6 +23,15 @@ use softarm_method::plant::{Measurement, Plant, SimConfig};
 use softarm_model::bundle::Model;
 
 const NS_PER_S: f64 = 1e9;
+
+/// How long the arm stands between a change and the next set: a sim driver restarting with
+/// another scenario takes longer than this to publish again (process start, iceoryx2 node, a
+/// 100 ms wait for a running controller's setpoint).
+pub const CHANGE_HOLD_NS: u64 = 200_000_000;
+
+/// How long the arm holds between two sets: `softarm submit --wait` returning on the set's
+/// last stats, the next `submit` starting and the controller planning its set take longer.
+pub const SET_GAP_NS: u64 = 200_000_000;
 
 /// The sim driver in simulated time: on its own deadlines (`sim.rate_hz`) it takes the newest
 /// setpoint, steps the plant by one period and publishes the measurement, which is the newest
@@ -59,10 +68,11 @@ impl SimArm {
     }
 
     /// Every step whose deadline is at or before `now_ns`: a sample published at the instant
-    /// of a tick is read by that tick.
-    fn run_until(&mut self, now_ns: u64) {
+    /// of a tick is read by that tick. `published` sees each measurement with its time.
+    fn run_until(&mut self, now_ns: u64, mut published: impl FnMut(u64, &Measurement)) {
         while self.due_ns <= now_ns {
             self.newest = self.plant.step(&self.command, self.dt);
+            published(self.due_ns, &self.newest);
             self.due_ns += self.period_ns;
         }
     }
@@ -130,8 +140,16 @@ impl<'a> Rehearsal<'a> {
     }
 
     /// The sim's arm changes between sets, as when the sim restarts with another scenario.
+    /// The sim's arm held where it was for [`CHANGE_HOLD_NS`], as the stack's is while its sim
+    /// restarts; the learner watches it (no set runs, so what it would send goes nowhere).
     pub fn change_arm(&mut self, arm: ArmGeometry) -> anyhow::Result<()> {
-        self.arm.plant.set_geometry(arm).map_err(anyhow::Error::msg)
+        self.arm
+            .plant
+            .set_geometry(arm)
+            .map_err(anyhow::Error::msg)?;
+        self.now_ns += CHANGE_HOLD_NS;
+        self.hold();
+        Ok(())
     }
 
     /// Runs `set` `executions` times from where the arm is; each execution's stats, as the
@@ -148,7 +166,27 @@ impl<'a> Rehearsal<'a> {
         while !(execution.at_boundary(self.rest_ticks) && execution.through()) {
             stats.extend(self.tick(&mut execution, &mut replanner));
         }
+        // The arm holds where the set left it until the next is admitted.
+        self.now_ns += SET_GAP_NS;
+        self.hold();
         Ok(stats)
+    }
+
+    /// The sim up to the clock, the learner reading each measurement as the learner process
+    /// reads `tracker` and `motor_state`: the estimates it sends back (on a change of the arm).
+    fn sim_until_now(&mut self) -> Vec<ActuationEstimate> {
+        let learner = &mut self.learner;
+        let mut estimates = Vec::new();
+        self.arm.run_until(self.now_ns, |t, m| {
+            estimates.extend(learner.observe_arm(t, &m.actuation, &m.position));
+        });
+        estimates
+    }
+
+    /// The arm held up to the clock with no set running: what the learner would send goes
+    /// nowhere.
+    fn hold(&mut self) {
+        self.sim_until_now();
     }
 
     /// As the service thread starts a set: admission, the learner's first estimates, the
@@ -179,26 +217,33 @@ impl<'a> Rehearsal<'a> {
         execution: &mut Execution,
         replanner: &mut Replanner<ACTUATORS>,
     ) -> Option<ExecutionStats> {
-        self.arm.run_until(self.now_ns);
+        for e in self.sim_until_now() {
+            recondition(replanner, &e);
+        }
         let newest = self.arm.newest;
         let t = execution.step(Some(newest.position), self.rest_ticks, self.now_ns, 0);
         let setpoint = self.limiter.apply(&t.target);
         self.arm.command = setpoint;
         if let Some(sample) = t.point {
             let sample = complete_sample(sample, setpoint, Some(newest.actuation));
-            if let Some(e) = self.learner.visit(&sample)
-                && let Err(err) = replanner.recondition(e.point as usize, &e.actuation)
-            {
-                // As the service thread: the estimate is not used, the set runs on.
-                tracing::warn!(
-                    set_id = e.set_id,
-                    point = e.point,
-                    "estimate not used: {err}"
-                );
+            if let Some(e) = self.learner.visit(&sample) {
+                recondition(replanner, &e);
             }
         }
         self.now_ns += self.period_ns;
         t.finished
+    }
+}
+
+/// An estimate re-conditions its point, as the service thread does; one that does not fit is
+/// not used, and the set runs on.
+fn recondition(replanner: &mut Replanner<ACTUATORS>, e: &ActuationEstimate) {
+    if let Err(err) = replanner.recondition(e.point as usize, &e.actuation) {
+        tracing::warn!(
+            set_id = e.set_id,
+            point = e.point,
+            "estimate not used: {err}"
+        );
     }
 }
 

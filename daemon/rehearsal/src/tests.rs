@@ -125,9 +125,9 @@ fn the_sim_steps_at_its_own_rate_on_the_newest_setpoint() {
     assert_eq!(period, 5_000_000, "sim.rate_hz 200 Hz");
     let steps = |arm: &SimArm| (arm.plant.time() / arm.dt).round() as u64;
     assert_eq!(steps(&arm), 1);
-    arm.run_until(period - 1);
+    arm.run_until(period - 1, |_, _| ());
     assert_eq!(steps(&arm), 1);
-    arm.run_until(period);
+    arm.run_until(period, |_, _| ());
     assert_eq!(
         steps(&arm),
         2,
@@ -135,9 +135,9 @@ fn the_sim_steps_at_its_own_rate_on_the_newest_setpoint() {
     );
     let before = arm.newest;
     arm.command = [1.0; ACTUATORS];
-    arm.run_until(period + 1);
+    arm.run_until(period + 1, |_, _| ());
     assert_eq!(arm.newest, before, "nothing new between deadlines");
-    arm.run_until(3 * period);
+    arm.run_until(3 * period, |_, _| ());
     assert_eq!(steps(&arm), 4);
     assert!(
         arm.plant.state()[0] > sim.initial_actuation[0],

@@ -1,0 +1,398 @@
+//! What the online learner knows of the arm it is on, apart from the trained prior: the
+//! [`Corrections`] the visited points needed, and the arm's [`Footprint`], which tells when the
+//! arm under the learner is no longer the one those corrections were learnt on (a tool swapped,
+//! the arm put back), so that they are forgotten before they make things worse.
+//! Pure: no I/O, no clock (times are the caller's stamps).
+
+use nalgebra::DMatrix;
+
+use softarm_method::learner_config::GaussNewtonConfig;
+use softarm_method::space::{ACTUATORS, Actuation, Position, distance};
+
+/// Targets closer than this are the same point of the corrections (m).
+const SAME_TARGET_M: f64 = 1e-3;
+
+/// What the visited points needed beyond the trained model, carried over task space to targets
+/// never visited: a Gaussian process of the corrections Δa = a_measured − a_model of the points
+/// visited (a_measured: where the actuators were at the point's best try; a_model: what the
+/// trained model alone would send there), around their mean m:
+///
+///   Δa(p) = m + Σ_i κ(p, p_i) α_i,   κ(p, p') = σ_f² exp(−‖p − p'‖² / 2ℓ²),
+///   α = (K + σ_n² I)⁻¹ (ΔA − m).
+///
+/// A correction of the actuation, not of the forward model: the corrections of a changed arm
+/// lead off the demonstrations (a longer tool is made up for by shortening every actuator,
+/// which no demonstration did), where the trained model extrapolates by centimetres, so a model
+/// corrected at the visited actuations is wrong exactly where the next set goes (measured on
+/// `tool-change`: a second set's first execution 18 mm with a refitted model, 9 mm with this).
+/// From where the actuators were, not from the setpoint: the lag at a conditioning time depends
+/// on the path into it, which differs from set to set; the arm's change does not.
+#[derive(Debug, Clone, Default)]
+pub struct Corrections {
+    /// (target, Δa), at most `transfer_points`, one per target, oldest first.
+    points: Vec<(Position, Actuation)>,
+    mean: Actuation,
+    /// α, one per point.
+    alpha: Vec<Actuation>,
+}
+
+impl Corrections {
+    /// Corrections of `points` (target, Δa), as [`Corrections::points`] gave them; the oldest
+    /// beyond `transfer_points` are dropped.
+    pub fn from_points(c: &GaussNewtonConfig, points: &[(Position, Actuation)]) -> Self {
+        let mut out = Self::default();
+        for (target, correction) in points {
+            out.insert(c, target, *correction);
+        }
+        out.solve(c);
+        out
+    }
+
+    /// (target, Δa) of every corrected point, oldest first.
+    pub fn points(&self) -> &[(Position, Actuation)] {
+        &self.points
+    }
+
+    pub fn len(&self) -> usize {
+        self.points.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.points.is_empty()
+    }
+
+    fn kernel(c: &GaussNewtonConfig, p: &Position, q: &Position) -> f64 {
+        let l = c.transfer_length_m;
+        c.transfer_spread.powi(2) * (-distance(p, q).powi(2) / (2.0 * l * l)).exp()
+    }
+
+    /// Records `correction` for `target` and solves for α again: a Cholesky of at most
+    /// `transfer_points`² (well under a millisecond for 64), once per visit, in the learner.
+    pub fn set(&mut self, c: &GaussNewtonConfig, target: &Position, correction: Actuation) {
+        self.insert(c, target, correction);
+        self.solve(c);
+    }
+
+    fn insert(&mut self, c: &GaussNewtonConfig, target: &Position, correction: Actuation) {
+        match self
+            .points
+            .iter()
+            .position(|(p, _)| distance(p, target) < SAME_TARGET_M)
+        {
+            // The newest is last: what is dropped at capacity is what was learnt longest ago.
+            Some(i) => {
+                self.points.remove(i);
+            }
+            None if self.points.len() >= c.transfer_points => {
+                self.points.remove(0);
+            }
+            None => {}
+        }
+        self.points.push((*target, correction));
+    }
+
+    fn solve(&mut self, c: &GaussNewtonConfig) {
+        let n = self.points.len();
+        if n == 0 {
+            *self = Self::default();
+            return;
+        }
+        self.mean =
+            std::array::from_fn(|i| self.points.iter().map(|p| p.1[i]).sum::<f64>() / n as f64);
+        let k = DMatrix::from_fn(n, n, |i, j| {
+            Self::kernel(c, &self.points[i].0, &self.points[j].0)
+                + if i == j {
+                    c.transfer_noise.powi(2)
+                } else {
+                    0.0
+                }
+        });
+        let r = DMatrix::from_fn(n, ACTUATORS, |i, d| self.points[i].1[d] - self.mean[d]);
+        // K + σ_n² I is positive definite; should rounding say otherwise, the mean alone.
+        self.alpha = match k.cholesky() {
+            Some(ch) => {
+                let a = ch.solve(&r);
+                (0..n).map(|i| std::array::from_fn(|d| a[(i, d)])).collect()
+            }
+            None => vec![[0.0; ACTUATORS]; n],
+        };
+    }
+
+    /// Δa(p); zero before any point was corrected.
+    pub fn at(&self, c: &GaussNewtonConfig, p: &Position) -> Actuation {
+        let mut out = self.mean;
+        for ((q, _), alpha) in self.points.iter().zip(&self.alpha) {
+            let k = Self::kernel(c, p, q);
+            for (o, a) in out.iter_mut().zip(alpha) {
+                *o += k * a;
+            }
+        }
+        out
+    }
+}
+
+/// Samples kept of the arm (one per neighbourhood of the actuation space).
+pub const FOOTPRINT_SAMPLES: usize = 256;
+/// Two actuations closer than this (normalised, Euclidean over the six) are one neighbourhood,
+/// where the arm is where it was within about a millimetre (twice the actuation noise; the
+/// trained model's slope is not used to carry a sample further: off the demonstrations it is
+/// wrong by more than the changes to be seen).
+const NEIGHBOURHOOD: f64 = 0.005;
+/// Samples of a neighbourhood averaged, at most.
+const AVERAGED: u32 = 16;
+/// Only a sample taken while the actuators move slower than this (per s, Euclidean) is used:
+/// a moving soft arm lags its actuators, and a tracker and a motor bus have different latencies.
+const STILL_PER_S: f64 = 0.1;
+/// The speed is measured over at least this long (ns), so that the actuation noise does not
+/// read as motion.
+const SPEED_SPAN_NS: u64 = 100_000_000;
+/// Checks of the arm remembered; this many of them disagreeing say the arm changed.
+const CHECKS: usize = 8;
+const DISAGREEING: usize = 6;
+/// A sample older than this (ns) is not compared with: the arm creeps, and what it did an hour
+/// ago at an actuation is not evidence against the arm now.
+const FOOTPRINT_AGE_NS: u64 = 600_000_000_000;
+
+/// What the arm did: (actuation, position) where the actuators stood still, one averaged sample
+/// per neighbourhood of the actuation space. A new sample near a kept one is a check: where the
+/// arm is now should be where it was then. When most recent checks disagree by more than
+/// `change_threshold_m` the arm under the learner has changed (a tool swapped, the arm
+/// remounted): what was learnt on it is no longer true. Tracker noise (two samples' worth) and
+/// creep between visits stay well under that threshold; a step of the arm is far over it.
+#[derive(Debug, Clone, Default)]
+pub struct Footprint {
+    /// At most [`FOOTPRINT_SAMPLES`], the oldest first.
+    samples: Vec<Sample>,
+    /// Where the actuators were at the start of the current speed span.
+    span: Option<(u64, Actuation)>,
+    /// Actuator speed over the last complete span (per s).
+    speed: f64,
+    /// The last checks, `true` where the arm disagreed with its footprint.
+    checks: [bool; CHECKS],
+    next_check: usize,
+}
+
+/// The arm's position at one neighbourhood of the actuation space: the average of the samples
+/// taken there, as of the newest.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Sample {
+    pub stamp_ns: u64,
+    pub actuation: Actuation,
+    pub position: Position,
+    /// Samples averaged.
+    pub count: u32,
+}
+
+/// What a sample told of the arm.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Seen {
+    /// Moving, or nothing to compare with yet: nothing learnt of a change.
+    Nothing,
+    /// Where the footprint says, within the threshold.
+    Same,
+    /// Away from the footprint by this much (m), but not yet often enough to be a change.
+    Different(f64),
+    /// The arm changed: the footprint is cleared and starts over from this arm.
+    Changed(f64),
+}
+
+impl Footprint {
+    /// A footprint of `samples`, as [`Footprint::samples`] gave them.
+    pub fn from_samples(samples: &[Sample]) -> Self {
+        let mut out = Self::default();
+        let start = samples.len().saturating_sub(FOOTPRINT_SAMPLES);
+        out.samples.extend_from_slice(&samples[start..]);
+        out
+    }
+
+    pub fn samples(&self) -> &[Sample] {
+        &self.samples
+    }
+
+    /// One (measured actuation, tracked position) sample at `stamp_ns`, checked against the
+    /// footprint and kept when the arm stands still and agrees.
+    pub fn observe(
+        &mut self,
+        threshold_m: f64,
+        stamp_ns: u64,
+        actuation: &Actuation,
+        position: &Position,
+    ) -> Seen {
+        if !self.still(stamp_ns, actuation) {
+            return Seen::Nothing;
+        }
+        let nearest = self
+            .samples
+            .iter()
+            .enumerate()
+            .filter(|(_, s)| stamp_ns.saturating_sub(s.stamp_ns) <= FOOTPRINT_AGE_NS)
+            .map(|(i, s)| (i, actuation_distance(&s.actuation, actuation)))
+            .filter(|(_, d)| *d <= NEIGHBOURHOOD)
+            .min_by(|a, b| a.1.total_cmp(&b.1));
+        let Some((i, _)) = nearest else {
+            self.keep(stamp_ns, actuation, position);
+            return Seen::Nothing;
+        };
+        let off = distance(&self.samples[i].position, position);
+        let differs = off > threshold_m;
+        self.checks[self.next_check] = differs;
+        self.next_check = (self.next_check + 1) % CHECKS;
+        if !differs {
+            self.samples[i].take_in(stamp_ns, actuation, position);
+            return Seen::Same;
+        }
+        if self.checks.iter().filter(|d| **d).count() < DISAGREEING {
+            // Not taken in: a footprint that took in the changed arm would not see the change.
+            return Seen::Different(off);
+        }
+        self.samples.clear();
+        self.checks = [false; CHECKS];
+        self.keep(stamp_ns, actuation, position);
+        Seen::Changed(off)
+    }
+
+    /// Whether the actuators stand still, measured over spans of at least [`SPEED_SPAN_NS`].
+    fn still(&mut self, stamp_ns: u64, actuation: &Actuation) -> bool {
+        match self.span {
+            Some((t, a)) if stamp_ns > t && stamp_ns - t >= SPEED_SPAN_NS => {
+                let dt = (stamp_ns - t) as f64 * 1e-9;
+                self.speed = actuation_distance(&a, actuation) / dt;
+                self.span = Some((stamp_ns, *actuation));
+            }
+            Some((t, _)) if stamp_ns >= t => {}
+            // The first sample, or the clock went back (another stamp source): start over.
+            _ => {
+                self.span = Some((stamp_ns, *actuation));
+                self.speed = f64::INFINITY;
+            }
+        }
+        self.speed < STILL_PER_S
+    }
+
+    fn keep(&mut self, stamp_ns: u64, actuation: &Actuation, position: &Position) {
+        if self.samples.len() >= FOOTPRINT_SAMPLES {
+            self.samples.remove(0);
+        }
+        self.samples.push(Sample {
+            stamp_ns,
+            actuation: *actuation,
+            position: *position,
+            count: 1,
+        });
+    }
+}
+
+impl Sample {
+    /// Averages in another sample of the same neighbourhood: over the last [`AVERAGED`] or so,
+    /// so that one noisy tracker sample is not what the arm is judged by, and a creeping arm
+    /// is followed.
+    fn take_in(&mut self, stamp_ns: u64, actuation: &Actuation, position: &Position) {
+        self.count = (self.count + 1).min(AVERAGED);
+        let w = 1.0 / self.count as f64;
+        for (a, b) in self.actuation.iter_mut().zip(actuation) {
+            *a += w * (b - *a);
+        }
+        for (p, q) in self.position.iter_mut().zip(position) {
+            *p += w * (q - *p);
+        }
+        self.stamp_ns = stamp_ns;
+    }
+}
+
+fn actuation_distance(a: &Actuation, b: &Actuation) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).powi(2))
+        .sum::<f64>()
+        .sqrt()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use softarm_method::pcc::ArmGeometry;
+
+    const MS: u64 = 1_000_000;
+
+    /// `arm` held at `a` for `ms`, sampled every 5 ms from `t0`; what the footprint said last.
+    fn hold(f: &mut Footprint, arm: &ArmGeometry, a: &Actuation, t0: u64, ms: u64) -> Vec<Seen> {
+        (0..ms / 5)
+            .map(|k| f.observe(0.004, t0 + k * 5 * MS, a, &arm.position(a)))
+            .collect()
+    }
+
+    #[test]
+    fn a_changed_arm_is_seen_where_it_stood_still_and_the_same_arm_never() {
+        let model = ArmGeometry::default();
+        let mut f = Footprint::default();
+        let a = [0.4, 0.6, 0.5, 0.55, 0.45, 0.5];
+        let seen = hold(&mut f, &model, &a, 0, 200);
+        assert!(seen.iter().all(|s| *s != Seen::Changed(0.0)));
+        assert!(seen.contains(&Seen::Same), "{seen:?}");
+        // Nearby, still the same arm.
+        let b: Actuation = std::array::from_fn(|i| a[i] + 0.001);
+        let seen = hold(&mut f, &model, &b, 300 * MS, 200);
+        assert!(
+            seen.iter().all(|s| matches!(s, Seen::Same | Seen::Nothing)),
+            "{seen:?}"
+        );
+        // A tool 20 mm longer, at the same actuation: seen within a few samples.
+        let tool = ArmGeometry {
+            tool_m: model.tool_m + 0.02,
+            ..model
+        };
+        let seen = hold(&mut f, &tool, &a, 600 * MS, 200);
+        let changed = seen
+            .iter()
+            .position(|s| matches!(s, Seen::Changed(_)))
+            .expect("the change is seen");
+        assert!(changed < 20, "{seen:?}");
+        // And the footprint is the new arm's from then on.
+        assert!(
+            seen[changed + 1..]
+                .iter()
+                .all(|s| matches!(s, Seen::Same | Seen::Nothing))
+        );
+    }
+
+    #[test]
+    fn a_moving_arm_is_not_checked() {
+        let model = ArmGeometry::default();
+        let tool = ArmGeometry {
+            tool_m: model.tool_m + 0.02,
+            ..model
+        };
+        let mut f = Footprint::default();
+        let a = [0.5; ACTUATORS];
+        hold(&mut f, &model, &a, 0, 200);
+        // Sweeping through the same actuations at 0.5 per s on the other arm: never judged.
+        for k in 0..200u64 {
+            let x = 0.45 + (k % 40) as f64 * 0.0025;
+            let b = [x; ACTUATORS];
+            let seen = f.observe(0.004, (300 + 5 * k) * MS, &b, &tool.position(&b));
+            assert_eq!(seen, Seen::Nothing);
+        }
+    }
+
+    #[test]
+    fn corrections_keep_the_newest_per_target_and_round_trip() {
+        let c = GaussNewtonConfig {
+            transfer_points: 2,
+            ..Default::default()
+        };
+        let mut k = Corrections::default();
+        assert_eq!(k.at(&c, &[0.0, 0.0, -0.5]), [0.0; ACTUATORS]);
+        k.set(&c, &[0.0, 0.0, -0.5], [0.1; ACTUATORS]);
+        k.set(&c, &[0.1, 0.0, -0.5], [0.2; ACTUATORS]);
+        k.set(&c, &[0.0, 0.0, -0.5], [0.3; ACTUATORS]);
+        k.set(&c, &[0.2, 0.0, -0.5], [0.4; ACTUATORS]);
+        // At capacity the oldest goes: the one set second (the first was renewed).
+        let targets: Vec<Position> = k.points().iter().map(|p| p.0).collect();
+        assert_eq!(targets, [[0.0, 0.0, -0.5], [0.2, 0.0, -0.5]]);
+        let back = Corrections::from_points(&c, k.points());
+        assert_eq!(
+            back.at(&c, &[0.05, 0.0, -0.5]),
+            k.at(&c, &[0.05, 0.0, -0.5])
+        );
+    }
+}
