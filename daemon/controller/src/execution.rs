@@ -10,21 +10,87 @@ use softarm_ipc::{
 use softarm_method::blend::{Blend, ConditioningPoint};
 use softarm_method::distance;
 
+/// Tracker samples kept for the reach estimate: 320 ms at 200 Hz.
+pub const TRACK_LEN: usize = 64;
+/// The end effector's position at a conditioning point is estimated from the tracker samples
+/// within this of T_cond (ns) — 11 at 200 Hz — not from one: a line through them averages the
+/// tracker's noise down (0.5 mm per axis and sample to about 0.15 mm) while following the arm
+/// through the point.
+pub const REACH_WINDOW_NS: u64 = 25_000_000;
+/// How long a point's sample waits for the tracker to cover the window after T_cond (ns); a
+/// late or silent tracker gives what there is by then.
+pub const REACH_WAIT_NS: u64 = 100_000_000;
+
+/// The newest tracker samples, (stamp, position), oldest overwritten: what the reach at a
+/// conditioning point is estimated from. Fixed size: the tick allocates nothing.
+#[derive(Debug, Clone)]
+pub struct Track {
+    samples: [(u64, Position); TRACK_LEN],
+    len: usize,
+    /// Where the next sample goes.
+    next: usize,
+}
+
+impl Default for Track {
+    fn default() -> Self {
+        Self {
+            samples: [(0, [f64::NAN; 3]); TRACK_LEN],
+            len: 0,
+            next: 0,
+        }
+    }
+}
+
+impl Track {
+    /// Takes in a tracker sample; one not newer than the newest (the same sample read again, or
+    /// a driver whose clock went back) is left out.
+    pub fn push(&mut self, stamp_ns: u64, position: Position) {
+        if self.newest().is_some_and(|(t, _)| stamp_ns <= t) {
+            return;
+        }
+        self.samples[self.next] = (stamp_ns, position);
+        self.next = (self.next + 1) % TRACK_LEN;
+        self.len = (self.len + 1).min(TRACK_LEN);
+    }
+
+    pub fn newest(&self) -> Option<(u64, Position)> {
+        (self.len > 0).then(|| self.samples[(self.next + TRACK_LEN - 1) % TRACK_LEN])
+    }
+
+    /// The position at `t_ns`: per axis, a least-squares line through the samples within
+    /// `half_width_ns` of it, evaluated there; the mean of samples that cannot make a line;
+    /// `None` without any.
+    pub fn position_at(&self, t_ns: u64, half_width_ns: u64) -> Option<Position> {
+        let near = || {
+            self.samples[..self.len]
+                .iter()
+                .filter(move |(s, _)| s.abs_diff(t_ns) <= half_width_ns)
+                .map(move |(s, p)| ((*s as i128 - t_ns as i128) as f64 * 1e-9, p))
+        };
+        let n = near().count();
+        if n == 0 {
+            return None;
+        }
+        let mean_t = near().map(|(t, _)| t).sum::<f64>() / n as f64;
+        let mean_p: Position =
+            std::array::from_fn(|d| near().map(|(_, p)| p[d]).sum::<f64>() / n as f64);
+        let spread = near().map(|(t, _)| (t - mean_t).powi(2)).sum::<f64>();
+        if n < 3 || spread <= 0.0 {
+            return Some(mean_p);
+        }
+        Some(std::array::from_fn(|d| {
+            let slope = near()
+                .map(|(t, p)| (t - mean_t) * (p[d] - mean_p[d]))
+                .sum::<f64>()
+                / spread;
+            mean_p[d] - slope * mean_t
+        }))
+    }
+}
+
 /// The rest before each execution, in ticks.
 pub fn rest_ticks(c: &Controller) -> i64 {
     (c.rest_s * c.rate_hz).round() as i64
-}
-
-/// A conditioning sample as the learner gets it: with the `setpoint` published at the point
-/// (the action it credits) and the actuators' newest measured state (NaN if none yet).
-pub fn complete_sample(
-    mut s: ConditioningSample,
-    setpoint: Actuation,
-    measured: Option<Actuation>,
-) -> ConditioningSample {
-    s.actuation = setpoint;
-    s.measured = measured.unwrap_or([f64::NAN; ACTUATORS]);
-    s
 }
 
 /// A way-point set ready to run: its blend and what the tick needs to know. Made by
@@ -46,17 +112,30 @@ pub struct Execution {
     /// Ticks into the execution, the next to play; negative while resting before it.
     k: i64,
     next_point: usize,
+    /// A point whose time has come, waiting for the tracker samples after it.
+    pending: Option<Pending>,
     errors: [f64; MAX_WAYPOINTS],
     /// The blend's count of tables swapped in when the current execution's rest began.
     applied_before: u64,
+}
+
+/// A conditioning point whose time has come.
+#[derive(Debug, Clone, Copy)]
+struct Pending {
+    point: usize,
+    /// T_cond (ns): the time of the tick it came at.
+    t_cond: u64,
+    /// The setpoint published at that tick (the action the learner credits) and the actuators'
+    /// newest measured state then (NaN if none), once [`Execution::published`] said them.
+    setpoint: Actuation,
+    measured: Actuation,
 }
 
 /// What one tick of an execution produced.
 pub struct ExecutionTick {
     /// Before the limiter.
     pub target: Actuation,
-    /// At a conditioning point: the sample for the learner (the caller completes it with the
-    /// setpoint it published, [`complete_sample`], and numbers it).
+    /// A conditioning point's sample for the learner, complete but for its number.
     pub point: Option<ConditioningSample>,
     /// At the end of an execution: its stats (sequence number by the caller).
     pub finished: Option<ExecutionStats>,
@@ -69,6 +148,7 @@ impl Execution {
             execution: 1,
             k: -rest_ticks,
             next_point: 0,
+            pending: None,
             errors: [0.0; MAX_WAYPOINTS],
             applied_before: set.blend.applied(),
             set,
@@ -112,18 +192,19 @@ impl Execution {
 
     /// One tick. `skipped`: the periods the clock skipped before this tick (overruns). The
     /// execution follows the clock, so it jumps that many ticks ahead (the limiter smooths the
-    /// jump) and T_cond stays on wall time; a point whose tick was jumped over is sampled at the
-    /// first tick played at or after it, one point per tick, and the execution ends only once
-    /// every point was sampled. `reached`: the newest tracker position (`None`: none yet).
+    /// jump) and T_cond stays on wall time; a point's time comes at the first tick played at or
+    /// after its own, one point per tick, and its sample goes out once `track` covers
+    /// [`REACH_WINDOW_NS`] after that (or [`REACH_WAIT_NS`] passed), with the position
+    /// estimated from the samples around it. The execution ends only once every point's
+    /// sample went out.
     pub fn step(
         &mut self,
-        reached: Option<Position>,
+        track: &Track,
         rest_ticks: i64,
         now: u64,
         skipped: u64,
     ) -> ExecutionTick {
-        let set = &mut self.set;
-        let last = set.blend.timeline().ticks() as i64 - 1;
+        let last = self.set.blend.timeline().ticks() as i64 - 1;
         self.k = self
             .k
             .saturating_add(i64::try_from(skipped).unwrap_or(i64::MAX))
@@ -131,71 +212,117 @@ impl Execution {
         if self.k < 0 {
             self.k += 1;
             return ExecutionTick {
-                target: set.blend.rest(),
+                target: self.set.blend.rest(),
                 point: None,
                 finished: None,
             };
         }
         let tick = self.k as usize;
-        let target = set.blend.tick(tick);
-        let mut point = None;
-        if self.next_point < set.count && set.points[self.next_point].tick <= tick {
-            let n = self.next_point;
-            let reached = reached.unwrap_or([f64::NAN; 3]);
-            let desired = set.points[n].position;
-            self.errors[n] = distance(&desired, &reached);
-            // The estimate wanted next: the following point, or the first of the next execution.
-            let (next, next_execution) = if n + 1 < set.count {
-                (n + 1, self.execution)
-            } else {
-                (0, self.execution + 1)
-            };
-            point = Some(ConditioningSample {
-                seq: 0,
-                stamp_ns: now,
-                set_id: set.set_id,
-                execution: self.execution,
-                point: n as u32,
-                points: set.count as u32,
-                _pad: 0,
-                actuation: [0.0; ACTUATORS],
-                desired,
-                reached,
-                next_point: next as u32,
-                next_execution,
-                next_desired: set.points[next].position,
+        let target = self.set.blend.tick(tick);
+        let point = self.sample(track, now);
+        let set = &self.set;
+        if self.pending.is_none()
+            && self.next_point < set.count
+            && set.points[self.next_point].tick <= tick
+        {
+            self.pending = Some(Pending {
+                point: self.next_point,
+                t_cond: now,
+                setpoint: [f64::NAN; ACTUATORS],
                 measured: [f64::NAN; ACTUATORS],
             });
             self.next_point += 1;
         }
         self.k += 1;
         let mut finished = None;
-        if self.k > last && self.next_point == set.count {
-            let reconditions = self.reconditions();
-            let set = &self.set;
-            let errs = &self.errors[..set.count];
-            finished = Some(ExecutionStats {
-                seq: 0,
-                stamp_ns: now,
-                set_id: set.set_id,
-                execution: self.execution,
-                executions: set.executions,
-                count: set.count as u32,
-                reconditions,
-                errors_m: self.errors,
-                mean_m: errs.iter().sum::<f64>() / errs.len() as f64,
-                max_m: errs.iter().cloned().fold(0.0, f64::max),
-            });
-            self.execution += 1;
-            self.k = -rest_ticks;
-            self.next_point = 0;
-            self.applied_before = set.blend.applied();
+        if self.k > last && self.next_point == set.count && self.pending.is_none() {
+            finished = Some(self.finish(now, rest_ticks));
         }
         ExecutionTick {
             target,
             point,
             finished,
         }
+    }
+
+    /// The setpoint published at this tick (after the limiter) and the actuators' newest
+    /// measured state: what a point whose time came at this tick credits.
+    pub fn published(&mut self, setpoint: &Actuation, measured: Option<&Actuation>) {
+        if let Some(p) = self.pending.as_mut()
+            && p.setpoint[0].is_nan()
+        {
+            p.setpoint = *setpoint;
+            p.measured = measured.copied().unwrap_or([f64::NAN; ACTUATORS]);
+        }
+    }
+
+    /// The pending point's sample, once the tracker has covered the window after it.
+    fn sample(&mut self, track: &Track, now: u64) -> Option<ConditioningSample> {
+        let Pending {
+            point: n,
+            t_cond,
+            setpoint,
+            measured,
+        } = self.pending?;
+        let covered = track
+            .newest()
+            .is_some_and(|(t, _)| t >= t_cond + REACH_WINDOW_NS);
+        if !covered && now < t_cond + REACH_WAIT_NS {
+            return None;
+        }
+        self.pending = None;
+        let set = &self.set;
+        let reached = track
+            .position_at(t_cond, REACH_WINDOW_NS)
+            .unwrap_or([f64::NAN; 3]);
+        let desired = set.points[n].position;
+        self.errors[n] = distance(&desired, &reached);
+        // The estimate wanted next: the following point, or the first of the next execution.
+        let (next, next_execution) = if n + 1 < set.count {
+            (n + 1, self.execution)
+        } else {
+            (0, self.execution + 1)
+        };
+        Some(ConditioningSample {
+            seq: 0,
+            stamp_ns: t_cond,
+            set_id: set.set_id,
+            execution: self.execution,
+            point: n as u32,
+            points: set.count as u32,
+            _pad: 0,
+            actuation: setpoint,
+            desired,
+            reached,
+            next_point: next as u32,
+            next_execution,
+            next_desired: set.points[next].position,
+            measured,
+        })
+    }
+
+    /// The execution's stats; the next begins with its rest.
+    fn finish(&mut self, now: u64, rest_ticks: i64) -> ExecutionStats {
+        let reconditions = self.reconditions();
+        let set = &self.set;
+        let errs = &self.errors[..set.count];
+        let stats = ExecutionStats {
+            seq: 0,
+            stamp_ns: now,
+            set_id: set.set_id,
+            execution: self.execution,
+            executions: set.executions,
+            count: set.count as u32,
+            reconditions,
+            errors_m: self.errors,
+            mean_m: errs.iter().sum::<f64>() / errs.len() as f64,
+            max_m: errs.iter().cloned().fold(0.0, f64::max),
+        };
+        self.execution += 1;
+        self.k = -rest_ticks;
+        self.next_point = 0;
+        self.applied_before = set.blend.applied();
+        stats
     }
 }
 
@@ -209,6 +336,18 @@ pub(crate) mod tests {
 
     const REST: i64 = 5;
     const REACHED: Position = [0.0, 0.0, -0.3];
+    /// The tick period of [`planner`]'s 50 Hz timeline (ns).
+    const PERIOD: u64 = 20_000_000;
+
+    /// One tick played at `clock` (in periods), the tracker at `REACHED` with a sample at the
+    /// tick's time.
+    fn play(x: &mut Execution, track: &mut Track, clock: u64, skipped: u64) -> ExecutionTick {
+        let now = clock * PERIOD;
+        track.push(now, REACHED);
+        let t = x.step(track, REST, now, skipped);
+        x.published(&t.target, None);
+        t
+    }
 
     fn primitive(offset: f64) -> Primitive {
         let demos: Vec<Demonstration> = (0..8)
@@ -272,7 +411,11 @@ pub(crate) mod tests {
         let (set, mut replanner) = ready_set_and_replanner();
         let ticks = set.blend.timeline().ticks() as i64;
         let mut x = Execution::new(set, REST);
-        let step = |x: &mut Execution| x.step(Some(REACHED), REST, 0, 0).finished;
+        let (mut track, mut clock) = (Track::default(), 0);
+        let mut step = |x: &mut Execution| {
+            clock += 1;
+            play(x, &mut track, clock, 0).finished
+        };
         for _ in 0..REST + 10 {
             assert!(step(&mut x).is_none());
         }
@@ -306,9 +449,9 @@ pub(crate) mod tests {
         let mut x = Execution::new(set, REST);
         assert!(x.at_boundary(REST) && !x.through());
         let (mut samples, mut stats) = (Vec::new(), Vec::new());
-        let mut n = 0u64;
+        let (mut n, mut track) = (0u64, Track::default());
         while stats.len() < 2 {
-            let t = x.step(Some(REACHED), REST, n, 0);
+            let t = play(&mut x, &mut track, n, 0);
             assert!(t.target.iter().all(|v| v.is_finite()));
             samples.extend(t.point.map(|s| (n, s)));
             stats.extend(t.finished.map(|s| (n, s)));
@@ -317,9 +460,11 @@ pub(crate) mod tests {
         }
         assert!(x.at_boundary(REST) && x.through());
 
-        // Each execution: REST ticks of rest, then the timeline; points at their ticks.
+        // Each execution: REST ticks of rest, then the timeline; each point's sample two ticks
+        // after its tick, once the tracker covered the 25 ms after it.
         let per_execution = REST as u64 + ticks;
         let at = |execution: u64, tick: u64| execution * per_execution + REST as u64 + tick;
+        let sampled = |execution: u64, tick: u64| at(execution, tick) + 2;
         let got: Vec<_> = samples
             .iter()
             .map(|(n, s)| (*n, s.execution, s.point, s.next_point, s.next_execution))
@@ -327,10 +472,10 @@ pub(crate) mod tests {
         assert_eq!(
             got,
             [
-                (at(0, cond[0] as u64), 1, 0, 1, 1),
-                (at(0, cond[1] as u64), 1, 1, 0, 2),
-                (at(1, cond[0] as u64), 2, 0, 1, 2),
-                (at(1, cond[1] as u64), 2, 1, 0, 3),
+                (sampled(0, cond[0] as u64), 1, 0, 1, 1),
+                (sampled(0, cond[1] as u64), 1, 1, 0, 2),
+                (sampled(1, cond[0] as u64), 2, 0, 1, 2),
+                (sampled(1, cond[1] as u64), 2, 1, 0, 3),
             ]
         );
         assert!(samples.iter().all(|(_, s)| s.set_id == 7 && s.points == 2));
@@ -359,12 +504,12 @@ pub(crate) mod tests {
             (1, 2),     // in the rest
             (53, 4),    // tick 48 -> 53, over point 0 (tick 50)
             (145, 70),  // tick 140 -> 211, past point 1 (tick 150) and the end (tick 200)
-            (262, 119), // execution 2, tick 40 -> 160, over both points
+            (262, 119), // execution 2, tick 38 -> 158, over both points
         ];
         let (mut samples, mut stats) = (Vec::new(), Vec::new());
-        let (mut clock, mut skipped) = (0u64, 0u64);
+        let (mut clock, mut skipped, mut track) = (0u64, 0u64, Track::default());
         while stats.len() < 2 {
-            let t = x.step(Some(REACHED), REST, clock, skipped);
+            let t = play(&mut x, &mut track, clock, skipped);
             samples.extend(t.point.map(|s| (clock, s.execution, s.point)));
             stats.extend(t.finished.map(|s| (clock, s.execution)));
             skipped = jumps.iter().find(|j| j.0 == clock).map_or(0, |j| j.1);
@@ -372,12 +517,67 @@ pub(crate) mod tests {
             assert!(clock < 10_000, "the executions never end");
         }
         // The tick played at clock c is c - REST within an execution that began at clock 0,
-        // and c - 217 - REST in the second, which began right after the first ended (216).
+        // and c - 219 - REST in the second, which began right after the first ended (218).
         assert_eq!(
             samples,
-            [(58, 1, 0), (216, 1, 1), (382, 2, 0), (383, 2, 1)],
-            "each point at the first tick played at or after its own"
+            [(60, 1, 0), (218, 1, 1), (384, 2, 0), (386, 2, 1)],
+            "each point's time at the first tick played at or after its own, one at a time, its \
+             sample two ticks later"
         );
-        assert_eq!(stats, [(216, 1), (217 + REST as u64 + 200, 2)]);
+        // The first ends once point 1's sample is out (218), at its last tick held meanwhile.
+        assert_eq!(stats, [(218, 1), (219 + REST as u64 + 200, 2)]);
+    }
+
+    #[test]
+    fn the_reach_at_a_point_is_a_line_through_the_samples_around_it() {
+        let mut track = Track::default();
+        assert_eq!(track.position_at(0, REACH_WINDOW_NS), None);
+        // Moving at 0.2 m/s along x through [0.1, 0, -0.4] at t = 1 s, each sample 0.5 mm off
+        // in turn either way, every 5 ms.
+        let t0 = 1_000_000_000u64;
+        for k in 0..40u64 {
+            let t = t0 - 100_000_000 + k * 5_000_000;
+            let dt = (t as f64 - t0 as f64) * 1e-9;
+            let noise = if k % 2 == 0 { 0.0005 } else { -0.0005 };
+            track.push(t, [0.1 + 0.2 * dt, noise, -0.4 - noise]);
+        }
+        // An old stamp again is not taken.
+        track.push(t0, [9.0; 3]);
+        let p = track.position_at(t0, REACH_WINDOW_NS).unwrap();
+        let err = distance(&p, &[0.1, 0.0, -0.4]);
+        assert!(err < 0.0001, "{p:?}: {err} m off, one sample is 0.7 mm off");
+        // Only one sample in reach: that one.
+        let mut one = Track::default();
+        one.push(t0, [0.1, 0.0, -0.4]);
+        assert_eq!(
+            one.position_at(t0 + 1, REACH_WINDOW_NS),
+            Some([0.1, 0.0, -0.4])
+        );
+    }
+
+    #[test]
+    fn a_silent_tracker_leaves_no_point_waiting() {
+        let set = ready_set();
+        let cond = set.points[0].tick as u64;
+        let mut x = Execution::new(set, REST);
+        let mut track = Track::default();
+        // The tracker's last sample comes before point 0; then it falls silent.
+        let mut got = None;
+        for clock in 0..REST as u64 + cond + 20 {
+            if clock < REST as u64 + cond - 10 {
+                track.push(clock * PERIOD, REACHED);
+            }
+            let t = x.step(&track, REST, clock * PERIOD, 0);
+            x.published(&t.target, None);
+            got = got.or(t.point.map(|s| (clock, s)));
+        }
+        let (clock, s) = got.expect("the point's sample went out");
+        // After REACH_WAIT_NS (5 ticks), with no position to learn from.
+        assert_eq!(clock, REST as u64 + cond + 5);
+        assert!(s.reached.iter().all(|v| v.is_nan()));
+        assert!(
+            s.actuation.iter().all(|v| v.is_finite()),
+            "the setpoint it credits"
+        );
     }
 }

@@ -26,7 +26,9 @@ mod service;
 mod tick;
 
 pub use admission::{Admitted, admit};
-pub use execution::{Execution, ExecutionTick, ReadySet, complete_sample, rest_ticks};
+pub use execution::{
+    Execution, ExecutionTick, REACH_WAIT_NS, REACH_WINDOW_NS, ReadySet, Track, rest_ticks,
+};
 pub use limiter::Limiter;
 
 use std::sync::Arc;

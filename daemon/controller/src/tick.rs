@@ -16,7 +16,7 @@ use softarm_runtime::clock::Ticker;
 use softarm_runtime::now_ns;
 
 use crate::demonstration::{self, DemoPlayback, DemoSequences, NO_DEMO};
-use crate::execution::{self, Execution, ReadySet, complete_sample};
+use crate::execution::{self, Execution, ReadySet, Track};
 use crate::io::{Outbox, Outgoing};
 use crate::latency::TickLatency;
 use crate::limiter::Limiter;
@@ -109,6 +109,8 @@ struct Inputs {
     estop: Sub<EstopState>,
     /// The end-effector position and its stamp.
     position: Option<(Position, u64)>,
+    /// The newest positions, for the reach at a conditioning point.
+    track: Track,
     /// The measured actuation and its stamp.
     measured: Option<(Actuation, u64)>,
     engaged: bool,
@@ -132,6 +134,7 @@ impl Inputs {
             motors: node.subscriber(&node.motor_state()?)?,
             estop: node.subscriber(&node.estop()?)?,
             position: None,
+            track: Track::default(),
             measured: None,
             engaged,
             driver_fault: false,
@@ -145,6 +148,7 @@ impl Inputs {
         while let Ok(Some(s)) = self.tracker.receive() {
             if s.position.iter().all(|v| v.is_finite()) {
                 self.position = Some((s.position, s.stamp_ns));
+                self.track.push(s.stamp_ns, s.position);
             } else {
                 self.refused += 1;
             }
@@ -272,6 +276,7 @@ impl<'a> Tick<'a> {
             }
             let step = self.step_mode(health.safe, now);
             let setpoint = self.limit(step.target);
+            self.credit(&setpoint);
             self.publish(state, now, setpoint, step);
         }
         self.was_safe = health.safe;
@@ -428,8 +433,12 @@ impl<'a> Tick<'a> {
             }
             Mode::Execute(x) => {
                 let execution = x.execution();
-                let reached = self.inputs.position.map(|p| p.0);
-                let t = x.step(reached, self.timing.rest_ticks, now, self.skipped);
+                let t = x.step(
+                    &self.inputs.track,
+                    self.timing.rest_ticks,
+                    now,
+                    self.skipped,
+                );
                 Step {
                     target: Some(t.target),
                     execution,
@@ -438,6 +447,14 @@ impl<'a> Tick<'a> {
                     ..Step::HOLD
                 }
             }
+        }
+    }
+
+    /// What a conditioning point whose time came at this tick credits: the setpoint published
+    /// and where the actuators were.
+    fn credit(&mut self, setpoint: &Actuation) {
+        if let Mode::Execute(x) = &mut self.mode {
+            x.published(setpoint, self.inputs.measured.as_ref().map(|(m, _)| m));
         }
     }
 
@@ -462,8 +479,7 @@ impl<'a> Tick<'a> {
             demo_class: step.demo.1,
             execution: step.execution,
         }));
-        if let Some(s) = step.sample {
-            let mut s = complete_sample(s, setpoint, self.inputs.measured.map(|(m, _)| m));
+        if let Some(mut s) = step.sample {
             self.count.samples += 1;
             s.seq = self.count.samples;
             self.links.outbox.send(Outgoing::Sample(s));

@@ -14,7 +14,7 @@
 use anyhow::{Context, bail};
 use softarm_config::Config;
 use softarm_config::waypoints::WaypointFile;
-use softarm_controller::{Execution, Limiter, admit, complete_sample, rest_ticks};
+use softarm_controller::{Execution, Limiter, Track, admit, rest_ticks};
 use softarm_ipc::{ACTUATORS, Actuation, ActuationEstimate, ExecutionStats, WaypointSet};
 use softarm_learner::Learner;
 use softarm_method::blend::Replanner;
@@ -101,6 +101,8 @@ pub struct Rehearsal<'a> {
     period_ns: u64,
     /// The simulated clock: the time of the next tick (ns).
     now_ns: u64,
+    /// The tracker samples the tick has read, as the controller's inputs keep them.
+    track: Track,
     next_set_id: u64,
 }
 
@@ -131,6 +133,7 @@ impl<'a> Rehearsal<'a> {
             rest_ticks: rest_ticks(c),
             period_ns: (NS_PER_S / c.rate_hz).round() as u64,
             now_ns: 0,
+            track: Track::default(),
             next_set_id: 0,
         })
     }
@@ -172,12 +175,14 @@ impl<'a> Rehearsal<'a> {
         Ok(stats)
     }
 
-    /// The sim up to the clock, the learner reading each measurement as the learner process
-    /// reads `tracker` and `motor_state`: the estimates it sends back (on a change of the arm).
+    /// The sim up to the clock, the tick's track and the learner reading each measurement (as
+    /// the controller and the learner process read `tracker` and `motor_state`): the estimates
+    /// the learner sends back (on a change of the arm).
     fn sim_until_now(&mut self) -> Vec<ActuationEstimate> {
-        let learner = &mut self.learner;
+        let (learner, track) = (&mut self.learner, &mut self.track);
         let mut estimates = Vec::new();
         self.arm.run_until(self.now_ns, |t, m| {
+            track.push(t, m.position);
             estimates.extend(learner.observe_arm(t, &m.actuation, &m.position));
         });
         estimates
@@ -220,12 +225,11 @@ impl<'a> Rehearsal<'a> {
         for e in self.sim_until_now() {
             recondition(replanner, &e);
         }
-        let newest = self.arm.newest;
-        let t = execution.step(Some(newest.position), self.rest_ticks, self.now_ns, 0);
+        let t = execution.step(&self.track, self.rest_ticks, self.now_ns, 0);
         let setpoint = self.limiter.apply(&t.target);
+        execution.published(&setpoint, Some(&self.arm.newest.actuation));
         self.arm.command = setpoint;
         if let Some(sample) = t.point {
-            let sample = complete_sample(sample, setpoint, Some(newest.actuation));
             if let Some(e) = self.learner.visit(&sample) {
                 recondition(replanner, &e);
             }

@@ -144,3 +144,83 @@ fn the_sim_steps_at_its_own_rate_on_the_newest_setpoint() {
         "it follows the setpoint"
     );
 }
+
+/// The demo set moved by `d` (m): another set near the demo's.
+fn moved(set: &str, d: [f64; 3]) -> WaypointFile {
+    let mut s = WaypointFile::parse(set).unwrap();
+    for p in &mut s.point {
+        for (x, dx) in p.position_m.iter_mut().zip(d) {
+            *x += dx;
+        }
+    }
+    s
+}
+
+/// The arm changes under one running learner, again and again, as issue 19 tried it on the
+/// stack: a longer tool and a crept actuator, a turned first module with wider actuators, back
+/// to nominal, all actuators shorter with a shorter tool; each phase six executions of a set.
+/// Beside it, the same arm and set with a freshly started learner.
+#[test]
+fn a_running_learner_keeps_up_with_an_arm_that_changes_and_is_never_worse_than_a_fresh_one() {
+    let model = quick();
+    let config = Config::default_sim(".".into());
+    let nominal = config.arm;
+    let mut longer = nominal;
+    longer.tool_m += 0.025;
+    longer.actuator_offset_m[2] = 0.003;
+    let mut turned = nominal;
+    turned.module_rotation_deg[0] += 7.0;
+    turned.actuator_radius_m = 0.027;
+    let mut shorter = nominal;
+    shorter.actuator_offset_m = [-0.002; ACTUATORS];
+    shorter.tool_m -= 0.01;
+    let demo = WaypointFile::parse(DEMO).unwrap();
+    let second = WaypointFile::parse(SECOND).unwrap();
+    let near = moved(DEMO, [0.008, 0.006, -0.004]);
+    let phases = [
+        ("nominal", nominal, &demo),
+        ("longer", longer, &demo),
+        ("turned", turned, &second),
+        ("nominal again", nominal, &demo),
+        ("shorter", shorter, &near),
+    ];
+    let mut running = setup(&model, &config, "nominal", Algorithm::GaussNewton);
+    for (name, arm, set) in phases {
+        running.change_arm(arm).unwrap();
+        let ours: Vec<f64> = running
+            .rehearse(set, 6)
+            .unwrap()
+            .iter()
+            .map(|s| s.mean_m)
+            .collect();
+        let mut fresh = setup(&model, &config, "nominal", Algorithm::GaussNewton);
+        fresh.change_arm(arm).unwrap();
+        let fresh: Vec<f64> = fresh
+            .rehearse(set, 6)
+            .unwrap()
+            .iter()
+            .map(|s| s.mean_m)
+            .collect();
+        eprintln!(
+            "{name}: running {:?} mm, fresh {:?} mm",
+            mm(&ours),
+            mm(&fresh)
+        );
+        assert!(
+            ours[0] <= 1.1 * fresh[0],
+            "{name}: the running learner's first execution {:.1} mm, a fresh one's {:.1} mm",
+            ours[0] * 1e3,
+            fresh[0] * 1e3
+        );
+        assert!(
+            ours[2..].iter().all(|e| *e <= 0.0025),
+            "{name}: from the third execution {:?} mm",
+            mm(&ours)
+        );
+    }
+    assert_eq!(
+        running.learner().arm_changes(),
+        4,
+        "one change seen per change made"
+    );
+}
