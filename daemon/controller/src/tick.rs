@@ -72,7 +72,9 @@ pub(crate) fn run(
     Ok(())
 }
 
-/// What a playing tick does.
+/// What a playing tick does. One lives in the tick, in place: boxing the execution would
+/// allocate on the tick thread when a set starts.
+#[allow(clippy::large_enum_variant)]
 enum Mode {
     Idle,
     Demonstrate(DemoPlayback),

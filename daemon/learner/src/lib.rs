@@ -20,10 +20,11 @@ use std::time::{Duration, Instant};
 
 use softarm_config::Config;
 use softarm_ipc::{
-    ActuationEstimate, ConditioningSample, EstimateRequest, Namespace, Node, Pub, Sub,
+    Actuation, ActuationEstimate, ConditioningSample, EstimateRequest, MotorState, Namespace, Node,
+    Position, Pub, Sub, TrackerSample,
 };
 use softarm_learning::cacla::{CaclaMtl, LearnerState};
-use softarm_learning::online::OnlineLearner;
+use softarm_learning::online::{ArmState, OnlineLearner};
 use softarm_method::learner_config::LearnerConfig;
 use softarm_method::poly::Polynomial;
 use softarm_model::bundle::{BundleError, BundleWatch, Model, read_checkpoint, write_checkpoint};
@@ -51,29 +52,35 @@ pub fn online_learner(
 fn load(config: &Config) -> Result<Loaded, BundleError> {
     let model_dir = config.model_dir();
     let model = Model::read(&model_dir)?;
-    let state = match read_checkpoint(&config.state_dir()) {
-        Ok((state, from)) if from == model.id => {
-            tracing::info!(dir = %config.state_dir().display(), "resuming from the learner checkpoint");
-            state
+    let (state, arm) = match read_checkpoint(&config.state_dir()) {
+        Ok(c) if c.model == model.id => {
+            tracing::info!(
+                dir = %config.state_dir().display(),
+                corrections = c.arm.corrections.len(),
+                footprint = c.arm.footprint.len(),
+                "resuming from the learner checkpoint"
+            );
+            (c.state, c.arm)
         }
         Ok(_) => {
             tracing::info!(
                 "the checkpoint belongs to an older model: starting from the new bundle"
             );
-            model.learner.clone()
+            (model.learner.clone(), ArmState::default())
         }
-        Err(BundleError::Missing { .. }) => model.learner.clone(),
+        Err(BundleError::Missing { .. }) => (model.learner.clone(), ArmState::default()),
         Err(e) => {
             tracing::error!("{e}; starting from the model bundle instead");
-            model.learner.clone()
+            (model.learner.clone(), ArmState::default())
         }
     };
-    let online = online_learner(state, model.kinematics, config.learner).map_err(|why| {
+    let mut online = online_learner(state, model.kinematics, config.learner).map_err(|why| {
         BundleError::Invalid {
             path: model_dir.clone(),
             why,
         }
     })?;
+    online.restore_arm(&arm);
     Ok(Loaded {
         learner: Learner::new(online, config),
         model_id: model.id,
@@ -106,9 +113,9 @@ fn runtime_config(trained: LearnerConfig, configured: LearnerConfig) -> LearnerC
     runtime
 }
 
-fn checkpoint(dir: &Path, state: &LearnerState, model_id: &str) {
+fn checkpoint(dir: &Path, state: &LearnerState, arm: &ArmState, model_id: &str) {
     let started = Instant::now();
-    match write_checkpoint(dir, state, model_id) {
+    match write_checkpoint(dir, state, arm, model_id) {
         // Slow writes are worth knowing of: they are why checkpoints are off the answering loop.
         Ok(()) if started.elapsed() > Duration::from_millis(500) => {
             tracing::warn!(
@@ -132,7 +139,7 @@ struct Checkpoints {
 
 #[derive(Default)]
 struct Pending {
-    next: Option<(LearnerState, String)>,
+    next: Option<(LearnerState, ArmState, String)>,
     done: bool,
 }
 
@@ -154,7 +161,7 @@ impl Checkpoints {
                             None => return,
                         }
                     };
-                    checkpoint(&dir, &job.0, &job.1);
+                    checkpoint(&dir, &job.0, &job.1, &job.2);
                 }
             })
         };
@@ -166,7 +173,12 @@ impl Checkpoints {
 
     /// Queues `l`'s state, replacing one not yet written.
     fn save(&self, l: &Loaded) {
-        let job = (l.learner.online().cacla().state(), l.model_id.clone());
+        let online = l.learner.online();
+        let job = (
+            online.cacla().state(),
+            online.arm_state(),
+            l.model_id.clone(),
+        );
         let (lock, wake) = &*self.shared;
         lock.lock().unwrap_or_else(|e| e.into_inner()).next = Some(job);
         wake.notify_one();
@@ -185,6 +197,11 @@ impl Checkpoints {
 
 /// What the controller sent, merged from the two services.
 // A few at a time in a reused buffer: boxing the large variant would only add allocations.
+/// Motor samples kept for pairing: 40 ms at the sim's 200 Hz.
+const MOTOR_SAMPLES: usize = 8;
+/// A tracker and a motor sample this close (ns) are of the same moment of the arm.
+const PAIRED_NS: u64 = 10_000_000;
+
 #[allow(clippy::large_enum_variant)]
 enum Incoming {
     Request(EstimateRequest),
@@ -204,6 +221,12 @@ impl Incoming {
 struct Ports {
     requests: Sub<EstimateRequest>,
     samples: Sub<ConditioningSample>,
+    /// The arm itself, as the controller reads it: for the footprint that tells when it changed.
+    tracker: Sub<TrackerSample>,
+    motors: Sub<MotorState>,
+    /// The newest motor samples, (stamp, actuation), for pairing with tracker samples.
+    motor_samples: [(u64, Actuation); MOTOR_SAMPLES],
+    next_motor: usize,
     estimates: Pub<ActuationEstimate>,
     /// Estimates sent.
     seq: u64,
@@ -218,10 +241,38 @@ impl Ports {
         Ok(Self {
             requests: node.subscriber(&node.estimate_request()?)?,
             samples: node.subscriber(&node.cp_sample()?)?,
+            tracker: node.subscriber(&node.tracker()?)?,
+            motors: node.subscriber(&node.motor_state()?)?,
+            motor_samples: [(0, [f64::NAN; 6]); MOTOR_SAMPLES],
+            next_motor: 0,
             estimates: node.publisher(&node.estimate()?)?,
             seq: 0,
             _node: node,
         })
+    }
+
+    /// (stamp, measured actuation, position) of each tracker sample since the last call that a
+    /// motor sample was taken within [`PAIRED_NS`] of (drivers stamp on their own: the sim both
+    /// at once, a tendon bus and a tracker each when it read).
+    fn arm_samples(&mut self) -> Vec<(u64, Actuation, Position)> {
+        while let Ok(Some(m)) = self.motors.receive() {
+            self.motor_samples[self.next_motor] = (m.stamp_ns, m.actuation);
+            self.next_motor = (self.next_motor + 1) % MOTOR_SAMPLES;
+        }
+        let mut out = Vec::new();
+        while let Ok(Some(t)) = self.tracker.receive() {
+            let nearest = self
+                .motor_samples
+                .iter()
+                .filter(|(stamp, a)| {
+                    stamp.abs_diff(t.stamp_ns) <= PAIRED_NS && a.iter().all(|v| v.is_finite())
+                })
+                .min_by_key(|(stamp, _)| stamp.abs_diff(t.stamp_ns));
+            if let Some((_, a)) = nearest {
+                out.push((t.stamp_ns, *a, t.position));
+            }
+        }
+        out
     }
 
     fn send(&mut self, e: ActuationEstimate) {
@@ -279,9 +330,11 @@ pub fn run(config: &Config, stop: &AtomicBool) -> anyhow::Result<()> {
     // The last state is written after everything queued, so it is the one that stays.
     p.checkpoints.finish();
     if let Some(l) = &p.loaded {
+        let online = l.learner.online();
         checkpoint(
             &config.state_dir(),
-            &l.learner.online().cacla().state(),
+            &online.cacla().state(),
+            &online.arm_state(),
             &l.model_id,
         );
     }
@@ -299,6 +352,7 @@ impl Process<'_> {
         if self.loaded.is_some() {
             self.take_inbox();
             self.answer();
+            self.watch_arm();
         }
     }
 
@@ -382,6 +436,23 @@ impl Process<'_> {
                     }
                 }
             }
+        }
+    }
+
+    /// The arm's samples through its footprint; after a change of the arm, the running set's
+    /// new first estimates, and a checkpoint (what was learnt of the old arm is gone).
+    fn watch_arm(&mut self) {
+        let Some(l) = self.loaded.as_mut() else {
+            return;
+        };
+        let changes = l.learner.arm_changes();
+        for (stamp_ns, measured, position) in self.ports.arm_samples() {
+            for e in l.learner.observe_arm(stamp_ns, &measured, &position) {
+                self.ports.send(e);
+            }
+        }
+        if l.learner.arm_changes() != changes {
+            self.checkpoints.save(l);
         }
     }
 

@@ -29,28 +29,36 @@ const SAME_TARGET_M: f64 = 1e-3;
 /// on the path into it, which differs from set to set; the arm's change does not.
 #[derive(Debug, Clone, Default)]
 pub struct Corrections {
-    /// (target, Δa), at most `transfer_points`, one per target, oldest first.
-    points: Vec<(Position, Actuation)>,
+    /// At most `transfer_points`, one per target, oldest first.
+    points: Vec<Corrected>,
     mean: Actuation,
     /// α, one per point.
     alpha: Vec<Actuation>,
 }
 
 impl Corrections {
-    /// Corrections of `points` (target, Δa), as [`Corrections::points`] gave them; the oldest
-    /// beyond `transfer_points` are dropped.
-    pub fn from_points(c: &GaussNewtonConfig, points: &[(Position, Actuation)]) -> Self {
+    /// Corrections of `points`, as [`Corrections::points`] gave them; the oldest beyond
+    /// `transfer_points` are dropped.
+    pub fn from_points(c: &GaussNewtonConfig, points: &[Corrected]) -> Self {
         let mut out = Self::default();
-        for (target, correction) in points {
-            out.insert(c, target, *correction);
+        for p in points {
+            out.insert(c, *p);
         }
         out.solve(c);
         out
     }
 
-    /// (target, Δa) of every corrected point, oldest first.
-    pub fn points(&self) -> &[(Position, Actuation)] {
+    /// Every corrected point, oldest first.
+    pub fn points(&self) -> &[Corrected] {
         &self.points
+    }
+
+    /// The estimate that served `target` best, if it was visited.
+    pub fn visited(&self, target: &Position) -> Option<Actuation> {
+        self.points
+            .iter()
+            .find(|p| distance(&p.target, target) < SAME_TARGET_M)
+            .map(|p| p.estimate)
     }
 
     pub fn len(&self) -> usize {
@@ -66,18 +74,18 @@ impl Corrections {
         c.transfer_spread.powi(2) * (-distance(p, q).powi(2) / (2.0 * l * l)).exp()
     }
 
-    /// Records `correction` for `target` and solves for α again: a Cholesky of at most
+    /// Records `point`'s correction and solves for α again: a Cholesky of at most
     /// `transfer_points`² (well under a millisecond for 64), once per visit, in the learner.
-    pub fn set(&mut self, c: &GaussNewtonConfig, target: &Position, correction: Actuation) {
-        self.insert(c, target, correction);
+    pub fn set(&mut self, c: &GaussNewtonConfig, point: Corrected) {
+        self.insert(c, point);
         self.solve(c);
     }
 
-    fn insert(&mut self, c: &GaussNewtonConfig, target: &Position, correction: Actuation) {
+    fn insert(&mut self, c: &GaussNewtonConfig, point: Corrected) {
         match self
             .points
             .iter()
-            .position(|(p, _)| distance(p, target) < SAME_TARGET_M)
+            .position(|p| distance(&p.target, &point.target) < SAME_TARGET_M)
         {
             // The newest is last: what is dropped at capacity is what was learnt longest ago.
             Some(i) => {
@@ -88,7 +96,7 @@ impl Corrections {
             }
             None => {}
         }
-        self.points.push((*target, correction));
+        self.points.push(point);
     }
 
     fn solve(&mut self, c: &GaussNewtonConfig) {
@@ -98,16 +106,16 @@ impl Corrections {
             return;
         }
         self.mean =
-            std::array::from_fn(|i| self.points.iter().map(|p| p.1[i]).sum::<f64>() / n as f64);
+            std::array::from_fn(|i| self.points.iter().map(|p| p.delta[i]).sum::<f64>() / n as f64);
         let k = DMatrix::from_fn(n, n, |i, j| {
-            Self::kernel(c, &self.points[i].0, &self.points[j].0)
+            Self::kernel(c, &self.points[i].target, &self.points[j].target)
                 + if i == j {
                     c.transfer_noise.powi(2)
                 } else {
                     0.0
                 }
         });
-        let r = DMatrix::from_fn(n, ACTUATORS, |i, d| self.points[i].1[d] - self.mean[d]);
+        let r = DMatrix::from_fn(n, ACTUATORS, |i, d| self.points[i].delta[d] - self.mean[d]);
         // K + σ_n² I is positive definite; should rounding say otherwise, the mean alone.
         self.alpha = match k.cholesky() {
             Some(ch) => {
@@ -121,14 +129,26 @@ impl Corrections {
     /// Δa(p); zero before any point was corrected.
     pub fn at(&self, c: &GaussNewtonConfig, p: &Position) -> Actuation {
         let mut out = self.mean;
-        for ((q, _), alpha) in self.points.iter().zip(&self.alpha) {
-            let k = Self::kernel(c, p, q);
+        for (q, alpha) in self.points.iter().zip(&self.alpha) {
+            let k = Self::kernel(c, p, &q.target);
             for (o, a) in out.iter_mut().zip(alpha) {
                 *o += k * a;
             }
         }
         out
     }
+}
+
+/// One visited target's correction.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Corrected {
+    pub target: Position,
+    /// Δa = a_measured − a_model, carried to other targets.
+    pub delta: Actuation,
+    /// The estimate of the target's best try: a set that comes back to this very target
+    /// starts from it, exactly where it left (Δa leaves out the lag into the point on its
+    /// set's path, which the estimate has in).
+    pub estimate: Actuation,
 }
 
 /// Samples kept of the arm (one per neighbourhood of the actuation space).
@@ -380,15 +400,21 @@ mod tests {
             transfer_points: 2,
             ..Default::default()
         };
+        let at = |x: f64, v: f64| Corrected {
+            target: [x, 0.0, -0.5],
+            delta: [v; ACTUATORS],
+            estimate: [0.5 + v; ACTUATORS],
+        };
         let mut k = Corrections::default();
         assert_eq!(k.at(&c, &[0.0, 0.0, -0.5]), [0.0; ACTUATORS]);
-        k.set(&c, &[0.0, 0.0, -0.5], [0.1; ACTUATORS]);
-        k.set(&c, &[0.1, 0.0, -0.5], [0.2; ACTUATORS]);
-        k.set(&c, &[0.0, 0.0, -0.5], [0.3; ACTUATORS]);
-        k.set(&c, &[0.2, 0.0, -0.5], [0.4; ACTUATORS]);
+        k.set(&c, at(0.0, 0.1));
+        k.set(&c, at(0.1, 0.2));
+        k.set(&c, at(0.0, 0.3));
+        k.set(&c, at(0.2, 0.4));
         // At capacity the oldest goes: the one set second (the first was renewed).
-        let targets: Vec<Position> = k.points().iter().map(|p| p.0).collect();
-        assert_eq!(targets, [[0.0, 0.0, -0.5], [0.2, 0.0, -0.5]]);
+        assert_eq!(k.points(), [at(0.0, 0.3), at(0.2, 0.4)]);
+        assert_eq!(k.visited(&[0.0, 0.0, -0.5005]), Some([0.8; ACTUATORS]));
+        assert_eq!(k.visited(&[0.1, 0.0, -0.5]), None);
         let back = Corrections::from_points(&c, k.points());
         assert_eq!(
             back.at(&c, &[0.05, 0.0, -0.5]),

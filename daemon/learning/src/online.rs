@@ -21,7 +21,7 @@
 
 use nalgebra::{Matrix3, SVector, Vector3};
 
-use crate::arm::{Corrections, Footprint, Sample, Seen};
+use crate::arm::{Corrected, Corrections, Footprint, Sample, Seen};
 use crate::cacla::{CaclaMtl, PointMemory, Visit};
 use softarm_method::forward::{ForwardModel, Jacobian};
 use softarm_method::learner_config::{Algorithm, GaussNewtonConfig};
@@ -48,6 +48,10 @@ pub enum OnlineError {
 /// One executed try at a point.
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct Try {
+    /// Under gauss-newton the estimate the try was conditioned on, which is what the learner
+    /// controls: the setpoint at T_cond can fall short of it (the slew limit on a steep path
+    /// into the point), by an amount that changes with the path, so steps taken from setpoints
+    /// wander (measured: a point 6 mm off went to 22 mm and stayed). Under paper, the setpoint.
     action: Actuation,
     /// Where the actuators were (they lag behind `action`), `action` when not reported.
     measured: Actuation,
@@ -82,6 +86,8 @@ struct Point {
     bias: Option<(Vector3<f64>, f64)>,
     /// The pending estimate went back to the best try after a worse one.
     retry: bool,
+    /// The estimate last sent: what its next visit was conditioned on.
+    sent: Option<Actuation>,
 }
 
 impl Point {
@@ -98,6 +104,7 @@ impl Point {
             jacobian: None,
             bias: None,
             retry: false,
+            sent: None,
         }
     }
 }
@@ -178,8 +185,8 @@ pub struct OnlineLearner {
 /// checkpoint so that a restarted learner knows the arm it left.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct ArmState {
-    /// (target, Δa) of [`Corrections::points`].
-    pub corrections: Vec<(Position, Actuation)>,
+    /// [`Corrections::points`].
+    pub corrections: Vec<Corrected>,
     /// [`Footprint::samples`].
     pub footprint: Vec<Sample>,
 }
@@ -340,6 +347,11 @@ impl OnlineLearner {
         let gauss_newton = self.algorithm() == Algorithm::GaussNewton;
         let p = self.point(point, target)?;
         let error = distance(target, reached);
+        let executed = match p.sent {
+            Some(sent) if gauss_newton => sent,
+            _ => *action,
+        };
+        let action = &executed;
         let now = Try {
             action: *action,
             measured: match measured {
@@ -400,13 +412,19 @@ impl OnlineLearner {
             // What this point needed beyond the trained model, for the sets to come.
             if let Some(best) = p.best {
                 let model = self.model(point, target);
-                self.corrections
-                    .set(&c, target, minus(&best.measured, &model));
+                self.corrections.set(
+                    &c,
+                    Corrected {
+                        target: *target,
+                        delta: minus(&best.measured, &model),
+                        estimate: best.action,
+                    },
+                );
             }
         }
         let memory = &mut self.set[point].memory;
         Ok(if gauss_newton {
-            self.cacla.judge(memory, target, action, reached)
+            self.cacla.judge(memory, target, &executed, reached)
         } else {
             self.cacla.observe(memory, target, action, reached)
         })
@@ -425,6 +443,13 @@ impl OnlineLearner {
             let memory = self.set[point].memory;
             return Ok(self.cacla.act(memory.as_ref(), target, explore));
         }
+        let a = self.directed(point, target, explore);
+        self.set[point].sent = Some(a);
+        Ok(a)
+    }
+
+    /// Gauss-Newton's estimate: the first, or a step from the last or best try.
+    fn directed(&mut self, point: usize, target: &Position, explore: bool) -> Actuation {
         let c = self.cacla.config().gauss_newton;
         let p = self.set[point];
         if explore && let (Some(last), Some(best)) = (p.last, p.best) {
@@ -454,15 +479,20 @@ impl OnlineLearner {
                 .first
                 .map_or([0.0; ACTUATORS], |f| minus(&f, &base.action));
             let step = gauss_newton_step(&j, &e, &home, c.gain, &c, p.radius);
-            return Ok(plus(&base.action, &step));
+            return plus(&base.action, &step);
         }
         if let Some(first) = p.first {
-            return Ok(first);
+            return first;
         }
-        let model = self.model(point, target);
-        let first = plus(&model, &self.corrections.at(&c, target));
+        let first = match self.corrections.visited(target) {
+            Some(estimate) => estimate,
+            None => {
+                let model = self.model(point, target);
+                plus(&model, &self.corrections.at(&c, target))
+            }
+        };
         self.set[point].first = Some(first);
-        Ok(first)
+        first
     }
 
     /// What the trained model alone would send for `point` (at `target`), worked out once per
@@ -639,7 +669,8 @@ mod tests {
     fn a_failed_step_shrinks_the_trust_region_and_backtracks() {
         let mut l = learner(Algorithm::GaussNewton);
         let t = targets();
-        l.start_set(&t).unwrap();
+        // Joined (as after a restart): no estimate sent yet, so the actions are the setpoints.
+        l.begin(t.len()).unwrap();
         let good = [0.5; 6];
         l.observe(0, &t[0], &good, &[t[0][0] + 0.004, t[0][1], t[0][2]], None)
             .unwrap();

@@ -16,7 +16,9 @@ use nalgebra::{DMatrix, DVector};
 use safetensors::{Dtype, SafeTensors, tensor::TensorView};
 use serde::{Deserialize, Serialize};
 
+use softarm_learning::arm::{Corrected, Sample};
 use softarm_learning::cacla::LearnerState;
+use softarm_learning::online::ArmState;
 use softarm_method::learner_config::LearnerConfig;
 use softarm_method::poly::Polynomial;
 use softarm_method::promp::{Basis, Primitive};
@@ -72,6 +74,10 @@ impl Tensors {
         let bytes = values.iter().flat_map(|v| v.to_le_bytes()).collect();
         self.map
             .insert(name.into(), (Dtype::U64, vec![values.len()], bytes));
+    }
+
+    pub fn has(&self, name: &str) -> bool {
+        self.map.contains_key(name)
     }
 
     fn get(&self, name: &str, dtype: Dtype) -> Result<(&[usize], &[u8]), String> {
@@ -506,6 +512,7 @@ struct CheckpointMeta {
 pub fn write_checkpoint(
     dir: &Path,
     state: &LearnerState,
+    arm: &ArmState,
     model_id: &str,
 ) -> Result<(), BundleError> {
     let meta = CheckpointMeta {
@@ -516,11 +523,22 @@ pub fn write_checkpoint(
     };
     let mut t = Tensors::default();
     put_learner(&mut t, state);
+    put_arm(&mut t, arm);
     write(dir, "learner", &meta, &t).map(|_| ())
 }
 
-/// Reads a learner checkpoint: the state and the id of the model it descends from.
-pub fn read_checkpoint(dir: &Path) -> Result<(LearnerState, String), BundleError> {
+/// A learner checkpoint as read back.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Checkpoint {
+    pub state: LearnerState,
+    /// What the learner knew of the arm (empty from checkpoints written before it was kept).
+    pub arm: ArmState,
+    /// The id of the model it descends from.
+    pub model: String,
+}
+
+/// Reads a learner checkpoint.
+pub fn read_checkpoint(dir: &Path) -> Result<Checkpoint, BundleError> {
     let (meta, t, _): (CheckpointMeta, _, _) = read(dir, "learner", "learner checkpoint")?;
     let invalid = |why: String| BundleError::Invalid {
         path: dir.join("learner.toml"),
@@ -534,7 +552,88 @@ pub fn read_checkpoint(dir: &Path) -> Result<(LearnerState, String), BundleError
     }
     meta.learner.validate().map_err(invalid)?;
     let state = get_learner(&t, meta.learner).map_err(invalid)?;
-    Ok((state, meta.model))
+    let arm = get_arm(&t).map_err(|e| invalid(format!("the arm's state: {e}")))?;
+    Ok(Checkpoint {
+        state,
+        arm,
+        model: meta.model,
+    })
+}
+
+fn put_arm(t: &mut Tensors, arm: &ArmState) {
+    let n = arm.corrections.len();
+    let targets: Vec<f64> = arm.corrections.iter().flat_map(|c| c.target).collect();
+    let deltas: Vec<f64> = arm.corrections.iter().flat_map(|c| c.delta).collect();
+    let estimates: Vec<f64> = arm.corrections.iter().flat_map(|c| c.estimate).collect();
+    t.put_f64("arm.corrections.targets", &[n, 3], &targets);
+    t.put_f64("arm.corrections.deltas", &[n, 6], &deltas);
+    t.put_f64("arm.corrections.estimates", &[n, 6], &estimates);
+    let m = arm.footprint.len();
+    let stamps: Vec<u64> = arm.footprint.iter().map(|s| s.stamp_ns).collect();
+    let counts: Vec<u64> = arm.footprint.iter().map(|s| u64::from(s.count)).collect();
+    let actuations: Vec<f64> = arm.footprint.iter().flat_map(|s| s.actuation).collect();
+    let positions: Vec<f64> = arm.footprint.iter().flat_map(|s| s.position).collect();
+    t.put_u64("arm.footprint.stamps", &stamps);
+    t.put_u64("arm.footprint.counts", &counts);
+    t.put_f64("arm.footprint.actuations", &[m, 6], &actuations);
+    t.put_f64("arm.footprint.positions", &[m, 3], &positions);
+}
+
+/// The arm's state; none in a checkpoint written before it was kept.
+fn get_arm(t: &Tensors) -> Result<ArmState, String> {
+    if !t.has("arm.corrections.targets") {
+        return Ok(ArmState::default());
+    }
+    let (s, targets) = t.f64s("arm.corrections.targets", &[None, Some(3)])?;
+    let (_, deltas) = t.f64s("arm.corrections.deltas", &[Some(s[0]), Some(6)])?;
+    let (_, estimates) = t.f64s("arm.corrections.estimates", &[Some(s[0]), Some(6)])?;
+    if let Some(v) = deltas.iter().find(|v| v.abs() > 1.0) {
+        return Err(format!(
+            "a correction of {v} is more than the actuation's whole range"
+        ));
+    }
+    if let Some(v) = estimates.iter().find(|v| !(0.0..=1.0).contains(*v)) {
+        return Err(format!("an estimate of {v} is outside [0, 1]"));
+    }
+    let corrections = (0..s[0])
+        .map(|i| Corrected {
+            target: std::array::from_fn(|d| targets[3 * i + d]),
+            delta: std::array::from_fn(|d| deltas[6 * i + d]),
+            estimate: std::array::from_fn(|d| estimates[6 * i + d]),
+        })
+        .collect();
+    let stamps = t.u64s("arm.footprint.stamps")?;
+    let m = Some(stamps.len());
+    let counts = t.u64s("arm.footprint.counts")?;
+    let (_, actuations) = t.f64s("arm.footprint.actuations", &[m, Some(6)])?;
+    let (_, positions) = t.f64s("arm.footprint.positions", &[m, Some(3)])?;
+    if counts.len() != stamps.len() {
+        return Err(format!(
+            "{} footprint counts for {} samples",
+            counts.len(),
+            stamps.len()
+        ));
+    }
+    if let Some(v) = actuations.iter().find(|v| !(0.0..=1.0).contains(*v)) {
+        return Err(format!("a footprint actuation of {v} is outside [0, 1]"));
+    }
+    let footprint = (0..stamps.len())
+        .map(|i| {
+            Ok(Sample {
+                stamp_ns: stamps[i],
+                actuation: std::array::from_fn(|d| actuations[6 * i + d]),
+                position: std::array::from_fn(|d| positions[3 * i + d]),
+                count: u32::try_from(counts[i])
+                    .ok()
+                    .filter(|c| *c >= 1)
+                    .ok_or_else(|| format!("a footprint count of {}", counts[i]))?,
+            })
+        })
+        .collect::<Result<_, String>>()?;
+    Ok(ArmState {
+        corrections,
+        footprint,
+    })
 }
 
 #[cfg(test)]
@@ -611,9 +710,36 @@ mod tests {
             .count();
         assert_eq!(n, 1);
 
-        write_checkpoint(&dir, &m.learner, &id).unwrap();
-        let (state, from) = read_checkpoint(&dir).unwrap();
-        assert_eq!((state, from), (m.learner.clone(), id));
+        // What the learner knew of the arm round-trips with it.
+        let arm = ArmState {
+            corrections: vec![Corrected {
+                target: [0.1, 0.0, -0.45],
+                delta: [0.01, -0.02, 0.0, 0.03, 0.0, -0.01],
+                estimate: [0.41, 0.48, 0.6, 0.53, 0.5, 0.44],
+            }],
+            footprint: vec![Sample {
+                stamp_ns: 123_456_789_012,
+                actuation: [0.4, 0.5, 0.6, 0.5, 0.5, 0.45],
+                position: [0.1, 0.01, -0.46],
+                count: 7,
+            }],
+        };
+        write_checkpoint(&dir, &m.learner, &arm, &id).unwrap();
+        let back = read_checkpoint(&dir).unwrap();
+        assert_eq!(
+            (back.state, back.arm, back.model),
+            (m.learner.clone(), arm.clone(), id.clone())
+        );
+        // A checkpoint of before the arm's state was kept reads with none.
+        let mut t = Tensors::default();
+        put_learner(&mut t, &m.learner);
+        assert_eq!(get_arm(&t), Ok(ArmState::default()));
+        // A broken one is refused, saying what is wrong.
+        let mut broken = arm;
+        broken.footprint[0].actuation[2] = 1.5;
+        put_arm(&mut t, &broken);
+        let e = get_arm(&t).unwrap_err();
+        assert!(e.contains("1.5 is outside [0, 1]"), "{e}");
         fs::remove_dir_all(&dir).unwrap();
     }
 

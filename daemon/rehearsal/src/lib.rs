@@ -142,6 +142,11 @@ impl<'a> Rehearsal<'a> {
         &self.learner
     }
 
+    /// Another learner takes over (a restarted learner process); the one that ran.
+    pub fn replace_learner(&mut self, learner: Learner) -> Learner {
+        std::mem::replace(&mut self.learner, learner)
+    }
+
     /// The sim's arm changes between sets, as when the sim restarts with another scenario.
     /// The sim's arm held where it was for [`CHANGE_HOLD_NS`], as the stack's is while its sim
     /// restarts; the learner watches it (no set runs, so what it would send goes nowhere).
@@ -229,10 +234,10 @@ impl<'a> Rehearsal<'a> {
         let setpoint = self.limiter.apply(&t.target);
         execution.published(&setpoint, Some(&self.arm.newest.actuation));
         self.arm.command = setpoint;
-        if let Some(sample) = t.point {
-            if let Some(e) = self.learner.visit(&sample) {
-                recondition(replanner, &e);
-            }
+        if let Some(sample) = t.point
+            && let Some(e) = self.learner.visit(&sample)
+        {
+            recondition(replanner, &e);
         }
         self.now_ns += self.period_ns;
         t.finished

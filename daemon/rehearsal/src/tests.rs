@@ -59,6 +59,20 @@ fn quick() -> Model {
     model
 }
 
+/// A model from as many demonstrations as `softarm train` makes (20 per class; the quick
+/// model's 6 give primitives so narrow that conditioning them far from their mean asks for
+/// paths the slew limit cannot follow), with the quick training: about 2 s.
+fn trained() -> Model {
+    let recipe = softarm_method::skill::DemoRecipe::default();
+    let training = softarm_model::pipeline::quick_training();
+    let (model, _) =
+        softarm_model::pipeline::from_plant(&ArmGeometry::default(), &recipe, 5, &training, |_| {
+            true
+        })
+        .unwrap();
+    model
+}
+
 fn mm(v: &[f64]) -> Vec<String> {
     v.iter().map(|e| format!("{:.1}", e * 1e3)).collect()
 }
@@ -162,7 +176,7 @@ fn moved(set: &str, d: [f64; 3]) -> WaypointFile {
 /// Beside it, the same arm and set with a freshly started learner.
 #[test]
 fn a_running_learner_keeps_up_with_an_arm_that_changes_and_is_never_worse_than_a_fresh_one() {
-    let model = quick();
+    let model = trained();
     let config = Config::default_sim(".".into());
     let nominal = config.arm;
     let mut longer = nominal;
@@ -223,4 +237,62 @@ fn a_running_learner_keeps_up_with_an_arm_that_changes_and_is_never_worse_than_a
         4,
         "one change seen per change made"
     );
+}
+
+/// The learner process restarts mid-sequence from its checkpoint (written and read back as the
+/// process does): what it learnt of the arm survives, so the adapted arm's next set starts
+/// adapted, and a later change is still seen.
+#[test]
+fn a_restarted_learner_keeps_what_it_knew_of_the_arm() {
+    use softarm_model::bundle::{read_checkpoint, write_checkpoint};
+    let model = trained();
+    let config = Config::default_sim(".".into());
+    let nominal = config.arm;
+    let mut longer = nominal;
+    longer.tool_m += 0.025;
+    let demo = WaypointFile::parse(DEMO).unwrap();
+    let mut rehearsal = setup(&model, &config, "nominal", Algorithm::GaussNewton);
+    rehearsal.rehearse(&demo, 3).unwrap();
+    rehearsal.change_arm(longer).unwrap();
+    let adapting = rehearsal.rehearse(&demo, 4).unwrap();
+    assert!(adapting[3].mean_m <= 0.002, "{:?}", adapting);
+
+    let dir =
+        std::env::temp_dir().join(format!("softarm-rehearsal-restart-{}", std::process::id()));
+    let online = rehearsal.learner().online();
+    write_checkpoint(
+        &dir,
+        &online.cacla().state(),
+        &online.arm_state(),
+        &model.id,
+    )
+    .unwrap();
+    let back = read_checkpoint(&dir).unwrap();
+    let _ = std::fs::remove_dir_all(&dir);
+    let mut restarted =
+        online_learner(back.state, model.kinematics.clone(), config.learner).unwrap();
+    restarted.restore_arm(&back.arm);
+    rehearsal.replace_learner(Learner::new(restarted, &config));
+
+    let after = means(&mut rehearsal, DEMO, 3);
+    eprintln!(
+        "adapting {:?} mm, after the restart {:?} mm",
+        mm(&adapting.iter().map(|s| s.mean_m).collect::<Vec<_>>()),
+        mm(&after)
+    );
+    assert!(
+        after.iter().all(|e| *e <= 0.002),
+        "after the restart {:?} mm",
+        mm(&after)
+    );
+    // Back to nominal: seen through the restored footprint, so the next set starts as a fresh
+    // learner would.
+    rehearsal.change_arm(nominal).unwrap();
+    let back_home = means(&mut rehearsal, DEMO, 1)[0];
+    let fresh = run(&model, "nominal", Algorithm::GaussNewton, 1)[0];
+    assert!(
+        back_home <= 1.1 * fresh,
+        "back home {back_home} m, fresh {fresh} m"
+    );
+    assert_eq!(rehearsal.learner().arm_changes(), 1);
 }

@@ -554,7 +554,7 @@ impl<'a> Soak<'a> {
         let mut report = self.report;
         report.invariants = self.watch.finish();
         report.lattice_end = read_checkpoint(&self.scratch.config.state_dir())
-            .map(|(s, _)| (s.actor.len(), s.critic.len()))
+            .map(|c| (c.state.actor.len(), c.state.critic.len()))
             .unwrap_or(report.lattice_start);
         if let Some(s) = self.last_status {
             report.tick = s.latency;
