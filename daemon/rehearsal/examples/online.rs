@@ -112,6 +112,9 @@ fn main() -> anyhow::Result<()> {
         let second = load("SECOND", "")?;
         let after = adapted.rehearse(&second, 1)?;
         let fresh = rehearsal(&model, &config, arm, &sim)?.rehearse(&second, 1)?;
+        println!("second set, adapted, then fresh:");
+        print(&after);
+        print(&fresh);
         println!(
             "second set, first execution: adapted {:.2} mm, unadapted {:.2} mm",
             after[0].mean_m * 1e3,

@@ -59,20 +59,6 @@ fn quick() -> Model {
     model
 }
 
-/// A model from as many demonstrations as `softarm train` makes (20 per class; the quick
-/// model's 6 give primitives so narrow that conditioning them far from their mean asks for
-/// paths the slew limit cannot follow), with the quick training: about 2 s.
-fn trained() -> Model {
-    let recipe = softarm_method::skill::DemoRecipe::default();
-    let training = softarm_model::pipeline::quick_training();
-    let (model, _) =
-        softarm_model::pipeline::from_plant(&ArmGeometry::default(), &recipe, 5, &training, |_| {
-            true
-        })
-        .unwrap();
-    model
-}
-
 fn mm(v: &[f64]) -> Vec<String> {
     v.iter().map(|e| format!("{:.1}", e * 1e3)).collect()
 }
@@ -176,7 +162,7 @@ fn moved(set: &str, d: [f64; 3]) -> WaypointFile {
 /// Beside it, the same arm and set with a freshly started learner.
 #[test]
 fn a_running_learner_keeps_up_with_an_arm_that_changes_and_is_never_worse_than_a_fresh_one() {
-    let model = trained();
+    let model = quick();
     let config = Config::default_sim(".".into());
     let nominal = config.arm;
     let mut longer = nominal;
@@ -245,7 +231,7 @@ fn a_running_learner_keeps_up_with_an_arm_that_changes_and_is_never_worse_than_a
 #[test]
 fn a_restarted_learner_keeps_what_it_knew_of_the_arm() {
     use softarm_model::bundle::{read_checkpoint, write_checkpoint};
-    let model = trained();
+    let model = quick();
     let config = Config::default_sim(".".into());
     let nominal = config.arm;
     let mut longer = nominal;
