@@ -212,10 +212,14 @@ fn a_running_learner_keeps_up_with_an_arm_that_changes_and_is_never_worse_than_a
             ours[0] * 1e3,
             fresh[0] * 1e3
         );
+        // Issue 19's targets: every change caught by the third execution, the nominal arm
+        // better than the tracker's noise on one sample.
+        let bound = if arm == nominal { 0.0012 } else { 0.002 };
         assert!(
-            ours[2..].iter().all(|e| *e <= 0.0025),
-            "{name}: from the third execution {:?} mm",
-            mm(&ours)
+            ours[2..].iter().all(|e| *e <= bound),
+            "{name}: from the third execution {:?} mm, more than {} mm",
+            mm(&ours),
+            bound * 1e3
         );
     }
     assert_eq!(
