@@ -160,12 +160,21 @@ pub const FOOTPRINT_SAMPLES: usize = 256;
 const NEIGHBOURHOOD: f64 = 0.005;
 /// Samples of a neighbourhood averaged, at most.
 const AVERAGED: u32 = 16;
-/// Only a sample taken while the actuators move slower than this (per s, Euclidean) is used:
-/// a moving soft arm lags its actuators, and a tracker and a motor bus have different latencies.
+/// A sample is checked against the footprint only while the actuators move slower than this
+/// (per s, Euclidean): a moving soft arm lags its actuators, and a tracker and a motor bus have
+/// different latencies.
 const STILL_PER_S: f64 = 0.1;
+/// Samples of an arm moving slower than this (per s) are kept where the footprint knows
+/// nothing: the end of a set that the arm is changed right after is then known (10 ms between
+/// a tracker's and a bus's stamps is under a millimetre at this speed).
+const SLOW_PER_S: f64 = 0.5;
 /// The speed is measured over at least this long (ns), so that the actuation noise does not
-/// read as motion.
-const SPEED_SPAN_NS: u64 = 100_000_000;
+/// read as motion (0.001 per actuator: 0.07 per s over 50 ms).
+const SPEED_SPAN_NS: u64 = 50_000_000;
+/// ...and over at most this long (ns).
+const SPEED_GAP_NS: u64 = 2_000_000_000;
+/// Samples kept for the speed: 80 ms at 200 Hz.
+const RECENT: usize = 16;
 /// Checks of the arm remembered; this many of them disagreeing say the arm changed.
 const CHECKS: usize = 8;
 const DISAGREEING: usize = 6;
@@ -173,9 +182,9 @@ const DISAGREEING: usize = 6;
 /// ago at an actuation is not evidence against the arm now.
 const FOOTPRINT_AGE_NS: u64 = 600_000_000_000;
 
-/// What the arm did: (actuation, position) where the actuators stood still, one averaged sample
-/// per neighbourhood of the actuation space. A new sample near a kept one is a check: where the
-/// arm is now should be where it was then. When most recent checks disagree by more than
+/// What the arm did: (actuation, position) where the actuators stood still or moved slowly, one
+/// averaged sample per neighbourhood of the actuation space. A sample of the still arm near a
+/// kept one is a check: where the arm is now should be where it was then. When most recent checks disagree by more than
 /// `change_threshold_m` the arm under the learner has changed (a tool swapped, the arm
 /// remounted): what was learnt on it is no longer true. Tracker noise (two samples' worth) and
 /// creep between visits stay well under that threshold; a step of the arm is far over it.
@@ -183,10 +192,8 @@ const FOOTPRINT_AGE_NS: u64 = 600_000_000_000;
 pub struct Footprint {
     /// At most [`FOOTPRINT_SAMPLES`], the oldest first.
     samples: Vec<Sample>,
-    /// Where the actuators were at the start of the current speed span.
-    span: Option<(u64, Actuation)>,
-    /// Actuator speed over the last complete span (per s).
-    speed: f64,
+    /// The last [`RECENT`] (stamp, actuation), for the actuators' speed.
+    recent: Vec<(u64, Actuation)>,
     /// The last checks, `true` where the arm disagreed with its footprint.
     checks: [bool; CHECKS],
     next_check: usize,
@@ -238,7 +245,8 @@ impl Footprint {
         actuation: &Actuation,
         position: &Position,
     ) -> Seen {
-        if !self.still(stamp_ns, actuation) {
+        let speed = self.speed(stamp_ns, actuation);
+        if speed >= SLOW_PER_S {
             return Seen::Nothing;
         }
         let nearest = self
@@ -250,9 +258,19 @@ impl Footprint {
             .filter(|(_, d)| *d <= NEIGHBOURHOOD)
             .min_by(|a, b| a.1.total_cmp(&b.1));
         let Some((i, _)) = nearest else {
-            self.keep(stamp_ns, actuation, position);
+            // Nothing known here. Not taken in while recent checks disagree: the noise of a
+            // changed arm held still would otherwise seed a neighbourhood of its own beside the
+            // old arm's, and the checks would find the new one as often as the old.
+            if !self.checks.contains(&true) {
+                self.keep(stamp_ns, actuation, position);
+            }
             return Seen::Nothing;
         };
+        if speed >= STILL_PER_S {
+            // Kept where nothing was known, never checked nor averaged in while moving: a
+            // changed arm moving through what the old one did must not blur it.
+            return Seen::Nothing;
+        }
         let off = distance(&self.samples[i].position, position);
         let differs = off > threshold_m;
         self.checks[self.next_check] = differs;
@@ -271,22 +289,28 @@ impl Footprint {
         Seen::Changed(off)
     }
 
-    /// Whether the actuators stand still, measured over spans of at least [`SPEED_SPAN_NS`].
-    fn still(&mut self, stamp_ns: u64, actuation: &Actuation) -> bool {
-        match self.span {
-            Some((t, a)) if stamp_ns > t && stamp_ns - t >= SPEED_SPAN_NS => {
-                let dt = (stamp_ns - t) as f64 * 1e-9;
-                self.speed = actuation_distance(&a, actuation) / dt;
-                self.span = Some((stamp_ns, *actuation));
-            }
-            Some((t, _)) if stamp_ns >= t => {}
-            // The first sample, or the clock went back (another stamp source): start over.
-            _ => {
-                self.span = Some((stamp_ns, *actuation));
-                self.speed = f64::INFINITY;
-            }
+    /// How fast the actuators move (per s): from the newest sample at least [`SPEED_SPAN_NS`]
+    /// older than this one, if one came within [`SPEED_GAP_NS`] (a driver that restarted
+    /// keeps its arm where it held it: a gap of a few hundred ms shows no motion).
+    fn speed(&mut self, stamp_ns: u64, actuation: &Actuation) -> f64 {
+        if self.recent.last().is_some_and(|(t, _)| stamp_ns < *t) {
+            // The clock went back (another stamp source): start over.
+            self.recent.clear();
         }
-        self.speed < STILL_PER_S
+        let speed = self
+            .recent
+            .iter()
+            .rev()
+            .find(|(t, _)| stamp_ns - t >= SPEED_SPAN_NS)
+            .filter(|(t, _)| stamp_ns - t <= SPEED_GAP_NS)
+            .map_or(f64::INFINITY, |(t, a)| {
+                actuation_distance(a, actuation) / ((stamp_ns - t) as f64 * 1e-9)
+            });
+        if self.recent.len() == RECENT {
+            self.recent.remove(0);
+        }
+        self.recent.push((stamp_ns, *actuation));
+        speed
     }
 
     fn keep(&mut self, stamp_ns: u64, actuation: &Actuation, position: &Position) {
@@ -392,6 +416,30 @@ mod tests {
             let seen = f.observe(0.004, (300 + 5 * k) * MS, &b, &tool.position(&b));
             assert_eq!(seen, Seen::Nothing);
         }
+    }
+
+    #[test]
+    fn an_arm_changed_right_after_it_slowed_to_a_stop_is_seen() {
+        let model = ArmGeometry::default();
+        let tool = ArmGeometry {
+            tool_m: model.tool_m + 0.02,
+            ..model
+        };
+        let mut f = Footprint::default();
+        // Slowing into [0.5; 6] at 0.2 per s (Euclidean), never still on the old arm.
+        let end = [0.5; ACTUATORS];
+        for k in 0..60u64 {
+            let back = (60 - k) as f64 * 0.001 / (ACTUATORS as f64).sqrt();
+            let a = end.map(|v| v - back);
+            let seen = f.observe(0.004, k * 5 * MS, &a, &model.position(&a));
+            assert_eq!(seen, Seen::Nothing);
+        }
+        // Changed at once, and held where it stopped: seen.
+        let seen = hold(&mut f, &tool, &end, 300 * MS, 300);
+        assert!(
+            seen.iter().any(|s| matches!(s, Seen::Changed(_))),
+            "{seen:?}"
+        );
     }
 
     #[test]
