@@ -4,8 +4,20 @@ use std::time::Duration;
 
 use softarm_ipc::{ExecutionStats, Namespace, Node, Sub};
 
+/// Estimates of an execution that were not in force when it ran: the learner's (or the
+/// replanning's) answer came after the point's group had started. None for a set's first
+/// execution, which runs on the first estimates whatever comes during it.
+pub fn late_estimates(s: &ExecutionStats) -> u32 {
+    if s.execution <= 1 {
+        0
+    } else {
+        s.count.saturating_sub(s.reconditions)
+    }
+}
+
 /// One JSON object per execution: `execution`, `errors_mm`, `mean_mm`, `max_mm`,
-/// `reconditions` (estimates applied during it), and the set.
+/// `reconditions` (estimates applied during it), `late_estimates` ([`late_estimates`]), and
+/// the set.
 pub fn json_line(s: &ExecutionStats) -> String {
     serde_json::json!({
         "set_id": s.set_id,
@@ -15,6 +27,7 @@ pub fn json_line(s: &ExecutionStats) -> String {
         "mean_mm": round3(s.mean_m * 1e3),
         "max_mm": round3(s.max_m * 1e3),
         "reconditions": s.reconditions,
+        "late_estimates": late_estimates(s),
     })
     .to_string()
 }
@@ -55,7 +68,7 @@ pub fn table_header(points: usize) -> String {
     for n in 1..=points {
         h += &format!(" {:>7}", format!("CP{n} mm"));
     }
-    h + &format!(" {:>8} {:>8}", "mean mm", "max mm")
+    h + &format!(" {:>8} {:>8} {:>5}", "mean mm", "max mm", "late")
 }
 
 pub fn table_row(s: &ExecutionStats) -> String {
@@ -63,7 +76,12 @@ pub fn table_row(s: &ExecutionStats) -> String {
     for e in s.errors() {
         r += &format!(" {:>7.2}", e * 1e3);
     }
-    r + &format!(" {:>8.2} {:>8.2}", s.mean_m * 1e3, s.max_m * 1e3)
+    r + &format!(
+        " {:>8.2} {:>8.2} {:>5}",
+        s.mean_m * 1e3,
+        s.max_m * 1e3,
+        late_estimates(s)
+    )
 }
 
 /// A subscription to `stats` (the last 64 executions arrive first).
@@ -126,4 +144,27 @@ pub fn show(namespace: &Namespace, follow: bool, json: bool) -> anyhow::Result<(
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn estimates_not_in_force_are_counted_from_the_second_execution() {
+        let s = |execution, reconditions| ExecutionStats {
+            execution,
+            executions: 5,
+            count: 4,
+            reconditions,
+            ..Default::default()
+        };
+        assert_eq!(late_estimates(&s(1, 0)), 0, "the first runs on the first estimates");
+        assert_eq!(late_estimates(&s(2, 4)), 0);
+        assert_eq!(late_estimates(&s(3, 1)), 3);
+        let j: serde_json::Value = serde_json::from_str(&json_line(&s(3, 1))).unwrap();
+        assert_eq!(j["late_estimates"], 3);
+        assert!(table_row(&s(3, 1)).ends_with("    3"));
+        assert!(table_header(4).ends_with(" late"));
+    }
 }

@@ -102,6 +102,9 @@ impl Supervisor {
                 }
             });
         }
+        if URGENT.contains(&p.role.as_str()) {
+            raise_priority(child.id(), &p.role);
+        }
         p.child = Some(child);
         p.started = Instant::now();
         Ok(())
@@ -229,6 +232,28 @@ pub fn rss_kib(pid: &str) -> Option<u64> {
         .lines()
         .find_map(|l| l.strip_prefix("VmRSS:"))
         .and_then(|v| v.trim().trim_end_matches("kB").trim().parse().ok())
+}
+
+/// Processes whose answers have a deadline: the learner's estimate and the controller's
+/// replanning must be in force before the point's group starts, also on a busy machine.
+const URGENT: [&str; 2] = ["controller", "learner"];
+/// Their nice value (the systemd units set the same).
+const URGENT_NICE: i32 = -5;
+
+/// Puts `pid` ahead of ordinary work, where allowed (root or CAP_SYS_NICE); else it runs at
+/// the default, and says so once in the log.
+fn raise_priority(pid: u32, role: &str) {
+    // SAFETY: setpriority reads its arguments only.
+    let r = unsafe {
+        nix::libc::setpriority(nix::libc::PRIO_PROCESS, pid as nix::libc::id_t, URGENT_NICE)
+    };
+    static SAID: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+    if r != 0 && !SAID.swap(true, std::sync::atomic::Ordering::Relaxed) {
+        eprintln!(
+            "softarm up: nice {URGENT_NICE} for the {role} refused (needs CAP_SYS_NICE): it and \
+             the others run at the default priority"
+        );
+    }
 }
 
 /// The sim's own arguments for a scenario.
