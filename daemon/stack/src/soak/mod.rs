@@ -489,6 +489,7 @@ impl<'a> Soak<'a> {
     fn follow_sim_clock(&mut self) {
         let changes = self.sim_clock.changes();
         for change in changes {
+            self.say(&format!("the sim's arm changes: {change}"));
             self.arm_changed(change);
         }
     }
