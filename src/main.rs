@@ -96,7 +96,8 @@ enum Command {
         #[command(flatten)]
         stack: Stack,
         /// Runs the sim on another arm than the config's: a shipped scenario (nominal,
-        /// tool-change, creep, twist, stiffer) or a scenario file.
+        /// tool-change, creep, twist, stiffer, not-pcc; changing while it runs: tool-swap,
+        /// creeping, stiffness-cycle, combined) or a scenario file.
         #[arg(long)]
         scenario: Option<String>,
     },
@@ -108,8 +109,9 @@ enum Command {
     Sim {
         #[command(flatten)]
         stack: Stack,
-        /// Overrides [arm] and [sim.realism] for this process only: a shipped scenario (nominal,
-        /// tool-change, creep, twist, stiffer) or a scenario file.
+        /// Overrides [arm] and [sim.realism] for this process only, and may change the arm while
+        /// it runs ([[step]], [drift]): a shipped scenario (nominal, tool-change, creep, twist,
+        /// stiffer, not-pcc, tool-swap, creeping, stiffness-cycle, combined) or a scenario file.
         #[arg(long)]
         scenario: Option<String>,
     },

@@ -12,6 +12,7 @@ static GLOBAL: softarm_test_alloc::Counting = softarm_test_alloc::Counting;
 mod adaptation;
 mod bad_input;
 mod bench;
+mod changing_arm;
 mod cli;
 mod estop;
 mod faults;

@@ -15,9 +15,14 @@ fn a_short_soak_survives_its_kills_and_reports_everything() {
     let _ = std::fs::remove_dir_all(&dir);
     let model = dir.join("model");
     quick_model(&model);
+    // First an arm that changes while it runs: its step comes 1 s into the sim's clock.
+    let swap = dir.join("swap.toml");
+    std::fs::write(&swap, "[[step]]\nat_s = 1.0\n[step.arm]\ntool_m = 0.05\n").unwrap();
+    let rotation = format!("{},creep", swap.display());
     let out = Command::new(BIN)
         .args(["soak", "--minutes", "1", "--kill-every-s", "12"])
         .args(["--scenario-every-s", "10", "--seed", "3", "--json"])
+        .args(["--scenarios", &rotation])
         .arg("--model-dir")
         .arg(&model)
         .env("TMPDIR", &dir)
@@ -30,7 +35,7 @@ fn a_short_soak_survives_its_kills_and_reports_everything() {
         .unwrap()
         .filter_map(Result::ok)
         .map(|e| e.file_name())
-        .filter(|n| n != "model")
+        .filter(|n| n != "model" && n != "swap.toml")
         .collect();
     let _ = std::fs::remove_dir_all(&dir);
     let r: serde_json::Value = serde_json::from_str(stdout.trim())
@@ -54,6 +59,26 @@ fn a_short_soak_survives_its_kills_and_reports_everything() {
     assert!(kills >= 2, "{ctx}");
     assert!(r["kills_survived"].as_u64().unwrap() >= 1, "{ctx}");
     assert!(r["scenario_changes"].as_u64().unwrap() >= 1, "{ctx}");
+    // Every arm change is there, the scenario's step among them, with the executions after it.
+    let changes = r["arm_changes"].as_array().unwrap();
+    let arms: Vec<&str> = changes.iter().map(|c| c["arm"].as_str().unwrap()).collect();
+    assert_eq!(arms[0], "swap", "{ctx}");
+    assert!(arms.contains(&"swap step 1"), "{ctx}");
+    let counted: u64 = changes
+        .iter()
+        .map(|c| c["executions"].as_u64().unwrap())
+        .sum();
+    assert!(
+        counted >= 1 && counted <= r["executions"].as_u64().unwrap(),
+        "{ctx}"
+    );
+    for c in changes {
+        let back = c["back_under"].as_u64();
+        assert!(
+            back.is_none_or(|n| n >= 1 && n <= c["executions"].as_u64().unwrap()),
+            "{ctx}"
+        );
+    }
     for (role, rss) in r["rss"].as_array().unwrap().iter().map(|x| (&x[0], &x[1])) {
         assert!(rss["start_kib"].as_u64().unwrap() > 1000, "{role}: {ctx}");
         assert!(rss["peak_kib"].as_u64() >= rss["end_kib"].as_u64(), "{ctx}");

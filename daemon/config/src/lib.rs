@@ -712,7 +712,7 @@ mod tests {
         // A value out of range there still names its key (and the section's line).
         let bad = DEFAULT
             .replace("[learner.gauss_newton]", "[learner.correction]")
-            .replace("gain = 0.8 ", "gain = 8.0 ");
+            .replace("gain = 1.0 ", "gain = 8.0 ");
         let e = Config::parse(&bad, "c.toml", ".".into()).unwrap_err();
         assert!(e.message.starts_with("learner.gauss_newton.gain: "), "{e}");
     }

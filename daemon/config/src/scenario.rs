@@ -1,27 +1,41 @@
 //! Scenario files: the simulated arm is not the one the model was trained on. A scenario
 //! overrides keys of `[arm]` and `[sim.realism]` for the sim process only; the controller, the
-//! learner and the model keep the nominal arm of the config.
+//! learner and the model keep the nominal arm of the config. It may also change the arm while
+//! the sim runs: steps at given times of the sim's clock (each `[[step]]` with its own
+//! `[step.arm]` keys, on the arm before it) and a `[drift]` (actuators creeping, the actuator
+//! radius cycling), run inside the plant ([`softarm_method::changes`]).
 //!
 //! ```toml
-//! # A longer tool (comments say what the scenario models).
+//! # A longer tool from the start, swapped back 90 s in, two tendons creeping all along
+//! # (comments say what the scenario models).
 //! [arm]
 //! tool_m = 0.05
+//!
+//! [[step]]
+//! at_s = 90.0
+//! [step.arm]
+//! tool_m = 0.03
+//!
+//! [drift]
+//! creep_mm_per_min = [0.0, 0.5, 0.0, 0.0, 0.0, 0.5]
 //! ```
 //!
-//! Unknown sections and keys are refused, every value is checked as the config checks it, and
-//! errors name the key and its line in the scenario file.
+//! Unknown sections and keys are refused, every value is checked as the config checks it (the
+//! arm at every time: each step's, at both ends of a radius cycle; the creep is bounded by its
+//! rule), and errors name the key and its line in the scenario file.
 
 use std::path::Path;
 
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
+use softarm_method::changes::{Changes, Drift, Step};
 use softarm_method::pcc::ArmGeometry;
 use softarm_method::plant::SimConfig;
 
 use crate::{ConfigError, key_line, line_at};
 
 /// The scenarios shipped in `config/scenarios/`, embedded so `--scenario NAME` works anywhere.
-pub const SHIPPED: [(&str, &str); 5] = [
+pub const SHIPPED: [(&str, &str); 10] = [
     (
         "nominal",
         include_str!("../../../config/scenarios/nominal.toml"),
@@ -42,6 +56,26 @@ pub const SHIPPED: [(&str, &str); 5] = [
         "stiffer",
         include_str!("../../../config/scenarios/stiffer.toml"),
     ),
+    (
+        "tool-swap",
+        include_str!("../../../config/scenarios/tool-swap.toml"),
+    ),
+    (
+        "creeping",
+        include_str!("../../../config/scenarios/creeping.toml"),
+    ),
+    (
+        "stiffness-cycle",
+        include_str!("../../../config/scenarios/stiffness-cycle.toml"),
+    ),
+    (
+        "combined",
+        include_str!("../../../config/scenarios/combined.toml"),
+    ),
+    (
+        "not-pcc",
+        include_str!("../../../config/scenarios/not-pcc.toml"),
+    ),
 ];
 
 /// What a scenario file may hold.
@@ -52,6 +86,19 @@ struct File {
     arm: toml::Table,
     #[serde(default)]
     sim: SimPart,
+    #[serde(default)]
+    step: Vec<StepPart>,
+    #[serde(default)]
+    drift: Drift,
+}
+
+/// A `[[step]]`: from `at_s` on, the arm before it with these `[step.arm]` keys.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct StepPart {
+    at_s: f64,
+    #[serde(default)]
+    arm: toml::Table,
 }
 
 #[derive(Debug, Default, Deserialize)]
@@ -69,6 +116,9 @@ pub struct Scenario {
     text: String,
     arm: toml::Table,
     realism: toml::Table,
+    /// Each step's time and keys.
+    steps: Vec<(f64, toml::Table)>,
+    drift: Drift,
 }
 
 impl Scenario {
@@ -119,6 +169,8 @@ impl Scenario {
             text: text.into(),
             arm: file.arm,
             realism: file.sim.realism,
+            steps: file.step.into_iter().map(|s| (s.at_s, s.arm)).collect(),
+            drift: file.drift,
         };
         s.apply(&ArmGeometry::default(), &SimConfig::default())?;
         Ok(s)
@@ -126,7 +178,17 @@ impl Scenario {
 
     /// Whether it changes nothing.
     pub fn is_nominal(&self) -> bool {
-        self.arm.is_empty() && self.realism.is_empty()
+        self.arm.is_empty() && self.realism.is_empty() && !self.changes_over_time()
+    }
+
+    /// Whether the arm changes while the sim runs (steps or a drift).
+    pub fn changes_over_time(&self) -> bool {
+        !self.steps.is_empty() || !self.drift.is_off()
+    }
+
+    /// Each step's time (s of the sim's clock), in order.
+    pub fn step_times(&self) -> Vec<f64> {
+        self.steps.iter().map(|s| s.0).collect()
     }
 
     /// The overridden keys as `section.key = value`, for the sim's log.
@@ -138,6 +200,16 @@ impl Scenario {
         };
         let mut all = keys("arm", &self.arm);
         all.extend(keys("sim.realism", &self.realism));
+        for (k, (at_s, arm)) in self.steps.iter().enumerate() {
+            all.push(format!(
+                "step {} at {at_s} s: {}",
+                k + 1,
+                keys("arm", arm).join(", ")
+            ));
+        }
+        if let Some(drift) = self.drift_keys() {
+            all.push(drift);
+        }
         if all.is_empty() {
             "nothing overridden".into()
         } else {
@@ -145,7 +217,48 @@ impl Scenario {
         }
     }
 
-    /// The sim's arm and settings with the scenario's keys in place of the config's.
+    /// The drift's keys that are set, as `drift.key = value`.
+    fn drift_keys(&self) -> Option<String> {
+        let set = toml::Table::try_from(self.drift).ok()?;
+        let off = toml::Table::try_from(Drift::default()).ok()?;
+        let keys: Vec<String> = set
+            .iter()
+            .filter(|(k, v)| off.get(*k) != Some(*v))
+            .map(|(k, v)| format!("drift.{k} = {v}"))
+            .collect();
+        (!keys.is_empty()).then(|| keys.join(", "))
+    }
+
+    /// What the scenario has changed by time `t` (s of the sim's clock), in a few words for a
+    /// table: the step in force, how far the creeping actuators have crept, the radius's
+    /// change. Empty when nothing changes over time.
+    pub fn changed_at(&self, t: f64) -> String {
+        let mut parts = Vec::new();
+        let done = self.steps.iter().filter(|s| s.0 <= t).count();
+        if done > 0 {
+            let (at_s, keys) = &self.steps[done - 1];
+            let keys: Vec<String> = keys.iter().map(|(k, v)| format!("{k} = {v}")).collect();
+            parts.push(format!("step {done} at {at_s} s ({})", keys.join(", ")));
+        } else if !self.steps.is_empty() {
+            parts.push("before step 1".into());
+        }
+        let max_mm = ArmGeometry::MAX_OFFSET_M * 1e3;
+        let crept: Vec<String> = (self.drift.creep_m(t).iter().enumerate())
+            .filter(|(_, c)| **c != 0.0)
+            .map(|(i, c)| format!("{}: {:+.2}", i + 1, (c * 1e3).clamp(-max_mm, max_mm)))
+            .collect();
+        if !crept.is_empty() {
+            parts.push(format!("crept mm {}", crept.join(", ")));
+        }
+        if self.drift.actuator_radius_amplitude_m > 0.0 {
+            let dr = self.drift.radius_change_m(t) * 1e3;
+            parts.push(format!("radius {dr:+.2} mm"));
+        }
+        parts.join("; ")
+    }
+
+    /// The sim's arm and settings with the scenario's keys in place of the config's, and the
+    /// scenario's changes over time in `SimConfig::changes`, checked on that arm.
     pub fn apply(
         &self,
         arm: &ArmGeometry,
@@ -154,9 +267,32 @@ impl Scenario {
         let arm: ArmGeometry = self.overlay("arm", arm, &self.arm)?;
         arm.validate().map_err(|m| self.error(&m))?;
         let realism = self.overlay("sim.realism", &sim.realism, &self.realism)?;
-        let sim = SimConfig { realism, ..*sim };
+        let changes = self.changes(&arm)?;
+        let sim = SimConfig {
+            realism,
+            changes,
+            ..*sim
+        };
         sim.validate().map_err(|m| self.error(&m))?;
         Ok((arm, sim))
+    }
+
+    /// The steps, each on the arm before it (the first on `arm`), and the drift, checked at
+    /// every time.
+    fn changes(&self, arm: &ArmGeometry) -> Result<Changes, ConfigError> {
+        let mut steps = Vec::with_capacity(self.steps.len());
+        let mut before = *arm;
+        for (k, (at_s, keys)) in self.steps.iter().enumerate() {
+            let after: ArmGeometry = self.overlay(&format!("step[{k}].arm"), &before, keys)?;
+            steps.push(Step {
+                at_s: *at_s,
+                arm: after,
+            });
+            before = after;
+        }
+        let changes = Changes::new(&steps, self.drift).map_err(|m| self.error(&m))?;
+        changes.validate(arm).map_err(|m| self.error(&m))?;
+        Ok(changes)
     }
 
     /// `base` with each of `keys` set; an unknown key or a value of the wrong type is blamed on
@@ -233,12 +369,139 @@ mod tests {
             nominal.module_rotation_deg[1] + 10.0
         );
         assert_eq!(arm_of("stiffer").actuator_radius_m, 0.028);
+        let fixed = [
+            "nominal",
+            "tool-change",
+            "creep",
+            "twist",
+            "stiffer",
+            "not-pcc",
+        ];
+        for (name, _) in SHIPPED {
+            let s = Scenario::resolve(name).unwrap();
+            assert_eq!(s.changes_over_time(), !fixed.contains(&name), "{name}");
+        }
         for (name, text) in SHIPPED {
             assert!(
                 text.trim_start().starts_with('#'),
                 "{name}: say what it models"
             );
         }
+    }
+
+    /// The sim's arm and settings on `name` at the defaults.
+    fn sim_of(name: &str) -> (ArmGeometry, SimConfig) {
+        Scenario::resolve(name)
+            .unwrap()
+            .apply(&ArmGeometry::default(), &SimConfig::default())
+            .unwrap()
+    }
+
+    #[test]
+    fn the_shipped_scenarios_that_change_over_time_do_so_at_their_times() {
+        let nominal = ArmGeometry::default();
+        let (arm, sim) = sim_of("tool-swap");
+        assert_eq!(arm, nominal);
+        let c = sim.changes;
+        assert_eq!(c.arm_at(&arm, 89.9).tool_m, 0.03);
+        assert_eq!(c.arm_at(&arm, 90.0).tool_m, 0.05);
+        // Creeping: 0.5 mm/min on actuators 2 and 6, 10 mm in 20 minutes.
+        let (arm, sim) = sim_of("creeping");
+        let o = sim.changes.arm_at(&arm, 1200.0).actuator_offset_m;
+        let want = [0.0, 0.01, 0.0, 0.0, 0.0, 0.01];
+        assert!((0..6).all(|i| (o[i] - want[i]).abs() < 1e-12), "{o:?}");
+        let (arm, sim) = sim_of("stiffness-cycle");
+        let r = |t| sim.changes.arm_at(&arm, t).actuator_radius_m;
+        assert!((r(150.0) - 0.027).abs() < 1e-12 && (r(450.0) - 0.023).abs() < 1e-12);
+        // Combined: each step on the arm before it, the drifts on top.
+        let (arm, sim) = sim_of("combined");
+        let at = |t| sim.changes.arm_at(&arm, t);
+        assert_eq!(
+            (at(60.0).tool_m, at(60.0).module_rotation_deg[0]),
+            (0.03, 0.0)
+        );
+        assert_eq!(
+            (at(300.0).tool_m, at(300.0).module_rotation_deg[0]),
+            (0.05, 5.0)
+        );
+        assert_eq!(
+            (at(500.0).tool_m, at(500.0).module_rotation_deg[0]),
+            (0.03, 5.0)
+        );
+        assert!((at(120.0).actuator_offset_m[4] - 0.001).abs() < 1e-12);
+        assert_eq!(sim_of("not-pcc").1.realism.curvature_taper, 0.6);
+        // The sim's default realism stays exact PCC.
+        assert_eq!(sim_of("nominal").1.realism.curvature_taper, 0.0);
+        let s = Scenario::resolve("combined").unwrap();
+        assert_eq!(s.step_times(), [90.0, 240.0, 420.0]);
+        assert!(
+            s.describe()
+                .contains("step 2 at 240 s: arm.module_rotation_deg"),
+            "{}",
+            s.describe()
+        );
+        assert_eq!(
+            s.changed_at(30.0),
+            "before step 1; crept mm 1: +0.25, 5: +0.25; radius +0.57 mm"
+        );
+        assert!(
+            s.changed_at(250.0)
+                .starts_with("step 2 at 240 s (module_rotation_deg = [5.0, 60.0])"),
+            "{}",
+            s.changed_at(250.0)
+        );
+    }
+
+    /// The actuation that puts the PCC arm's tip at `target`: damped Gauss-Newton from the
+    /// middle, finite-difference Jacobian.
+    fn reach(arm: &ArmGeometry, target: [f64; 3]) -> [f64; 6] {
+        let mut a = [0.5; 6];
+        for _ in 0..100 {
+            let p = arm.position(&a);
+            let e: [f64; 3] = std::array::from_fn(|d| target[d] - p[d]);
+            let j = nalgebra::SMatrix::<f64, 3, 6>::from_fn(|d, i| {
+                let mut b = a;
+                b[i] += 1e-6;
+                (arm.position(&b)[d] - p[d]) / 1e-6
+            });
+            let jt = j.transpose();
+            let m = j * jt + nalgebra::Matrix3::identity() * 1e-8;
+            let step = jt * m.try_inverse().unwrap() * nalgebra::Vector3::from(e);
+            for i in 0..6 {
+                a[i] = (a[i] + step[i]).clamp(0.0, 1.0);
+            }
+        }
+        a
+    }
+
+    #[test]
+    fn not_pcc_moves_the_tip_by_millimetres_at_the_demo_points() {
+        let demo = crate::waypoints::WaypointFile::parse(include_str!(
+            "../../../config/waypoints/demo.toml"
+        ))
+        .unwrap();
+        let (arm, sim) = sim_of("not-pcc");
+        let taper = sim.realism.curvature_taper;
+        let moved: Vec<f64> = demo
+            .point
+            .iter()
+            .map(|p| {
+                let a = reach(&arm, p.position_m);
+                let pcc = arm.position(&a);
+                assert!(
+                    (0..3).all(|d| (pcc[d] - p.position_m[d]).abs() < 1e-6),
+                    "reached"
+                );
+                let q = arm
+                    .pose_of_lengths_tapered(&arm.lengths(&a), taper)
+                    .position;
+                let d = [q.x - pcc[0], q.y - pcc[1], q.z - pcc[2]];
+                d.iter().map(|v| v * v).sum::<f64>().sqrt() * 1e3
+            })
+            .collect();
+        eprintln!("not-pcc moves the tip at the demo's points by (mm) {moved:.2?}");
+        let mean = moved.iter().sum::<f64>() / moved.len() as f64;
+        assert!(mean > 3.0 && mean < 30.0, "{moved:?}");
     }
 
     #[test]
@@ -290,6 +553,53 @@ mod tests {
                 "unknown field `controller`",
             ),
             ("[arm\n", 1, ""),
+            (
+                "[[step]]\nat_s = 90\n[step.arm]\ntool_m = 0.05\n[[step]]\nat_s = 60\n",
+                6,
+                "step[1].at_s: must be after 90 s",
+            ),
+            (
+                "[[step]]\nat_s = 9\n[step.arm]\n\ntool_mm = 0.05\n",
+                5,
+                "step[0].arm.tool_mm: unknown key",
+            ),
+            (
+                "[[step]]\nat_s = 9\n[step.arm]\ntool_m = -0.05\n",
+                4,
+                "step[0].arm.tool_m: must be a length",
+            ),
+            (
+                "[[step]]\n[step.arm]\ntool_m = 0.05\n",
+                1,
+                "missing field `at_s`",
+            ),
+            ("[[step]]\nat_s = \"soon\"\n", 2, "invalid type"),
+            (
+                "# x\n[drift]\ncreep_mm_per_min = [0, 0.5, 0, 0, 0, 90]\n",
+                3,
+                "drift.creep_mm_per_min: actuator 6 is 90.0",
+            ),
+            (
+                "[drift]\ncreep_mm_per_hour = 1\n",
+                2,
+                "unknown field `creep_mm_per_hour`",
+            ),
+            (
+                "[drift]\nactuator_radius_amplitude_m = 0.002\n",
+                1,
+                "drift.actuator_radius_period_s: must be > 0",
+            ),
+            (
+                "[[step]]\nat_s = 9\n[step.arm]\nactuator_radius_m = 0.001\n\
+                 [drift]\nactuator_radius_amplitude_m = 0.002\nactuator_radius_period_s = 60\n",
+                6,
+                "drift.actuator_radius_amplitude_m: 0.002 m takes the actuator radius of step[0]'s arm",
+            ),
+            (
+                "[sim.realism]\ncurvature_taper = 2\n",
+                2,
+                "sim.realism.curvature_taper: must be in [0, 1]",
+            ),
         ];
         for (text, line, says) in cases {
             let e = Scenario::parse(text, "bad", "bad.toml").unwrap_err();

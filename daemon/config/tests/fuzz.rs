@@ -193,6 +193,9 @@ proptest! {
                     "[arm] actuator_min_m", "[arm] actuator_max_m",
                     "[sim.realism] lag_s", "[sim.realism] backlash",
                     "[sim.realism] tracker_noise_m", "[sim.realism] seed", "[arm] nonsense",
+                    "[sim.realism] curvature_taper", "[sim.realism] actuation_noise_correlation_s",
+                    "[[step]] at_s", "[step.arm] tool_m", "[step.arm] actuator_radius_m",
+                    "[drift] actuator_radius_amplitude_m", "[drift] actuator_radius_period_s",
                 ]),
                 number(),
             ),
@@ -210,9 +213,14 @@ proptest! {
             Ok(s) => {
                 // Accepted text may still not make a valid arm with the config's: refused, not
                 // a panic; and an arm that is accepted gives finite positions.
-                if let Ok((arm, _)) = s.apply(&c.arm, &c.sim) {
-                    let p = arm.position(&[0.5; 6]);
-                    prop_assert!(p.iter().all(|v| v.is_finite()));
+                // At every time of its changes too: each arm valid, positions finite.
+                if let Ok((arm, sim)) = s.apply(&c.arm, &c.sim) {
+                    for t in [0.0, 1.0, 59.5, 1e3, 1e6, 1e9] {
+                        let now = sim.changes.arm_at(&arm, t);
+                        prop_assert!(now.validate().is_ok(), "{now:?} at {t} s");
+                        let p = now.position(&[0.5; 6]);
+                        prop_assert!(p.iter().all(|v| v.is_finite()));
+                    }
                 }
             }
         }

@@ -12,10 +12,12 @@
 //!   `ForwardModel` trait.
 //! - [`learner_config`] — the learner's parameters (`[learner]`, `[pretrain]`), read by the
 //!   config; the learning itself (CACLA-MTL, the online learner) is crate `softarm-learning`.
-//! - [`pcc`] — piecewise-constant-curvature kinematics; [`plant`]: the simulated plant.
+//! - [`pcc`] — piecewise-constant-curvature kinematics; [`plant`]: the simulated plant;
+//!   [`changes`]: how its arm changes over time (a scenario's steps and drifts).
 
 pub mod activation;
 pub mod blend;
+pub mod changes;
 pub mod classify;
 pub mod forward;
 pub mod learner_config;

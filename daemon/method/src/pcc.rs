@@ -123,6 +123,28 @@ fn sinc_terms(theta: f64) -> (f64, f64) {
     }
 }
 
+/// Constant-curvature pieces a tapered module is made of.
+pub const TAPER_PIECES: usize = 16;
+
+/// Base → tip of a module whose curvature is not constant but falls linearly along it,
+/// κ(s) = κ̄ (1 + c (1 − 2 s / l)) for c = `taper` in [0, 1]: at the base (1 + c) κ̄, at the
+/// tip (1 − c) κ̄, as a module loaded by what hangs below it bends more near its base. Length l,
+/// total bend θ = κ̄ l and plane φ are `arc`'s, so the tip's orientation is PCC's and only its
+/// position departs. Made of [`TAPER_PIECES`] constant-curvature pieces, each with the mean
+/// curvature of its stretch (the bends add up to θ exactly).
+pub fn tapered_module_pose(arc: &Arc, taper: f64) -> Pose {
+    let n = TAPER_PIECES as f64;
+    (0..TAPER_PIECES).fold(Pose::identity(), |pose, k| {
+        let share = 1.0 + taper * (1.0 - (2 * k + 1) as f64 / n);
+        let piece = Arc {
+            length: arc.length / n,
+            theta: arc.theta / n * share,
+            phi: arc.phi,
+        };
+        pose.then(&ArmGeometry::module_pose(&piece))
+    })
+}
+
 impl ArmGeometry {
     /// Longest length of the geometry (m): actuators, connector and tool.
     pub const MAX_LENGTH_M: f64 = 10.0;
@@ -260,6 +282,22 @@ impl ArmGeometry {
             .then(&Pose::translation_z(self.tool_m))
     }
 
+    /// [`ArmGeometry::pose_of_lengths`] on an arm that is not quite PCC: each module's
+    /// curvature falls linearly from base to tip by `taper` ([`tapered_module_pose`]); the
+    /// same actuator lengths give each module the same bend θ and plane φ, so the tip points
+    /// the same way but sits elsewhere. `taper = 0` is exactly `pose_of_lengths`.
+    pub fn pose_of_lengths_tapered(&self, lengths: &[f64; ACTUATORS], taper: f64) -> Pose {
+        if taper == 0.0 {
+            return self.pose_of_lengths(lengths);
+        }
+        let [m1, m2] = self.arcs_of_lengths(lengths);
+        self.base()
+            .then(&tapered_module_pose(&m1, taper))
+            .then(&Pose::translation_z(self.connector_m))
+            .then(&tapered_module_pose(&m2, taper))
+            .then(&Pose::translation_z(self.tool_m))
+    }
+
     /// Actuator lengths (m) of a normalised actuation, offsets included.
     pub fn lengths(&self, a: &[f64; ACTUATORS]) -> [f64; ACTUATORS] {
         std::array::from_fn(|i| self.length_of(a[i]) + self.actuator_offset_m[i])
@@ -382,6 +420,32 @@ mod tests {
             let towards = Vector3::new(psi.to_radians().cos(), psi.to_radians().sin(), 0.0);
             assert!(p.dot(&towards) > 0.05);
         }
+    }
+
+    #[test]
+    fn a_tapered_module_bends_as_much_but_more_at_its_base() {
+        let arm = ArmGeometry::default();
+        let arc = arm.arc_of(0, [0.20, 0.24, 0.23]);
+        let pcc = ArmGeometry::module_pose(&arc);
+        // No taper: the same arc, piece by piece (to rounding).
+        let flat = tapered_module_pose(&arc, 0.0);
+        assert!((flat.position - pcc.position).norm() < 1e-12);
+        let tapered = tapered_module_pose(&arc, 0.5);
+        // Same bend and plane: the tip points the same way.
+        assert!((tapered.rotation - pcc.rotation).norm() < 1e-12);
+        // More bend near the base swings the tip further out from the base's axis.
+        let out = |p: &Pose| p.position.xy().norm();
+        assert!(out(&tapered) > out(&pcc) + 1e-3, "{tapered:?} vs {pcc:?}");
+        // The arm: taper 0 is pose_of_lengths exactly; a taper moves the tip by millimetres.
+        let l = arm.lengths(&[0.2, 0.8, 0.5, 0.9, 0.1, 0.4]);
+        assert_eq!(
+            arm.pose_of_lengths_tapered(&l, 0.0),
+            arm.pose_of_lengths(&l)
+        );
+        let moved = (arm.pose_of_lengths_tapered(&l, 0.5).position
+            - arm.pose_of_lengths(&l).position)
+            .norm();
+        assert!(moved > 2e-3 && moved < 0.05, "{moved}");
     }
 
     #[test]

@@ -1,14 +1,17 @@
 //! The simulated plant: PCC kinematics behind a configurable, seeded realism layer.
 //!
-//! Per actuator, a command passes backlash (play operator) → rate limit → first-order lag, then
-//! gets actuation noise; the kinematics use a slowly drifting geometry, and the tracker adds
-//! noise to the end-effector position. With every effect off it is the kinematic model exactly.
+//! Per actuator, a command passes backlash (play operator) → rate limit → first-order lag, and
+//! a coloured disturbance moves the actuator from there; the kinematics use the arm as a
+//! scenario changes it at the plant's time ([`Changes`]) with a slow drift of the actuator
+//! lengths, optionally bent not quite at constant curvature, and the tracker adds noise to the
+//! end-effector position. With every effect off it is the kinematic model exactly.
 
-use rand::SeedableRng;
 use rand::rngs::StdRng;
-use rand_distr::{Distribution, Normal};
+use rand::{RngExt, SeedableRng};
+use rand_distr::StandardNormal;
 use serde::{Deserialize, Serialize};
 
+use crate::changes::Changes;
 use crate::pcc::{ACTUATORS, ArmGeometry};
 
 /// The `[sim]` section: the sim driver's rate and start, and the plant's realism.
@@ -20,6 +23,10 @@ pub struct SimConfig {
     /// Where the actuators rest at start.
     pub initial_actuation: [f64; ACTUATORS],
     pub realism: Realism,
+    /// How the arm changes while the sim runs: a scenario's steps and drifts (scenario files
+    /// only, not a key of `[sim]`). None by default.
+    #[serde(skip)]
+    pub changes: Changes,
 }
 
 impl Default for SimConfig {
@@ -28,6 +35,7 @@ impl Default for SimConfig {
             rate_hz: 200.0,
             initial_actuation: [0.5; ACTUATORS],
             realism: Realism::default(),
+            changes: Changes::default(),
         }
     }
 }
@@ -67,14 +75,24 @@ pub struct Realism {
     pub rate_limit_per_s: f64,
     /// Width of the play band (normalised units): a reversal moves nothing until it is crossed.
     pub backlash: f64,
-    /// Standard deviation of the actuation noise (normalised units), fresh every step.
+    /// Standard deviation of the disturbance at each actuator (normalised units): what moves
+    /// the actuators beside their command (pressure ripple, friction, a brush of air).
     pub actuation_noise: f64,
+    /// Its correlation time τ (s): white noise through a first-order response of time
+    /// constant τ (an Ornstein-Uhlenbeck process), so the arm moves smoothly rather than jumping
+    /// every step; the autocorrelation after a lag Δ is exp(−Δ/τ). 0: fresh every step.
+    pub actuation_noise_correlation_s: f64,
     /// Standard deviation of the tracker noise per axis (m).
     pub tracker_noise_m: f64,
     /// Amplitude of the slow drift of each actuator's length (m).
     pub drift_m: f64,
     /// Period of that drift (s).
     pub drift_period_s: f64,
+    /// A departure from constant curvature, c in [0, 1]: each module's curvature falls
+    /// linearly from (1 + c) κ̄ at its base to (1 − c) κ̄ at its tip, same bend θ
+    /// ([`crate::pcc::tapered_module_pose`]); the model's family is PCC, the plant then is
+    /// not. 0: exactly PCC.
+    pub curvature_taper: f64,
 }
 
 impl Default for Realism {
@@ -86,9 +104,11 @@ impl Default for Realism {
             rate_limit_per_s: 2.0,
             backlash: 0.003,
             actuation_noise: 0.001,
+            actuation_noise_correlation_s: 0.1,
             tracker_noise_m: 0.0005,
             drift_m: 0.0001,
             drift_period_s: 600.0,
+            curvature_taper: 0.0,
         }
     }
 }
@@ -102,9 +122,11 @@ impl Realism {
             rate_limit_per_s: 0.0,
             backlash: 0.0,
             actuation_noise: 0.0,
+            actuation_noise_correlation_s: 0.0,
             tracker_noise_m: 0.0,
             drift_m: 0.0,
             drift_period_s: 0.0,
+            curvature_taper: 0.0,
         }
     }
 
@@ -118,6 +140,7 @@ impl Realism {
             ("tracker_noise_m", self.tracker_noise_m, 1.0, " m"),
             ("drift_m", self.drift_m, 0.1, " m"),
             ("drift_period_s", self.drift_period_s, 1e6, " s"),
+            ("curvature_taper", self.curvature_taper, 1.0, ""),
         ];
         for (key, v, max, unit) in fields {
             if !(v.is_finite() && (0.0..=max).contains(&v)) {
@@ -125,6 +148,13 @@ impl Realism {
                     "sim.realism.{key}: must be in [0, {max}]{unit} (0 turns it off), got {v:?}"
                 ));
             }
+        }
+        let tau = self.actuation_noise_correlation_s;
+        if !(tau.is_finite() && (0.0..=100.0).contains(&tau)) {
+            return Err(format!(
+                "sim.realism.actuation_noise_correlation_s: must be in [0, 100] s (0: fresh \
+                 every step), got {tau:?}"
+            ));
         }
         if self.drift_m > 0.0 && self.drift_period_s == 0.0 {
             return Err("sim.realism.drift_period_s: must be > 0 when drift_m is set".into());
@@ -144,15 +174,19 @@ pub struct Measurement {
 
 /// The simulated arm.
 pub struct Plant {
+    /// The arm at time 0, and how it changes from there.
+    arm: ArmGeometry,
+    changes: Changes,
+    /// The arm at `time`.
     geometry: ArmGeometry,
     realism: Realism,
     rng: StdRng,
-    noise: Option<Normal<f64>>,
-    tracker_noise: Option<Normal<f64>>,
     /// Output of the play operator.
     played: [f64; ACTUATORS],
     /// Actuator state after rate limit and lag.
     state: [f64; ACTUATORS],
+    /// The disturbance on each actuator (normalised units).
+    disturbance: [f64; ACTUATORS],
     time: f64,
 }
 
@@ -172,43 +206,59 @@ impl Plant {
                 initial[i]
             ));
         }
-        let normal = |key: &str, s: f64| -> Result<Option<Normal<f64>>, String> {
-            if s > 0.0 {
-                let n = Normal::new(0.0, s).map_err(|e| format!("sim.realism.{key}: {e}"))?;
-                Ok(Some(n))
-            } else {
-                Ok(None)
-            }
-        };
+        let mut rng = StdRng::seed_from_u64(realism.seed);
+        // Drawn from its stationary distribution: the disturbance is as large from the start.
+        let disturbance =
+            std::array::from_fn(|_| realism.actuation_noise * rng.sample::<f64, _>(StandardNormal));
         Ok(Self {
+            arm: geometry,
+            changes: Changes::default(),
             geometry,
             realism,
-            rng: StdRng::seed_from_u64(realism.seed),
-            noise: normal("actuation_noise", realism.actuation_noise)?,
-            tracker_noise: normal("tracker_noise_m", realism.tracker_noise_m)?,
+            rng,
             played: initial,
             state: initial,
+            disturbance,
             time: 0.0,
         })
     }
 
+    /// The sim's plant: `arm` changing as `sim.changes` say, under `sim.realism`, at rest at
+    /// `initial`. The sim driver and the rehearsal build theirs here, so a scenario runs the
+    /// same in both.
+    pub fn of_sim(
+        arm: ArmGeometry,
+        sim: &SimConfig,
+        initial: [f64; ACTUATORS],
+    ) -> Result<Self, String> {
+        let mut plant = Self::new(arm, sim.realism, initial)?;
+        sim.changes.validate(&arm)?;
+        plant.changes = sim.changes;
+        Ok(plant)
+    }
+
+    /// The arm now (a scenario's steps and drifts applied at [`Plant::time`]).
     pub fn geometry(&self) -> &ArmGeometry {
         &self.geometry
     }
 
     /// The arm changes under the plant (a tool swapped, an actuator crept); the actuators stay
-    /// where they are.
+    /// where they are. As when the sim restarts with another, fixed scenario: `geometry` from
+    /// now on, and the changes of the plant's scenario, if any, end.
     pub fn set_geometry(&mut self, geometry: ArmGeometry) -> Result<(), String> {
         geometry.validate()?;
+        self.arm = geometry;
         self.geometry = geometry;
+        self.changes = Changes::default();
         Ok(())
     }
 
+    /// Seconds since the plant started: the clock of its scenario's changes.
     pub fn time(&self) -> f64 {
         self.time
     }
 
-    /// Where the actuators are (before actuation noise).
+    /// Where the actuators are (before the disturbance).
     pub fn state(&self) -> [f64; ACTUATORS] {
         self.state
     }
@@ -218,6 +268,40 @@ impl Plant {
     pub fn step(&mut self, command: &[f64; ACTUATORS], dt: f64) -> Measurement {
         let r = self.realism;
         self.time += dt;
+        if !self.changes.is_empty() {
+            self.geometry = self.changes.arm_at(&self.arm, self.time);
+        }
+        self.actuate(command, dt);
+        self.disturb(dt);
+        let actuation: [f64; ACTUATORS] =
+            std::array::from_fn(|i| (self.state[i] + self.disturbance[i]).clamp(0.0, 1.0));
+        let mut lengths = self.geometry.lengths(&actuation);
+        if r.drift_m > 0.0 {
+            let w = 2.0 * std::f64::consts::PI * self.time / r.drift_period_s;
+            for (i, l) in lengths.iter_mut().enumerate() {
+                // Each actuator drifts with its own phase, as ageing material would.
+                *l += r.drift_m * (w + 1.1 * i as f64).sin();
+            }
+        }
+        let p = self
+            .geometry
+            .pose_of_lengths_tapered(&lengths, r.curvature_taper)
+            .position;
+        let mut position = [p.x, p.y, p.z];
+        if r.tracker_noise_m > 0.0 {
+            for x in &mut position {
+                *x += r.tracker_noise_m * self.rng.sample::<f64, _>(StandardNormal);
+            }
+        }
+        Measurement {
+            actuation,
+            position,
+        }
+    }
+
+    /// Backlash, lag and rate limit: where each actuator goes under `command`.
+    fn actuate(&mut self, command: &[f64; ACTUATORS], dt: f64) {
+        let r = self.realism;
         for i in 0..ACTUATORS {
             let c = if command[i].is_finite() {
                 command[i].clamp(0.0, 1.0)
@@ -238,30 +322,22 @@ impl Plant {
             }
             self.state[i] = target;
         }
-        let mut actuation = self.state;
-        if let Some(n) = self.noise {
-            for a in &mut actuation {
-                *a = (*a + n.sample(&mut self.rng)).clamp(0.0, 1.0);
-            }
+    }
+
+    /// The disturbance `dt` later: the exact update of the Ornstein-Uhlenbeck process (any
+    /// `dt`), which keeps its standard deviation at `actuation_noise`; fresh with τ = 0.
+    fn disturb(&mut self, dt: f64) {
+        let (sd, tau) = (
+            self.realism.actuation_noise,
+            self.realism.actuation_noise_correlation_s,
+        );
+        if sd == 0.0 {
+            return;
         }
-        let mut lengths = self.geometry.lengths(&actuation);
-        if r.drift_m > 0.0 {
-            let w = 2.0 * std::f64::consts::PI * self.time / r.drift_period_s;
-            for (i, l) in lengths.iter_mut().enumerate() {
-                // Each actuator drifts with its own phase, as ageing material would.
-                *l += r.drift_m * (w + 1.1 * i as f64).sin();
-            }
-        }
-        let p = self.geometry.pose_of_lengths(&lengths).position;
-        let mut position = [p.x, p.y, p.z];
-        if let Some(n) = self.tracker_noise {
-            for x in &mut position {
-                *x += n.sample(&mut self.rng);
-            }
-        }
-        Measurement {
-            actuation,
-            position,
+        let keep = if tau > 0.0 { (-dt / tau).exp() } else { 0.0 };
+        let fresh = sd * (1.0 - keep * keep).sqrt();
+        for d in &mut self.disturbance {
+            *d = keep * *d + fresh * self.rng.sample::<f64, _>(StandardNormal);
         }
     }
 }
@@ -365,6 +441,132 @@ mod tests {
     }
 
     #[test]
+    fn the_actuation_disturbance_has_the_configured_rms_and_is_coloured() {
+        let realism = Realism {
+            seed: 5,
+            actuation_noise: 0.01,
+            actuation_noise_correlation_s: 0.1,
+            ..Realism::ideal()
+        };
+        let mut plant = Plant::new(ArmGeometry::default(), realism, [0.5; 6]).unwrap();
+        // 1000 s at the sim's 200 Hz: 10 000 correlation times.
+        let d: Vec<[f64; 6]> = (0..200_000)
+            .map(|_| plant.step(&[0.5; 6], 0.005).actuation.map(|a| a - 0.5))
+            .collect();
+        for i in 0..6 {
+            let x: Vec<f64> = d.iter().map(|a| a[i]).collect();
+            let rms = (x.iter().map(|v| v * v).sum::<f64>() / x.len() as f64).sqrt();
+            assert!((rms / 0.01 - 1.0).abs() < 0.05, "actuator {i}: rms {rms}");
+            let lag1 =
+                x.windows(2).map(|w| w[0] * w[1]).sum::<f64>() / (rms * rms * x.len() as f64);
+            // exp(-5 ms / 100 ms) = 0.951; white noise would give 0.
+            assert!((lag1 - 0.951).abs() < 0.02, "actuator {i}: lag-1 {lag1}");
+        }
+        // The tip moves smoothly: consecutive positions 5 ms apart differ by a fraction of
+        // what fresh noise of the same size makes.
+        let step = |tau: f64| {
+            let r = Realism {
+                actuation_noise_correlation_s: tau,
+                ..realism
+            };
+            let mut p = Plant::new(ArmGeometry::default(), r, [0.5; 6]).unwrap();
+            let xs: Vec<[f64; 3]> = (0..2000)
+                .map(|_| p.step(&[0.5; 6], 0.005).position)
+                .collect();
+            xs.windows(2)
+                .map(|w| (w[1][0] - w[0][0]).abs())
+                .sum::<f64>()
+                / 1999.0
+        };
+        assert!(
+            step(0.1) < 0.3 * step(0.0),
+            "{} vs {}",
+            step(0.1),
+            step(0.0)
+        );
+    }
+
+    #[test]
+    fn a_scenario_changes_the_arm_at_the_plants_time() {
+        use crate::changes::{Drift, Step};
+        let arm = ArmGeometry::default();
+        let mut drift = Drift::default();
+        drift.creep_mm_per_min[1] = 6.0;
+        let swap = Step {
+            at_s: 1.0,
+            arm: ArmGeometry {
+                tool_m: 0.06,
+                ..arm
+            },
+        };
+        let sim = SimConfig {
+            realism: Realism::ideal(),
+            changes: Changes::new(&[swap], drift).unwrap(),
+            ..SimConfig::default()
+        };
+        let mut plant = Plant::of_sim(arm, &sim, [0.5; 6]).unwrap();
+        let run = |plant: &mut Plant, steps| {
+            (0..steps)
+                .map(|_| plant.step(&[0.5; 6], 0.005))
+                .last()
+                .unwrap()
+        };
+        let before = run(&mut plant, 199);
+        let after = run(&mut plant, 2);
+        assert_eq!(before.actuation, after.actuation, "the actuation holds");
+        // The tool 30 mm longer: the hanging, nearly straight arm's tip 30 mm lower.
+        assert!(
+            (before.position[2] - after.position[2] - 0.03).abs() < 1e-3,
+            "{before:?} {after:?}"
+        );
+        assert_eq!(plant.geometry().tool_m, 0.06);
+        // Creep at 6 mm/min: 0.1 mm a second.
+        assert!((plant.geometry().actuator_offset_m[1] - 1.005e-4).abs() < 1e-9);
+        // A fixed arm set in its place ends the scenario's changes.
+        plant.set_geometry(arm).unwrap();
+        run(&mut plant, 400);
+        assert_eq!(*plant.geometry(), arm);
+        // The changes are checked against the arm they start from.
+        let thin = ArmGeometry {
+            actuator_radius_m: 0.001,
+            ..arm
+        };
+        let cycling = SimConfig {
+            changes: Changes::new(
+                &[],
+                Drift {
+                    actuator_radius_amplitude_m: 0.002,
+                    actuator_radius_period_s: 10.0,
+                    ..Drift::default()
+                },
+            )
+            .unwrap(),
+            ..sim
+        };
+        let e = Plant::of_sim(thin, &cycling, [0.5; 6]).err().unwrap();
+        assert!(e.starts_with("drift.actuator_radius_amplitude_m"), "{e}");
+    }
+
+    #[test]
+    fn a_curvature_taper_moves_the_tip_and_none_is_pcc() {
+        let arm = ArmGeometry::default();
+        let a = [0.2, 0.8, 0.5, 0.9, 0.1, 0.4];
+        let tapered = |c| {
+            let r = Realism {
+                curvature_taper: c,
+                ..Realism::ideal()
+            };
+            Plant::new(arm, r, a).unwrap().step(&a, 0.005).position
+        };
+        assert_eq!(tapered(0.0), arm.position(&a));
+        let moved = (0..3)
+            .map(|d| (tapered(0.5)[d] - arm.position(&a)[d]).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        assert!(moved > 2e-3, "{moved}");
+    }
+
+    #[test]
     fn drift_moves_the_arm_slowly() {
         let realism = Realism {
             drift_m: 0.001,
@@ -435,6 +637,20 @@ mod tests {
                 ..ideal
             },
             "sim.realism.drift_period_s: must be > 0 when drift_m is set",
+        );
+        check(
+            Realism {
+                actuation_noise_correlation_s: -0.1,
+                ..ideal
+            },
+            "sim.realism.actuation_noise_correlation_s: must be in [0, 100] s",
+        );
+        check(
+            Realism {
+                curvature_taper: 1.5,
+                ..ideal
+            },
+            "sim.realism.curvature_taper: must be in [0, 1]",
         );
         let e = Plant::new(
             ArmGeometry::default(),

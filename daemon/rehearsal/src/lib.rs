@@ -51,7 +51,7 @@ impl SimArm {
     /// The sim driver's plant, as it starts when no controller runs: at
     /// `sim.initial_actuation`, its first measurement published at time 0.
     fn new(arm: ArmGeometry, sim: &SimConfig) -> anyhow::Result<Self> {
-        let mut plant = Plant::new(arm, sim.realism, sim.initial_actuation)
+        let mut plant = Plant::of_sim(arm, sim, sim.initial_actuation)
             .map_err(anyhow::Error::msg)
             .context("the simulated plant")?;
         let dt = 1.0 / sim.rate_hz;

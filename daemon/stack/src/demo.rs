@@ -1,7 +1,9 @@
 //! `softarm demo`: the one-command showcase. Brings the simulated stack up in a namespace of its
 //! own, trains if no readable bundle exists, submits the demo way-point set (or `--set`), prints
 //! the error at every conditioning point per execution, optionally runs a second set once on
-//! what was learnt (`--then`), and stops everything.
+//! what was learnt (`--then`), and stops everything. On an arm that changes while it runs
+//! (`--drift`, or a `--scenario` with steps or a drift) each row also says the sim's time and
+//! what had changed by then.
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -13,16 +15,16 @@ use softarm_clients::{plot, record, stats, submit};
 use softarm_config::scenario::Scenario;
 use softarm_config::waypoints::{WaypointFile, validate};
 use softarm_config::{Config, DEFAULT};
-use softarm_ipc::{ExecutionStats, Namespace};
+use softarm_ipc::{ExecutionStats, Namespace, Node, Sub, TrackerSample};
 
 use crate::scratch::{self, Scratch};
 use crate::supervisor::{self, Supervisor};
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Executions of the way-point set.
-    #[arg(long, default_value_t = 20, allow_negative_numbers = true)]
-    executions: u32,
+    /// Executions of the way-point set (default 20; with --drift 40).
+    #[arg(long, allow_negative_numbers = true)]
+    executions: Option<u32>,
     /// Seeds the demonstrations, the plant and the learner.
     #[arg(long, default_value_t = 1, allow_negative_numbers = true)]
     seed: u64,
@@ -33,9 +35,15 @@ pub struct Args {
     #[arg(long)]
     model_dir: Option<PathBuf>,
     /// Runs the set on another arm than the model was trained on: a shipped scenario (nominal,
-    /// tool-change, creep, twist, stiffer) or a scenario file. The model stays the nominal one.
+    /// tool-change, creep, twist, stiffer, not-pcc, ...) or a scenario file. The model stays the
+    /// nominal one.
     #[arg(long)]
     scenario: Option<String>,
+    /// Runs the set again and again on an arm that changes while it runs: a scenario with steps
+    /// or a drift (tool-swap, creeping, stiffness-cycle, combined) or such a file. Each row
+    /// adds the sim's time and what had changed by then.
+    #[arg(long, value_name = "NAME|FILE", conflicts_with = "scenario")]
+    drift: Option<String>,
     /// The online learner: gauss-newton (Jacobian-directed steps; "softarm", its former name,
     /// still works) or paper (Alg. 1 as printed).
     #[arg(long, value_enum, default_value_t = Learner::GaussNewton)]
@@ -63,6 +71,26 @@ enum Learner {
     Paper,
 }
 
+/// Executions of a `--drift` demo unless `--executions` says: about four minutes, past the
+/// shipped steps at 90 s.
+const DRIFT_EXECUTIONS: u32 = 40;
+
+impl Args {
+    /// The scenario asked for, by `--drift` or `--scenario`.
+    fn scenario_arg(&self) -> Option<&str> {
+        self.drift.as_deref().or(self.scenario.as_deref())
+    }
+
+    fn executions(&self) -> u32 {
+        let default = if self.drift.is_some() {
+            DRIFT_EXECUTIONS
+        } else {
+            20
+        };
+        self.executions.unwrap_or(default)
+    }
+}
+
 fn say(json: bool, line: &str) {
     if !json {
         eprintln!("{line}");
@@ -88,6 +116,11 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
     if let Some(s) = scenario.as_ref().filter(|s| !s.is_nominal()) {
         become_scenario(args, s, &scratch, &mut sup, stop)?;
     }
+    // On an arm that changes while it runs, the sim's clock beside each row.
+    let mut changing = scenario
+        .filter(Scenario::changes_over_time)
+        .map(|s| Changing::open(ns, s, config.sim.rate_hz))
+        .transpose()?;
 
     // Subscribe before submitting: no execution's stats can be missed.
     let follower = stats::Stats::open(ns)?;
@@ -97,19 +130,23 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
         let (ns, out, stop) = (ns.clone(), args.record.clone(), recording_stop.clone());
         std::thread::spawn(move || record::record(&ns, &out, None, &stop))
     });
-    let run_set = |file: &WaypointFile, executions: u32, sup: &mut Supervisor| {
+    let mut run_set = |file: &WaypointFile, executions: u32, sup: &mut Supervisor| {
+        let rows = Rows {
+            json: args.json,
+            changing: changing.as_mut(),
+        };
         run_set(
             ns,
             &follower,
             file,
             executions,
             config.controller.rest_s,
-            args.json,
+            rows,
             sup,
             stop,
         )
     };
-    let rows = run_set(&file, args.executions, &mut sup)?;
+    let rows = run_set(&file, args.executions(), &mut sup)?;
     let second = match &then {
         Some(file) => Some(run_set(file, 1, &mut sup)?),
         None => None,
@@ -129,14 +166,19 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
 /// What can be refused before anything starts (a stack, minutes of training), rather than at
 /// the end of the run; the scenario, resolved.
 fn check(args: &Args) -> anyhow::Result<Option<Scenario>> {
-    if args.executions == 0 {
+    if args.executions() == 0 {
         bail!("--executions must be at least 1");
     }
-    let scenario = args
-        .scenario
-        .as_deref()
-        .map(Scenario::resolve)
-        .transpose()?;
+    let scenario = args.scenario_arg().map(Scenario::resolve).transpose()?;
+    if let Some(s) = scenario.as_ref().filter(|s| !s.changes_over_time())
+        && args.drift.is_some()
+    {
+        bail!(
+            "--drift {}: this scenario does not change while the arm runs (no [[step]], no \
+             [drift]); --scenario runs it",
+            s.name
+        );
+    }
     if !args.no_record {
         record::check_output(&args.record).context("--record")?;
         plot::check_output(&args.record.with_extension("png")).context("--record")?;
@@ -177,12 +219,12 @@ fn scratch_for(args: &Args) -> anyhow::Result<Scratch> {
 /// refused where the controller would refuse it.
 fn sets(args: &Args, config: &Config) -> anyhow::Result<(WaypointFile, Option<WaypointFile>)> {
     let file = match &args.set {
-        Some(path) => load_set("--set", path, config, args.executions)?,
+        Some(path) => load_set("--set", path, config, args.executions())?,
         None => {
             let file = WaypointFile::parse(scratch::DEMO_WAYPOINTS)
                 .map_err(anyhow::Error::msg)
                 .context("the demo way-points")?;
-            file.to_set(args.executions)
+            file.to_set(args.executions())
                 .and_then(|set| validate(&set, &config.waypoints, &config.activation))
                 .map_err(|e| anyhow::anyhow!("--executions: {e}"))?;
             file
@@ -212,7 +254,7 @@ fn become_scenario(
             s.describe()
         ),
     );
-    let arg = args.scenario.as_deref();
+    let arg = args.scenario_arg();
     sup.restart_with("sim", supervisor::sim_args(arg), Duration::from_secs(5))?;
     scratch.wait_for(
         "the scenario's sim coming up",
@@ -290,6 +332,77 @@ fn load_set(
     Ok(file)
 }
 
+/// The sim's clock and what its scenario had changed by then, for the rows of a demo on an arm
+/// that changes while it runs.
+struct Changing {
+    scenario: Scenario,
+    /// The sim's newest tracker sample: its number over the sim's rate is the plant's time.
+    tracker: Sub<TrackerSample>,
+    _node: Node,
+    rate_hz: f64,
+    seq: u64,
+}
+
+impl Changing {
+    fn open(ns: &Namespace, scenario: Scenario, rate_hz: f64) -> anyhow::Result<Self> {
+        let node = Node::open(ns.clone(), "demo")?;
+        let tracker = node.subscriber(&node.tracker()?)?;
+        Ok(Self {
+            scenario,
+            tracker,
+            _node: node,
+            rate_hz,
+            seq: 0,
+        })
+    }
+
+    /// The sim's time now (s since it started its scenario): the plant steps once per sample.
+    fn sim_time_s(&mut self) -> f64 {
+        while let Ok(Some(s)) = self.tracker.receive() {
+            self.seq = s.seq;
+        }
+        self.seq as f64 / self.rate_hz
+    }
+}
+
+/// How rows are printed: a table or JSON lines, with the sim's clock when the arm changes.
+struct Rows<'a> {
+    json: bool,
+    changing: Option<&'a mut Changing>,
+}
+
+impl Rows<'_> {
+    fn header(&self, points: usize) -> String {
+        let h = stats::table_header(points);
+        match self.changing {
+            Some(_) => format!("{h} {:>6}  what had changed (the sim's clock)", "t s"),
+            None => h,
+        }
+    }
+
+    /// Execution `s`'s row, as it ends.
+    fn row(&mut self, s: &ExecutionStats) -> String {
+        let Some(c) = self.changing.as_deref_mut() else {
+            return if self.json {
+                stats::json_line(s)
+            } else {
+                stats::table_row(s)
+            };
+        };
+        let t = c.sim_time_s();
+        let changed = c.scenario.changed_at(t);
+        if self.json {
+            let mut v: serde_json::Value =
+                serde_json::from_str(&stats::json_line(s)).unwrap_or_default();
+            v["sim_time_s"] = serde_json::json!((t * 10.0).round() / 10.0);
+            v["changed"] = changed.into();
+            v.to_string()
+        } else {
+            format!("{} {t:>6.0}  {changed}", stats::table_row(s))
+        }
+    }
+}
+
 /// Submits `file` for `executions` executions and prints each execution's row as it ends.
 #[allow(clippy::too_many_arguments)]
 fn run_set(
@@ -298,10 +411,11 @@ fn run_set(
     file: &WaypointFile,
     executions: u32,
     rest_s: f64,
-    json: bool,
+    mut rows_out: Rows,
     sup: &mut Supervisor,
     stop: &AtomicBool,
 ) -> anyhow::Result<Vec<ExecutionStats>> {
+    let json = rows_out.json;
     let waypoints = file.to_set(executions).map_err(anyhow::Error::msg)?;
     let set_id = match submit::submit(ns, waypoints, Duration::from_secs(10)) {
         submit::Outcome::Accepted { set_id } => set_id,
@@ -318,7 +432,7 @@ fn run_set(
             file.duration_s
         ),
     );
-    say(json, &stats::table_header(file.point.len()));
+    say(json, &rows_out.header(file.point.len()));
     // Both bounded by validation (the set's duration, the config's rest).
     let per_execution = Duration::try_from_secs_f64(file.duration_s + rest_s + 10.0)
         .context("the way-point set's duration")?;
@@ -338,11 +452,7 @@ fn run_set(
         if s.set_id != set_id {
             continue;
         }
-        if json {
-            println!("{}", stats::json_line(&s));
-        } else {
-            println!("{}", stats::table_row(&s));
-        }
+        println!("{}", rows_out.row(&s));
         rows.push(s);
     }
     Ok(rows)
@@ -352,6 +462,31 @@ fn run_set(
 mod tests {
     use super::*;
     use clap::ValueEnum;
+
+    #[derive(clap::Parser)]
+    struct Demo {
+        #[command(flatten)]
+        args: Args,
+    }
+
+    fn parse(line: &[&str]) -> Result<Args, clap::Error> {
+        use clap::Parser;
+        Demo::try_parse_from(std::iter::once("demo").chain(line.iter().copied())).map(|d| d.args)
+    }
+
+    #[test]
+    fn drift_takes_a_scenario_that_changes_and_runs_longer() {
+        let a = parse(&["--drift", "creeping", "--no-record"]).unwrap();
+        assert_eq!((a.executions(), a.scenario_arg()), (40, Some("creeping")));
+        assert!(check(&a).unwrap().unwrap().changes_over_time());
+        let a = parse(&["--drift", "tool-swap", "--executions", "3"]).unwrap();
+        assert_eq!(a.executions(), 3);
+        assert_eq!(parse(&["--scenario", "twist"]).unwrap().executions(), 20);
+        let fixed = parse(&["--drift", "tool-change", "--no-record"]).unwrap();
+        let e = check(&fixed).unwrap_err().to_string();
+        assert!(e.contains("does not change while the arm runs"), "{e}");
+        assert!(parse(&["--drift", "creeping", "--scenario", "twist"]).is_err());
+    }
 
     #[test]
     fn the_learner_flag_takes_the_new_name_and_the_former_one() {

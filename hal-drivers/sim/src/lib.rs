@@ -50,7 +50,7 @@ pub fn run(
             std::thread::sleep(std::time::Duration::from_millis(2));
         }
     }
-    let mut plant = Plant::new(*arm, config.realism, start)
+    let mut plant = Plant::of_sim(*arm, config, start)
         .map_err(anyhow::Error::msg)
         .context("the simulated plant")?;
     let tracker = ipc.publisher(&ipc.tracker()?)?;
@@ -59,8 +59,13 @@ pub fn run(
     let dt = 1.0 / config.rate_hz;
     let mut command = start;
     let mut seq = 0u64;
+    let mut in_force = None;
     let mut ticker = Ticker::new(config.rate_hz);
-    tracing::info!(rate_hz = config.rate_hz, "sim running");
+    tracing::info!(
+        rate_hz = config.rate_hz,
+        changes = !config.changes.is_empty(),
+        "sim running"
+    );
     while !stop.load(Ordering::Relaxed) {
         ticker.wait();
         // The sim follows whatever is fresh; a stale setpoint only at its start.
@@ -73,6 +78,7 @@ pub fn run(
             command = plant.state();
         }
         let m = plant.step(&command, dt);
+        log_step(config, &plant, &mut in_force);
         seq += 1;
         let stamp_ns = now_ns();
         let _ = motors.send_copy(MotorState {
@@ -96,4 +102,18 @@ pub fn run(
     let refused = commands.refused();
     tracing::info!(overruns = ticker.overruns(), refused, "sim stopped");
     Ok(())
+}
+
+/// Logs a scenario's step once it is in force, with the arm it made.
+fn log_step(config: &SimConfig, plant: &Plant, in_force: &mut Option<usize>) {
+    let now = config.changes.step_at(plant.time()).map(|(k, _)| k);
+    if now != *in_force {
+        *in_force = now;
+        tracing::info!(
+            time_s = plant.time(),
+            step = now.map(|k| k + 1),
+            arm = ?plant.geometry(),
+            "the scenario's arm changes"
+        );
+    }
 }

@@ -4,7 +4,10 @@
 //! - Continuous executions: way-point sets one after another, the demo set and seeded random
 //!   variations of it (new places for the learner's lattices every set).
 //! - Scenario changes between sets: the sim becomes another arm (tool change, creep, twist,
-//!   stiffer, nominal) in turn.
+//!   stiffer, nominal, or the `--scenarios` given, which may change while they run) in turn.
+//!   Every change of the arm (another scenario, a step of one that changes while it runs, read
+//!   off the sim's own clock) is reported with the executions it took to get back under
+//!   2.5 mm.
 //! - Random kills: sim, controller or learner SIGKILLed at seeded moments; each must come back
 //!   (restarted by the supervisor here, as `softarm up` does) and an execution must finish after.
 //! - An independent [`Watch`] checks every setpoint and statistic against the safety invariants
@@ -27,8 +30,9 @@ use rand::{RngExt, SeedableRng};
 use softarm_clients::watch::{Limits, Watch};
 use softarm_clients::{stats, status, submit};
 use softarm_config::DEFAULT;
+use softarm_config::scenario::Scenario;
 use softarm_config::waypoints::{Point, WaypointFile};
-use softarm_ipc::{ControllerStatus, Node, Sub};
+use softarm_ipc::{ControllerStatus, Node, Sub, TrackerSample};
 use softarm_model::bundle::{Model, read_checkpoint};
 use softarm_runtime::now_ns;
 
@@ -36,8 +40,8 @@ use crate::scratch::Scratch;
 
 mod report;
 use crate::supervisor::{self, Supervisor};
-pub use report::{Learning, Report, Rss};
-use report::{failures, learning, print_report};
+pub use report::{ArmChange, BACK_UNDER_MM, Learning, Report, Rss};
+use report::{count_execution, failures, learning, print_report};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -53,6 +57,11 @@ pub struct Args {
     /// Time between scenario changes (s), made between sets; 0: the nominal arm throughout.
     #[arg(long, default_value_t = 120.0, value_parser = seconds, allow_negative_numbers = true)]
     scenario_every_s: f64,
+    /// The scenarios the sim becomes in turn, names or files, comma-separated (default:
+    /// tool-change,creep,twist,stiffer,nominal); scenarios that change while they run
+    /// (tool-swap, creeping, ...) run from their start each time.
+    #[arg(long, value_delimiter = ',', value_name = "NAME|FILE,...")]
+    scenarios: Vec<String>,
     /// Where the trained model is kept between runs (default: the demo's, in the user's cache;
     /// with `--config`, that config's `model.dir`).
     #[arg(long)]
@@ -124,6 +133,7 @@ fn say(json: bool, line: &str) {
 }
 
 pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<bool> {
+    let rotation = rotation(args)?;
     let scratch = scratch(args)?;
     let model_dir = scratch.config.model_dir();
     let roles = roles(&scratch.config);
@@ -145,7 +155,7 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<bool> {
     let lattice_start = Model::read(&model_dir)
         .map(|m| (m.learner.actor.len(), m.learner.critic.len()))
         .unwrap_or_default();
-    let mut soak = Soak::start(args, stop, &scratch, sup, roles, lattice_start)?;
+    let mut soak = Soak::start(args, stop, &scratch, sup, roles, lattice_start, rotation)?;
     let end = soak.started + Duration::from_secs_f64(args.minutes * 60.0);
     while Instant::now() < end {
         if stop.load(Ordering::Relaxed) {
@@ -190,6 +200,23 @@ fn scratch(args: &Args) -> anyhow::Result<Scratch> {
     Scratch::new("soak", &text, &overrides)
 }
 
+/// The scenarios the sim goes through (what the sim is given, resolved), refused before
+/// anything starts if one is not there.
+fn rotation(args: &Args) -> anyhow::Result<Vec<(String, Scenario)>> {
+    let names: Vec<String> = if args.scenarios.is_empty() {
+        SCENARIOS.map(String::from).to_vec()
+    } else {
+        args.scenarios.clone()
+    };
+    names
+        .into_iter()
+        .map(|n| {
+            let s = Scenario::resolve(&n).context("--scenarios")?;
+            Ok((n, s))
+        })
+        .collect()
+}
+
 /// The processes the soak runs and kills: the config's drivers, the controller, the learner.
 fn roles(config: &softarm_config::Config) -> Vec<&'static str> {
     softarm_config::DRIVERS
@@ -221,6 +248,10 @@ struct Soak<'a> {
     /// The arms the sim has been, in order; sets name theirs by index.
     scenarios: Vec<String>,
     scenario: usize,
+    /// What the sim becomes in turn: its argument and the scenario.
+    rotation: Vec<(String, Scenario)>,
+    /// The sim's clock, and the scenario it runs when that changes the arm while it runs.
+    sim_clock: SimClock,
     running: Option<Running>,
     pending: Option<Pending>,
     last_status: Option<ControllerStatus>,
@@ -239,6 +270,7 @@ impl<'a> Soak<'a> {
         sup: Supervisor,
         roles: Vec<&'static str>,
         lattice_start: (usize, usize),
+        rotation: Vec<(String, Scenario)>,
     ) -> anyhow::Result<Self> {
         let ns = &scratch.namespace;
         let demo_set = WaypointFile::parse(crate::scratch::DEMO_WAYPOINTS)
@@ -249,6 +281,13 @@ impl<'a> Soak<'a> {
         let follower = stats::Stats::open(ns)?;
         let node = Node::open(ns.clone(), "soak")?;
         let statuses = node.subscriber(&node.status()?)?;
+        let sim_clock = SimClock {
+            tracker: node.subscriber(&node.tracker()?)?,
+            rate_hz: scratch.config.sim.rate_hz,
+            seq: 0,
+            changing: None,
+            steps_seen: 0,
+        };
         let mut rng = StdRng::seed_from_u64(args.seed);
         let kill_at = next_kill(args, &mut rng);
         Ok(Self {
@@ -276,6 +315,8 @@ impl<'a> Soak<'a> {
             sets: Vec::new(),
             scenarios: vec!["nominal".to_string()],
             scenario: 0,
+            rotation,
+            sim_clock,
             running: None,
             pending: None,
             last_status: None,
@@ -297,6 +338,7 @@ impl<'a> Soak<'a> {
     fn step(&mut self) -> anyhow::Result<()> {
         self.sup.poll();
         self.read_statuses();
+        self.follow_sim_clock();
         self.take_executions();
         self.check_recovery();
         self.change_scenario()?;
@@ -332,6 +374,7 @@ impl<'a> Soak<'a> {
         while let Some(s) = self.follower.next(Duration::from_millis(50)) {
             self.report.executions += 1;
             let mm = s.mean_m * 1e3;
+            count_execution(&mut self.report.arm_changes, mm);
             match self.sets.iter_mut().find(|x| x.id == s.set_id) {
                 Some(x) => {
                     x.executions += 1;
@@ -417,12 +460,13 @@ impl<'a> Soak<'a> {
         {
             return Ok(());
         }
-        let name = SCENARIOS[self.scenario % SCENARIOS.len()];
+        let (arg, scenario) = self.rotation[self.scenario % self.rotation.len()].clone();
+        let name = scenario.name.clone();
         self.scenario += 1;
         self.say(&format!("the sim becomes scenario {name}"));
         self.sup.restart_with(
             "sim",
-            supervisor::sim_args(Some(name)),
+            supervisor::sim_args(Some(&arg)),
             Duration::from_secs(5),
         )?;
         self.scratch.wait_for(
@@ -432,10 +476,30 @@ impl<'a> Soak<'a> {
             self.stop,
             &|r| r.alive.iter().any(|n| n == "sim") && r.running(),
         )?;
-        self.scenarios.push(name.to_string());
+        self.sim_clock.restart(scenario);
+        self.arm_changed(name.clone());
+        self.scenarios.push(name);
         self.report.scenario_changes += 1;
         self.scenario_at = every(self.args.scenario_every_s);
         Ok(())
+    }
+
+    /// The sim's clock: the steps of a scenario that changes while it runs, and a sim restarted
+    /// (after a kill) on one, which starts it over, are changes of the arm.
+    fn follow_sim_clock(&mut self) {
+        let changes = self.sim_clock.changes();
+        for change in changes {
+            self.say(&format!("the sim's arm changes: {change}"));
+            self.arm_changed(change);
+        }
+    }
+
+    fn arm_changed(&mut self, arm: String) {
+        self.report.arm_changes.push(ArmChange {
+            at_s: self.started.elapsed().as_secs_f64(),
+            arm,
+            ..ArmChange::default()
+        });
     }
 
     /// The next set, once the last is done: the demo set every third, else a variation.
@@ -568,6 +632,62 @@ impl<'a> Soak<'a> {
     }
 }
 
+/// The sim's own clock, from its tracker samples: a sample's number over the sim's rate is the
+/// plant's time, which is what a scenario's steps are timed on.
+struct SimClock {
+    tracker: Sub<TrackerSample>,
+    rate_hz: f64,
+    /// The newest sample's number.
+    seq: u64,
+    /// The scenario the sim runs, if it changes the arm while it runs.
+    changing: Option<Scenario>,
+    /// Its steps already seen.
+    steps_seen: usize,
+}
+
+impl SimClock {
+    /// The sim was started again on `scenario`: what came before is the old sim's.
+    fn restart(&mut self, scenario: Scenario) {
+        while let Ok(Some(_)) = self.tracker.receive() {}
+        self.seq = 0;
+        self.steps_seen = 0;
+        self.changing = scenario.changes_over_time().then_some(scenario);
+    }
+
+    /// The arm changes the sim's clock shows since last asked.
+    fn changes(&mut self) -> Vec<String> {
+        let mut newest = None;
+        while let Ok(Some(s)) = self.tracker.receive() {
+            newest = Some(s.seq);
+        }
+        let Some(seq) = newest else {
+            return Vec::new();
+        };
+        // A number that went back: a new sim process, its scenario from its start.
+        let restarted = seq < self.seq;
+        self.seq = seq;
+        let Some(s) = &self.changing else {
+            return Vec::new();
+        };
+        let mut changes = Vec::new();
+        if restarted {
+            self.steps_seen = 0;
+            changes.push(format!("{} from its start (the sim restarted)", s.name));
+        }
+        let due = steps_due(&s.step_times(), seq as f64 / self.rate_hz);
+        for k in self.steps_seen..due {
+            changes.push(format!("{} step {}", s.name, k + 1));
+        }
+        self.steps_seen = self.steps_seen.max(due);
+        changes
+    }
+}
+
+/// How many of the steps at `times` (in order) have come by time `t`.
+fn steps_due(times: &[f64], t: f64) -> usize {
+    times.iter().take_while(|at| **at <= t).count()
+}
+
 fn every(s: f64) -> Option<Instant> {
     (s > 0.0).then(|| Instant::now() + Duration::from_secs_f64(s))
 }
@@ -593,5 +713,47 @@ fn variation(base: &WaypointFile, rng: &mut StdRng) -> WaypointFile {
     WaypointFile {
         duration_s: base.duration_s,
         point,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[derive(clap::Parser)]
+    struct Soak {
+        #[command(flatten)]
+        args: Args,
+    }
+
+    fn args(line: &[&str]) -> Args {
+        use clap::Parser;
+        let line = ["soak", "--minutes", "1"].iter().chain(line);
+        Soak::try_parse_from(line).unwrap().args
+    }
+
+    #[test]
+    fn the_rotation_is_the_default_or_the_scenarios_given_and_each_must_exist() {
+        let names = |a: &Args| -> Vec<String> {
+            rotation(a).unwrap().into_iter().map(|(n, _)| n).collect()
+        };
+        assert_eq!(names(&args(&[])), SCENARIOS);
+        let given = args(&["--scenarios", "tool-swap,creeping,nominal"]);
+        assert_eq!(names(&given), ["tool-swap", "creeping", "nominal"]);
+        assert!(rotation(&given).unwrap()[1].1.changes_over_time());
+        let e = rotation(&args(&["--scenarios", "creeping,nowhere"])).unwrap_err();
+        assert!(
+            format!("{e:#}").contains("nowhere: no such scenario"),
+            "{e:#}"
+        );
+    }
+
+    #[test]
+    fn steps_are_due_at_their_time_of_the_sims_clock() {
+        let times = [90.0, 240.0];
+        assert_eq!(steps_due(&times, 89.99), 0);
+        assert_eq!(steps_due(&times, 90.0), 1);
+        assert_eq!(steps_due(&times, 1e4), 2);
+        assert_eq!(steps_due(&[], 1e4), 0);
     }
 }

@@ -24,6 +24,9 @@ pub struct Report {
     /// Per scenario, the learning it saw: see [`Learning`].
     pub learning: Vec<Learning>,
     pub scenario_changes: u64,
+    /// Every change of the sim's arm and how many executions it took to get back under
+    /// [`BACK_UNDER_MM`]: see [`ArmChange`].
+    pub arm_changes: Vec<ArmChange>,
     pub kills: Vec<(String, u64)>,
     pub kills_survived: u64,
     pub kills_not_survived: Vec<String>,
@@ -51,6 +54,34 @@ pub struct Learning {
     pub executions: u64,
     pub first_mm: f64,
     pub last_mm: f64,
+}
+
+/// The mean error an arm change must be brought back under (mm).
+pub const BACK_UNDER_MM: f64 = 2.5;
+
+/// One change of the sim's arm: another scenario, a step of a scenario that changes while it
+/// runs, or such a scenario started over by a restarted sim (its clock from 0 again).
+#[derive(Debug, Clone, Default, Serialize)]
+pub struct ArmChange {
+    /// When it was seen (s into the soak).
+    pub at_s: f64,
+    /// What changed: the scenario's name, with the step.
+    pub arm: String,
+    /// Executions that ended after it, before the next change.
+    pub executions: u64,
+    /// Which of those was the first with a mean error at most [`BACK_UNDER_MM`] (1: the first
+    /// execution after the change); none if none was.
+    pub back_under: Option<u64>,
+}
+
+/// The changes so far; each execution counts for the last one.
+pub(super) fn count_execution(changes: &mut [ArmChange], mean_mm: f64) {
+    if let Some(c) = changes.last_mut() {
+        c.executions += 1;
+        if c.back_under.is_none() && mean_mm <= BACK_UNDER_MM {
+            c.back_under = Some(c.executions);
+        }
+    }
 }
 
 /// Per scenario, the mean error of the first and of the last execution of its sets that ran
@@ -116,6 +147,19 @@ pub(super) fn print_report(r: &Report) {
             l.scenario, l.sets, l.executions, l.first_mm, l.last_mm
         );
     }
+    for c in &r.arm_changes {
+        let back = match c.back_under {
+            Some(n) => format!(
+                "under {BACK_UNDER_MM} mm at execution {n} of {}",
+                c.executions
+            ),
+            None => format!(
+                "not under {BACK_UNDER_MM} mm in {} executions",
+                c.executions
+            ),
+        };
+        println!("  arm change {:>6.0} s  {}: {back}", c.at_s, c.arm);
+    }
     let kills: Vec<String> = r.kills.iter().map(|(k, n)| format!("{k} {n}")).collect();
     println!(
         "  kills                {} ({}), survived {}",
@@ -166,5 +210,34 @@ pub(super) fn print_report(r: &Report) {
         for f in &r.failures {
             println!("  FAILED: {f}");
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_arm_change_counts_the_executions_until_the_error_is_back_under() {
+        let mut changes = Vec::new();
+        // Executions before any change count for none.
+        count_execution(&mut changes, 9.0);
+        let change = |arm: &str| ArmChange {
+            arm: arm.into(),
+            ..ArmChange::default()
+        };
+        changes.push(change("tool-change"));
+        for mm in [20.0, 6.0, 2.4, 3.0, 1.0] {
+            count_execution(&mut changes, mm);
+        }
+        changes.push(change("creeping step 1"));
+        for mm in [8.0, 4.0] {
+            count_execution(&mut changes, mm);
+        }
+        let got: Vec<_> = changes
+            .iter()
+            .map(|c| (c.executions, c.back_under))
+            .collect();
+        assert_eq!(got, [(5, Some(3)), (2, None)]);
     }
 }
