@@ -159,7 +159,11 @@ mod tests {
             reconditions,
             ..Default::default()
         };
-        assert_eq!(late_estimates(&s(1, 0)), 0, "the first runs on the first estimates");
+        assert_eq!(
+            late_estimates(&s(1, 0)),
+            0,
+            "the first runs on the first estimates"
+        );
         assert_eq!(late_estimates(&s(2, 4)), 0);
         assert_eq!(late_estimates(&s(3, 1)), 3);
         let j: serde_json::Value = serde_json::from_str(&json_line(&s(3, 1))).unwrap();

@@ -53,6 +53,17 @@ impl Corrections {
         &self.points
     }
 
+    /// The estimate `target` is to start from the next time, once its next step is known.
+    pub fn renew(&mut self, target: &Position, estimate: Actuation) {
+        if let Some(p) = self
+            .points
+            .iter_mut()
+            .find(|p| distance(&p.target, target) < SAME_TARGET_M)
+        {
+            p.estimate = estimate;
+        }
+    }
+
     /// The estimate that served `target` best, if it was visited.
     pub fn visited(&self, target: &Position) -> Option<Actuation> {
         self.points
@@ -145,9 +156,10 @@ pub struct Corrected {
     pub target: Position,
     /// Δa = a_measured − a_model, carried to other targets.
     pub delta: Actuation,
-    /// The estimate of the target's best try: a set that comes back to this very target
-    /// starts from it, exactly where it left (Δa leaves out the lag into the point on its
-    /// set's path, which the estimate has in).
+    /// The estimate the target's next visit would have had (the step from its best or last
+    /// try; the best try's until that step is known): a set that comes back to this very
+    /// target starts from it, exactly where it left (Δa leaves out the lag into the point on
+    /// its set's path, which the estimate has in), on an arm that creeps too.
     pub estimate: Actuation,
 }
 

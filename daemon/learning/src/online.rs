@@ -420,6 +420,9 @@ impl OnlineLearner {
                         estimate: best.action,
                     },
                 );
+                // Where a set that comes back here starts: the step its next visit takes.
+                let next = self.directed(point, target, true);
+                self.corrections.renew(target, next);
             }
         }
         let memory = &mut self.set[point].memory;
