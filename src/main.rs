@@ -111,7 +111,7 @@ enum Command {
         stack: Stack,
         /// Overrides [arm] and [sim.realism] for this process only, and may change the arm while
         /// it runs ([[step]], [drift]): a shipped scenario (nominal, tool-change, creep, twist,
-        /// stiffer, not-pcc, tool-swap, creeping, stiffness-cycle, combined) or a scenario file.
+        /// stiffer, not-pcc, tool-swap, creeping, stiffness-cycle, combined, sequence) or a scenario file.
         #[arg(long)]
         scenario: Option<String>,
     },

@@ -35,7 +35,7 @@ use softarm_method::plant::SimConfig;
 use crate::{ConfigError, key_line, line_at};
 
 /// The scenarios shipped in `config/scenarios/`, embedded so `--scenario NAME` works anywhere.
-pub const SHIPPED: [(&str, &str); 10] = [
+pub const SHIPPED: [(&str, &str); 11] = [
     (
         "nominal",
         include_str!("../../../config/scenarios/nominal.toml"),
@@ -75,6 +75,10 @@ pub const SHIPPED: [(&str, &str); 10] = [
     (
         "not-pcc",
         include_str!("../../../config/scenarios/not-pcc.toml"),
+    ),
+    (
+        "sequence",
+        include_str!("../../../config/scenarios/sequence.toml"),
     ),
 ];
 

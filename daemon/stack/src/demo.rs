@@ -40,7 +40,7 @@ pub struct Args {
     #[arg(long)]
     scenario: Option<String>,
     /// Runs the set again and again on an arm that changes while it runs: a scenario with steps
-    /// or a drift (tool-swap, creeping, stiffness-cycle, combined) or such a file. Each row
+    /// or a drift (tool-swap, creeping, stiffness-cycle, combined, sequence) or such a file. Each row
     /// adds the sim's time and what had changed by then.
     #[arg(long, value_name = "NAME|FILE", conflicts_with = "scenario")]
     drift: Option<String>,
