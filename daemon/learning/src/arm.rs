@@ -185,6 +185,8 @@ const SLOW_PER_S: f64 = 0.5;
 const SPEED_SPAN_NS: u64 = 50_000_000;
 /// ...and over at most this long (ns).
 const SPEED_GAP_NS: u64 = 2_000_000_000;
+/// No sample for this long (ns) is a gap: the driver went away.
+const GAP_NS: u64 = 50_000_000;
 /// Samples kept for the speed: 80 ms at 200 Hz.
 const RECENT: usize = 16;
 /// Checks of the arm remembered; this many of them disagreeing say the arm changed.
@@ -206,6 +208,8 @@ pub struct Footprint {
     samples: Vec<Sample>,
     /// The last [`RECENT`] (stamp, actuation), for the actuators' speed.
     recent: Vec<(u64, Actuation)>,
+    /// The sample before this one.
+    last: Option<(u64, Actuation, Position)>,
     /// The last checks, `true` where the arm disagreed with its footprint.
     checks: [bool; CHECKS],
     next_check: usize,
@@ -257,6 +261,8 @@ impl Footprint {
         actuation: &Actuation,
         position: &Position,
     ) -> Seen {
+        self.remember_before_gap(stamp_ns, actuation);
+        self.last = Some((stamp_ns, *actuation, *position));
         let speed = self.speed(stamp_ns, actuation);
         if speed >= SLOW_PER_S {
             return Seen::Nothing;
@@ -299,6 +305,26 @@ impl Footprint {
         self.checks = [false; CHECKS];
         self.keep(stamp_ns, actuation, position);
         Seen::Changed(off)
+    }
+
+    /// After a gap in the samples (a driver restarting, the arm changed meanwhile), the last
+    /// sample before it is kept if nothing is known where it was, however fast the arm moved
+    /// then: a driver that comes back starts where the controller held the arm, so it is what
+    /// the first samples after the gap are to be checked against. Without it, an arm changed
+    /// right at the end of a set, which it left still moving, went unseen.
+    fn remember_before_gap(&mut self, stamp_ns: u64, actuation: &Actuation) {
+        let Some((t, a, p)) = self.last else {
+            return;
+        };
+        let gap = stamp_ns.saturating_sub(t) >= GAP_NS;
+        let near = actuation_distance(&a, actuation) <= NEIGHBOURHOOD;
+        let known = self
+            .samples
+            .iter()
+            .any(|s| actuation_distance(&s.actuation, &a) <= NEIGHBOURHOOD);
+        if gap && near && !known {
+            self.keep(t, &a, &p);
+        }
     }
 
     /// How fast the actuators move (per s): from the newest sample at least [`SPEED_SPAN_NS`]
@@ -448,6 +474,31 @@ mod tests {
         }
         // Changed at once, and held where it stopped: seen.
         let seen = hold(&mut f, &tool, &end, 300 * MS, 300);
+        assert!(
+            seen.iter().any(|s| matches!(s, Seen::Changed(_))),
+            "{seen:?}"
+        );
+    }
+
+    #[test]
+    fn an_arm_changed_while_its_driver_was_away_is_seen_where_it_came_back() {
+        let model = ArmGeometry::default();
+        let tool = ArmGeometry {
+            tool_m: model.tool_m + 0.02,
+            ..model
+        };
+        let mut f = Footprint::default();
+        // Moving fast into [0.5; 6] (2 per s): nothing kept on the old arm.
+        let end = [0.5; ACTUATORS];
+        for k in 0..20u64 {
+            let back = (20 - k) as f64 * 0.01 / (ACTUATORS as f64).sqrt();
+            let a = end.map(|v| v - back);
+            f.observe(0.004, k * 5 * MS, &a, &model.position(&a));
+        }
+        f.observe(0.004, 100 * MS, &end, &model.position(&end));
+        assert!(f.samples().is_empty());
+        // The driver away for 300 ms, back as another arm where the arm was held: seen.
+        let seen = hold(&mut f, &tool, &end, 400 * MS, 200);
         assert!(
             seen.iter().any(|s| matches!(s, Seen::Changed(_))),
             "{seen:?}"
