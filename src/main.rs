@@ -6,7 +6,7 @@ use std::time::Duration;
 
 use anyhow::Context;
 use clap::{Parser, Subcommand};
-use softarm_clients::{estop, record, stats, status, submit, train};
+use softarm_clients::{estop, record, scene, stats, status, submit, train};
 use softarm_config::scenario::Scenario;
 use softarm_config::{Config, ConfigError};
 use softarm_emulate::command as emulate;
@@ -331,7 +331,12 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             output,
             duration,
             stack,
-        } => record::run(&stack.namespace()?, &output, duration, &*stop_flag()?)?,
+        } => {
+            let config = stack.load()?;
+            let settings = scene::Settings::of(&config);
+            let namespace = Namespace::new(&config.namespace())?;
+            record::run(&namespace, &settings, &output, duration, &*stop_flag()?)?
+        }
         Command::Replay { recording, json } => record::replay_command(&recording, json)?,
         Command::Plot { recording, output } => softarm_clients::plot::run(&recording, &output)?,
         Command::Bench(args) => bench::run(&args)?,
