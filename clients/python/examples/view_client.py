@@ -118,6 +118,7 @@ class Tally:
     def __init__(self, decoders):
         self.decoders = decoders
         self.counts = {}
+        self.bytes = 0
         self.status = None
         self.stats = []
         self.tracker = {}  # seq -> position, the newest few thousand
@@ -128,6 +129,7 @@ class Tally:
     def take(self, channel, data):
         topic = channel["topic"]
         self.counts[topic] = self.counts.get(topic, 0) + 1
+        self.bytes += len(data)
         if channel["encoding"] == "json":
             v = json.loads(data)
             if topic == "status":
@@ -252,6 +254,7 @@ def report(client, tally, seconds):
         "statuses": [s["message"] for s in client.statuses],
         "seconds": seconds,
         "counts": tally.counts,
+        "payload_bytes": tally.bytes,
         "status": tally.status,
         "stats": tally.stats,
         "scene": {"entities": sorted(tally.entities), "arm_updates": len(tally.arm),
