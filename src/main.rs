@@ -6,7 +6,7 @@ use std::time::Duration;
 
 use anyhow::Context;
 use clap::{Parser, Subcommand};
-use softarm_clients::{estop, record, stats, status, submit, train};
+use softarm_clients::{estop, record, scene, stats, status, submit, train};
 use softarm_config::scenario::Scenario;
 use softarm_config::{Config, ConfigError};
 use softarm_emulate::command as emulate;
@@ -185,6 +185,16 @@ enum Command {
         #[command(flatten)]
         stack: Stack,
     },
+    /// Serves the running stack live over the Foxglove WebSocket protocol (read-only): every
+    /// service as a channel, and the arm, way-points and tracker in 3-D.
+    View {
+        /// IP address and port (default: the config's view.listen, 127.0.0.1:8765); other than
+        /// loopback only with view.allow_remote = true in the config.
+        #[arg(long)]
+        listen: Option<String>,
+        #[command(flatten)]
+        stack: Stack,
+    },
     /// The per-execution statistics and a timing summary from a recording.
     Replay {
         recording: PathBuf,
@@ -262,6 +272,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             up::run(
                 stack.args(),
                 &config.robot.drivers,
+                config.view.enabled,
                 scenario.as_deref(),
                 &*stop_flag()?,
             )?
@@ -333,7 +344,15 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             output,
             duration,
             stack,
-        } => record::run(&stack.namespace()?, &output, duration, &*stop_flag()?)?,
+        } => {
+            let config = stack.load()?;
+            let settings = scene::Settings::of(&config);
+            let namespace = Namespace::new(&config.namespace())?;
+            record::run(&namespace, &settings, &output, duration, &*stop_flag()?)?
+        }
+        Command::View { listen, stack } => {
+            softarm_view::run(&stack.load()?, listen.as_deref(), &*stop_flag()?)?
+        }
         Command::Replay { recording, json } => record::replay_command(&recording, json)?,
         Command::Plot { recording, output } => softarm_clients::plot::run(&recording, &output)?,
         Command::Bench(args) => bench::run(&args)?,

@@ -14,7 +14,7 @@ use std::sync::Mutex;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
 
-use softarm_test_support::{DEMO_WAYPOINTS, config_text, hardware_config_text};
+use softarm_test_support::{DEMO_WAYPOINTS, config_text, hardware_config_text, with_overrides};
 
 const BIN: &str = env!("CARGO_BIN_EXE_softarm");
 /// Longest any case may take: none waits for a stack that is not there.
@@ -89,6 +89,7 @@ const CASES: &[Case] = &[
     case("config check without a file", &["config", "check"], USAGE, &["<FILE>"]),
     case("plot without --output", &["plot", "empty.mcap"], USAGE, &["--output <OUTPUT>"]),
     case("replay without a recording", &["replay"], USAGE, &["<RECORDING>"]),
+    case("view --listen without an address", &["view", "--listen"], USAGE, &["a value is required for '--listen <LISTEN>'"]),
     case("soak without --minutes", &["soak"], USAGE, &["--minutes <MINUTES>"]),
 
     // Out-of-range and non-finite numbers.
@@ -97,6 +98,10 @@ const CASES: &[Case] = &[
     case("record --duration nan", &["record", "-o", "out.mcap", "--duration", "nan", "--namespace", "{ns}"], FAILED, &["--duration must be a positive number of seconds, got NaN"]),
     case("record --duration inf", &["record", "-o", "out.mcap", "--duration", "inf", "--namespace", "{ns}"], FAILED, &["--duration must be a positive number of seconds, got inf"]),
     case("record --duration too long", &["record", "-o", "out.mcap", "--duration", "1e300", "--namespace", "{ns}"], FAILED, &["--duration 1e300 s is too long"]),
+    case("view --listen not an address", &["view", "--listen", "nowhere", "--namespace", "{ns}"], FAILED, &["--listen: \"nowhere\" is not an IP address and port (e.g. 127.0.0.1:8765)"]),
+    case("view --listen a host name", &["view", "--listen", "localhost:8765", "--namespace", "{ns}"], FAILED, &["--listen: \"localhost:8765\" is not an IP address and port"]),
+    case("view --listen port beyond 65535", &["view", "--listen", "127.0.0.1:70000", "--namespace", "{ns}"], FAILED, &["--listen: \"127.0.0.1:70000\" is not an IP address and port"]),
+    case("view --listen beyond loopback", &["view", "--listen", "0.0.0.0:8765", "--namespace", "{ns}"], FAILED, &["--listen: 0.0.0.0:8765 is not a loopback address", "set view.allow_remote = true in the config"]),
     case("emulate --initial above 1", &["emulate", "--config", "hardware.toml", "--initial", "2"], FAILED, &["--initial must be in [0, 1], got 2"]),
     case("emulate --initial negative", &["emulate", "--config", "hardware.toml", "--initial", "-0.5"], FAILED, &["--initial must be in [0, 1], got -0.5"]),
     case("emulate --initial nan", &["emulate", "--config", "hardware.toml", "--initial", "nan"], FAILED, &["--initial must be in [0, 1], got NaN"]),
@@ -138,6 +143,9 @@ const CASES: &[Case] = &[
     case("train --config garbage", &["train", "--config", "garbage.toml"], CONFIG, &["garbage.toml:1:"]),
     case("submit --config garbage", &["submit", "set.toml", "--config", "garbage.toml"], CONFIG, &["garbage.toml:1:"]),
     case("record --config missing", &["record", "-o", "out.mcap", "--config", "missing.toml"], CONFIG, &["missing.toml: cannot read the config"]),
+    case("view --config garbage", &["view", "--config", "garbage.toml"], CONFIG, &["garbage.toml:1: key with no value"]),
+    case("up with view.listen beyond loopback", &["up", "--config", "remote.toml"], CONFIG, &["remote.toml:", ": view.listen: 0.0.0.0:8765 is not a loopback address"]),
+    case("view with view.listen beyond loopback", &["view", "--config", "remote.toml"], CONFIG, &["remote.toml:", ": view.listen: 0.0.0.0:8765 is not a loopback address"]),
     case("bench --config garbage", &["bench", "--config", "garbage.toml"], CONFIG, &["garbage.toml:1:"]),
     case("config check missing", &["config", "check", "missing.toml"], CONFIG, &["missing.toml: cannot read the config"]),
     case("config check garbage", &["config", "check", "garbage.toml"], CONFIG, &["garbage.toml:1: key with no value"]),
@@ -203,6 +211,11 @@ fn fixtures(dir: &Path, namespace: &str, recording: &[u8]) {
     let write = |name: &str, bytes: &[u8]| std::fs::write(dir.join(name), bytes).unwrap();
     write("garbage.toml", b"garbage\n");
     write("sim.toml", config_text(dir, namespace).as_bytes());
+    let remote = [("view.listen", "0.0.0.0:8765".into())];
+    write(
+        "remote.toml",
+        with_overrides(&config_text(dir, namespace), &remote).as_bytes(),
+    );
     write(
         "hardware.toml",
         hardware_config_text(

@@ -31,3 +31,4 @@ mod soak;
 mod stack;
 mod tick_allocates_nothing;
 mod train_kill;
+mod view;

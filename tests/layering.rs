@@ -7,10 +7,9 @@ use std::process::Command;
 
 use serde_json::Value;
 
-/// Package name -> the names of its normal (not dev, not build) dependencies, for the
-/// workspace's packages; other crates are leaves (what matters here is which of ours links
-/// them). `--no-deps`: no registry needed, the manifests say it all.
-fn graph() -> BTreeMap<String, BTreeSet<String>> {
+/// The workspace's packages as `cargo metadata` describes them. `--no-deps`: no registry
+/// needed, the manifests say it all.
+fn packages() -> Vec<Value> {
     let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
     let out = Command::new(cargo)
         .args(["metadata", "--format-version", "1", "--no-deps"])
@@ -23,9 +22,14 @@ fn graph() -> BTreeMap<String, BTreeSet<String>> {
         String::from_utf8_lossy(&out.stderr)
     );
     let m: Value = serde_json::from_slice(&out.stdout).expect("cargo metadata is JSON");
-    m["packages"]
-        .as_array()
-        .unwrap()
+    m["packages"].as_array().unwrap().clone()
+}
+
+/// Package name -> the names of its normal (not dev, not build) dependencies, for the
+/// workspace's packages; other crates are leaves (what matters here is which of ours links
+/// them).
+fn graph() -> BTreeMap<String, BTreeSet<String>> {
+    packages()
         .iter()
         .map(|p| {
             let normal = p["dependencies"]
@@ -140,5 +144,52 @@ fn each_crate_links_only_what_its_layer_allows() {
             ],
             "a driver links neither the learning code, the model pipeline nor another process",
         );
+    }
+    forbid(
+        "softarm-view",
+        &[
+            &drivers[..],
+            &["softarm-emulate", "softarm-controller", "softarm-learner"],
+            &["softarm-stack"],
+        ]
+        .concat(),
+        "the view is one more subscriber: it sees the stack only through its services",
+    );
+    for p in g
+        .keys()
+        .filter(|p| !["softarm", "softarm-view"].contains(&p.as_str()))
+    {
+        forbid(
+            p,
+            &["softarm-view"],
+            "only the binary starts the view: no process nor client links its server",
+        );
+    }
+}
+
+/// The `foxglove` crate's defaults build a TLS backend (aws-lc-rs, which needs cmake): every
+/// crate names only the features it needs, and only the view serves the network.
+#[test]
+fn foxglove_comes_without_tls_and_only_the_view_serves() {
+    for p in packages() {
+        let name = p["name"].as_str().unwrap();
+        for d in p["dependencies"].as_array().unwrap() {
+            if d["name"] != "foxglove" {
+                continue;
+            }
+            assert_eq!(
+                d["uses_default_features"], false,
+                "{name} takes foxglove's default features (TLS with aws-lc-rs, cmake)"
+            );
+            let features = d["features"].to_string();
+            assert!(
+                !features.contains("tls") && !features.contains("remote-access"),
+                "{name}: foxglove features {features}"
+            );
+            assert!(
+                name == "softarm-view" || !features.contains("websocket"),
+                "{name} links foxglove's WebSocket server: only softarm-view serves"
+            );
+        }
     }
 }

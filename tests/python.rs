@@ -23,7 +23,7 @@ const PY: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/clients/python");
 
 /// The interpreter if it runs and imports `modules`; else why not: a panic under
 /// `SOFTARM_REQUIRE_PYTHON=1`, a note and `None` otherwise.
-fn python(modules: &[&str]) -> Option<String> {
+pub(crate) fn python(modules: &[&str]) -> Option<String> {
     let py = std::env::var("SOFTARM_PYTHON").unwrap_or_else(|_| "python3".into());
     let check = if modules.is_empty() {
         "pass".to_string()
@@ -42,7 +42,7 @@ fn python(modules: &[&str]) -> Option<String> {
         ),
         Err(e) => format!("no {py}: {e}"),
     };
-    let install = "pip install iceoryx2==0.10.0 safetensors numpy";
+    let install = "pip install iceoryx2==0.10.0 mcap safetensors numpy websockets protobuf";
     if std::env::var("SOFTARM_REQUIRE_PYTHON").as_deref() == Ok("1") {
         panic!("{why} (SOFTARM_REQUIRE_PYTHON=1; {install})");
     }

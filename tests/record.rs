@@ -1,6 +1,7 @@
 //! End to end: `softarm record` beside a running stack, then `replay` and `plot` of what it
 //! wrote; the same sample counts per channel from the recorder, from the Rust reader and from
-//! the `mcap` Python package; a recorder killed mid-way leaves no file that looks whole.
+//! the `mcap` Python package, which also decodes the scene (`protobuf`, with the schema in the
+//! file) and finds the arm in it; a recorder killed mid-way leaves no file that looks whole.
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -26,19 +27,21 @@ fn counts_of(stdout: &str) -> BTreeMap<String, u64> {
         .collect()
 }
 
-/// Whether the `mcap` Python package is there; CI requires it (SOFTARM_REQUIRE_PYTHON=1).
+/// Whether the `mcap` and `protobuf` Python packages are there; CI requires them
+/// (SOFTARM_REQUIRE_PYTHON=1).
 fn python_mcap() -> bool {
     let ok = Command::new("python3")
-        .args(["-c", "import mcap"])
+        .args(["-c", "import mcap, google.protobuf"])
         .output()
         .is_ok_and(|o| o.status.success());
     if !ok {
         assert!(
             std::env::var("SOFTARM_REQUIRE_PYTHON").as_deref() != Ok("1"),
-            "SOFTARM_REQUIRE_PYTHON=1 but python3 with the mcap package is missing"
+            "SOFTARM_REQUIRE_PYTHON=1 but python3 with the mcap and protobuf packages is missing"
         );
         eprintln!(
-            "not run: the check with the mcap Python package (python3 -c 'import mcap' fails)"
+            "not run: the check with the mcap and protobuf Python packages (python3 -c 'import \
+             mcap, google.protobuf' fails)"
         );
     }
     ok
@@ -80,6 +83,7 @@ fn a_recorded_run_replays_and_plots_with_the_same_counts_everywhere() {
         "cp_sample",
         "stats",
         "status",
+        "scene",
     ] {
         assert!(
             recorded.get(topic).copied().unwrap_or(0) > 0,
@@ -113,22 +117,37 @@ fn a_recorded_run_replays_and_plots_with_the_same_counts_everywhere() {
 
     // The mcap Python package.
     if python_mcap() {
+        // Every message JSON but the scene's, which the schema in the file decodes.
         let script = "import sys, json, collections\n\
             from mcap.reader import make_reader\n\
+            from google.protobuf import descriptor_pb2, descriptor_pool, message_factory\n\
             c = collections.Counter()\n\
+            entities = set()\n\
             with open(sys.argv[1], 'rb') as f:\n\
             \x20   for schema, channel, message in make_reader(f).iter_messages():\n\
-            \x20       json.loads(message.data)\n\
             \x20       c[channel.topic] += 1\n\
-            print(json.dumps(c))\n";
+            \x20       if channel.message_encoding == 'json':\n\
+            \x20           json.loads(message.data)\n\
+            \x20           continue\n\
+            \x20       pool = descriptor_pool.DescriptorPool()\n\
+            \x20       for fd in descriptor_pb2.FileDescriptorSet.FromString(schema.data).file:\n\
+            \x20           pool.Add(fd)\n\
+            \x20       cls = message_factory.GetMessageClass(pool.FindMessageTypeByName(schema.name))\n\
+            \x20       entities |= {e.id for e in cls.FromString(message.data).entities}\n\
+            print(json.dumps({'counts': c, 'entities': sorted(entities)}))\n";
         let py = Command::new("python3")
             .args(["-c", script])
             .arg(&run)
             .output()
             .unwrap();
         assert!(py.status.success(), "{py:?}");
-        let py: BTreeMap<String, u64> = serde_json::from_slice(&py.stdout).unwrap();
-        assert_eq!(py, nonzero);
+        let py: serde_json::Value = serde_json::from_slice(&py.stdout).unwrap();
+        let counts: BTreeMap<String, u64> = serde_json::from_value(py["counts"].clone()).unwrap();
+        assert_eq!(counts, nonzero);
+        let entities = py["entities"].to_string();
+        for e in ["arm", "base", "reached", "tracker", "waypoints"] {
+            assert!(entities.contains(e), "{e}: {entities}");
+        }
     }
 
     // The plot.

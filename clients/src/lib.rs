@@ -1,9 +1,13 @@
 //! softarm's user-facing clients of a running stack: `submit`, `stats`, `status`, `estop` and
-//! `train`. Each is a short-lived iceoryx2 node in the stack's namespace.
+//! `train`. Each is a short-lived iceoryx2 node in the stack's namespace. Beside them what
+//! `record` and the live view (`softarm-view`) share: the services as channels
+//! ([`channels`]) and the 3-D scene ([`scene`]).
 
+pub mod channels;
 pub mod estop;
 pub mod plot;
 pub mod record;
+pub mod scene;
 pub mod stats;
 pub mod status;
 pub mod submit;

@@ -1,14 +1,14 @@
 //! `softarm record` and `softarm replay`: every pub/sub service of a namespace into an MCAP file,
 //! and the file back into the per-execution statistics and a timing summary.
 //!
-//! The file: one channel per service, its topic the service's name (`setpoint`, `tracker`, ...).
-//! Messages are JSON (`message_encoding = "json"`), one object per sample with the payload's
-//! field names (`ipc/src/lib.rs`), NaN as `null`; each channel's schema is a JSON Schema
-//! (`encoding = "jsonschema"`) named after the payload's iceoryx2 type name
-//! (`softarm::Setpoint`, ...). `log_time` is when the recorder received the sample
-//! (CLOCK_REALTIME, ns since the epoch, as viewers expect); `publish_time` is the sample's own
-//! `stamp_ns` (CLOCK_MONOTONIC of the machine that ran the stack). Foxglove and the `mcap`
-//! Python package read it as it is.
+//! The file: one channel per service, as [`crate::channels`] describes them (topic the
+//! service's name, JSON messages, a JSON Schema named after the payload's iceoryx2 type), and
+//! the channel `scene`: the 3-D scene of [`crate::scene`] (`foxglove.SceneUpdate`, protobuf, at
+//! `view.scene_hz`), so the recording opens in Foxglove with the arm drawn. `log_time` is when
+//! the recorder received the sample (CLOCK_REALTIME, ns since the epoch, as viewers expect);
+//! `publish_time` is the sample's own `stamp_ns` (CLOCK_MONOTONIC of the machine that ran the
+//! stack; for the scene, when it was drawn). Foxglove and the `mcap` Python package read it
+//! as it is.
 //!
 //! The recorder is one more subscriber: it never publishes, so the controller does not notice
 //! it. It writes to `<file>.partial` and renames it once complete: a file named `run.mcap` is
@@ -22,123 +22,106 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use anyhow::{Context, bail};
+use foxglove::Encode;
 use mcap::records::MessageHeader;
 use serde::Serialize;
 use serde_json::{Value, json};
-use softarm_ipc::iceoryx2::prelude::ZeroCopySend;
-use softarm_ipc::{Namespace, Node, Sub};
+use softarm_ipc::{Namespace, Node};
 
-/// The topics a recording has, in the order they are opened.
-pub const TOPICS: [&str; 9] = [
-    "setpoint",
-    "tracker",
-    "motor_state",
-    "cp_sample",
-    "estimate_request",
-    "estimate",
-    "stats",
-    "status",
-    "estop",
-];
+pub use crate::channels::TOPICS;
+use crate::channels::{Services, Spec};
+use crate::scene::{self, Scene};
 
 type Writer = mcap::Writer<BufWriter<File>>;
 
-/// One subscription and its channel in the file (made with the first sample, whose JSON gives
-/// the schema).
-struct Source<T: std::fmt::Debug + ZeroCopySend + 'static> {
-    topic: &'static str,
-    sub: Sub<T>,
-    channel: Option<u16>,
-    count: u64,
+/// A recording being written: the file, a channel per service and the scene's.
+struct Recording {
+    w: Writer,
+    /// Per service, in the order of [`TOPICS`]: the channel and its messages so far.
+    channels: Vec<(u16, u32)>,
+    scene: Scene,
+    scene_channel: (u16, u32),
 }
 
-/// What the recorder does with any of its sources.
-trait Drain {
-    fn topic(&self) -> &'static str;
-    fn count(&self) -> u64;
-    /// Writes every sample waiting; returns how many.
-    fn drain(&mut self, w: &mut Writer) -> anyhow::Result<u64>;
-}
-
-impl<T> Drain for Source<T>
-where
-    T: std::fmt::Debug + ZeroCopySend + Serialize + Copy + 'static,
-{
-    fn topic(&self) -> &'static str {
-        self.topic
+impl Recording {
+    /// Starts the file at `tmp` with a channel per service and one for the scene.
+    fn create(tmp: &Path, specs: &[Spec], settings: scene::Settings) -> anyhow::Result<Self> {
+        let file = File::create(tmp).with_context(|| format!("creating {}", tmp.display()))?;
+        let mut w = mcap::WriteOptions::new()
+            .profile("")
+            .library(concat!("softarm ", env!("CARGO_PKG_VERSION")))
+            .create(BufWriter::new(file))
+            .with_context(|| format!("starting the recording {}", tmp.display()))?;
+        let mut channels = Vec::new();
+        for s in specs {
+            let id = w.add_schema(s.schema_name, "jsonschema", s.schema.as_bytes())?;
+            channels.push((w.add_channel(id, s.topic, "json", &BTreeMap::new())?, 0));
+        }
+        let schema = foxglove::messages::SceneUpdate::get_schema()
+            .context("the foxglove crate has a schema for SceneUpdate")?;
+        let id = w.add_schema(&schema.name, &schema.encoding, &schema.data)?;
+        let encoding = foxglove::messages::SceneUpdate::get_message_encoding();
+        let scene_channel = (
+            w.add_channel(id, scene::TOPIC, &encoding, &BTreeMap::new())?,
+            0,
+        );
+        Ok(Self {
+            w,
+            channels,
+            scene: Scene::new(settings),
+            scene_channel,
+        })
     }
 
-    fn count(&self) -> u64 {
-        self.count
-    }
-
-    fn drain(&mut self, w: &mut Writer) -> anyhow::Result<u64> {
-        let mut n = 0;
-        while let Ok(Some(sample)) = self.sub.receive() {
-            let payload: T = *sample;
-            drop(sample);
-            let value = serde_json::to_value(payload)?;
-            let channel = match self.channel {
-                Some(c) => c,
-                None => {
-                    // SAFETY: only reads the name the payload declares (`#[type_name]`).
-                    let name = unsafe { <T as ZeroCopySend>::type_name() };
-                    let schema = json!({
-                        "$schema": "https://json-schema.org/draft/2020-12/schema",
-                        "title": name,
-                        "description": format!("softarm service `{}`: {name} (ipc/src/lib.rs)", self.topic),
-                    });
-                    let mut schema = schema;
-                    merge(&mut schema, schema_of(&value));
-                    let id = w.add_schema(name, "jsonschema", schema.to_string().as_bytes())?;
-                    let c = w.add_channel(id, self.topic, "json", &BTreeMap::new())?;
-                    self.channel = Some(c);
-                    c
-                }
-            };
-            let stamp = value["stamp_ns"].as_u64().unwrap_or(0);
-            w.write_to_known_channel(
-                &MessageHeader {
-                    channel_id: channel,
-                    sequence: self.count as u32,
-                    log_time: realtime_ns(),
-                    publish_time: stamp,
-                },
-                value.to_string().as_bytes(),
-            )?;
-            self.count += 1;
-            n += 1;
+    /// Writes every sample waiting and, when due, the scene; returns how many samples.
+    fn step(&mut self, services: &mut Services) -> anyhow::Result<u64> {
+        let n = services.drain(|i, p| {
+            self.scene.take(p);
+            let (channel, seq) = &mut self.channels[i];
+            write(&mut self.w, (*channel, seq), p.stamp_ns(), &p.json())
+        })?;
+        let now = Instant::now();
+        if self.scene.due(now) {
+            let realtime = realtime_ns();
+            let update = self.scene.update(now, realtime);
+            let mut bytes = Vec::with_capacity(update.encoded_len().unwrap_or(0));
+            update.encode(&mut bytes)?;
+            let (channel, seq) = &mut self.scene_channel;
+            write(&mut self.w, (*channel, seq), monotonic_ns(), &bytes)?;
         }
         Ok(n)
     }
-}
 
-fn merge(into: &mut Value, from: Value) {
-    if let (Value::Object(a), Value::Object(b)) = (into, from) {
-        a.extend(b);
+    fn finish(mut self) -> anyhow::Result<u32> {
+        self.w.finish()?;
+        let file = self
+            .w
+            .into_inner()
+            .into_inner()
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
+        file.sync_all()?;
+        Ok(self.scene_channel.1)
     }
 }
 
-/// A JSON Schema for values shaped like `v`: numbers that are not integers may be `null`
-/// (a NaN on the wire).
-fn schema_of(v: &Value) -> Value {
-    match v {
-        Value::Number(n) if n.is_u64() || n.is_i64() => json!({"type": "integer"}),
-        Value::Number(_) | Value::Null => json!({"type": ["number", "null"]}),
-        Value::Bool(_) => json!({"type": "boolean"}),
-        Value::String(_) => json!({"type": "string"}),
-        Value::Array(items) => json!({
-            "type": "array",
-            "minItems": items.len(),
-            "maxItems": items.len(),
-            "items": items.first().map_or(json!({}), schema_of),
-        }),
-        Value::Object(fields) => json!({
-            "type": "object",
-            "properties": fields.iter().map(|(k, v)| (k.clone(), schema_of(v))).collect::<serde_json::Map<_, _>>(),
-            "required": fields.keys().collect::<Vec<_>>(),
-        }),
-    }
+/// One message: `log_time` the wall clock now, `publish_time` the sample's stamp.
+fn write(
+    w: &mut Writer,
+    (channel, seq): (u16, &mut u32),
+    stamp: u64,
+    data: &[u8],
+) -> anyhow::Result<()> {
+    w.write_to_known_channel(
+        &MessageHeader {
+            channel_id: channel,
+            sequence: *seq,
+            log_time: realtime_ns(),
+            publish_time: stamp,
+        },
+        data,
+    )?;
+    *seq += 1;
+    Ok(())
 }
 
 fn realtime_ns() -> u64 {
@@ -147,17 +130,9 @@ fn realtime_ns() -> u64 {
         .map_or(0, |d| d.as_nanos() as u64)
 }
 
-fn source<T>(node: &Node, topic: &'static str, sub: Sub<T>) -> Box<dyn Drain>
-where
-    T: std::fmt::Debug + ZeroCopySend + Serialize + Copy + 'static,
-{
-    let _ = node;
-    Box::new(Source {
-        topic,
-        sub,
-        channel: None,
-        count: 0,
-    })
+/// The stamp of what the recorder makes itself (the scene): CLOCK_MONOTONIC like the samples'.
+fn monotonic_ns() -> u64 {
+    softarm_runtime::now_ns()
 }
 
 /// Where a recording is written until it is complete.
@@ -167,69 +142,40 @@ fn partial(out: &Path) -> PathBuf {
     PathBuf::from(name)
 }
 
-/// Records every pub/sub service of `namespace` into `out` until `stop` is set or `duration`
-/// has passed; returns the samples written per topic.
+/// Records every pub/sub service of `namespace` and the scene `settings` draws into `out`
+/// until `stop` is set or `duration` has passed; returns the messages written per topic.
 pub fn record(
     namespace: &Namespace,
     out: &Path,
+    settings: &scene::Settings,
     duration: Option<Duration>,
     stop: &AtomicBool,
 ) -> anyhow::Result<BTreeMap<String, u64>> {
     check_output(out)?;
     let node = Node::open(namespace.clone(), "record")?;
-    let mut sources: Vec<Box<dyn Drain>> = vec![
-        source(&node, "setpoint", node.subscriber(&node.setpoint()?)?),
-        source(&node, "tracker", node.subscriber(&node.tracker()?)?),
-        source(&node, "motor_state", node.subscriber(&node.motor_state()?)?),
-        source(&node, "cp_sample", node.subscriber(&node.cp_sample()?)?),
-        source(
-            &node,
-            "estimate_request",
-            node.subscriber(&node.estimate_request()?)?,
-        ),
-        source(&node, "estimate", node.subscriber(&node.estimate()?)?),
-        source(&node, "stats", node.subscriber(&node.stats()?)?),
-        source(&node, "status", node.subscriber(&node.status()?)?),
-        source(&node, "estop", node.subscriber(&node.estop()?)?),
-    ];
+    let mut services = Services::open(&node)?;
     let tmp = partial(out);
-    let file = File::create(&tmp).with_context(|| format!("creating {}", tmp.display()))?;
-    let mut w = mcap::WriteOptions::new()
-        .profile("")
-        .library(concat!("softarm ", env!("CARGO_PKG_VERSION")))
-        .create(BufWriter::new(file))
-        .with_context(|| format!("starting the recording {}", tmp.display()))?;
+    let mut r = Recording::create(&tmp, services.specs(), *settings)?;
     let start = Instant::now();
     let result = (|| -> anyhow::Result<()> {
         while !stop.load(Ordering::Relaxed) && duration.is_none_or(|d| start.elapsed() < d) {
-            let mut n = 0;
-            for s in sources.iter_mut() {
-                n += s.drain(&mut w)?;
-            }
-            if n == 0 {
+            if r.step(&mut services)? == 0 {
                 // Sensor topics arrive at up to 1 kHz into buffers of 4 or more.
                 std::thread::sleep(Duration::from_micros(500));
             }
         }
         // What arrived during the last pause.
-        for s in sources.iter_mut() {
-            s.drain(&mut w)?;
-        }
+        r.step(&mut services)?;
         Ok(())
     })();
-    let finished = result.and_then(|()| {
-        w.finish()?;
-        let file = w
-            .into_inner()
-            .into_inner()
-            .map_err(|e| anyhow::anyhow!("{e}"))?;
-        file.sync_all()?;
-        Ok(())
-    });
-    if let Err(e) = finished {
-        let _ = std::fs::remove_file(&tmp);
-        return Err(e.context(format!("recording {}", out.display())));
-    }
+    let finished = result.and_then(|()| r.finish());
+    let scenes = match finished {
+        Ok(n) => n,
+        Err(e) => {
+            let _ = std::fs::remove_file(&tmp);
+            return Err(e.context(format!("recording {}", out.display())));
+        }
+    };
     if let Err(e) = std::fs::rename(&tmp, out) {
         let _ = std::fs::remove_file(&tmp);
         return Err(e).with_context(|| format!("renaming {} into place", tmp.display()));
@@ -237,10 +183,9 @@ pub fn record(
     if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
         let _ = File::open(dir).and_then(|d| d.sync_all());
     }
-    Ok(sources
-        .iter()
-        .map(|s| (s.topic().to_string(), s.count()))
-        .collect())
+    let mut counts = services.counts();
+    counts.insert(scene::TOPIC.into(), u64::from(scenes));
+    Ok(counts)
 }
 
 /// Refuses, before anything is recorded, an output [`record`] could not write: a name not ending
@@ -253,7 +198,7 @@ pub fn check_output(out: &Path) -> anyhow::Result<()> {
     crate::check_output_path(out, "the recording")
 }
 
-/// One message of a recording: its topic and JSON.
+/// One message of a recording: its topic and JSON (`null` for the scene, which is protobuf).
 #[derive(Debug, Clone)]
 pub struct Message {
     pub topic: String,
@@ -262,7 +207,8 @@ pub struct Message {
     pub value: Value,
 }
 
-/// Every message of a recording, in file order.
+/// Every message of a recording, in file order; those of channels not in JSON (the scene) with
+/// the value `null`.
 pub fn read(path: &Path) -> anyhow::Result<Vec<Message>> {
     let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
     let mut out = Vec::new();
@@ -270,6 +216,15 @@ pub fn read(path: &Path) -> anyhow::Result<Vec<Message>> {
         .with_context(|| format!("{}: not an MCAP file", path.display()))?
     {
         let m = m.with_context(|| format!("{}: damaged", path.display()))?;
+        if m.channel.message_encoding != "json" {
+            out.push(Message {
+                topic: m.channel.topic.clone(),
+                log_time: m.log_time,
+                publish_time: m.publish_time,
+                value: Value::Null,
+            });
+            continue;
+        }
         let value = serde_json::from_slice(&m.data).with_context(|| {
             format!(
                 "{}: a message on {:?} is not JSON",
@@ -552,6 +507,7 @@ pub fn plot_data(messages: &[Message], title: &str) -> anyhow::Result<crate::plo
 /// then prints the channels' counts.
 pub fn run(
     namespace: &Namespace,
+    settings: &scene::Settings,
     output: &Path,
     duration: Option<f64>,
     stop: &AtomicBool,
@@ -566,7 +522,7 @@ pub fn run(
         ),
         None => None,
     };
-    let counts = record(namespace, output, duration, stop)?;
+    let counts = record(namespace, output, settings, duration, stop)?;
     summary(output, &counts, &mut std::io::stdout())?;
     Ok(())
 }

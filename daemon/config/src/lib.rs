@@ -30,9 +30,11 @@ pub const EXIT_CONFIG: u8 = 78;
 
 pub mod hardware;
 pub mod scenario;
+pub mod view;
 pub mod waypoints;
 
 use crate::hardware::{TendonConfig, TrackerConfig};
+use crate::view::ViewConfig;
 
 /// The drivers this build has: the simulated arm, or the real arm's motors and tracker.
 pub const DRIVERS: [&str; 3] = ["sim", "tendon", "tracker"];
@@ -78,6 +80,9 @@ pub struct Config {
     /// The tracker driver; required when `robot.drivers` has "tracker".
     #[serde(default)]
     pub tracker: Option<TrackerConfig>,
+    /// `softarm view`, the live view; off unless `view.enabled`.
+    #[serde(default)]
+    pub view: ViewConfig,
     /// Where relative paths start: the config file's folder.
     #[serde(skip)]
     pub base_dir: PathBuf,
@@ -475,6 +480,7 @@ impl Config {
         if let Some(t) = &self.tracker {
             t.validate()?;
         }
+        self.view.validate()?;
         Ok(())
     }
 }

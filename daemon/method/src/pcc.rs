@@ -313,6 +313,40 @@ impl ArmGeometry {
         let p = self.pose(a).position;
         [p.x, p.y, p.z]
     }
+
+    /// The backbone for a normalised actuation, base to tip, as four polylines in the base
+    /// frame (m): module 1 (`per_module` + 1 points along its arc), the connector, module 2
+    /// (the same), the tool. Each starts where the one before ends; the last point is
+    /// [`ArmGeometry::position`]. For drawing the arm.
+    pub fn backbone(&self, a: &[f64; ACTUATORS], per_module: usize) -> [Vec<[f64; 3]>; 4] {
+        let per_module = per_module.max(1);
+        let point = |p: &Pose| [p.position.x, p.position.y, p.position.z];
+        let arc = |from: &Pose, m: &Arc| -> Vec<[f64; 3]> {
+            (0..=per_module)
+                .map(|i| {
+                    let s = i as f64 / per_module as f64;
+                    let part = Arc {
+                        length: m.length * s,
+                        theta: m.theta * s,
+                        phi: m.phi,
+                    };
+                    point(&from.then(&Self::module_pose(&part)))
+                })
+                .collect()
+        };
+        let [m1, m2] = self.arcs_of_lengths(&self.lengths(a));
+        let base = self.base();
+        let end1 = base.then(&Self::module_pose(&m1));
+        let start2 = end1.then(&Pose::translation_z(self.connector_m));
+        let end2 = start2.then(&Self::module_pose(&m2));
+        let tip = end2.then(&Pose::translation_z(self.tool_m));
+        [
+            arc(&base, &m1),
+            vec![point(&end1), point(&start2)],
+            arc(&start2, &m2),
+            vec![point(&end2), point(&tip)],
+        ]
+    }
 }
 
 #[cfg(test)]
@@ -365,6 +399,36 @@ mod tests {
             let (f, g) = sinc_terms(theta);
             assert!((f - (1.0 - theta.cos()) / (theta * theta)).abs() < 1e-9);
             assert!((g - theta.sin() / theta).abs() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn the_backbone_runs_from_the_base_to_the_end_effector() {
+        let mut arm = ArmGeometry::default();
+        arm.actuator_offset_m[4] = 0.003;
+        let mut rng = StdRng::seed_from_u64(3);
+        for _ in 0..200 {
+            let a: [f64; 6] = std::array::from_fn(|_| rng.random());
+            let lines = arm.backbone(&a, 8);
+            assert_eq!(lines.iter().map(Vec::len).collect::<Vec<_>>(), [9, 2, 9, 2]);
+            close(lines[0][0], [0.0; 3], 1e-15);
+            for w in lines.windows(2) {
+                close(w[1][0], *w[0].last().unwrap(), 1e-15);
+            }
+            close(*lines[3].last().unwrap(), arm.position(&a), 1e-12);
+            // The arc's points lie on it: as long as the module's backbone.
+            let arc_length: f64 = lines[0]
+                .windows(2)
+                .map(|w| {
+                    (0..3)
+                        .map(|d| (w[1][d] - w[0][d]).powi(2))
+                        .sum::<f64>()
+                        .sqrt()
+                })
+                .sum();
+            let l = arm.lengths(&a);
+            let module = (l[0] + l[1] + l[2]) / 3.0;
+            assert!(arc_length <= module + 1e-12 && arc_length > 0.98 * module);
         }
     }
 

@@ -128,7 +128,8 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
     let recording_stop = Arc::new(AtomicBool::new(false));
     let recording = (!args.no_record).then(|| {
         let (ns, out, stop) = (ns.clone(), args.record.clone(), recording_stop.clone());
-        std::thread::spawn(move || record::record(&ns, &out, None, &stop))
+        let scene = softarm_clients::scene::Settings::of(config);
+        std::thread::spawn(move || record::record(&ns, &out, &scene, None, &stop))
     });
     let mut run_set = |file: &WaypointFile, executions: u32, sup: &mut Supervisor| {
         let rows = Rows {

@@ -263,11 +263,12 @@ pub fn sim_args(scenario: Option<&str>) -> Vec<String> {
         .unwrap_or_default()
 }
 
-/// Runs controller, learner and the configured drivers until SIGINT or SIGTERM; a scenario goes
-/// to the sim only.
+/// Runs controller, learner, the configured drivers and, if `view`, the live view until SIGINT
+/// or SIGTERM; a scenario goes to the sim only.
 pub fn run(
     common: Vec<String>,
     drivers: &[String],
+    view: bool,
     scenario: Option<&str>,
     stop: &AtomicBool,
 ) -> anyhow::Result<()> {
@@ -276,6 +277,7 @@ pub fn run(
         .iter()
         .map(String::as_str)
         .chain(["controller", "learner"])
+        .chain(view.then_some("view"))
     {
         let extra = if role == "sim" {
             sim_args(scenario)

@@ -1,0 +1,271 @@
+//! Every pub/sub service of a stack as a channel of a log, in one place for the two that log
+//! them: `softarm record` (an MCAP file) and `softarm view` (the Foxglove WebSocket protocol).
+//!
+//! A channel's topic is the service's name (`setpoint`, `tracker`, ...); its messages are JSON
+//! (`message_encoding = "json"`), one object per sample with the payload's field names
+//! (`ipc/src/lib.rs`), NaN as `null`; its schema is a JSON Schema (`encoding = "jsonschema"`)
+//! named after the payload's iceoryx2 type name (`softarm::Setpoint`, ...), made from the
+//! payload's type (its default value), so it is known before the first sample.
+//!
+//! The subscribers are one more reader of each service: they never publish, so the controller
+//! does not notice them; a reader that falls behind loses its own oldest samples (iceoryx2's
+//! safe overflow), never anyone else's.
+
+use std::collections::BTreeMap;
+
+use anyhow::Context;
+use serde::Serialize;
+use serde_json::{Value, json};
+use softarm_ipc::iceoryx2::prelude::ZeroCopySend;
+use softarm_ipc::{
+    ActuationEstimate, ConditioningSample, ControllerStatus, EstimateRequest, EstopState,
+    ExecutionStats, MotorState, Node, Setpoint, Sub, TrackerSample,
+};
+
+/// The topics, in the order they are opened.
+pub const TOPICS: [&str; 9] = [
+    "setpoint",
+    "tracker",
+    "motor_state",
+    "cp_sample",
+    "estimate_request",
+    "estimate",
+    "stats",
+    "status",
+    "estop",
+];
+
+/// What a log needs to declare a channel.
+#[derive(Debug, Clone)]
+pub struct Spec {
+    pub topic: &'static str,
+    /// The payload's iceoryx2 type name.
+    pub schema_name: &'static str,
+    /// The JSON Schema, as text.
+    pub schema: String,
+}
+
+/// A sample of any service, as it arrived.
+#[derive(Debug, Clone, Copy)]
+pub enum Payload {
+    Setpoint(Setpoint),
+    Tracker(TrackerSample),
+    MotorState(MotorState),
+    CpSample(ConditioningSample),
+    EstimateRequest(EstimateRequest),
+    Estimate(ActuationEstimate),
+    Stats(ExecutionStats),
+    Status(ControllerStatus),
+    Estop(EstopState),
+}
+
+macro_rules! each_payload {
+    ($p:expr, $v:ident => $e:expr) => {
+        match $p {
+            Payload::Setpoint($v) => $e,
+            Payload::Tracker($v) => $e,
+            Payload::MotorState($v) => $e,
+            Payload::CpSample($v) => $e,
+            Payload::EstimateRequest($v) => $e,
+            Payload::Estimate($v) => $e,
+            Payload::Stats($v) => $e,
+            Payload::Status($v) => $e,
+            Payload::Estop($v) => $e,
+        }
+    };
+}
+
+impl Payload {
+    /// The sample's own stamp (CLOCK_MONOTONIC, ns).
+    pub fn stamp_ns(&self) -> u64 {
+        each_payload!(self, v => v.stamp_ns)
+    }
+
+    /// The message: the payload as JSON, NaN as `null`.
+    pub fn json(&self) -> Vec<u8> {
+        let value = each_payload!(self, v => serde_json::to_value(v));
+        value
+            .expect("a payload of numbers and arrays is JSON")
+            .to_string()
+            .into_bytes()
+    }
+}
+
+/// A JSON Schema for values of `T`, from its default value: numbers that are not integers may
+/// be `null` (a NaN on the wire).
+fn schema<T: Serialize + Default + ZeroCopySend>(topic: &str) -> (&'static str, String) {
+    // SAFETY: only reads the name the payload declares (`#[type_name]`).
+    let name = unsafe { <T as ZeroCopySend>::type_name() };
+    let mut s = json!({
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        "title": name,
+        "description": format!("softarm service `{topic}`: {name} (ipc/src/lib.rs)"),
+    });
+    let shape = schema_of(&serde_json::to_value(T::default()).expect("a payload is JSON"));
+    if let (Value::Object(a), Value::Object(b)) = (&mut s, shape) {
+        a.extend(b);
+    }
+    (name, s.to_string())
+}
+
+/// A JSON Schema for values shaped like `v`.
+fn schema_of(v: &Value) -> Value {
+    match v {
+        Value::Number(n) if n.is_u64() || n.is_i64() => json!({"type": "integer"}),
+        Value::Number(_) | Value::Null => json!({"type": ["number", "null"]}),
+        Value::Bool(_) => json!({"type": "boolean"}),
+        Value::String(_) => json!({"type": "string"}),
+        Value::Array(items) => json!({
+            "type": "array",
+            "minItems": items.len(),
+            "maxItems": items.len(),
+            "items": items.first().map_or(json!({}), schema_of),
+        }),
+        Value::Object(fields) => json!({
+            "type": "object",
+            "properties": fields.iter().map(|(k, v)| (k.clone(), schema_of(v))).collect::<serde_json::Map<_, _>>(),
+            "required": fields.keys().collect::<Vec<_>>(),
+        }),
+    }
+}
+
+/// One subscription, typed.
+trait Receive {
+    fn take(&mut self) -> anyhow::Result<Option<Payload>>;
+}
+
+struct Source<T: std::fmt::Debug + ZeroCopySend + 'static> {
+    sub: Sub<T>,
+    wrap: fn(T) -> Payload,
+}
+
+impl<T: std::fmt::Debug + ZeroCopySend + Copy + 'static> Receive for Source<T> {
+    fn take(&mut self) -> anyhow::Result<Option<Payload>> {
+        match self.sub.receive() {
+            Ok(Some(sample)) => Ok(Some((self.wrap)(*sample))),
+            Ok(None) => Ok(None),
+            Err(e) => Err(anyhow::anyhow!("{e:?}")),
+        }
+    }
+}
+
+/// A subscriber of every pub/sub service of a namespace, with each channel's [`Spec`].
+pub struct Services {
+    specs: Vec<Spec>,
+    sources: Vec<Box<dyn Receive>>,
+    counts: Vec<u64>,
+}
+
+impl Services {
+    /// Subscribes to every service of `node`'s namespace, in the order of [`TOPICS`].
+    pub fn open(node: &Node) -> anyhow::Result<Self> {
+        let mut s = Self {
+            specs: Vec::new(),
+            sources: Vec::new(),
+            counts: Vec::new(),
+        };
+        s.add(node, "setpoint", node.setpoint(), Payload::Setpoint)?;
+        s.add(node, "tracker", node.tracker(), Payload::Tracker)?;
+        s.add(node, "motor_state", node.motor_state(), Payload::MotorState)?;
+        s.add(node, "cp_sample", node.cp_sample(), Payload::CpSample)?;
+        let req = node.estimate_request();
+        s.add(node, "estimate_request", req, Payload::EstimateRequest)?;
+        s.add(node, "estimate", node.estimate(), Payload::Estimate)?;
+        s.add(node, "stats", node.stats(), Payload::Stats)?;
+        s.add(node, "status", node.status(), Payload::Status)?;
+        s.add(node, "estop", node.estop(), Payload::Estop)?;
+        debug_assert!(s.specs.iter().map(|c| c.topic).eq(TOPICS));
+        Ok(s)
+    }
+
+    fn add<T>(
+        &mut self,
+        node: &Node,
+        topic: &'static str,
+        service: Result<softarm_ipc::PubSub<T>, softarm_ipc::Error>,
+        wrap: fn(T) -> Payload,
+    ) -> anyhow::Result<()>
+    where
+        T: std::fmt::Debug + ZeroCopySend + Serialize + Default + Copy + 'static,
+    {
+        let service = service.with_context(|| format!("the {topic} service"))?;
+        let sub = node
+            .subscriber(&service)
+            .with_context(|| format!("subscribing to {topic}"))?;
+        let (schema_name, schema) = schema::<T>(topic);
+        self.specs.push(Spec {
+            topic,
+            schema_name,
+            schema,
+        });
+        self.sources.push(Box::new(Source { sub, wrap }));
+        self.counts.push(0);
+        Ok(())
+    }
+
+    /// The channels, in the order of [`TOPICS`]; a sample's channel is its index here.
+    pub fn specs(&self) -> &[Spec] {
+        &self.specs
+    }
+
+    /// Hands every sample waiting to `f` (its channel's index and the payload), channel by
+    /// channel; returns how many there were.
+    pub fn drain(
+        &mut self,
+        mut f: impl FnMut(usize, &Payload) -> anyhow::Result<()>,
+    ) -> anyhow::Result<u64> {
+        let mut n = 0;
+        for (i, source) in self.sources.iter_mut().enumerate() {
+            while let Some(p) = source
+                .take()
+                .with_context(|| format!("receiving {}", self.specs[i].topic))?
+            {
+                f(i, &p)?;
+                self.counts[i] += 1;
+                n += 1;
+            }
+        }
+        Ok(n)
+    }
+
+    /// Samples received per topic so far.
+    pub fn counts(&self) -> BTreeMap<String, u64> {
+        self.specs
+            .iter()
+            .zip(&self.counts)
+            .map(|(s, n)| (s.topic.to_string(), *n))
+            .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_schema_is_known_before_any_sample_and_matches_the_messages() {
+        let (name, text) = schema::<MotorState>("motor_state");
+        assert_eq!(name, "softarm::MotorState.v4");
+        let s: Value = serde_json::from_str(&text).unwrap();
+        assert_eq!(s["title"], name);
+        assert_eq!(s["properties"]["seq"]["type"], "integer");
+        assert_eq!(s["properties"]["actuation"]["maxItems"], 6);
+        assert_eq!(
+            s["properties"]["current_a"]["items"]["type"],
+            json!(["number", "null"])
+        );
+        // A message has every field the schema requires, NaN as null.
+        let m = MotorState {
+            current_a: [f64::NAN; 6],
+            stamp_ns: 7,
+            ..Default::default()
+        };
+        let p = Payload::MotorState(m);
+        assert_eq!(p.stamp_ns(), 7);
+        let v: Value = serde_json::from_slice(&p.json()).unwrap();
+        for k in s["required"].as_array().unwrap() {
+            assert!(v.get(k.as_str().unwrap()).is_some(), "{k}");
+        }
+        assert_eq!(v["current_a"][0], Value::Null);
+    }
+}
