@@ -115,8 +115,11 @@ class Tally:
     """What the messages say: counts, the last status, the stats, the scene against the
     tracker."""
 
-    def __init__(self, decoders):
+    def __init__(self, decoders, decoded):
         self.decoders = decoders
+        # The JSON topics worth decoding: the rest are counted (a test beside others on two
+        # cores should not spend a core on JSON it does not look at).
+        self.decoded = decoded
         self.counts = {}
         self.bytes = 0
         self.status = None
@@ -130,7 +133,7 @@ class Tally:
         topic = channel["topic"]
         self.counts[topic] = self.counts.get(topic, 0) + 1
         self.bytes += len(data)
-        if channel["encoding"] == "json":
+        if channel["encoding"] == "json" and topic in self.decoded:
             v = json.loads(data)
             if topic == "status":
                 self.status = v
@@ -199,7 +202,8 @@ def session(client, args):
             print(f"{c['topic']:<17} {c['encoding']:<9} {c['schemaName']}")
     refusals(client)
     client.subscribe_all()
-    tally = Tally(decoders)
+    decoded = {"status", "stats", "tracker"} | ({"setpoint"} if args.slow else set())
+    tally = Tally(decoders, decoded)
     if args.slow:
         return slow(client, tally, args)
     start = last = time.monotonic()
