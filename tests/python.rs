@@ -52,7 +52,7 @@ pub(crate) fn python(modules: &[&str]) -> Option<String> {
 
 /// Runs `py <args>` from this package's folder (as the stack's processes run: iceoryx2 looks
 /// for `config/iceoryx2.toml` there first) and insists on success.
-fn run_python(py: &str, args: &[&str]) -> Output {
+pub fn run_python(py: &str, args: &[&str]) -> Output {
     let out = Command::new(py)
         .args(args)
         // No __pycache__ in the work tree.

@@ -23,7 +23,7 @@ use softarm_test_support::{
     DEMO_WAYPOINTS, Guard, TestStack, config_text, eventually, set_id, with_overrides,
 };
 
-use crate::python::python;
+use crate::python::{python, run_python};
 
 const BIN: &str = env!("CARGO_BIN_EXE_softarm");
 const CLIENT: &str = concat!(
@@ -60,20 +60,9 @@ fn url(s: &TestStack) -> String {
 
 /// `view_client.py ARGS`, which prints one JSON object.
 fn client(py: &str, url: &str, args: &[&str]) -> Value {
-    let out = Command::new(py)
-        .arg(CLIENT)
-        .args(["--url", url])
-        .args(args)
-        .env("PYTHONDONTWRITEBYTECODE", "1")
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "view_client.py {args:?}: {}\n{}{}",
-        out.status,
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let mut all = vec![CLIENT, "--url", url];
+    all.extend_from_slice(args);
+    let out = run_python(py, &all);
     serde_json::from_slice(&out.stdout)
         .unwrap_or_else(|e| panic!("not JSON ({e}): {}", String::from_utf8_lossy(&out.stdout)))
 }
