@@ -123,6 +123,7 @@ fn fresh_first(model: &Model, config: &Config, scenario: &str, set: &str) -> f64
         model.learner.clone(),
         model.kinematics.clone(),
         config.learner,
+        config.arm,
     )
     .unwrap();
     let learner = Learner::new(online, config);

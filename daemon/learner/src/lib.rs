@@ -26,6 +26,7 @@ use softarm_ipc::{
 use softarm_learning::cacla::{CaclaMtl, LearnerState};
 use softarm_learning::online::{ArmState, OnlineLearner};
 use softarm_method::learner_config::LearnerConfig;
+use softarm_method::pcc::ArmGeometry;
 use softarm_method::poly::Polynomial;
 use softarm_model::bundle::{BundleError, BundleWatch, Model, read_checkpoint, write_checkpoint};
 use softarm_runtime::now_ns;
@@ -36,16 +37,18 @@ struct Loaded {
 }
 
 /// The online learner of a trained `state` (a bundle's or a checkpoint's) with the runtime
-/// settings of `configured` (`runtime_config`), as the learner process runs it.
+/// settings of `configured` (`runtime_config`), steering its corrections by the configured
+/// `arm`, as the learner process runs it.
 pub fn online_learner(
     mut state: LearnerState,
     kinematics: Polynomial,
     configured: LearnerConfig,
+    arm: ArmGeometry,
 ) -> Result<OnlineLearner, String> {
     state.config = runtime_config(state.config, configured);
     let cacla = CaclaMtl::restore(&state)?;
     tracing::info!(algorithm = state.config.algorithm.name(), "online learner");
-    Ok(OnlineLearner::new(cacla, kinematics))
+    Ok(OnlineLearner::new(cacla, kinematics, arm))
 }
 
 /// The checkpoint if it descends from the bundle in `model_dir`, else the bundle's learner.
@@ -74,12 +77,13 @@ fn load(config: &Config) -> Result<Loaded, BundleError> {
             (model.learner.clone(), ArmState::default())
         }
     };
-    let mut online = online_learner(state, model.kinematics, config.learner).map_err(|why| {
-        BundleError::Invalid {
-            path: model_dir.clone(),
-            why,
-        }
-    })?;
+    let mut online =
+        online_learner(state, model.kinematics, config.learner, config.arm).map_err(|why| {
+            BundleError::Invalid {
+                path: model_dir.clone(),
+                why,
+            }
+        })?;
     online.restore_arm(&arm);
     Ok(Loaded {
         learner: Learner::new(online, config),

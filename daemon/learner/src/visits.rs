@@ -504,7 +504,7 @@ mod tests {
                 .collect();
             let p: Vec<_> = a.iter().map(|a| arm.position(a)).collect();
             let poly = Polynomial::fit(&a, &p, &PolynomialConfig::default()).unwrap();
-            OnlineLearner::new(CaclaMtl::new(LearnerConfig::default()).unwrap(), poly)
+            OnlineLearner::new(CaclaMtl::new(LearnerConfig::default()).unwrap(), poly, arm)
         }
 
         fn value() -> impl Strategy<Value = f64> {

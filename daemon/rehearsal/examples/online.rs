@@ -61,6 +61,7 @@ fn rehearsal<'a>(
         model.learner.clone(),
         model.kinematics.clone(),
         config.learner,
+        config.arm,
     )
     .map_err(anyhow::Error::msg)?;
     Rehearsal::new(model, config, Learner::new(online, config), arm, sim)

@@ -31,7 +31,7 @@ use softarm_clients::watch::{Limits, Watch};
 use softarm_clients::{stats, status, submit};
 use softarm_config::DEFAULT;
 use softarm_config::scenario::Scenario;
-use softarm_config::waypoints::{Point, WaypointFile};
+use softarm_config::waypoints::WaypointFile;
 use softarm_ipc::{ControllerStatus, Node, Sub, TrackerSample};
 use softarm_model::bundle::{Model, read_checkpoint};
 use softarm_runtime::now_ns;
@@ -510,7 +510,7 @@ impl<'a> Soak<'a> {
         let file = if self.report.sets_submitted.is_multiple_of(3) {
             self.demo_set.clone()
         } else {
-            variation(&self.demo_set, &mut self.rng)
+            self.demo_set.variation(&mut self.rng)
         };
         let executions = self.rng.random_range(3..=6);
         let set = file.to_set(executions).map_err(anyhow::Error::msg)?;
@@ -696,24 +696,6 @@ fn next_kill(args: &Args, rng: &mut StdRng) -> Option<Instant> {
     (args.kill_every_s > 0.0).then(|| {
         Instant::now() + Duration::from_secs_f64(args.kill_every_s * rng.random_range(0.5..1.5))
     })
-}
-
-fn variation(base: &WaypointFile, rng: &mut StdRng) -> WaypointFile {
-    let mut point: Vec<Point> = base
-        .point
-        .iter()
-        .map(|p| Point {
-            t_s: p.t_s,
-            position_m: p.position_m.map(|v| v + rng.random_range(-0.025..0.025)),
-        })
-        .collect();
-    if point.len() > 2 && rng.random_bool(0.3) {
-        point.remove(rng.random_range(0..point.len()));
-    }
-    WaypointFile {
-        duration_s: base.duration_s,
-        point,
-    }
 }
 
 #[cfg(test)]
