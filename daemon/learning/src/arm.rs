@@ -192,6 +192,8 @@ const RECENT: usize = 16;
 /// Checks of the arm remembered; this many of them disagreeing say the arm changed.
 const CHECKS: usize = 8;
 const DISAGREEING: usize = 6;
+/// Checks older than this (ns) no longer count: a change is seen within a still moment.
+const CHECKS_KEPT_NS: u64 = 2_000_000_000;
 /// A sample older than this (ns) is not compared with: the arm creeps, and what it did an hour
 /// ago at an actuation is not evidence against the arm now.
 const FOOTPRINT_AGE_NS: u64 = 600_000_000_000;
@@ -210,8 +212,8 @@ pub struct Footprint {
     recent: Vec<(u64, Actuation)>,
     /// The sample before this one.
     last: Option<(u64, Actuation, Position)>,
-    /// The last checks, `true` where the arm disagreed with its footprint.
-    checks: [bool; CHECKS],
+    /// The last checks: when, and `true` where the arm disagreed with its footprint.
+    checks: [(u64, bool); CHECKS],
     next_check: usize,
 }
 
@@ -279,7 +281,7 @@ impl Footprint {
             // Nothing known here. Not taken in while recent checks disagree: the noise of a
             // changed arm held still would otherwise seed a neighbourhood of its own beside the
             // old arm's, and the checks would find the new one as often as the old.
-            if !self.checks.contains(&true) {
+            if self.disagreeing(stamp_ns) == 0 {
                 self.keep(stamp_ns, actuation, position);
             }
             return Seen::Nothing;
@@ -291,20 +293,31 @@ impl Footprint {
         }
         let off = distance(&self.samples[i].position, position);
         let differs = off > threshold_m;
-        self.checks[self.next_check] = differs;
+        self.checks[self.next_check] = (stamp_ns, differs);
         self.next_check = (self.next_check + 1) % CHECKS;
         if !differs {
             self.samples[i].take_in(stamp_ns, actuation, position);
             return Seen::Same;
         }
-        if self.checks.iter().filter(|d| **d).count() < DISAGREEING {
+        if self.disagreeing(stamp_ns) < DISAGREEING {
             // Not taken in: a footprint that took in the changed arm would not see the change.
             return Seen::Different(off);
         }
         self.samples.clear();
-        self.checks = [false; CHECKS];
+        self.checks = [(0, false); CHECKS];
         self.keep(stamp_ns, actuation, position);
         Seen::Changed(off)
+    }
+
+    /// Recent checks (within [`CHECKS_KEPT_NS`] of `stamp_ns`) that disagreed. Older ones are
+    /// forgotten: a disagreement that no check followed up (the arm went where nothing is
+    /// known) would otherwise keep anything new from being taken in, and so keep the arm from
+    /// ever being checked again (measured: no check for the last 7 of 12 minutes of a soak).
+    fn disagreeing(&self, stamp_ns: u64) -> usize {
+        self.checks
+            .iter()
+            .filter(|(t, d)| *d && stamp_ns.saturating_sub(*t) <= CHECKS_KEPT_NS)
+            .count()
     }
 
     /// After a gap in the samples (a driver restarting, the arm changed meanwhile), the last
@@ -401,6 +414,31 @@ mod tests {
         (0..ms / 5)
             .map(|k| f.observe(0.004, t0 + k * 5 * MS, a, &arm.position(a)))
             .collect()
+    }
+
+    #[test]
+    fn a_disagreement_left_alone_is_forgotten_and_the_arm_still_checked() {
+        let model = ArmGeometry::default();
+        let mut f = Footprint::default();
+        let a = [0.4, 0.6, 0.5, 0.55, 0.45, 0.5];
+        hold(&mut f, &model, &a, 0, 200);
+        // One sample 10 mm off where the arm stood (a bump), and the arm goes elsewhere.
+        let mut bumped = model.position(&a);
+        bumped[0] += 0.01;
+        assert!(matches!(
+            f.observe(0.004, 200 * MS, &a, &bumped),
+            Seen::Different(_)
+        ));
+        let b = [0.6, 0.4, 0.5, 0.45, 0.55, 0.5];
+        hold(&mut f, &model, &b, 3_000 * MS, 3_000);
+        // Where it went is known, so a change there is seen.
+        let mut longer = model;
+        longer.tool_m += 0.02;
+        let seen = hold(&mut f, &longer, &b, 6_000 * MS, 200);
+        assert!(
+            seen.iter().any(|s| matches!(s, Seen::Changed(_))),
+            "{seen:?}"
+        );
     }
 
     #[test]

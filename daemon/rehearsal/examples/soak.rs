@@ -84,6 +84,7 @@ fn main() -> anyhow::Result<()> {
     let (mut sets, mut over, mut worse, mut from_third) = (0, 0, 0, 0);
     let mut name = "nominal".to_string();
     while t_s < minutes * 60.0 {
+        let changes = r.learner().arm_changes();
         if t_s >= next_change_s {
             let s = Scenario::resolve(scenarios[next % scenarios.len()])?;
             (arm, _) = s.apply(&config.arm, &config.sim)?;
@@ -98,7 +99,6 @@ fn main() -> anyhow::Result<()> {
             demo.variation(&mut rng)
         };
         let executions = rng.random_range(3..=6);
-        let changes = r.learner().arm_changes();
         let stats = r.rehearse(&set, executions)?;
         let fresh = Rehearsal::new(
             &model,
