@@ -46,7 +46,8 @@ pub struct Report {
 }
 
 /// The sets that ran on one scenario's arm: the mean error at the conditioning points of their
-/// first and of their last executions (mm), over the sets that ran at least twice.
+/// first and of their last executions (mm), over the sets that ran at least twice (executions
+/// without a tracker, a sim being restarted, left out).
 #[derive(Debug, Clone, Default, Serialize)]
 pub struct Learning {
     pub scenario: String,
@@ -54,6 +55,10 @@ pub struct Learning {
     pub executions: u64,
     pub first_mm: f64,
     pub last_mm: f64,
+    /// Sets that ran at least twice.
+    pub twice: u64,
+    /// Of those, the sets whose last execution was over [`BACK_UNDER_MM`].
+    pub over: u64,
 }
 
 /// The mean error an arm change must be brought back under (mm).
@@ -94,7 +99,12 @@ pub(super) fn learning(scenarios: &[String], sets: &[SetSeen]) -> Vec<Learning> 
             let mine: Vec<_> = sets.iter().filter(|x| x.scenario == i).collect();
             let twice: Vec<_> = mine.iter().filter(|x| x.executions >= 2).collect();
             let mean = |f: &dyn Fn(&SetSeen) -> f64| {
-                twice.iter().map(|x| f(x)).sum::<f64>() / twice.len().max(1) as f64
+                let finite: Vec<f64> = twice
+                    .iter()
+                    .map(|x| f(x))
+                    .filter(|v| v.is_finite())
+                    .collect();
+                finite.iter().sum::<f64>() / finite.len().max(1) as f64
             };
             (!mine.is_empty()).then(|| Learning {
                 scenario: name.clone(),
@@ -102,6 +112,8 @@ pub(super) fn learning(scenarios: &[String], sets: &[SetSeen]) -> Vec<Learning> 
                 executions: mine.iter().map(|x| u64::from(x.executions)).sum(),
                 first_mm: mean(&|x| x.first_mm),
                 last_mm: mean(&|x| x.last_mm),
+                twice: twice.len() as u64,
+                over: twice.iter().filter(|x| x.last_mm > BACK_UNDER_MM).count() as u64,
             })
         })
         .collect()
@@ -143,8 +155,8 @@ pub(super) fn print_report(r: &Report) {
     for l in &r.learning {
         println!(
             "  {:<20} {} sets, {} executions: mean error {:.2} mm on a set's first execution, \
-             {:.2} mm on its last",
-            l.scenario, l.sets, l.executions, l.first_mm, l.last_mm
+             {:.2} mm on its last; {} of {} sets ended over {BACK_UNDER_MM} mm",
+            l.scenario, l.sets, l.executions, l.first_mm, l.last_mm, l.over, l.twice
         );
     }
     for c in &r.arm_changes {
