@@ -62,8 +62,13 @@ impl Learner {
         measured: &Actuation,
         position: &Position,
     ) -> Vec<ActuationEstimate> {
-        let Seen::Changed(off) = self.online.observe_arm(stamp_ns, measured, position) else {
-            return Vec::new();
+        let off = match self.online.observe_arm(stamp_ns, measured, position) {
+            Seen::Changed(off) => off,
+            Seen::Different(off) => {
+                tracing::debug!(off_mm = off * 1e3, "the arm is not where it was");
+                return Vec::new();
+            }
+            _ => return Vec::new(),
         };
         self.arm_changes += 1;
         let estimates = self.online.first_estimates();

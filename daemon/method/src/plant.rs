@@ -403,6 +403,37 @@ mod tests {
         assert!((last - 1.0).abs() < 1e-3, "settles: {last}");
     }
 
+    /// What the sim driver relies on when it wakes late and steps by all the time that passed:
+    /// one step of 5 dt goes as far as five of dt (lag exactly, the rate limit too).
+    #[test]
+    fn one_long_step_goes_as_far_as_the_short_ones_it_stands_for() {
+        for realism in [
+            Realism {
+                lag_s: 0.02,
+                ..Realism::ideal()
+            },
+            Realism {
+                rate_limit_per_s: 2.0,
+                ..Realism::ideal()
+            },
+        ] {
+            let start = [0.2; ACTUATORS];
+            let mut short = Plant::new(ArmGeometry::default(), realism, start).unwrap();
+            let mut long = Plant::new(ArmGeometry::default(), realism, start).unwrap();
+            let mut m = short.step(&[0.8; ACTUATORS], 0.005);
+            for _ in 1..5 {
+                m = short.step(&[0.8; ACTUATORS], 0.005);
+            }
+            let l = long.step(&[0.8; ACTUATORS], 0.025);
+            for i in 0..ACTUATORS {
+                assert!(
+                    (m.actuation[i] - l.actuation[i]).abs() < 1e-12,
+                    "{realism:?}"
+                );
+            }
+        }
+    }
+
     #[test]
     fn backlash_swallows_small_reversals() {
         let realism = Realism {

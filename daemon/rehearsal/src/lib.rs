@@ -24,10 +24,14 @@ use softarm_model::bundle::Model;
 
 const NS_PER_S: f64 = 1e9;
 
-/// How long the arm stands between a change and the next set: a sim driver restarting with
-/// another scenario takes longer than this to publish again (process start, iceoryx2 node, a
-/// 100 ms wait for a running controller's setpoint).
-pub const CHANGE_HOLD_NS: u64 = 200_000_000;
+/// How long no sample comes while the sim driver restarts as another arm (measured in `softarm
+/// soak`: 57 ms from the old sim stopping to the new one starting where the controller holds
+/// the arm).
+pub const SIM_AWAY_NS: u64 = 60_000_000;
+
+/// How long the restarted sim publishes the held arm before the next set moves it (measured in
+/// `softarm soak`: the set accepted 85 ms after the new sim said it was running).
+pub const CHANGE_HOLD_NS: u64 = 80_000_000;
 
 /// How long the arm holds between two sets: `softarm submit --wait` returning on the set's
 /// last stats, the next `submit` starting and the controller planning its set take longer.
@@ -65,6 +69,13 @@ impl SimArm {
             command,
             newest,
         })
+    }
+
+    /// No step and no sample up to `now_ns`: the sim driver is away (the arm holds).
+    fn away_until(&mut self, now_ns: u64) {
+        while self.due_ns <= now_ns {
+            self.due_ns += self.period_ns;
+        }
     }
 
     /// Every step whose deadline is at or before `now_ns`: a sample published at the instant
@@ -147,14 +158,17 @@ impl<'a> Rehearsal<'a> {
         std::mem::replace(&mut self.learner, learner)
     }
 
-    /// The sim's arm changes between sets, as when the sim restarts with another scenario.
-    /// The sim's arm held where it was for [`CHANGE_HOLD_NS`], as the stack's is while its sim
-    /// restarts; the learner watches it (no set runs, so what it would send goes nowhere).
+    /// The sim's arm changes between sets, as when the sim restarts with another scenario: no
+    /// sample for [`SIM_AWAY_NS`], then the arm held where it was for [`CHANGE_HOLD_NS`] before
+    /// the next set, as the stack's; the learner watches it (no set runs, so what it would send
+    /// goes nowhere).
     pub fn change_arm(&mut self, arm: ArmGeometry) -> anyhow::Result<()> {
         self.arm
             .plant
             .set_geometry(arm)
             .map_err(anyhow::Error::msg)?;
+        self.now_ns += SIM_AWAY_NS;
+        self.arm.away_until(self.now_ns);
         self.now_ns += CHANGE_HOLD_NS;
         self.hold();
         Ok(())

@@ -67,7 +67,12 @@ pub fn run(
         "sim running"
     );
     while !stop.load(Ordering::Relaxed) {
-        ticker.wait();
+        // A sim woken late steps its plant by all the time that passed: a real arm moves on
+        // while its driver waits for a CPU, and a plant stepped by one period per late wake
+        // ran slower than the wall clock, so under load the arm fell behind its setpoints by
+        // tens of millimetres at a conditioning point (seen: 52 mm at one point of a demo).
+        let wake = ticker.wait();
+        let dt = dt * (wake.missed + 1) as f64;
         // The sim follows whatever is fresh; a stale setpoint only at its start.
         let poll = commands.poll(now_ns(), 1_000_000_000);
         if let Some(a) = poll.setpoint {
