@@ -431,8 +431,8 @@ class ReqResSettings:
 
 SERVICES: dict[str, PubSubSettings] = {
     "setpoint": PubSubSettings(Setpoint, history=1, buffer=4, publishers=2),
-    "tracker": PubSubSettings(TrackerSample, history=1, buffer=8, publishers=2),
-    "motor_state": PubSubSettings(MotorState, history=1, buffer=8, publishers=2),
+    "tracker": PubSubSettings(TrackerSample, history=1, buffer=64, publishers=2),
+    "motor_state": PubSubSettings(MotorState, history=1, buffer=64, publishers=2),
     "cp_sample": PubSubSettings(ConditioningSample, history=0, buffer=64, publishers=2),
     "estimate_request": PubSubSettings(EstimateRequest, history=0, buffer=8, publishers=2),
     "estimate": PubSubSettings(ActuationEstimate, history=0, buffer=64, publishers=2),

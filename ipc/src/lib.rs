@@ -473,6 +473,12 @@ pub type Client<Q, R> = iceoryx2::port::client::Client<ipc::Service, Q, (), R, (
 /// A process's iceoryx2 node in its stack's namespace, and the one place each service is opened
 /// with its settings. The node's name is `<namespace>/<role>`, so `softarm status` can tell which
 /// processes of which stack are alive.
+/// Samples of `tracker` and `motor_state` a subscriber can fall behind by without losing one:
+/// 320 ms at the sim's 200 Hz. The learner's footprint needs every sample of the arm held still
+/// between two sets (about 100 ms when the sim is restarted as another arm): with 8, a learner
+/// kept from its CPU for 40 ms on a loaded machine lost them and missed the change.
+pub const ARM_BUFFER: usize = 64;
+
 pub struct Node {
     pub node: IoxNode,
     pub namespace: Namespace,
@@ -537,14 +543,15 @@ impl Node {
         self.pubsub("setpoint", 1, 4, 2, MAX_SUBSCRIBERS)
     }
 
-    /// `tracker`: from sim or the tracker driver.
+    /// `tracker`: from sim or the tracker driver. A subscriber may fall [`ARM_BUFFER`] samples
+    /// behind without losing one.
     pub fn tracker(&self) -> Result<PubSub<TrackerSample>, Error> {
-        self.pubsub("tracker", 1, 8, 2, MAX_SUBSCRIBERS)
+        self.pubsub("tracker", 1, ARM_BUFFER, 2, MAX_SUBSCRIBERS)
     }
 
     /// `motor_state`: from sim or the tendon driver.
     pub fn motor_state(&self) -> Result<PubSub<MotorState>, Error> {
-        self.pubsub("motor_state", 1, 8, 2, MAX_SUBSCRIBERS)
+        self.pubsub("motor_state", 1, ARM_BUFFER, 2, MAX_SUBSCRIBERS)
     }
 
     /// `cp_sample`: controller → learner at each conditioning point; none may be lost.

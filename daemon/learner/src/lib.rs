@@ -201,8 +201,9 @@ impl Checkpoints {
 
 /// What the controller sent, merged from the two services.
 // A few at a time in a reused buffer: boxing the large variant would only add allocations.
-/// Motor samples kept for pairing: 40 ms at the sim's 200 Hz.
-const MOTOR_SAMPLES: usize = 8;
+/// Motor samples kept for pairing: as many as the service buffers, so that every tracker sample
+/// of a backlog finds its motor sample.
+const MOTOR_SAMPLES: usize = softarm_ipc::ARM_BUFFER;
 /// A tracker and a motor sample this close (ns) are of the same moment of the arm.
 const PAIRED_NS: u64 = 10_000_000;
 

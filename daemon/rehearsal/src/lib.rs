@@ -24,6 +24,10 @@ use softarm_model::bundle::Model;
 
 const NS_PER_S: f64 = 1e9;
 
+/// How long the arm holds after a set's end before a sim driver restarted as another arm
+/// stops (measured in `softarm soak`: 51 ms from the set's end to the old sim stopping).
+pub const END_HOLD_NS: u64 = 50_000_000;
+
 /// How long no sample comes while the sim driver restarts as another arm (measured in `softarm
 /// soak`: 57 ms from the old sim stopping to the new one starting where the controller holds
 /// the arm).
@@ -115,6 +119,9 @@ pub struct Rehearsal<'a> {
     /// The tracker samples the tick has read, as the controller's inputs keep them.
     track: Track,
     next_set_id: u64,
+    /// A set ended and the arm has not held since: [`SET_GAP_NS`] before the next set, or
+    /// [`END_HOLD_NS`] before a change of the arm.
+    gap_due: bool,
 }
 
 impl<'a> Rehearsal<'a> {
@@ -146,6 +153,7 @@ impl<'a> Rehearsal<'a> {
             now_ns: 0,
             track: Track::default(),
             next_set_id: 0,
+            gap_due: false,
         })
     }
 
@@ -158,11 +166,17 @@ impl<'a> Rehearsal<'a> {
         std::mem::replace(&mut self.learner, learner)
     }
 
-    /// The sim's arm changes between sets, as when the sim restarts with another scenario: no
-    /// sample for [`SIM_AWAY_NS`], then the arm held where it was for [`CHANGE_HOLD_NS`] before
-    /// the next set, as the stack's; the learner watches it (no set runs, so what it would send
-    /// goes nowhere).
+    /// The sim's arm changes between sets, as when `softarm soak` restarts the sim with another
+    /// scenario: the arm held for [`END_HOLD_NS`] after the last set, no sample for
+    /// [`SIM_AWAY_NS`], then the arm held where it was for [`CHANGE_HOLD_NS`] before the next
+    /// set, as the stack's; the learner watches it (no set runs, so what it would send goes
+    /// nowhere).
     pub fn change_arm(&mut self, arm: ArmGeometry) -> anyhow::Result<()> {
+        if self.gap_due {
+            self.now_ns += END_HOLD_NS;
+            self.hold();
+            self.gap_due = false;
+        }
         self.arm
             .plant
             .set_geometry(arm)
@@ -182,15 +196,19 @@ impl<'a> Rehearsal<'a> {
         executions: u32,
     ) -> anyhow::Result<Vec<ExecutionStats>> {
         let set = set.to_set(executions).map_err(anyhow::Error::msg)?;
+        if self.gap_due {
+            // The arm holds where the last set left it until this one is admitted.
+            self.now_ns += SET_GAP_NS;
+            self.hold();
+            self.gap_due = false;
+        }
         let (mut execution, mut replanner) = self.start(&set)?;
         let mut stats = Vec::with_capacity(executions as usize);
         // The tick ends a set between executions once every one has run.
         while !(execution.at_boundary(self.rest_ticks) && execution.through()) {
             stats.extend(self.tick(&mut execution, &mut replanner));
         }
-        // The arm holds where the set left it until the next is admitted.
-        self.now_ns += SET_GAP_NS;
-        self.hold();
+        self.gap_due = true;
         Ok(stats)
     }
 
