@@ -6,7 +6,9 @@
 
 use nalgebra::DMatrix;
 
+use softarm_method::forward::ForwardModel;
 use softarm_method::learner_config::GaussNewtonConfig;
+use softarm_method::pcc::ArmGeometry;
 use softarm_method::space::{ACTUATORS, Actuation, Position, distance};
 
 /// Targets closer than this are the same point of the corrections (m).
@@ -170,6 +172,15 @@ pub const FOOTPRINT_SAMPLES: usize = 256;
 /// trained model's slope is not used to carry a sample further: off the demonstrations it is
 /// wrong by more than the changes to be seen).
 const NEIGHBOURHOOD: f64 = 0.005;
+/// A still arm is checked against a kept sample this near (normalised, Euclidean), carried
+/// there by the configured arm's slope: a sim restarted as another arm starts at the setpoint
+/// the controller holds, not where the lagging actuators were (backlash, the disturbance),
+/// about 0.005 away, and sets moved a little start from rest postures as near; checked only
+/// within a neighbourhood, the changes at a sim's restart went unseen (1 of 5 in a soak).
+const CHECK_REACH: f64 = 0.03;
+/// How wrong the configured arm's slope may be, as a fraction of what it predicts (another
+/// tool, a curvature that is not constant).
+const SLOPE_DOUBT: f64 = 0.5;
 /// Samples of a neighbourhood averaged, at most.
 const AVERAGED: u32 = 16;
 /// A sample is checked against the footprint only while the actuators move slower than this
@@ -258,6 +269,7 @@ impl Footprint {
     /// footprint and kept when the arm stands still and agrees.
     pub fn observe(
         &mut self,
+        arm: &ArmGeometry,
         threshold_m: f64,
         stamp_ns: u64,
         actuation: &Actuation,
@@ -275,28 +287,42 @@ impl Footprint {
             .enumerate()
             .filter(|(_, s)| stamp_ns.saturating_sub(s.stamp_ns) <= FOOTPRINT_AGE_NS)
             .map(|(i, s)| (i, actuation_distance(&s.actuation, actuation)))
-            .filter(|(_, d)| *d <= NEIGHBOURHOOD)
+            .filter(|(_, d)| *d <= CHECK_REACH)
             .min_by(|a, b| a.1.total_cmp(&b.1));
-        let Some((i, _)) = nearest else {
-            // Nothing known here. Not taken in while recent checks disagree: the noise of a
-            // changed arm held still would otherwise seed a neighbourhood of its own beside the
-            // old arm's, and the checks would find the new one as often as the old.
-            if self.disagreeing(stamp_ns) == 0 {
-                self.keep(stamp_ns, actuation, position);
+        let known = nearest.is_some_and(|(_, d)| d <= NEIGHBOURHOOD);
+        // Nothing new is taken in while recent checks disagree: the noise of a changed arm held
+        // still would otherwise seed neighbourhoods of its own beside the old arm's, and the
+        // checks would find the new one as often as the old.
+        let may_keep = self.disagreeing(stamp_ns) == 0;
+        let i = match nearest {
+            // Kept where nothing was known within reach of a check, never checked nor averaged
+            // in while moving: a changed arm moving through what the old one did must not blur
+            // it, nor seed a sample of its own there that the next still checks would agree with
+            // (a restarted sim's first sample, moving at 0.102 per s, hid a tool change so).
+            _ if speed >= STILL_PER_S => {
+                if nearest.is_none() && may_keep {
+                    self.keep(stamp_ns, actuation, position);
+                }
+                return Seen::Nothing;
             }
-            return Seen::Nothing;
+            Some((i, _)) => i,
+            None => {
+                if may_keep {
+                    self.keep(stamp_ns, actuation, position);
+                }
+                return Seen::Nothing;
+            }
         };
-        if speed >= STILL_PER_S {
-            // Kept where nothing was known, never checked nor averaged in while moving: a
-            // changed arm moving through what the old one did must not blur it.
-            return Seen::Nothing;
-        }
-        let off = distance(&self.samples[i].position, position);
-        let differs = off > threshold_m;
+        let (off, allowed) = self.samples[i].compare(arm, threshold_m, actuation, position);
+        let differs = off > allowed;
         self.checks[self.next_check] = (stamp_ns, differs);
         self.next_check = (self.next_check + 1) % CHECKS;
         if !differs {
-            self.samples[i].take_in(stamp_ns, actuation, position);
+            if known {
+                self.samples[i].take_in(stamp_ns, actuation, position);
+            } else if may_keep {
+                self.keep(stamp_ns, actuation, position);
+            }
             return Seen::Same;
         }
         if self.disagreeing(stamp_ns) < DISAGREEING {
@@ -330,7 +356,9 @@ impl Footprint {
             return;
         };
         let gap = stamp_ns.saturating_sub(t) >= GAP_NS;
-        let near = actuation_distance(&a, actuation) <= NEIGHBOURHOOD;
+        // A restarted sim starts at the held setpoint, a few thousandths from where the
+        // lagging actuators were.
+        let near = actuation_distance(&a, actuation) <= CHECK_REACH;
         let known = self
             .samples
             .iter()
@@ -378,6 +406,27 @@ impl Footprint {
 }
 
 impl Sample {
+    /// How far `position` is from where this sample says the arm is at `actuation`, and how
+    /// far it may be: the sample carried to `actuation` by the configured arm's slope, within
+    /// `threshold_m` plus half of the distance carried (the configured arm is only roughly the
+    /// real one). Within a neighbourhood that is the threshold alone.
+    fn compare(
+        &self,
+        arm: &ArmGeometry,
+        threshold_m: f64,
+        actuation: &Actuation,
+        position: &Position,
+    ) -> (f64, f64) {
+        let da =
+            nalgebra::SVector::<f64, ACTUATORS>::from_fn(|i, _| actuation[i] - self.actuation[i]);
+        let moved = arm.jacobian(&self.actuation) * da;
+        let predicted: Position = std::array::from_fn(|d| self.position[d] + moved[d]);
+        (
+            distance(&predicted, position),
+            threshold_m + SLOPE_DOUBT * moved.norm(),
+        )
+    }
+
     /// Averages in another sample of the same neighbourhood: over the last [`AVERAGED`] or so,
     /// so that one noisy tracker sample is not what the arm is judged by, and a creeping arm
     /// is followed.
@@ -412,8 +461,45 @@ mod tests {
     /// `arm` held at `a` for `ms`, sampled every 5 ms from `t0`; what the footprint said last.
     fn hold(f: &mut Footprint, arm: &ArmGeometry, a: &Actuation, t0: u64, ms: u64) -> Vec<Seen> {
         (0..ms / 5)
-            .map(|k| f.observe(0.004, t0 + k * 5 * MS, a, &arm.position(a)))
+            .map(|k| {
+                f.observe(
+                    &ArmGeometry::default(),
+                    0.004,
+                    t0 + k * 5 * MS,
+                    a,
+                    &arm.position(a),
+                )
+            })
             .collect()
+    }
+
+    /// A sim restarted as another arm starts at the setpoint the controller holds, a few
+    /// thousandths from where the lagging actuators were: checked there by the configured
+    /// arm's slope, the change is seen, and the same arm a little off is not one.
+    #[test]
+    fn an_arm_back_a_little_off_where_it_stood_is_checked_by_the_arms_slope() {
+        let model = ArmGeometry::default();
+        let a = [0.4, 0.6, 0.5, 0.55, 0.45, 0.5];
+        let off: Actuation = std::array::from_fn(|i| a[i] + [0.004, -0.004][i % 2]);
+        let mut longer = model;
+        longer.tool_m += 0.02;
+        let mut f = Footprint::default();
+        hold(&mut f, &model, &a, 0, 200);
+        let seen = hold(&mut f, &longer, &off, 260 * MS, 200);
+        assert!(
+            seen.iter().any(|s| matches!(s, Seen::Changed(_))),
+            "{seen:?}"
+        );
+        let mut same = Footprint::default();
+        hold(&mut same, &model, &a, 0, 200);
+        let seen = hold(&mut same, &model, &off, 260 * MS, 400);
+        assert!(seen.contains(&Seen::Same), "{seen:?}");
+        assert!(
+            !seen
+                .iter()
+                .any(|s| matches!(s, Seen::Changed(_) | Seen::Different(_))),
+            "{seen:?}"
+        );
     }
 
     #[test]
@@ -426,7 +512,7 @@ mod tests {
         let mut bumped = model.position(&a);
         bumped[0] += 0.01;
         assert!(matches!(
-            f.observe(0.004, 200 * MS, &a, &bumped),
+            f.observe(&ArmGeometry::default(), 0.004, 200 * MS, &a, &bumped),
             Seen::Different(_)
         ));
         let b = [0.6, 0.4, 0.5, 0.45, 0.55, 0.5];
@@ -489,7 +575,13 @@ mod tests {
         for k in 0..200u64 {
             let x = 0.45 + (k % 40) as f64 * 0.0025;
             let b = [x; ACTUATORS];
-            let seen = f.observe(0.004, (300 + 5 * k) * MS, &b, &tool.position(&b));
+            let seen = f.observe(
+                &ArmGeometry::default(),
+                0.004,
+                (300 + 5 * k) * MS,
+                &b,
+                &tool.position(&b),
+            );
             assert_eq!(seen, Seen::Nothing);
         }
     }
@@ -507,7 +599,13 @@ mod tests {
         for k in 0..60u64 {
             let back = (60 - k) as f64 * 0.001 / (ACTUATORS as f64).sqrt();
             let a = end.map(|v| v - back);
-            let seen = f.observe(0.004, k * 5 * MS, &a, &model.position(&a));
+            let seen = f.observe(
+                &ArmGeometry::default(),
+                0.004,
+                k * 5 * MS,
+                &a,
+                &model.position(&a),
+            );
             assert_eq!(seen, Seen::Nothing);
         }
         // Changed at once, and held where it stopped: seen.
@@ -531,9 +629,21 @@ mod tests {
         for k in 0..20u64 {
             let back = (20 - k) as f64 * 0.01 / (ACTUATORS as f64).sqrt();
             let a = end.map(|v| v - back);
-            f.observe(0.004, k * 5 * MS, &a, &model.position(&a));
+            f.observe(
+                &ArmGeometry::default(),
+                0.004,
+                k * 5 * MS,
+                &a,
+                &model.position(&a),
+            );
         }
-        f.observe(0.004, 100 * MS, &end, &model.position(&end));
+        f.observe(
+            &ArmGeometry::default(),
+            0.004,
+            100 * MS,
+            &end,
+            &model.position(&end),
+        );
         assert!(f.samples().is_empty());
         // The driver away for 300 ms, back as another arm where the arm was held: seen.
         let seen = hold(&mut f, &tool, &end, 400 * MS, 200);

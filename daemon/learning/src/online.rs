@@ -300,7 +300,7 @@ impl OnlineLearner {
         let threshold = self.cacla.config().gauss_newton.change_threshold_m;
         let seen = self
             .footprint
-            .observe(threshold, stamp_ns, measured, position);
+            .observe(&self.arm, threshold, stamp_ns, measured, position);
         if let Seen::Changed(_) = seen {
             self.corrections = Corrections::default();
             let radius = self.cacla.config().gauss_newton.trust_initial;

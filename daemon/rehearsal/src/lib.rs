@@ -119,6 +119,8 @@ pub struct Rehearsal<'a> {
     /// The tracker samples the tick has read, as the controller's inputs keep them.
     track: Track,
     next_set_id: u64,
+    /// The sim's config, for a sim restarted as another arm.
+    sim: SimConfig,
     /// A set ended and the arm has not held since: [`SET_GAP_NS`] before the next set, or
     /// [`END_HOLD_NS`] before a change of the arm.
     gap_due: bool,
@@ -154,6 +156,7 @@ impl<'a> Rehearsal<'a> {
             track: Track::default(),
             next_set_id: 0,
             gap_due: false,
+            sim: *sim,
         })
     }
 
@@ -177,10 +180,16 @@ impl<'a> Rehearsal<'a> {
             self.hold();
             self.gap_due = false;
         }
-        self.arm
-            .plant
-            .set_geometry(arm)
-            .map_err(anyhow::Error::msg)?;
+        // As the sim driver restarts: a new plant, its realism from its seed, started at the
+        // setpoint the controller holds (not where the actuators were: they lag it, with
+        // backlash and the disturbance).
+        let sim = SimConfig {
+            changes: Default::default(),
+            ..self.sim
+        };
+        self.arm.plant = Plant::of_sim(arm, &sim, self.arm.command)
+            .map_err(anyhow::Error::msg)
+            .context("the restarted sim's plant")?;
         self.now_ns += SIM_AWAY_NS;
         self.arm.away_until(self.now_ns);
         self.now_ns += CHANGE_HOLD_NS;
