@@ -128,6 +128,9 @@ mod tests {
             ("ros2.domain_id", 42.into()),
         ])
         .unwrap();
-        assert_eq!((c.ros2.discovery, c.ros2.domain_id), (Discovery::Subnet, 42));
+        assert_eq!(
+            (c.ros2.discovery, c.ros2.domain_id),
+            (Discovery::Subnet, 42)
+        );
     }
 }
