@@ -6,7 +6,8 @@ topics ROS 2 names `rt/<topic>`.
 
 It watches the bridge's topics for --seconds (or until --until says it has seen enough) and
 prints one JSON object: the topics the bridge publishes and subscribes with their type names,
-every setpoint JointState (stamp and positions), counts, the newest tracker position and the
+every setpoint JointState (its stamp in ns and its positions as the bits of each float64, for
+an exact comparison), counts, the newest tracker position and the
 newest diagnostics. Before watching it can send a way-point set (--waypoints FILE, a softarm
 way-point TOML file, as trajectory_msgs/MultiDOFJointTrajectory) or an e-stop (--estop,
 std_msgs/Empty), each once the bridge's reader has matched.
@@ -24,6 +25,7 @@ for ROS_LOCALHOST_ONLY=1 / ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST; the bridge's
 import argparse
 import json
 import os
+import struct
 import sys
 import time
 import tomllib
@@ -42,7 +44,7 @@ def parse_args():
     p.add_argument("--domain", type=int, default=0, help="ROS_DOMAIN_ID (ros2.domain_id)")
     p.add_argument("--subnet", action="store_true", help="discover on every interface")
     p.add_argument("--seconds", type=float, default=5.0, help="longest to watch")
-    p.add_argument("--until", choices=["stale", "engaged", "accepted", "refused", "setpoints"],
+    p.add_argument("--until", choices=["running", "stale", "engaged", "accepted", "refused", "setpoints"],
                    help="stop watching once the diagnostics say so (or 50 setpoints came)")
     p.add_argument("--waypoints", help="send this way-point file (TOML) as a trajectory")
     p.add_argument("--estop", action="store_true", help="send an e-stop")
@@ -227,6 +229,8 @@ def done(until, diag, setpoints):
         return len(setpoints) >= 50
     if not diag:
         return False
+    if until == "running":
+        return diag["controller"]["level"] == 0
     if until == "stale":
         return diag["controller"]["level"] >= 2
     if until == "engaged":
@@ -275,7 +279,9 @@ def main():
                 got += 1
                 counts[name] += 1
                 if name == "setpoint":
-                    setpoints.append([ns_ros_time(m.header.stamp), list(m.position)])
+                    # The positions' bits: the reader compares them exactly.
+                    bits = [struct.unpack("<Q", struct.pack("<d", v))[0] for v in m.position]
+                    setpoints.append([ns_ros_time(m.header.stamp), bits])
                     joint_names = list(m.name)
                 elif name == "tracker":
                     tracker = {"frame_id": m.header.frame_id,
