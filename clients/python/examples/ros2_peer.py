@@ -47,7 +47,10 @@ def parse_args():
     p.add_argument("--until", choices=["running", "stale", "engaged", "accepted", "refused", "setpoints"],
                    help="stop watching once the diagnostics say so (or 50 setpoints came)")
     p.add_argument("--waypoints", help="send this way-point file (TOML) as a trajectory")
-    p.add_argument("--estop", action="store_true", help="send an e-stop")
+    p.add_argument("--estop", action="store_true",
+                   help="send an e-stop, again every 0.5 s until --until is reached")
+    p.add_argument("--best-effort", action="store_true",
+                   help="send the e-stop best-effort (as a sensor-data QoS publisher would)")
     return p.parse_args()
 
 
@@ -182,6 +185,8 @@ class MultiDOFJointTrajectory(
 # ROS 2's default QoS for these topics: reliable, volatile, keep last.
 RELIABLE = Qos(Policy.Reliability.Reliable(duration(seconds=1)), Policy.Durability.Volatile,
                Policy.History.KeepLast(64))
+BEST_EFFORT = Qos(Policy.Reliability.BestEffort, Policy.Durability.Volatile,
+                  Policy.History.KeepLast(1))
 
 
 def ns_ros_time(t):
@@ -203,13 +208,21 @@ def trajectory(path):
                                    points=points)
 
 
-def send(dp, name, kind, message, deadline):
-    """Publishes `message` once a reader of the bridge has matched; False if none did."""
-    writer = DataWriter(dp, Topic(dp, name, kind), qos=RELIABLE)
+def matched_writer(dp, name, kind, qos, deadline):
+    """A writer once a reader of the bridge has matched it; None if none did in time."""
+    writer = DataWriter(dp, Topic(dp, name, kind), qos=qos)
     while not writer.get_matched_subscriptions():
         if time.monotonic() > deadline:
-            return False
+            return None
         time.sleep(0.05)
+    return writer
+
+
+def send(dp, name, kind, message, deadline):
+    """Publishes `message` once a reader of the bridge has matched; False if none did."""
+    writer = matched_writer(dp, name, kind, RELIABLE, deadline)
+    if writer is None:
+        return False
     writer.write(message)
     writer.wait_for_acks(duration(seconds=5))
     return True
@@ -232,7 +245,8 @@ def done(until, diag, setpoints):
     if until == "running":
         return diag["controller"]["level"] == 0
     if until == "stale":
-        return diag["controller"]["level"] >= 2
+        # The stack gone: neither the controller nor the driver heard from.
+        return diag["controller"]["level"] >= 2 and diag["driver"]["level"] >= 2
     if until == "engaged":
         return diag["estop"]["values"].get("engaged") == "true"
     if until == "accepted":
@@ -261,17 +275,27 @@ def main():
     if args.waypoints:
         sent["waypoints"] = send(dp, f"rt{ns}/waypoints", MultiDOFJointTrajectory,
                                  trajectory(args.waypoints), deadline)
+    estop = None
     if args.estop:
-        sent["estop"] = send(dp, f"rt{ns}/estop", Empty, Empty(), deadline)
+        # Sent again until the bridge says it is engaged: a best-effort sample that came
+        # before the bridge knew this writer is lost, and an e-stop twice is one e-stop.
+        qos = BEST_EFFORT if args.best_effort else RELIABLE
+        estop = matched_writer(dp, f"rt{ns}/estop", Empty, qos, deadline)
+        sent["estop"] = estop is not None
+    last_estop = 0.0
 
     topics = {"published": {}, "subscribed": {}}
     counts = {k: 0 for k in readers}
     setpoints, joint_names, tracker, diag, levels = [], None, None, None, []
     reached = False
     while time.monotonic() < deadline and not reached:
+        if estop is not None and time.monotonic() - last_estop >= 0.5:
+            estop.write(Empty())
+            last_estop = time.monotonic()
         for kind, reader in (("published", pubs), ("subscribed", subs)):
             for e in reader.take(N=100):
-                if e.topic_name.startswith(f"rt{ns}/"):
+                # An endpoint that went away comes as a sample with its key alone.
+                if e.topic_name and e.topic_name.startswith(f"rt{ns}/"):
                     topics[kind][e.topic_name] = e.type_name
         got = 0
         for name, reader in readers.items():

@@ -98,7 +98,9 @@ struct Ros {
     tracker: Publisher<PointStamped>,
     diagnostics: Publisher<DiagnosticArray>,
     waypoints: Subscription<MultiDofJointTrajectory>,
-    estop: Subscription<Empty>,
+    /// A reliable reader and a best-effort one: a reliable reader matches no best-effort
+    /// writer, and an e-stop is heard from either kind.
+    estop: [Subscription<Empty>; 2],
     /// Keeps the participant and its discovery alive as long as the endpoints.
     _node: ros2_client::Node,
 }
@@ -133,7 +135,15 @@ impl Ros {
             tracker: publisher(&mut node, namespace, topic::TRACKER, &sensor)?,
             diagnostics: publisher(&mut node, namespace, topic::DIAGNOSTICS, &reliable)?,
             waypoints: subscription(&mut node, namespace, topic::WAYPOINTS, &reliable)?,
-            estop: subscription(&mut node, namespace, topic::ESTOP, &reliable)?,
+            estop: [
+                subscription(&mut node, namespace, topic::ESTOP, &reliable)?,
+                subscription(
+                    &mut node,
+                    namespace,
+                    topic::ESTOP,
+                    &reliable.reliability_best_effort(),
+                )?,
+            ],
             _node: node,
         })
     }
@@ -169,7 +179,7 @@ fn subscription<M: TypeName + DeserializeOwned + 'static>(
     qos: &QosProfile,
 ) -> anyhow::Result<Subscription<M>> {
     let t = ros_topic::<M>(node, namespace, name, qos)?;
-    node.create_subscription(&t, None)
+    node.create_subscription(&t, Some(qos.clone()))
         .with_context(|| format!("subscribing to {namespace}/{name}"))
 }
 
@@ -319,14 +329,16 @@ impl Bridge {
     /// then latched on disk. Nothing here can release it.
     fn take_estop(&mut self) {
         let mut heard = 0;
-        loop {
-            match self.ros.estop.take() {
-                Ok(Some(_)) => heard += 1,
-                Ok(None) => break,
-                Err(e) => {
-                    // Even a message that does not decode asked for a stop.
-                    tracing::warn!("an undecodable message on {}: {e:?}", topic::ESTOP);
-                    heard += 1;
+        for reader in &self.ros.estop {
+            loop {
+                match reader.take() {
+                    Ok(Some(_)) => heard += 1,
+                    Ok(None) => break,
+                    Err(e) => {
+                        // Even a message that does not decode asked for a stop.
+                        tracing::warn!("an undecodable message on {}: {e:?}", topic::ESTOP);
+                        heard += 1;
+                    }
                 }
             }
         }
