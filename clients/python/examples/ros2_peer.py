@@ -218,16 +218,6 @@ def matched_writer(dp, name, kind, qos, deadline):
     return writer
 
 
-def send(dp, name, kind, message, deadline):
-    """Publishes `message` once a reader of the bridge has matched; False if none did."""
-    writer = matched_writer(dp, name, kind, RELIABLE, deadline)
-    if writer is None:
-        return False
-    writer.write(message)
-    writer.wait_for_acks(duration(seconds=5))
-    return True
-
-
 def diagnostics_of(msg):
     out = {}
     for s in msg.status:
@@ -272,9 +262,11 @@ def main():
     start = time.monotonic()
     deadline = start + args.seconds
     sent = {}
+    waypoints = None
     if args.waypoints:
-        sent["waypoints"] = send(dp, f"rt{ns}/waypoints", MultiDOFJointTrajectory,
-                                 trajectory(args.waypoints), deadline)
+        waypoints = matched_writer(dp, f"rt{ns}/waypoints", MultiDOFJointTrajectory, RELIABLE,
+                                   deadline)
+        sent["waypoints"] = False
     estop = None
     if args.estop:
         # Sent again until the bridge says it is engaged: a best-effort sample that came
@@ -289,6 +281,16 @@ def main():
     setpoints, joint_names, tracker, diag, levels = [], None, None, None, []
     reached = False
     while time.monotonic() < deadline and not reached:
+        if waypoints is not None and diag is not None and not sent["waypoints"]:
+            # Written once the bridge has been heard from and had a moment to match this
+            # writer: RustDDS drops a sample from a writer it has not matched yet, and a
+            # reliable writer does not always repair that (seen with Cyclone DDS, under load).
+            time.sleep(1.0)
+            for _ in range(3):
+                waypoints.write(trajectory(args.waypoints))
+                if waypoints.wait_for_acks(duration(seconds=5)):
+                    break
+            sent["waypoints"] = True
         if estop is not None and time.monotonic() - last_estop >= 0.5:
             estop.write(Empty())
             last_estop = time.monotonic()
