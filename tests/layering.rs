@@ -160,8 +160,7 @@ fn each_crate_links_only_what_its_layer_allows() {
         &[
             &drivers[..],
             &["softarm-emulate", "softarm-controller", "softarm-learner"],
-            &["softarm-learning", "softarm-model", "softarm-stack"],
-            &["softarm-view"],
+            &["softarm-stack", "softarm-view"],
         ]
         .concat(),
         "the ROS 2 bridge is one more subscriber and client: it sees the stack only through its \

@@ -168,7 +168,8 @@ fn publisher<M: TypeName + Serialize>(
     qos: &QosProfile,
 ) -> anyhow::Result<Publisher<M>> {
     let t = ros_topic::<M>(node, namespace, name, qos)?;
-    node.create_publisher(&t, None)
+    // The writer's own QoS: RustDDS takes the publisher's default, not the topic's.
+    node.create_publisher(&t, Some(qos.clone()))
         .with_context(|| format!("publishing {namespace}/{name}"))
 }
 
