@@ -195,6 +195,12 @@ enum Command {
         #[command(flatten)]
         stack: Stack,
     },
+    /// Bridges the running stack to ROS 2 over DDS (no ROS install): joint states, tracker and
+    /// diagnostics out; the e-stop in, way-point sets in with ros2.accept_waypoints.
+    Ros2 {
+        #[command(flatten)]
+        stack: Stack,
+    },
     /// The per-execution statistics and a timing summary from a recording.
     Replay {
         recording: PathBuf,
@@ -231,8 +237,14 @@ enum ConfigCommand {
 }
 
 fn init_logging(default: &str) {
-    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+    let env = std::env::var("RUST_LOG").unwrap_or_default();
+    let mut filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default));
+    // RustDDS (the ROS 2 bridge's DDS) logs every discovery step at info and warns of every
+    // path it does not use (multicast on loopback): its errors only, unless RUST_LOG names it.
+    if !env.contains("rustdds") {
+        filter = filter.add_directive("rustdds=error".parse().expect("a valid directive"));
+    }
     let _ = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
@@ -272,7 +284,10 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             up::run(
                 stack.args(),
                 &config.robot.drivers,
-                config.view.enabled,
+                up::Extras {
+                    view: config.view.enabled,
+                    ros2: config.ros2.enabled,
+                },
                 scenario.as_deref(),
                 &*stop_flag()?,
             )?
@@ -353,6 +368,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::View { listen, stack } => {
             softarm_view::run(&stack.load()?, listen.as_deref(), &*stop_flag()?)?
         }
+        Command::Ros2 { stack } => softarm_ros2::run(&stack.load()?, &*stop_flag()?)?,
         Command::Replay { recording, json } => record::replay_command(&recording, json)?,
         Command::Plot { recording, output } => softarm_clients::plot::run(&recording, &output)?,
         Command::Bench(args) => bench::run(&args)?,

@@ -146,6 +146,9 @@ const CASES: &[Case] = &[
     case("view --config garbage", &["view", "--config", "garbage.toml"], CONFIG, &["garbage.toml:1: key with no value"]),
     case("up with view.listen beyond loopback", &["up", "--config", "remote.toml"], CONFIG, &["remote.toml:", ": view.listen: 0.0.0.0:8765 is not a loopback address"]),
     case("view with view.listen beyond loopback", &["view", "--config", "remote.toml"], CONFIG, &["remote.toml:", ": view.listen: 0.0.0.0:8765 is not a loopback address"]),
+    case("ros2 --config garbage", &["ros2", "--config", "garbage.toml"], CONFIG, &["garbage.toml:1: key with no value"]),
+    case("ros2 with ros2.domain_id beyond 232", &["ros2", "--config", "domain.toml"], CONFIG, &["domain.toml:", ": ros2.domain_id: must be 0 to 232"]),
+    case("up with ros2.domain_id beyond 232", &["up", "--config", "domain.toml"], CONFIG, &["domain.toml:", ": ros2.domain_id: must be 0 to 232"]),
     case("bench --config garbage", &["bench", "--config", "garbage.toml"], CONFIG, &["garbage.toml:1:"]),
     case("config check missing", &["config", "check", "missing.toml"], CONFIG, &["missing.toml: cannot read the config"]),
     case("config check garbage", &["config", "check", "garbage.toml"], CONFIG, &["garbage.toml:1: key with no value"]),
@@ -215,6 +218,11 @@ fn fixtures(dir: &Path, namespace: &str, recording: &[u8]) {
     write(
         "remote.toml",
         with_overrides(&config_text(dir, namespace), &remote).as_bytes(),
+    );
+    let domain = [("ros2.domain_id", 233.into())];
+    write(
+        "domain.toml",
+        with_overrides(&config_text(dir, namespace), &domain).as_bytes(),
     );
     write(
         "hardware.toml",

@@ -27,6 +27,7 @@ mod notify;
 mod python;
 mod record;
 mod restart;
+mod ros2;
 mod soak;
 mod stack;
 mod tick_allocates_nothing;

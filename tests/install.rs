@@ -43,6 +43,7 @@ fn install_stages_binary_config_state_and_units_and_keeps_an_edited_config() {
         "softarm-controller.service",
         "softarm-learner.service",
         "softarm-driver@.service",
+        "softarm-ros2.service",
         "softarm.target",
     ] {
         let text = std::fs::read_to_string(units.join(unit)).unwrap();
@@ -90,6 +91,44 @@ fn install_stages_binary_config_state_and_units_and_keeps_an_edited_config() {
     assert!(!units.join("softarm.target").exists());
     assert_eq!(std::fs::read_to_string(&config).unwrap(), edited);
     assert!(root.join("var/lib/softarm").is_dir());
+    std::fs::remove_dir_all(&root).unwrap();
+}
+
+/// The ROS 2 bridge's unit is always written, and wanted by the target only when the config
+/// enables the bridge.
+#[test]
+fn the_target_wants_the_ros2_bridge_only_when_enabled() {
+    let root = std::env::temp_dir().join(format!("softarm-install-ros2-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&root);
+    std::fs::create_dir_all(&root).unwrap();
+    let shipped =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("config/softarm.toml"))
+            .unwrap();
+    let on = root.join("on.toml");
+    let text = shipped.replace(
+        "[ros2]                        # softarm ros2: the stack bridged to ROS 2 over DDS (no ROS install)\nenabled = false",
+        "[ros2]\nenabled = true",
+    );
+    assert_ne!(text, shipped);
+    std::fs::write(&on, text).unwrap();
+    for (config, wanted) in [(None, false), (Some(&on), true)] {
+        let stage = root.join(format!("stage-{wanted}"));
+        let mut args = vec!["install".to_string()];
+        if let Some(c) = config {
+            args.extend(["--config".to_string(), c.display().to_string()]);
+        }
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        softarm(&args, &stage);
+        let units = stage.join("etc/systemd/system");
+        let unit = std::fs::read_to_string(units.join("softarm-ros2.service")).unwrap();
+        assert!(
+            unit.contains("ExecStart=/usr/local/bin/softarm ros2 --config "),
+            "{unit}"
+        );
+        let target = std::fs::read_to_string(units.join("softarm.target")).unwrap();
+        let wants = target.lines().find(|l| l.starts_with("Wants=")).unwrap();
+        assert_eq!(wants.contains("softarm-ros2.service"), wanted, "{wants}");
+    }
     std::fs::remove_dir_all(&root).unwrap();
 }
 

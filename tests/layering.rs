@@ -155,6 +155,17 @@ fn each_crate_links_only_what_its_layer_allows() {
         .concat(),
         "the view is one more subscriber: it sees the stack only through its services",
     );
+    forbid(
+        "softarm-ros2",
+        &[
+            &drivers[..],
+            &["softarm-emulate", "softarm-controller", "softarm-learner"],
+            &["softarm-stack", "softarm-view"],
+        ]
+        .concat(),
+        "the ROS 2 bridge is one more subscriber and client: it sees the stack only through its \
+         services, as `softarm submit` and `softarm estop` do",
+    );
     for p in g
         .keys()
         .filter(|p| !["softarm", "softarm-view"].contains(&p.as_str()))
@@ -164,6 +175,37 @@ fn each_crate_links_only_what_its_layer_allows() {
             &["softarm-view"],
             "only the binary starts the view: no process nor client links its server",
         );
+    }
+    for p in g
+        .keys()
+        .filter(|p| !["softarm", "softarm-ros2"].contains(&p.as_str()))
+    {
+        forbid(
+            p,
+            &["softarm-ros2", "ros2-client"],
+            "only the binary starts the ROS 2 bridge: no process nor client links DDS",
+        );
+    }
+}
+
+/// `ros2-client` without its defaults: the DDS backend alone (no zenoh, no mio integration),
+/// and only in the bridge.
+#[test]
+fn ros2_client_comes_with_dds_alone_and_only_in_the_bridge() {
+    for p in packages() {
+        let name = p["name"].as_str().unwrap();
+        for d in p["dependencies"].as_array().unwrap() {
+            if d["name"] != "ros2-client" {
+                continue;
+            }
+            assert_eq!(name, "softarm-ros2", "{name} links ros2-client");
+            assert_eq!(d["uses_default_features"], false, "{name}: {d}");
+            let features = d["features"].to_string();
+            assert!(
+                features.contains("\"dds\"") && !features.contains("zenoh"),
+                "{name}: ros2-client features {features}"
+            );
+        }
     }
 }
 

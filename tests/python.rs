@@ -42,7 +42,7 @@ pub(crate) fn python(modules: &[&str]) -> Option<String> {
         ),
         Err(e) => format!("no {py}: {e}"),
     };
-    let install = "pip install iceoryx2==0.10.0 mcap safetensors numpy websockets protobuf";
+    let install = "pip install iceoryx2==0.10.0 mcap safetensors numpy websockets protobuf cyclonedds==11.0.1";
     if std::env::var("SOFTARM_REQUIRE_PYTHON").as_deref() == Ok("1") {
         panic!("{why} (SOFTARM_REQUIRE_PYTHON=1; {install})");
     }

@@ -18,7 +18,7 @@ const UNITS: &str = "etc/systemd/system";
 const UNIT_BINARY: &str = "/usr/local/bin/softarm";
 
 /// The units, as in `systemd/`.
-const UNIT_FILES: [(&str, &str); 4] = [
+const UNIT_FILES: [(&str, &str); 5] = [
     (
         "softarm-controller.service",
         include_str!("../softarm-controller.service"),
@@ -30,6 +30,10 @@ const UNIT_FILES: [(&str, &str); 4] = [
     (
         "softarm-driver@.service",
         include_str!("../softarm-driver@.service"),
+    ),
+    (
+        "softarm-ros2.service",
+        include_str!("../softarm-ros2.service"),
     ),
     ("softarm.target", include_str!("../softarm.target")),
 ];
@@ -299,16 +303,18 @@ pub fn install(args: &Args) -> anyhow::Result<()> {
         text: config_text,
     });
     steps.push(Step::StateDir(under(&root, &Path::new("/").join(STATE))));
-    let drivers: Vec<String> = config
+    // The target wants the config's drivers, and the ROS 2 bridge when `ros2.enabled`.
+    let wanted: Vec<String> = config
         .robot
         .drivers
         .iter()
         .map(|d| format!("softarm-driver@{d}.service"))
+        .chain(config.ros2.enabled.then(|| "softarm-ros2.service".into()))
         .collect();
     for (name, text) in UNIT_FILES {
         let mut text = text.replace(UNIT_BINARY, &binary.display().to_string());
         if name == "softarm.target" {
-            text = text.replace("softarm-driver@sim.service", &drivers.join(" "));
+            text = text.replace("softarm-driver@sim.service", &wanted.join(" "));
         }
         steps.push(Step::Write {
             path: under(&root, &Path::new("/").join(UNITS).join(name)),

@@ -29,11 +29,13 @@ use softarm_method::skill::DemoRecipe;
 pub const EXIT_CONFIG: u8 = 78;
 
 pub mod hardware;
+pub mod ros2;
 pub mod scenario;
 pub mod view;
 pub mod waypoints;
 
 use crate::hardware::{TendonConfig, TrackerConfig};
+use crate::ros2::Ros2Config;
 use crate::view::ViewConfig;
 
 /// The drivers this build has: the simulated arm, or the real arm's motors and tracker.
@@ -83,6 +85,9 @@ pub struct Config {
     /// `softarm view`, the live view; off unless `view.enabled`.
     #[serde(default)]
     pub view: ViewConfig,
+    /// `softarm ros2`, the bridge to ROS 2; off unless `ros2.enabled`.
+    #[serde(default)]
+    pub ros2: Ros2Config,
     /// Where relative paths start: the config file's folder.
     #[serde(skip)]
     pub base_dir: PathBuf,
@@ -481,6 +486,7 @@ impl Config {
             t.validate()?;
         }
         self.view.validate()?;
+        self.ros2.validate()?;
         Ok(())
     }
 }

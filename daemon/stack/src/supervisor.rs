@@ -263,12 +263,21 @@ pub fn sim_args(scenario: Option<&str>) -> Vec<String> {
         .unwrap_or_default()
 }
 
-/// Runs controller, learner, the configured drivers and, if `view`, the live view until SIGINT
-/// or SIGTERM; a scenario goes to the sim only.
+/// The optional processes `softarm up` starts beside the stack, as the config enables them.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Extras {
+    /// `softarm view` (`[view] enabled`).
+    pub view: bool,
+    /// `softarm ros2` (`[ros2] enabled`).
+    pub ros2: bool,
+}
+
+/// Runs controller, learner, the configured drivers and the `extras` (the live view, the ROS 2
+/// bridge) until SIGINT or SIGTERM; a scenario goes to the sim only.
 pub fn run(
     common: Vec<String>,
     drivers: &[String],
-    view: bool,
+    extras: Extras,
     scenario: Option<&str>,
     stop: &AtomicBool,
 ) -> anyhow::Result<()> {
@@ -277,7 +286,8 @@ pub fn run(
         .iter()
         .map(String::as_str)
         .chain(["controller", "learner"])
-        .chain(view.then_some("view"))
+        .chain(extras.view.then_some("view"))
+        .chain(extras.ros2.then_some("ros2"))
     {
         let extra = if role == "sim" {
             sim_args(scenario)
