@@ -138,6 +138,45 @@ fn watch_bus(
     }
 }
 
+/// Goal writes the driver sent since it started that never reached the emulated motors,
+/// counted where nothing is in flight: the driver paused (SIGSTOP), the line drained, then the
+/// driver resumed. Under load the kernel holds a pty's bytes for a second or more, so
+/// emulator counts taken while the driver writes are short by the writes still in the line:
+/// late, not lost. Counted over the driver's whole run, this bounds the loss of any window.
+fn goal_writes_lost(s: &TestStack, rig: &Rig, motors: &Sub<MotorState>) -> u64 {
+    use nix::sys::signal::{Signal, kill};
+    let pid = nix::unistd::Pid::from_raw(
+        s.children()
+            .into_iter()
+            .find(|c| c.0 == "tendon")
+            .expect("a tendon driver")
+            .1,
+    );
+    kill(pid, Signal::SIGSTOP).unwrap();
+    // Published before the pause; the pause may fall between a write and its report.
+    let mut sent = None;
+    while let Ok(Some(m)) = motors.receive() {
+        sent = Some(m.goal_writes);
+    }
+    let sent = sent.expect("motor states before the pause");
+    let (mut arrived, mut moved) = (counters(rig).goal_writes, Instant::now());
+    let start = Instant::now();
+    // Drained: all arrived, or nothing more for 5 s (the rest was lost).
+    while arrived < sent && moved.elapsed() < Duration::from_secs(5) && start.elapsed() < LIMIT {
+        std::thread::sleep(Duration::from_millis(20));
+        let now = counters(rig).goal_writes;
+        if now != arrived {
+            (arrived, moved) = (now, Instant::now());
+        }
+    }
+    kill(pid, Signal::SIGCONT).unwrap();
+    assert!(
+        arrived <= sent + 1,
+        "{arrived} goal writes arrived of {sent} sent: another writer on the bus?"
+    );
+    sent.saturating_sub(arrived)
+}
+
 /// The demo set, two executions, run through a noisy bus: the goals keep up with the driver's
 /// cycles, the motor data stays fresh, the set executes and the controller never holds.
 fn demo_through(name: &str, faults: BusFaults) {
@@ -166,7 +205,7 @@ fn demo_through(name: &str, faults: BusFaults) {
     let first = seen.first.unwrap();
     let wanted = last.setpoint_cycles - first.setpoint_cycles;
     eprintln!(
-        "{name}: {writes} goal writes at the motors in {} driver cycles with a fresh setpoint \
+        "{name}: {writes} goal writes at the motors by then in {} driver cycles with a fresh setpoint \
          ({:.3} per cycle; {} cycles in all), {} motor states, \
          {:.4} fresher than the controller's time-out (oldest {} cycles), states {:?}, loss up \
          to {} per mille, {} HOLD setpoints; bus {:?}; driver: dropped {} crc {} garbage {} \
@@ -201,10 +240,6 @@ fn demo_through(name: &str, faults: BusFaults) {
         "{name}: goal writes sent in cycles with a fresh setpoint"
     );
     assert!(
-        writes as f64 >= 0.95 * wanted as f64,
-        "{name}: {writes} goal writes arrived in {wanted} cycles with a setpoint"
-    );
-    assert!(
         seen.fresh_share() >= 0.99,
         "{name}: motor data fresh in {:.4} of the samples",
         seen.fresh_share()
@@ -221,6 +256,12 @@ fn demo_through(name: &str, faults: BusFaults) {
     );
     assert_eq!(report.violations, 0, "{name}: {:#?}", report.messages);
     assert_eq!(report.executions, 2);
+    let never = goal_writes_lost(&s, &rig, &motors);
+    assert!(
+        (wanted - never.min(wanted)) as f64 >= 0.95 * wanted as f64,
+        "{name}: {never} goal writes never reached the motors, {wanted} cycles with a setpoint \
+         in the window"
+    );
     s.stop();
 }
 
@@ -338,9 +379,10 @@ fn a_failing_bus_is_safe_and_said_so() {
         wanted,
         "goal writes sent"
     );
+    let never = goal_writes_lost(&s, &rig, &motors);
     assert!(
-        writes as f64 >= 0.95 * wanted as f64,
-        "{writes} goal writes arrived in {wanted} cycles with a setpoint"
+        (wanted - never.min(wanted)) as f64 >= 0.95 * wanted as f64,
+        "{never} goal writes never reached the motors, {wanted} cycles with a setpoint"
     );
     assert!(seen.max_loss_permille >= 500, "{}", seen.max_loss_permille);
     // The loss rate covers the last second: a few cycles pass before it shows.
@@ -387,28 +429,35 @@ fn settled(motors: &Sub<MotorState>, setpoints: &Pub<Setpoint>, cycles: u64) -> 
 /// late is still inside its read.)
 #[test]
 fn lost_replies_bad_crcs_and_garbage_are_counted_once_each() {
-    let (s, _c, rig) = stack("hw-noise-count", false);
+    const RATE_HZ: f64 = 20.0;
+    let (s, c, rig) = stack("hw-noise-count", false);
     let text = std::fs::read_to_string(&s.config).unwrap();
-    let text = softarm_test_support::with_overrides(&text, &[("tendon.rate_hz", 20.0.into())]);
+    let text = softarm_test_support::with_overrides(&text, &[("tendon.rate_hz", RATE_HZ.into())]);
     std::fs::write(&s.config, text).unwrap();
     let n = node(&s);
     let setpoints = n.publisher(&n.setpoint().unwrap()).unwrap();
     let motors = n.subscriber(&n.motor_state().unwrap()).unwrap();
     let driver = Guard(s.spawn(&["tendon"]));
+    // Samples before FOLLOWING whose data was older than the controller's time-out: the
+    // machine delivered the first replies late (a loaded machine holds a pty's bytes), which
+    // no driver can help; the driver must say FOLLOWING as soon as it may.
+    let fresh = (c.controller.tracker_timeout_ms / 1000.0 * RATE_HZ).floor() as u16;
+    let mut stale = 0;
     let first = eventually("following", LIMIT, || {
         send(&setpoints, 0.5);
         std::thread::sleep(Duration::from_millis(10));
-        motors
-            .receive()
-            .ok()
-            .flatten()
-            .filter(|m| m.driver_state() == Some(DriverState::Following))
-            .map(|m| *m)
+        while let Ok(Some(m)) = motors.receive() {
+            if m.driver_state() == Some(DriverState::Following) {
+                return Some(*m);
+            }
+            stale += u64::from(m.age_cycles >= fresh);
+        }
+        None
     });
     // Up and following at once: one exchange at start, then the first cycles' reads.
     assert!(
-        first.seq <= 3,
-        "FOLLOWING at the driver's {}th cycle",
+        first.seq <= 3 + stale,
+        "FOLLOWING at the driver's {}th cycle, {stale} samples before it with stale data",
         first.seq
     );
     let phases = [
