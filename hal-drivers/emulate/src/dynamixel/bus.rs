@@ -573,6 +573,7 @@ fn lock(bus: &Mutex<Bus>) -> MutexGuard<'_, Bus> {
 /// whose line failed look alike to a driver: no answers), and an I/O error is returned naming
 /// the direction.
 pub fn serve(mut pty: Pty, bus: Arc<Mutex<Bus>>, stop: Arc<AtomicBool>) -> io::Result<()> {
+    crate::run_as_device("motor bus");
     let path = pty.path().display().to_string();
     tracing::info!(path, "motor bus emulator serving");
     let result = serve_until(&mut pty, &bus, &stop);
