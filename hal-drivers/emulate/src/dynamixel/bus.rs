@@ -1316,7 +1316,7 @@ mod tests {
             corrupt_crc_one_in: 1,
             ..Default::default()
         });
-        let e = master.ping(1).unwrap_err();
+        let e = patient(&mut master, |m| m.ping(1)).unwrap_err();
         assert!(
             matches!(
                 &e,
