@@ -3,7 +3,7 @@
 //! thread), WATCHDOG while it does, STATUS with its state.
 
 use std::sync::Arc;
-use std::sync::atomic::Ordering;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::thread::JoinHandle;
 use std::time::Duration;
 
@@ -45,9 +45,13 @@ pub(crate) fn setup(c: &Controller) {
     }
 }
 
+/// READY=1 has been sent: the watchdog says nothing before it.
+static READY: AtomicBool = AtomicBool::new(false);
+
 /// READY=1 to systemd (once, when the tick first ran).
 pub(crate) fn notify_ready() {
     let _ = sd_notify::notify(&[sd_notify::NotifyState::Ready]);
+    READY.store(true, Ordering::Release);
 }
 
 /// How often STATUS= is refreshed when the watchdog does not ask for more.
@@ -75,7 +79,10 @@ pub(crate) fn start_watchdog(shared: Arc<Shared>) -> Option<JoinHandle<()>> {
                     format!("{state}, {beat} ticks")
                 };
                 let _ = sd_notify::notify(&[sd_notify::NotifyState::Status(&status)]);
-                if beat != last && watchdog.is_some() {
+                // The service thread says READY=1 once the tick has run; a heartbeat seen
+                // first here (the service thread waiting for a CPU) must not make the watchdog
+                // speak before it.
+                if beat != last && watchdog.is_some() && READY.load(Ordering::Acquire) {
                     let _ = sd_notify::notify(&[sd_notify::NotifyState::Watchdog]);
                 }
                 last = beat;
