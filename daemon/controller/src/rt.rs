@@ -73,7 +73,11 @@ pub(crate) fn start_watchdog(shared: Arc<Shared>) -> Option<JoinHandle<()>> {
                 let beat = shared.heartbeat.load(Ordering::Relaxed);
                 let state = ControllerState::from_u32(shared.state.load(Ordering::Relaxed))
                     .map_or("?", |s| s.name());
-                let status = if beat == last {
+                // Before its first tick the loop has not stalled: it has not started (a
+                // loaded machine can take longer than a watchdog period to get there).
+                let status = if beat == 0 {
+                    format!("{state}, starting")
+                } else if beat == last {
                     format!("{state}, tick stalled at {beat}")
                 } else {
                     format!("{state}, {beat} ticks")
