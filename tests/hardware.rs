@@ -128,11 +128,15 @@ fn tendon_follows_then_holds_then_turns_the_torque_off_and_obeys_the_estop() {
         send(&setpoints, 0.3);
         (goals(&rig, &t.ids) == want).then_some(())
     });
-    let m = eventually("the motors at 0.3", || {
+    // FOLLOWING on the clean bus: a loaded machine may deliver a reply late, which the driver
+    // honestly says (DEGRADED) until its data is fresh again.
+    let m = eventually("the motors at 0.3, FOLLOWING", || {
         send(&setpoints, 0.3);
-        newest(&motors).filter(|m| m.actuation.iter().all(|a| (a - 0.3).abs() < 2e-3))
+        newest(&motors).filter(|m| {
+            m.actuation.iter().all(|a| (a - 0.3).abs() < 2e-3)
+                && m.driver_state() == Some(DriverState::Following)
+        })
     });
-    assert_eq!(m.driver_state(), Some(DriverState::Following));
     assert!(
         m.current_a.iter().all(|a| a.is_finite()),
         "{:?}",

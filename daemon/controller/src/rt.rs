@@ -3,7 +3,7 @@
 //! thread), WATCHDOG while it does, STATUS with its state.
 
 use std::sync::Arc;
-use std::sync::atomic::Ordering;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::thread::JoinHandle;
 use std::time::Duration;
 
@@ -45,9 +45,13 @@ pub(crate) fn setup(c: &Controller) {
     }
 }
 
+/// READY=1 has been sent: the watchdog says nothing before it.
+static READY: AtomicBool = AtomicBool::new(false);
+
 /// READY=1 to systemd (once, when the tick first ran).
 pub(crate) fn notify_ready() {
     let _ = sd_notify::notify(&[sd_notify::NotifyState::Ready]);
+    READY.store(true, Ordering::Release);
 }
 
 /// How often STATUS= is refreshed when the watchdog does not ask for more.
@@ -69,13 +73,20 @@ pub(crate) fn start_watchdog(shared: Arc<Shared>) -> Option<JoinHandle<()>> {
                 let beat = shared.heartbeat.load(Ordering::Relaxed);
                 let state = ControllerState::from_u32(shared.state.load(Ordering::Relaxed))
                     .map_or("?", |s| s.name());
-                let status = if beat == last {
+                // Before its first tick the loop has not stalled: it has not started (a
+                // loaded machine can take longer than a watchdog period to get there).
+                let status = if beat == 0 {
+                    format!("{state}, starting")
+                } else if beat == last {
                     format!("{state}, tick stalled at {beat}")
                 } else {
                     format!("{state}, {beat} ticks")
                 };
                 let _ = sd_notify::notify(&[sd_notify::NotifyState::Status(&status)]);
-                if beat != last && watchdog.is_some() {
+                // The service thread says READY=1 once the tick has run; a heartbeat seen
+                // first here (the service thread waiting for a CPU) must not make the watchdog
+                // speak before it.
+                if beat != last && watchdog.is_some() && READY.load(Ordering::Acquire) {
                     let _ = sd_notify::notify(&[sd_notify::NotifyState::Watchdog]);
                 }
                 last = beat;

@@ -235,8 +235,10 @@ pub fn rss_kib(pid: &str) -> Option<u64> {
 }
 
 /// Processes whose answers have a deadline: the learner's estimate and the controller's
-/// replanning must be in force before the point's group starts, also on a busy machine.
-const URGENT: [&str; 2] = ["controller", "learner"];
+/// replanning must be in force before the point's group starts, also on a busy machine; the
+/// drivers write goals and read the motors and the tracker every period (a tendon driver left
+/// waiting for a CPU on a loaded machine fell behind its bus by hundreds of cycles).
+const URGENT: [&str; 5] = ["controller", "learner", "sim", "tendon", "tracker"];
 /// Their nice value (the systemd units set the same).
 const URGENT_NICE: i32 = -5;
 

@@ -534,6 +534,7 @@ pub fn serve(
             format!("stream rate {rate_hz} Hz is too low"),
         )
     })?;
+    crate::run_as_device("tracker");
     let epoch = Instant::now();
     let writing_since_ms = AtomicU64::new(0);
     let done = AtomicBool::new(false);

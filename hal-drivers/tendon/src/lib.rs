@@ -181,6 +181,9 @@ struct Driver<'a> {
     /// A read that got no reply at all: the next waits, 10 ms doubling to 200 ms (the writes
     /// do not).
     read_backoff: Backoff,
+    /// `counts.late` when the read back-off was last decided: replies heard late since then
+    /// say the bus answers.
+    late_heard: u64,
     counts: Counts,
     /// CRC errors and garbage of the ports closed so far (each port counts its own).
     closed_line: (u64, u64),
@@ -203,6 +206,15 @@ struct Driver<'a> {
     status_every: u64,
     /// When the port's device was last checked while the bus is silent.
     device_checked_ns: u64,
+}
+
+/// Whether closed read `c` found the bus silent, so the next read backs off: every motor was
+/// asked and none answered, and no reply came late meanwhile. A bus that answers late is slow,
+/// not silent (a loaded machine delivers a pty's bytes tens of ms late): backing its reads off
+/// to 200 ms left the data older than the controller's time-out for as long as that lasted.
+/// One motor asked again whose reply was garbled again is not silence either.
+fn silent(c: &link::Closed, heard_late: bool) -> bool {
+    c.asked == ACTUATORS && c.answered + c.refused == 0 && !heard_late
 }
 
 /// Present current (with velocity and position) is read every this many cycles; the
@@ -245,6 +257,7 @@ impl<'a> Driver<'a> {
             reading: Reading::default(),
             reopen_backoff: Backoff::new(10_000_000, 1_000_000_000),
             read_backoff: Backoff::new(10_000_000, 200_000_000),
+            late_heard: 0,
             counts,
             closed_line: (0, 0),
             reopens: 0,
@@ -335,14 +348,17 @@ impl<'a> Driver<'a> {
             return;
         }
         self.health.found(self.counts.late - late);
-        if let Some(closed) = l.close_read(&mut self.counts) {
-            self.health.add(closed.missing, closed.asked);
-            // A silent bus, not a second ask of one motor whose reply was garbled again.
-            if closed.asked == ACTUATORS && closed.answered + closed.refused == 0 {
-                self.read_backoff.failed(now);
-            } else {
-                self.read_backoff.succeeded();
-            }
+        let closed = l.close_read(&mut self.counts);
+        if let Some(c) = closed {
+            self.health.add(c.missing, c.asked);
+        }
+        let heard_late = self.counts.late > self.late_heard;
+        self.late_heard = self.counts.late;
+        match closed {
+            Some(c) if silent(&c, heard_late) => self.read_backoff.failed(now),
+            Some(_) => self.read_backoff.succeeded(),
+            None if heard_late => self.read_backoff.succeeded(),
+            None => {}
         }
     }
 
@@ -577,5 +593,30 @@ impl<'a> Driver<'a> {
         {
             tracing::error!("could not turn the torque off on the way out: {e}");
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn closed(asked: usize, answered: usize) -> link::Closed {
+        link::Closed {
+            asked,
+            missing_motors: None,
+            answered,
+            refused: 0,
+            missing: asked - answered,
+        }
+    }
+
+    #[test]
+    fn only_a_bus_that_answers_nothing_at_all_backs_the_reads_off() {
+        assert!(silent(&closed(ACTUATORS, 0), false));
+        // Late replies: the bus is slow (a loaded machine), its reads must go on.
+        assert!(!silent(&closed(ACTUATORS, 0), true));
+        assert!(!silent(&closed(ACTUATORS, 1), false));
+        // One motor asked again.
+        assert!(!silent(&closed(1, 0), false));
     }
 }

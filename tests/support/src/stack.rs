@@ -27,6 +27,19 @@ pub struct TestStack {
     pub config: PathBuf,
     pub namespace: String,
     pub up: Option<Child>,
+    /// Held while the stack has emulated devices: see [`devices_turn`].
+    devices: Option<std::sync::MutexGuard<'static, ()>>,
+}
+
+/// One stack with emulated devices at a time in this test binary. The emulators stand in for
+/// hardware, which needs no CPU of the computer; on pseudo-terminals every byte waits for a
+/// kernel worker, and two emulated arms side by side, beside the busy loops of a loaded
+/// machine, left those workers waiting tens of milliseconds per delivery (the motor data of
+/// both went stale). No product runs two arms' devices on its own CPUs.
+fn devices_turn() -> std::sync::MutexGuard<'static, ()> {
+    static TURN: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    // A test that failed while holding it poisons nothing the next one needs.
+    TURN.lock().unwrap_or_else(|p| p.into_inner())
 }
 
 impl TestStack {
@@ -59,6 +72,7 @@ impl TestStack {
             config,
             namespace,
             up: None,
+            devices: None,
         }
     }
 
@@ -67,6 +81,7 @@ impl TestStack {
     /// device paths; its log in the stack's folder), and the stack switched to the config the
     /// emulator writes, naming its devices.
     pub fn emulated(bin: impl AsRef<Path>, name: &str) -> (Self, Guard) {
+        let turn = devices_turn();
         let mut s = Self::with_config(bin, name, true, |dir, ns| {
             hardware_config_text(dir, ns, Path::new("/dev/null"), Path::new("/dev/null"))
         });
@@ -87,6 +102,7 @@ impl TestStack {
             emulated.exists().then_some(())
         });
         s.config = emulated;
+        s.devices = Some(turn);
         (s, emulator)
     }
 
@@ -105,9 +121,10 @@ impl TestStack {
             hardware_config_text(dir, ns, Path::new("/dev/null"), Path::new("/dev/null"))
         });
         let c = Config::load(&probe.config).unwrap();
+        let turn = devices_turn();
         let (started, tendon, tracker) = devices(&c);
         drop(probe);
-        let s = Self::with_config(bin, name, false, |dir, ns| {
+        let mut s = Self::with_config(bin, name, false, |dir, ns| {
             let text = hardware_config_text(dir, ns, &tendon, &tracker);
             with_overrides(
                 &text,
@@ -118,6 +135,7 @@ impl TestStack {
             )
         });
         let c = Config::load(&s.config).unwrap();
+        s.devices = Some(turn);
         (s, c, started)
     }
 
