@@ -63,12 +63,7 @@ fn an_estop_survives_restarts_until_reset_and_a_reset_moves_nothing() {
     let motors = node.subscriber(&node.motor_state().unwrap()).unwrap();
 
     // A set under way when the e-stop comes.
-    let (code, out, err) = s.submit(Path::new(DEMO_WAYPOINTS), 3);
-    assert_eq!(code, 0, "{out}{err}");
-    let set = set_id(&out);
-    s.wait_status("EXECUTE", Duration::from_secs(30), |st| {
-        st["controller"]["state"] == "EXECUTE"
-    });
+    let set = s.executing(Path::new(DEMO_WAYPOINTS), 3);
     let out = s.run(&["estop"]);
     assert!(out.status.success(), "{out:?}");
     s.wait_status("STOPPED", Duration::from_secs(10), |st| {

@@ -23,7 +23,7 @@ use nix::unistd::Pid;
 use serde_json::Value;
 use softarm_ipc::{Namespace, Node};
 use softarm_test_support::{
-    DEMO_WAYPOINTS, Guard, TestStack, alive, config_text, eventually, set_id, with_overrides,
+    DEMO_WAYPOINTS, Guard, TestStack, alive, config_text, eventually, with_overrides,
 };
 
 use crate::python::{python, run_python};
@@ -126,11 +126,7 @@ fn a_ros2_peer_sees_the_topics_and_the_setpoints_the_stack_sent() {
     s.up();
     bridging(&s);
     // A set under way, so that setpoints change every tick: each one then says which it is.
-    let (code, out, err) = s.submit(Path::new(DEMO_WAYPOINTS), 2);
-    assert_eq!(code, 0, "{out}{err}");
-    s.wait_status("EXECUTE", Duration::from_secs(30), |st| {
-        st["controller"]["state"] == "EXECUTE"
-    });
+    s.executing(Path::new(DEMO_WAYPOINTS), 2);
     let recorder = Recorder::start(&s.namespace);
     let got = peer(&py, &s, &["--seconds", "6"]);
     let recorded = recorder.finish();
@@ -343,12 +339,7 @@ fn an_estop_from_ros2_stops_the_stack_and_latches() {
     let mut s = stack("ros2-estop", true, &[]);
     s.up();
     bridging(&s);
-    let (code, out, err) = s.submit(Path::new(DEMO_WAYPOINTS), 10);
-    assert_eq!(code, 0, "{out}{err}");
-    let set = set_id(&out);
-    s.wait_status("EXECUTE", Duration::from_secs(30), |st| {
-        st["controller"]["state"] == "EXECUTE"
-    });
+    let set = s.executing(Path::new(DEMO_WAYPOINTS), 10);
     // Best-effort, as a sensor-data QoS publisher sends: a reliable reader alone would never
     // match it (the way-point tests' reliable writer shows the reliable side).
     let got = peer(
@@ -388,12 +379,7 @@ fn killing_the_bridge_leaves_the_stack_running() {
     let mut s = stack("ros2-kill-bridge", true, &[]);
     s.up();
     bridging(&s);
-    let (code, out, err) = s.submit(Path::new(DEMO_WAYPOINTS), 3);
-    assert_eq!(code, 0, "{out}{err}");
-    let set = set_id(&out);
-    s.wait_status("EXECUTE", Duration::from_secs(30), |st| {
-        st["controller"]["state"] == "EXECUTE"
-    });
+    let set = s.executing(Path::new(DEMO_WAYPOINTS), 3);
     let bridge = eventually("the bridge", Duration::from_secs(10), || {
         s.children().into_iter().find(|(role, _)| role == "ros2")
     })

@@ -458,18 +458,15 @@ mod tests {
 
     const MS: u64 = 1_000_000;
 
+    /// One sample through `f`, checked by the nominal arm's slope at a 4 mm threshold.
+    fn check(f: &mut Footprint, stamp_ns: u64, a: &Actuation, p: &Position) -> Seen {
+        f.observe(&ArmGeometry::default(), 0.004, stamp_ns, a, p)
+    }
+
     /// `arm` held at `a` for `ms`, sampled every 5 ms from `t0`; what the footprint said last.
     fn hold(f: &mut Footprint, arm: &ArmGeometry, a: &Actuation, t0: u64, ms: u64) -> Vec<Seen> {
         (0..ms / 5)
-            .map(|k| {
-                f.observe(
-                    &ArmGeometry::default(),
-                    0.004,
-                    t0 + k * 5 * MS,
-                    a,
-                    &arm.position(a),
-                )
-            })
+            .map(|k| check(f, t0 + k * 5 * MS, a, &arm.position(a)))
             .collect()
     }
 
@@ -512,7 +509,7 @@ mod tests {
         let mut bumped = model.position(&a);
         bumped[0] += 0.01;
         assert!(matches!(
-            f.observe(&ArmGeometry::default(), 0.004, 200 * MS, &a, &bumped),
+            check(&mut f, 200 * MS, &a, &bumped),
             Seen::Different(_)
         ));
         let b = [0.6, 0.4, 0.5, 0.45, 0.55, 0.5];
@@ -575,13 +572,7 @@ mod tests {
         for k in 0..200u64 {
             let x = 0.45 + (k % 40) as f64 * 0.0025;
             let b = [x; ACTUATORS];
-            let seen = f.observe(
-                &ArmGeometry::default(),
-                0.004,
-                (300 + 5 * k) * MS,
-                &b,
-                &tool.position(&b),
-            );
+            let seen = check(&mut f, (300 + 5 * k) * MS, &b, &tool.position(&b));
             assert_eq!(seen, Seen::Nothing);
         }
     }
@@ -599,13 +590,7 @@ mod tests {
         for k in 0..60u64 {
             let back = (60 - k) as f64 * 0.001 / (ACTUATORS as f64).sqrt();
             let a = end.map(|v| v - back);
-            let seen = f.observe(
-                &ArmGeometry::default(),
-                0.004,
-                k * 5 * MS,
-                &a,
-                &model.position(&a),
-            );
+            let seen = check(&mut f, k * 5 * MS, &a, &model.position(&a));
             assert_eq!(seen, Seen::Nothing);
         }
         // Changed at once, and held where it stopped: seen.
@@ -629,21 +614,9 @@ mod tests {
         for k in 0..20u64 {
             let back = (20 - k) as f64 * 0.01 / (ACTUATORS as f64).sqrt();
             let a = end.map(|v| v - back);
-            f.observe(
-                &ArmGeometry::default(),
-                0.004,
-                k * 5 * MS,
-                &a,
-                &model.position(&a),
-            );
+            check(&mut f, k * 5 * MS, &a, &model.position(&a));
         }
-        f.observe(
-            &ArmGeometry::default(),
-            0.004,
-            100 * MS,
-            &end,
-            &model.position(&end),
-        );
+        check(&mut f, 100 * MS, &end, &model.position(&end));
         assert!(f.samples().is_empty());
         // The driver away for 300 ms, back as another arm where the arm was held: seen.
         let seen = hold(&mut f, &tool, &end, 400 * MS, 200);

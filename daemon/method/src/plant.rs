@@ -242,17 +242,6 @@ impl Plant {
         &self.geometry
     }
 
-    /// The arm changes under the plant (a tool swapped, an actuator crept); the actuators stay
-    /// where they are. As when the sim restarts with another, fixed scenario: `geometry` from
-    /// now on, and the changes of the plant's scenario, if any, end.
-    pub fn set_geometry(&mut self, geometry: ArmGeometry) -> Result<(), String> {
-        geometry.validate()?;
-        self.arm = geometry;
-        self.geometry = geometry;
-        self.changes = Changes::default();
-        Ok(())
-    }
-
     /// Seconds since the plant started: the clock of its scenario's changes.
     pub fn time(&self) -> f64 {
         self.time
@@ -553,10 +542,6 @@ mod tests {
         assert_eq!(plant.geometry().tool_m, 0.06);
         // Creep at 6 mm/min: 0.1 mm a second.
         assert!((plant.geometry().actuator_offset_m[1] - 1.005e-4).abs() < 1e-9);
-        // A fixed arm set in its place ends the scenario's changes.
-        plant.set_geometry(arm).unwrap();
-        run(&mut plant, 400);
-        assert_eq!(*plant.geometry(), arm);
         // The changes are checked against the arm they start from.
         let thin = ArmGeometry {
             actuator_radius_m: 0.001,

@@ -265,6 +265,16 @@ impl TestStack {
         )
     }
 
+    /// Submits a way-point file and waits until the controller executes it; its set id.
+    pub fn executing(&self, file: &Path, executions: u32) -> u64 {
+        let (code, out, err) = self.submit(file, executions);
+        assert_eq!(code, 0, "{out}{err}");
+        self.wait_status("EXECUTE", Duration::from_secs(30), |st| {
+            st["controller"]["state"] == "EXECUTE"
+        });
+        set_id(&out)
+    }
+
     /// The pids of `up`'s children, by the role in their command line.
     pub fn children(&self) -> Vec<(String, i32)> {
         let up = self.up.as_ref().expect("up is running").id() as i32;
