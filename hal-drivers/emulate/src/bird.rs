@@ -664,10 +664,13 @@ fn serve_loop(
                 if buf[..n].contains(&POINT) {
                     last_pose = pose();
                 }
+                let reads = dev.hemisphere_reads();
                 dev.receive(&buf[..n], last_pose.0, last_pose.1, &mut out);
+                // Added, not stored: the counts go on across a restarted emulator.
+                let heard = dev.hemisphere_reads() - reads;
                 sh.counts
                     .hemisphere_reads
-                    .store(dev.hemisphere_reads(), Ordering::Release);
+                    .fetch_add(heard, Ordering::Release);
             }
         } else {
             let rest = next.saturating_duration_since(Instant::now());
@@ -1329,6 +1332,89 @@ mod tests {
         }
         // The answer to POINT went with the drain, or the decoder swallowed it: at most one.
         assert!(reader.stats().discarded <= 1, "{:?}", reader.stats());
+    }
+
+    /// The tracker driver's `Reader` (silent after 200 ms) against this emulator in `mode`, the
+    /// line stalled for longer than that twice: the unit is asked again on the same port, never
+    /// reopened, and what comes after is whole records, each published once.
+    fn stalled_through_the_driver(mode: softarm_config::hardware::TrackerMode) {
+        use softarm_config::hardware::{TrackerConfig, TrackerHemisphere, TrackerRecord};
+        let pty = Pty::open().unwrap();
+        let t = TrackerConfig {
+            port: pty.path().to_owned(),
+            baud: 115_200,
+            record: TrackerRecord::PositionAngles,
+            mode,
+            rate_hz: 100.0,
+            full_scale_in: FS,
+            silent_after_ms: 200.0,
+            max_speed_m_per_s: 2.0,
+            translation_m: [0.0; 3],
+            rotation_deg: [0.0; 3],
+            hemisphere: TrackerHemisphere::Forward,
+        };
+        let faults = Arc::new(BirdFaults::new());
+        let stop = Arc::new(AtomicBool::new(false));
+        let counts = Arc::new(BirdCounts::default());
+        let server = {
+            let (faults, stop, counts) = (faults.clone(), stop.clone(), counts.clone());
+            thread::spawn(move || serve(pty, 100.0, FS, || (P, A), faults, stop, counts))
+        };
+        let mut reader = softarm_tracker::Reader::open(&t).unwrap();
+        let mut seqs = Vec::new();
+        type Done<'d> = &'d dyn Fn(&softarm_tracker::Reader) -> bool;
+        let mut run_until = |reader: &mut softarm_tracker::Reader, done: Done| {
+            let deadline = Instant::now() + Duration::from_secs(30);
+            while !done(reader) && Instant::now() < deadline {
+                reader.step(|s| seqs.push(s.seq));
+            }
+            assert!(done(reader), "{mode:?}: waited 30 s");
+        };
+        run_until(&mut reader, &|r| r.stats().records >= 5);
+        for stall_ms in [1200, 500] {
+            let asked = reader.asked_again();
+            faults.stall_ms.store(stall_ms, Ordering::Release);
+            // Through the silence (the unit asked again), then until every record made has
+            // been read.
+            run_until(&mut reader, &|r| r.asked_again() > asked);
+            let made = counts.records.load(Ordering::Acquire);
+            run_until(&mut reader, &|r| r.stats().records >= made);
+        }
+        stop.store(true, Ordering::Release);
+        server.join().unwrap().unwrap();
+        let s = reader.stats();
+        assert_eq!(reader.reopens(), 0, "{mode:?}: reopened on a stall");
+        assert!(
+            reader.asked_again() >= 2,
+            "{mode:?}: {}",
+            reader.asked_again()
+        );
+        assert_eq!(
+            (s.malformed, s.dropped_bytes, s.discarded),
+            (0, 0, 0),
+            "{mode:?}: the decoder lost its phase"
+        );
+        assert!(s.records <= counts.records.load(Ordering::Acquire));
+        assert_eq!(
+            seqs.len() as u64,
+            s.records,
+            "{mode:?}: a record published twice or held"
+        );
+        assert!(seqs.windows(2).all(|w| w[1] == w[0] + 1));
+        assert!(
+            counts.hemisphere_reads.load(Ordering::Acquire) == 1,
+            "{mode:?}: opened again"
+        );
+    }
+
+    #[test]
+    fn a_stalled_stream_is_asked_again_not_reopened_and_stays_in_phase() {
+        stalled_through_the_driver(softarm_config::hardware::TrackerMode::Stream);
+    }
+
+    #[test]
+    fn a_stalled_poll_is_asked_again_not_reopened_and_stays_in_phase() {
+        stalled_through_the_driver(softarm_config::hardware::TrackerMode::Point);
     }
 
     #[test]
