@@ -381,6 +381,84 @@ fn tendon_survives_a_noisy_and_a_silent_bus_and_stops_commanding_a_faulted_motor
     assert!(stop(driver).success());
 }
 
+/// Issue 20: a tendon driver started while the bus stalls for 3 s (a loaded host's pty worker
+/// holding every byte) keeps asking the motors instead of giving up after its 2 s: it drives
+/// nothing meanwhile, and follows, torque on where the motors stand, once the bus answers.
+#[test]
+fn a_tendon_start_on_a_stalled_bus_follows_once_the_bus_answers() {
+    let (s, c, rig) = rig("hw-start-stall");
+    let t = c.tendon.clone().unwrap();
+    rig.bus.lock().unwrap().stall(3.0);
+    let n = node(&s);
+    let setpoints = n.publisher(&n.setpoint().unwrap()).unwrap();
+    let motors = n.subscriber(&n.motor_state().unwrap()).unwrap();
+    let driver = spawn(&s, "tendon");
+    let pid = driver.id() as i32;
+    while rig.bus.lock().unwrap().stalled() {
+        send(&setpoints, 0.5);
+        assert_eq!(torque(&rig, &t.ids), [false; 6], "engaged during the stall");
+        assert!(
+            newest(&motors).is_none(),
+            "motor state before any motor answered"
+        );
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    eventually("following after the stall", || {
+        send(&setpoints, 0.5);
+        newest(&motors).filter(|m| m.driver_state() == Some(DriverState::Following))
+    });
+    eventually("torque on", || {
+        send(&setpoints, 0.5);
+        (torque(&rig, &t.ids) == [true; 6]).then_some(())
+    });
+    assert!(alive(pid));
+    assert!(stop(driver).success());
+}
+
+/// A motor that never answers (its return line broken: it hears every write) is never
+/// engaged, nor is any other, however long the driver asks; it is named in the log. Once it
+/// answers, the driver follows.
+#[test]
+fn a_motor_that_never_answers_the_survey_is_never_engaged() {
+    let (s, c, rig) = rig("hw-start-mute");
+    let t = c.tendon.clone().unwrap();
+    {
+        let mut bus = rig.bus.lock().unwrap();
+        bus.stall(1.0);
+        bus.set_faults(BusFaults {
+            mute_id: Some(t.ids[3]),
+            ..BusFaults::default()
+        });
+    }
+    let n = node(&s);
+    let setpoints = n.publisher(&n.setpoint().unwrap()).unwrap();
+    let motors = n.subscriber(&n.motor_state().unwrap()).unwrap();
+    let driver = spawn(&s, "tendon");
+    let log = || std::fs::read_to_string(s.dir.join("tendon.log")).unwrap_or_default();
+    // Until the driver has asked the muted motor ten times after the stall and named it.
+    let silenced = |rig: &Rig| rig.bus.lock().unwrap().counters().silenced;
+    let mut after_stall = None;
+    let named = "no answer on";
+    let limit = Instant::now() + LIMIT;
+    while after_stall.is_none_or(|n| silenced(&rig) < n + 10) || !log().contains(named) {
+        assert!(Instant::now() < limit, "waited {LIMIT:?}: {}", log());
+        send(&setpoints, 0.5);
+        assert_eq!(torque(&rig, &t.ids), [false; 6], "a motor engaged");
+        assert!(newest(&motors).is_none(), "motor state without motor 4");
+        if after_stall.is_none() && !rig.bus.lock().unwrap().stalled() {
+            after_stall = Some(silenced(&rig));
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    assert!(log().contains("from motor id 4 (actuator 4)"), "{}", log());
+    rig.bus.lock().unwrap().set_faults(BusFaults::default());
+    eventually("following once motor 4 answers", || {
+        send(&setpoints, 0.5);
+        newest(&motors).filter(|m| m.driver_state() == Some(DriverState::Following))
+    });
+    assert!(stop(driver).success());
+}
+
 #[test]
 fn tracker_publishes_the_arm_in_the_base_frame_resyncs_and_survives_silence() {
     let (s, c, rig) = rig("hw-tracker");
