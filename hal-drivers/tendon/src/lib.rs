@@ -67,7 +67,11 @@ pub mod fuzz {
                 link.survey(t, &mut counts, WAIT)
                     .map_err(|f| anyhow::anyhow!("surveying the motors: {f}"))?;
             }
-            anyhow::ensure!(link.ready(), "some motor did not answer the survey in 2 s");
+            anyhow::ensure!(
+                link.ready(),
+                "{}: some motor did not answer the survey in 2 s",
+                t.port.display()
+            );
             Ok(Self {
                 link,
                 reading: Reading::default(),
