@@ -330,7 +330,9 @@ fn noisy_bus_dropped_replies_keeps_the_arm_going() {
 
 /// A tendon driver restarted while 2 % of the reply bytes are garbled finds all six motors and
 /// drives them again: its start-up survey's long replies arrive whole only about a quarter of
-/// the time, so it must ask again until each motor has answered.
+/// the time, so it must ask again until each motor has answered, never giving up (the process
+/// is not restarted again). A motor not found within 2 s is named while the survey goes on:
+/// seen once under a load average of 15, the sixth motor found 40 ms after.
 #[test]
 fn a_driver_restarted_on_a_noisy_bus_finds_every_motor() {
     let (s, _c, rig) = stack("hw-noise-restart", true);
@@ -363,9 +365,10 @@ fn a_driver_restarted_on_a_noisy_bus_finds_every_motor() {
         }
         (driving && tendon(&s).is_some_and(|(_, pid)| pid != old)).then_some(())
     });
-    assert!(
-        !s.logs().contains("no answer on"),
-        "a start-up on the noisy bus missed a motor: {}",
+    assert_eq!(
+        s.logs().matches("softarm up: tendon exited").count(),
+        1,
+        "a start-up on the noisy bus gave up: {}",
         s.logs()
     );
 }

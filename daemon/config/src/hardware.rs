@@ -169,7 +169,8 @@ pub struct TrackerConfig {
     pub rate_hz: f64,
     /// The device's position full scale (in): 36, or 72 with the extended range set.
     pub full_scale_in: f64,
-    /// No record for this long (ms): the device is reported silent and asked again.
+    /// No record for this long (ms): the device is reported silent and asked again on the same
+    /// port (silence is no reason to reopen it: a busy host delivers the bytes late).
     pub silent_after_ms: f64,
     /// Fastest the end effector can move (m/s). Records carry no checksum: one farther from
     /// the last than this allows (plus 5 mm) is held back until the next confirms it.

@@ -93,6 +93,22 @@ pub struct BirdFaults {
     /// An older unit (software revision before 3.66): EXAMINE VALUE of the hemisphere gets no
     /// answer.
     pub no_hemisphere_readback: AtomicBool,
+    /// Stalls the line for this many ms from when the serving thread takes it (and clears it):
+    /// nothing is read or written meanwhile, as when a loaded host's pty worker waits for a
+    /// CPU. The unit goes on making its records; they wait and come at once when the stall
+    /// ends, and the commands the host wrote meanwhile are read then.
+    pub stall_ms: AtomicU64,
+}
+
+/// What the unit has done, shared with the serving thread.
+#[derive(Debug, Default)]
+pub struct BirdCounts {
+    /// Records sent (POINT answers and streamed records), counted when made, before any
+    /// corruption (a stalled line holds them back after).
+    pub records: AtomicU64,
+    /// EXAMINE VALUE of the hemisphere heard: a driver asks it once each time it opens the
+    /// port and sets the unit up, so this counts the opens.
+    pub hemisphere_reads: AtomicU64,
 }
 
 impl BirdFaults {
@@ -185,6 +201,7 @@ pub struct BirdDevice {
     change_data: [u8; MAX_CHANGE_DATA],
     records: u64,
     hemisphere: Selected,
+    hemisphere_reads: u64,
     knows_stream_stop: bool,
     answers_hemisphere: bool,
 }
@@ -210,6 +227,7 @@ impl BirdDevice {
             change_data: [0; MAX_CHANGE_DATA],
             records: 0,
             hemisphere: Selected::FORWARD,
+            hemisphere_reads: 0,
             knows_stream_stop: true,
             answers_hemisphere: true,
         }
@@ -336,7 +354,10 @@ impl BirdDevice {
     }
 
     /// Answers EXAMINE VALUE of `parameter`.
-    fn examine(&self, parameter: u8, out: &mut Vec<u8>) {
+    fn examine(&mut self, parameter: u8, out: &mut Vec<u8>) {
+        if parameter == param::HEMISPHERE {
+            self.hemisphere_reads += 1;
+        }
         let word: u16 = match parameter {
             param::HEMISPHERE if self.answers_hemisphere => {
                 u16::from_le_bytes(self.hemisphere.bytes())
@@ -419,6 +440,11 @@ impl BirdDevice {
         self.records
     }
 
+    /// EXAMINE VALUE of the hemisphere heard so far, answered or not.
+    pub fn hemisphere_reads(&self) -> u64 {
+        self.hemisphere_reads
+    }
+
     /// One streamed record of the given pose into `out` when streaming (nothing otherwise, or
     /// while asleep).
     pub fn stream(&mut self, position_in: [f64; 3], angles_deg: [f64; 3], out: &mut Vec<u8>) {
@@ -496,9 +522,8 @@ fn open_slave(path: &Path) -> io::Result<File> {
 
 /// Serves a device on `pty` until `stop`: reads commands, streams at `rate_hz` on absolute
 /// deadlines, asks `pose()` for the sensor pose in the tracker frame (inches; degrees as
-/// azimuth, elevation, roll) at each record, applies `faults`. Counts records sent in `sent`
-/// (POINT answers and streamed records, counted as they are handed to the pty, before any
-/// corruption).
+/// azimuth, elevation, roll) at each record, applies `faults`, and counts in `counts` what it
+/// did (records as they are handed to the pty, before any corruption).
 ///
 /// A host that stops reading cannot stall the loop: once a write has blocked for 100 ms the
 /// host's unread input is dropped, as an overrun serial port would.
@@ -514,7 +539,7 @@ pub fn serve(
     mut pose: impl FnMut() -> ([f64; 3], [f64; 3]),
     faults: Arc<BirdFaults>,
     stop: Arc<AtomicBool>,
-    sent: Arc<AtomicU64>,
+    counts: Arc<BirdCounts>,
 ) -> io::Result<()> {
     if !(rate_hz.is_finite() && rate_hz > 0.0) {
         return Err(io::Error::new(
@@ -535,8 +560,13 @@ pub fn serve(
         )
     })?;
     crate::run_as_device("tracker");
-    let epoch = Instant::now();
-    let writing_since_ms = AtomicU64::new(0);
+    let shared = Shared {
+        faults: &faults,
+        stop: &stop,
+        counts: &counts,
+        writing_since_ms: AtomicU64::new(0),
+        epoch: Instant::now(),
+    };
     let done = AtomicBool::new(false);
     let guard = match open_slave(pty.path()) {
         Ok(f) => Some(f),
@@ -549,37 +579,59 @@ pub fn serve(
 
     thread::scope(|s| {
         if let Some(slave) = guard {
-            let (w, d) = (&writing_since_ms, &done);
+            let (w, d, epoch) = (&shared.writing_since_ms, &done, shared.epoch);
             s.spawn(move || overrun_guard(slave, w, d, epoch));
         }
-        let result = serve_loop(
-            &mut pty,
-            period,
-            full_scale_in,
-            &mut pose,
-            &faults,
-            &stop,
-            &sent,
-            &writing_since_ms,
-            epoch,
-        );
+        let result = serve_loop(&mut pty, period, full_scale_in, &mut pose, &shared);
         done.store(true, Ordering::Release);
         result
     })
 }
 
+/// What [`serve_loop`] shares with its caller and the overrun guard.
+struct Shared<'a> {
+    faults: &'a BirdFaults,
+    stop: &'a AtomicBool,
+    counts: &'a BirdCounts,
+    writing_since_ms: AtomicU64,
+    epoch: Instant,
+}
+
+/// A stalled line ([`BirdFaults::stall_ms`]): until when, and the bytes that wait for it.
+#[derive(Default)]
+struct Stall {
+    until: Option<Instant>,
+    held: Vec<u8>,
+}
+
+impl Stall {
+    /// Takes a stall asked for; whether the line is stalled now.
+    fn on(&mut self, faults: &BirdFaults, now: Instant) -> bool {
+        let ms = faults.stall_ms.swap(0, Ordering::AcqRel);
+        if ms > 0 {
+            self.until = Some(now + Duration::from_millis(ms));
+        }
+        self.until.is_some_and(|u| now < u)
+    }
+
+    /// The bytes to write now: none while stalled (they are held), else what was held and `out`.
+    fn pass(&mut self, stalled: bool, out: &mut Vec<u8>) {
+        if stalled {
+            self.held.append(out);
+        } else if !self.held.is_empty() {
+            self.held.append(out);
+            std::mem::swap(&mut self.held, out);
+        }
+    }
+}
+
 /// The body of [`serve`].
-#[allow(clippy::too_many_arguments)]
 fn serve_loop(
     pty: &mut Pty,
     period: Duration,
     full_scale_in: f64,
     pose: &mut impl FnMut() -> ([f64; 3], [f64; 3]),
-    faults: &BirdFaults,
-    stop: &AtomicBool,
-    sent: &AtomicU64,
-    writing_since_ms: &AtomicU64,
-    epoch: Instant,
+    sh: &Shared,
 ) -> io::Result<()> {
     let mut dev = BirdDevice::new(full_scale_in);
     let mut rng = XorShift(0x9e37_79b9_7f4a_7c15);
@@ -587,24 +639,38 @@ fn serve_loop(
     let mut out = Vec::with_capacity(64);
     let mut next = Instant::now() + period;
     let mut last_pose = ([0.0; 3], [0.0; 3]);
-    while !stop.load(Ordering::Acquire) {
+    let mut stall = Stall::default();
+    while !sh.stop.load(Ordering::Acquire) {
         out.clear();
         let before = dev.records_sent();
-        let silent = faults.silent.load(Ordering::Acquire);
+        let silent = sh.faults.silent.load(Ordering::Acquire);
+        let stalled = stall.on(sh.faults, Instant::now());
         dev.set_model(
-            !faults.ignore_stream_stop.load(Ordering::Relaxed),
-            !faults.no_hemisphere_readback.load(Ordering::Relaxed),
+            !sh.faults.ignore_stream_stop.load(Ordering::Relaxed),
+            !sh.faults.no_hemisphere_readback.load(Ordering::Relaxed),
         );
 
-        // Commands, until the next deadline (whole milliseconds; 0 just polls).
+        // Commands, until the next deadline (whole milliseconds; 0 just polls); none read
+        // while the line is stalled.
         let wait = next.saturating_duration_since(Instant::now()).min(MAX_WAIT);
-        let n = pty.read_timeout(&mut buf, wait)?;
+        let n = if stalled {
+            thread::sleep(wait);
+            0
+        } else {
+            pty.read_timeout(&mut buf, wait)?
+        };
         if n > 0 {
             if !silent {
                 if buf[..n].contains(&POINT) {
                     last_pose = pose();
                 }
+                let reads = dev.hemisphere_reads();
                 dev.receive(&buf[..n], last_pose.0, last_pose.1, &mut out);
+                // Added, not stored: the counts go on across a restarted emulator.
+                let heard = dev.hemisphere_reads() - reads;
+                sh.counts
+                    .hemisphere_reads
+                    .fetch_add(heard, Ordering::Release);
             }
         } else {
             let rest = next.saturating_duration_since(Instant::now());
@@ -625,27 +691,37 @@ fn serve_loop(
                 dev.stream(last_pose.0, last_pose.1, &mut out);
             }
         }
-
-        if out.is_empty() {
-            continue;
-        }
         let records = dev.records_sent() - before;
-        let one_in = u64::from(faults.corrupt_one_in.load(Ordering::Relaxed));
-        if one_in > 0 {
-            for _ in 0..records {
-                if rng.below(one_in) == 0 {
-                    corrupt(&mut out, &mut rng);
-                }
-            }
+        corrupt_records(sh.faults, records, &mut out, &mut rng);
+        // Counted when made, so a host that has read a record finds it counted.
+        sh.counts.records.fetch_add(records, Ordering::Release);
+        stall.pass(stalled, &mut out);
+        if !out.is_empty() {
+            write(pty, &out, sh)?;
         }
-        // Counted before the write, so a host that has read a record finds it counted.
-        sent.fetch_add(records, Ordering::Release);
-        writing_since_ms.store(epoch.elapsed().as_millis() as u64 + 1, Ordering::Release);
-        let written = pty.write_all(&out);
-        writing_since_ms.store(0, Ordering::Release);
-        written?;
     }
     Ok(())
+}
+
+/// Corrupts about one of `faults.corrupt_one_in` of the `records` just made in `out`.
+fn corrupt_records(faults: &BirdFaults, records: u64, out: &mut Vec<u8>, rng: &mut XorShift) {
+    let one_in = u64::from(faults.corrupt_one_in.load(Ordering::Relaxed));
+    if one_in > 0 {
+        for _ in 0..records {
+            if rng.below(one_in) == 0 {
+                corrupt(out, rng);
+            }
+        }
+    }
+}
+
+/// Writes `out` to the host, telling the overrun guard how long the write has blocked.
+fn write(pty: &mut Pty, out: &[u8], sh: &Shared) -> io::Result<()> {
+    let since = sh.epoch.elapsed().as_millis() as u64 + 1;
+    sh.writing_since_ms.store(since, Ordering::Release);
+    let written = pty.write_all(out);
+    sh.writing_since_ms.store(0, Ordering::Release);
+    written
 }
 
 #[cfg(test)]
@@ -910,7 +986,7 @@ mod tests {
         let path = pty.path().to_owned();
         let faults = Arc::new(BirdFaults::new());
         let stop = Arc::new(AtomicBool::new(false));
-        let sent = Arc::new(AtomicU64::new(0));
+        let sent = Arc::new(BirdCounts::default());
         let server = {
             let (faults, stop, sent) = (faults.clone(), stop.clone(), sent.clone());
             thread::spawn(move || serve(pty, 250.0, FS, || (P, A), faults, stop, sent))
@@ -930,7 +1006,7 @@ mod tests {
         assert!(got.iter().all(|r| close(r, P, Some(A), FS)), "{got:?}");
         assert_eq!(d.stats().malformed, 0);
         assert_eq!(d.stats().dropped_bytes, 0);
-        assert!(sent.load(Ordering::Relaxed) >= got.len() as u64);
+        assert!(sent.records.load(Ordering::Relaxed) >= got.len() as u64);
 
         // Corrupted stream: the decoder resyncs, most records are still right, and the damage
         // shows in its counts.
@@ -950,19 +1026,19 @@ mod tests {
         faults.silent.store(true, Ordering::Release);
         let settle = Instant::now() + Duration::from_secs(10);
         loop {
-            let before = sent.load(Ordering::Relaxed);
+            let before = sent.records.load(Ordering::Relaxed);
             thread::sleep(Duration::from_millis(100));
-            if sent.load(Ordering::Relaxed) == before || Instant::now() > settle {
+            if sent.records.load(Ordering::Relaxed) == before || Instant::now() > settle {
                 break;
             }
         }
         port.discard_input_buffer().unwrap();
-        let quiet_from = sent.load(Ordering::Relaxed);
+        let quiet_from = sent.records.load(Ordering::Relaxed);
         port.write_all(&[POINT, STREAM]).unwrap(); // unheard
         let mut d = Decoder::new(RecordFormat::PositionAngles, FS);
         let (got, bytes) = read_until(&port, &mut d, Duration::from_millis(300), |_, _| false);
         assert_eq!((got.len(), bytes), (0, 0), "silent");
-        assert_eq!(sent.load(Ordering::Relaxed), quiet_from);
+        assert_eq!(sent.records.load(Ordering::Relaxed), quiet_from);
 
         // Loud again: the stream resumes.
         faults.silent.store(false, Ordering::Release);
@@ -976,12 +1052,71 @@ mod tests {
     }
 
     #[test]
+    fn a_stalled_line_holds_records_and_commands_and_delivers_them_after() {
+        let pty = Pty::open().unwrap();
+        let path = pty.path().to_owned();
+        let faults = Arc::new(BirdFaults::new());
+        let stop = Arc::new(AtomicBool::new(false));
+        let counts = Arc::new(BirdCounts::default());
+        let server = {
+            let (faults, stop, counts) = (faults.clone(), stop.clone(), counts.clone());
+            thread::spawn(move || serve(pty, 100.0, FS, || (P, A), faults, stop, counts))
+        };
+        let mut port = serial2::SerialPort::open(&path, 115_200).unwrap();
+        port.set_read_timeout(Duration::from_millis(20)).unwrap();
+        port.write_all(&[POSITION_ANGLES, STREAM]).unwrap();
+        let mut d = Decoder::new(RecordFormat::PositionAngles, FS);
+        let (mut got, _) = read_until(&port, &mut d, Duration::from_secs(10), |got, _| {
+            got.len() >= 3
+        });
+
+        const STALL: Duration = Duration::from_millis(1500);
+        faults
+            .stall_ms
+            .store(STALL.as_millis() as u64, Ordering::Release);
+        while faults.stall_ms.load(Ordering::Acquire) != 0 {
+            thread::sleep(Duration::from_millis(1));
+        }
+        let taken = Instant::now();
+        let made = counts.records.load(Ordering::Acquire);
+        port.write_all(&[EXAMINE_VALUE, param::HEMISPHERE]).unwrap();
+        thread::sleep(Duration::from_millis(300));
+        if taken.elapsed() < STALL {
+            // Asserted only while the stall surely lasts (a loaded machine may sleep past it).
+            assert_eq!(
+                counts.hemisphere_reads.load(Ordering::Acquire),
+                0,
+                "read while stalled"
+            );
+            assert!(
+                counts.records.load(Ordering::Acquire) > made,
+                "no records made"
+            );
+        }
+        // After it: every record made came, none lost, and the command was read.
+        let deadline = Instant::now() + Duration::from_secs(20);
+        let mut all = false;
+        while !all && Instant::now() < deadline {
+            let made = counts.records.load(Ordering::Acquire);
+            all = counts.hemisphere_reads.load(Ordering::Acquire) > 0 && got.len() as u64 >= made;
+            let (more, _) = read_until(&port, &mut d, Duration::from_millis(50), |_, _| false);
+            got.extend(more);
+        }
+        assert!(all, "{} records of {counts:?}", got.len());
+        assert_eq!(counts.hemisphere_reads.load(Ordering::Acquire), 1);
+        assert!(got.len() as u64 <= counts.records.load(Ordering::Acquire));
+        assert!(got.iter().all(|r| close(r, P, Some(A), FS)));
+        stop.store(true, Ordering::Release);
+        server.join().unwrap().unwrap();
+    }
+
+    #[test]
     fn a_host_that_stops_reading_cannot_stall_stop() {
         let pty = Pty::open().unwrap();
         let path = pty.path().to_owned();
         let faults = Arc::new(BirdFaults::new());
         let stop = Arc::new(AtomicBool::new(false));
-        let sent = Arc::new(AtomicU64::new(0));
+        let sent = Arc::new(BirdCounts::default());
         let server = {
             let (faults, stop, sent) = (faults.clone(), stop.clone(), sent.clone());
             thread::spawn(move || serve(pty, 5000.0, FS, || (P, A), faults, stop, sent))
@@ -991,11 +1126,11 @@ mod tests {
         // 5 kHz × 12 bytes fills the pty's buffers in well under a second; keep not reading
         // until far more than they hold has been sent.
         let deadline = Instant::now() + Duration::from_secs(20);
-        while sent.load(Ordering::Relaxed) < 10_000 && Instant::now() < deadline {
+        while sent.records.load(Ordering::Relaxed) < 10_000 && Instant::now() < deadline {
             thread::sleep(Duration::from_millis(20));
         }
         assert!(
-            sent.load(Ordering::Relaxed) >= 10_000,
+            sent.records.load(Ordering::Relaxed) >= 10_000,
             "the emulator kept going"
         );
         stop.store(true, Ordering::Release);
@@ -1099,7 +1234,7 @@ mod tests {
         let pose = Arc::new(Mutex::new(path_in[0]));
         let faults = Arc::new(faults);
         let stop = Arc::new(AtomicBool::new(false));
-        let sent = Arc::new(AtomicU64::new(0));
+        let sent = Arc::new(BirdCounts::default());
         let server = {
             let (pose, faults, stop, sent) =
                 (pose.clone(), faults.clone(), stop.clone(), sent.clone());
@@ -1112,8 +1247,8 @@ mod tests {
             // A session before this one left the unit streaming.
             let port = serial2::SerialPort::open(&t.port, 115_200).unwrap();
             port.write_all(&[STREAM]).unwrap();
-            let start = sent.load(Ordering::Relaxed);
-            while sent.load(Ordering::Relaxed) < start + 3 {
+            let start = sent.records.load(Ordering::Relaxed);
+            while sent.records.load(Ordering::Relaxed) < start + 3 {
                 thread::sleep(Duration::from_millis(5));
             }
         }
@@ -1123,7 +1258,7 @@ mod tests {
             *pose.lock().unwrap() = p;
             // Records made from here on carry the new pose (one may be in the making): wait
             // until the driver has read past them, by count, then take three fresh samples.
-            let after = sent.load(Ordering::Acquire) + 2;
+            let after = sent.records.load(Ordering::Acquire) + 2;
             let deadline = Instant::now() + Duration::from_secs(30);
             while reader.stats().records < after && Instant::now() < deadline {
                 reader.step(|_| {});
@@ -1199,6 +1334,89 @@ mod tests {
         assert!(reader.stats().discarded <= 1, "{:?}", reader.stats());
     }
 
+    /// The tracker driver's `Reader` (silent after 200 ms) against this emulator in `mode`, the
+    /// line stalled for longer than that twice: the unit is asked again on the same port, never
+    /// reopened, and what comes after is whole records, each published once.
+    fn stalled_through_the_driver(mode: softarm_config::hardware::TrackerMode) {
+        use softarm_config::hardware::{TrackerConfig, TrackerHemisphere, TrackerRecord};
+        let pty = Pty::open().unwrap();
+        let t = TrackerConfig {
+            port: pty.path().to_owned(),
+            baud: 115_200,
+            record: TrackerRecord::PositionAngles,
+            mode,
+            rate_hz: 100.0,
+            full_scale_in: FS,
+            silent_after_ms: 200.0,
+            max_speed_m_per_s: 2.0,
+            translation_m: [0.0; 3],
+            rotation_deg: [0.0; 3],
+            hemisphere: TrackerHemisphere::Forward,
+        };
+        let faults = Arc::new(BirdFaults::new());
+        let stop = Arc::new(AtomicBool::new(false));
+        let counts = Arc::new(BirdCounts::default());
+        let server = {
+            let (faults, stop, counts) = (faults.clone(), stop.clone(), counts.clone());
+            thread::spawn(move || serve(pty, 100.0, FS, || (P, A), faults, stop, counts))
+        };
+        let mut reader = softarm_tracker::Reader::open(&t).unwrap();
+        let mut seqs = Vec::new();
+        type Done<'d> = &'d dyn Fn(&softarm_tracker::Reader) -> bool;
+        let mut run_until = |reader: &mut softarm_tracker::Reader, done: Done| {
+            let deadline = Instant::now() + Duration::from_secs(30);
+            while !done(reader) && Instant::now() < deadline {
+                reader.step(|s| seqs.push(s.seq));
+            }
+            assert!(done(reader), "{mode:?}: waited 30 s");
+        };
+        run_until(&mut reader, &|r| r.stats().records >= 5);
+        for stall_ms in [1200, 500] {
+            let asked = reader.asked_again();
+            faults.stall_ms.store(stall_ms, Ordering::Release);
+            // Through the silence (the unit asked again), then until every record made has
+            // been read.
+            run_until(&mut reader, &|r| r.asked_again() > asked);
+            let made = counts.records.load(Ordering::Acquire);
+            run_until(&mut reader, &|r| r.stats().records >= made);
+        }
+        stop.store(true, Ordering::Release);
+        server.join().unwrap().unwrap();
+        let s = reader.stats();
+        assert_eq!(reader.reopens(), 0, "{mode:?}: reopened on a stall");
+        assert!(
+            reader.asked_again() >= 2,
+            "{mode:?}: {}",
+            reader.asked_again()
+        );
+        assert_eq!(
+            (s.malformed, s.dropped_bytes, s.discarded),
+            (0, 0, 0),
+            "{mode:?}: the decoder lost its phase"
+        );
+        assert!(s.records <= counts.records.load(Ordering::Acquire));
+        assert_eq!(
+            seqs.len() as u64,
+            s.records,
+            "{mode:?}: a record published twice or held"
+        );
+        assert!(seqs.windows(2).all(|w| w[1] == w[0] + 1));
+        assert!(
+            counts.hemisphere_reads.load(Ordering::Acquire) == 1,
+            "{mode:?}: opened again"
+        );
+    }
+
+    #[test]
+    fn a_stalled_stream_is_asked_again_not_reopened_and_stays_in_phase() {
+        stalled_through_the_driver(softarm_config::hardware::TrackerMode::Stream);
+    }
+
+    #[test]
+    fn a_stalled_poll_is_asked_again_not_reopened_and_stays_in_phase() {
+        stalled_through_the_driver(softarm_config::hardware::TrackerMode::Point);
+    }
+
     #[test]
     fn serve_rejects_a_bad_rate_or_scale() {
         for (rate, scale) in [(0.0, FS), (f64::NAN, FS), (1e-300, FS), (100.0, 0.0)] {
@@ -1209,7 +1427,7 @@ mod tests {
                 || (P, A),
                 Arc::new(BirdFaults::new()),
                 Arc::new(AtomicBool::new(false)),
-                Arc::new(AtomicU64::new(0)),
+                Arc::new(BirdCounts::default()),
             );
             assert_eq!(
                 r.unwrap_err().kind(),

@@ -167,7 +167,7 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
     while !stop.load(Ordering::Relaxed) {
         std::thread::sleep(Duration::from_millis(50));
     }
-    let records = rig.records.load(Ordering::Relaxed);
+    let records = rig.tracker_counts.records.load(Ordering::Relaxed);
     let counters = rig.bus.lock().map(|b| b.counters()).ok();
     rig.stop().context("an emulator failed")?;
     eprintln!("softarm emulate: {records} tracker records sent; motor bus {counters:?}");

@@ -4,11 +4,13 @@
 use std::fs::File;
 use std::io::{self, Read, Write};
 use std::os::fd::{AsFd, OwnedFd};
+use std::os::unix::fs::OpenOptionsExt;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
+use nix::fcntl::OFlag;
 use nix::poll::{PollFd, PollFlags, PollTimeout, poll};
-use nix::pty::{OpenptyResult, openpty};
+use nix::pty::{grantpt, posix_openpt, ptsname_r, unlockpt};
 use nix::sys::termios::{SetArg, cfmakeraw, tcgetattr, tcsetattr};
 
 /// One pseudo-terminal pair. The slave stays open here too, so the master never reads a hang-up
@@ -22,14 +24,26 @@ pub struct Pty {
 
 impl Pty {
     /// Opens a pair in raw mode (no echo, no line editing, 8 data bits), as a serial port is.
+    /// Both ends are close-on-exec from the start: a process the caller starts (a driver under
+    /// test) must not hold the device open, or closing it here would never hang up the line.
     pub fn open() -> io::Result<Self> {
-        let OpenptyResult { master, slave } = openpty(None, None).map_err(io::Error::from)?;
+        let cloexec = OFlag::O_RDWR | OFlag::O_NOCTTY | OFlag::O_CLOEXEC;
+        let master = posix_openpt(cloexec).map_err(io::Error::from)?;
+        grantpt(&master).map_err(io::Error::from)?;
+        unlockpt(&master).map_err(io::Error::from)?;
+        let slave_path = PathBuf::from(ptsname_r(&master).map_err(io::Error::from)?);
+        let slave = OwnedFd::from(
+            std::fs::OpenOptions::new()
+                .read(true)
+                .write(true)
+                .custom_flags(cloexec.bits())
+                .open(&slave_path)?,
+        );
         let mut t = tcgetattr(&slave).map_err(io::Error::from)?;
         cfmakeraw(&mut t);
         tcsetattr(&slave, SetArg::TCSANOW, &t).map_err(io::Error::from)?;
-        let slave_path = nix::unistd::ttyname(slave.as_fd()).map_err(io::Error::from)?;
         Ok(Self {
-            master: File::from(master),
+            master: File::from(OwnedFd::from(master)),
             slave,
             slave_path,
         })

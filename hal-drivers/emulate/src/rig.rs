@@ -3,7 +3,7 @@
 //! emulated motors stand at (through the same [`Mapping`] and [`Frame`] the drivers use), so
 //! the loop closes through the real drivers exactly as it does on the arm.
 
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 
@@ -12,9 +12,21 @@ use softarm_config::Config;
 use softarm_config::hardware::{Frame, Mapping};
 use softarm_method::space::ACTUATORS;
 
-use crate::bird::{self, BirdFaults};
+use crate::bird::{self, BirdCounts, BirdFaults};
 use crate::dynamixel;
 use crate::pty::Pty;
+
+type Pose = Arc<dyn Fn() -> ([f64; 3], [f64; 3]) + Send + Sync>;
+
+/// The tracker's emulator: what it needs to start (again) and the thread serving it.
+struct Tracker {
+    rate_hz: f64,
+    full_scale_in: f64,
+    pose: Pose,
+    /// Stops this emulator alone (the bus has its own flag).
+    stop: Arc<AtomicBool>,
+    thread: Option<JoinHandle<std::io::Result<()>>>,
+}
 
 /// The two devices, running on their own threads until [`Rig::stop`] (or drop).
 pub struct Rig {
@@ -24,10 +36,11 @@ pub struct Rig {
     pub bus: Arc<Mutex<dynamixel::Bus>>,
     /// The tracker's fault switches.
     pub tracker_faults: Arc<BirdFaults>,
-    /// Records the tracker has sent.
-    pub records: Arc<AtomicU64>,
+    /// What the tracker has done: records sent, opens heard.
+    pub tracker_counts: Arc<BirdCounts>,
     stop: Arc<AtomicBool>,
     threads: Vec<JoinHandle<std::io::Result<()>>>,
+    tracker: Tracker,
 }
 
 impl Rig {
@@ -52,9 +65,7 @@ impl Rig {
         let bus = Arc::new(Mutex::new(dynamixel::Bus::with_motors(motors)));
         let stop = Arc::new(AtomicBool::new(false));
         let tendon_pty = Pty::open().context("opening a pseudo-terminal for the motor bus")?;
-        let tracker_pty = Pty::open().context("opening a pseudo-terminal for the tracker")?;
         let tendon_path = tendon_pty.path().to_path_buf();
-        let tracker_path = tracker_pty.path().to_path_buf();
 
         let mut threads = Vec::new();
         {
@@ -65,42 +76,75 @@ impl Rig {
                     .spawn(move || dynamixel::serve(tendon_pty, bus, stop))?,
             );
         }
-        let tracker_faults = Arc::new(BirdFaults::default());
-        let records = Arc::new(AtomicU64::new(0));
-        {
-            let (bus, stop, faults, records) = (
-                bus.clone(),
-                stop.clone(),
-                tracker_faults.clone(),
-                records.clone(),
-            );
-            let ids = tendon.ids;
-            let pose = move || {
+        let pose: Pose = {
+            let (bus, ids) = (bus.clone(), tendon.ids);
+            Arc::new(move || {
                 let ticks: [i32; ACTUATORS] = {
                     let b = bus.lock().unwrap();
                     std::array::from_fn(|i| b.motor(ids[i]).map_or(0, |m| m.present_position()))
                 };
                 let a = std::array::from_fn(|i| mapping.actuation(i, ticks[i]));
                 (frame.to_tracker(arm.position(&a)), [0.0; 3])
-            };
-            let (rate, scale) = (tracker.rate_hz, tracker.full_scale_in);
-            threads.push(
-                std::thread::Builder::new()
-                    .name("emulated tracker".into())
-                    .spawn(move || {
-                        bird::serve(tracker_pty, rate, scale, pose, faults, stop, records)
-                    })?,
-            );
-        }
-        Ok(Self {
+            })
+        };
+        let mut rig = Self {
             tendon_path,
-            tracker_path,
+            tracker_path: std::path::PathBuf::new(),
             bus,
-            tracker_faults,
-            records,
+            tracker_faults: Arc::new(BirdFaults::default()),
+            tracker_counts: Arc::new(BirdCounts::default()),
             stop,
             threads,
-        })
+            tracker: Tracker {
+                rate_hz: tracker.rate_hz,
+                full_scale_in: tracker.full_scale_in,
+                pose,
+                stop: Arc::new(AtomicBool::new(false)),
+                thread: None,
+            },
+        };
+        rig.start_tracker()?;
+        Ok(rig)
+    }
+
+    /// Serves the tracker on a new pseudo-terminal.
+    fn start_tracker(&mut self) -> anyhow::Result<()> {
+        let pty = Pty::open().context("opening a pseudo-terminal for the tracker")?;
+        self.tracker_path = pty.path().to_path_buf();
+        let t = &mut self.tracker;
+        t.stop = Arc::new(AtomicBool::new(false));
+        let (faults, stop, counts, pose) = (
+            self.tracker_faults.clone(),
+            t.stop.clone(),
+            self.tracker_counts.clone(),
+            t.pose.clone(),
+        );
+        let (rate, scale) = (t.rate_hz, t.full_scale_in);
+        t.thread = Some(
+            std::thread::Builder::new()
+                .name("emulated tracker".into())
+                .spawn(move || {
+                    bird::serve(pty, rate, scale, move || pose(), faults, stop, counts)
+                })?,
+        );
+        Ok(())
+    }
+
+    /// The tracker's emulator restarted: its pseudo-terminal closed (a driver that has it open
+    /// reads a hang-up) and a new one opened, at [`Rig::tracker_path`]. The unit starts over
+    /// (not streaming, its defaults); the counts go on.
+    pub fn restart_tracker(&mut self) -> anyhow::Result<()> {
+        self.stop_tracker().context("the tracker emulator failed")?;
+        self.start_tracker()
+    }
+
+    fn stop_tracker(&mut self) -> std::io::Result<()> {
+        self.tracker.stop.store(true, Ordering::Relaxed);
+        match self.tracker.thread.take().map(|t| t.join()) {
+            Some(Ok(r)) => r,
+            Some(Err(_)) => Err(std::io::Error::other("the tracker emulator panicked")),
+            None => Ok(()),
+        }
     }
 
     /// The motor bus's device (`/dev/pts/N`).
@@ -120,7 +164,7 @@ impl Rig {
 
     fn halt(&mut self) -> std::io::Result<()> {
         self.stop.store(true, Ordering::Relaxed);
-        let mut result = Ok(());
+        let mut result = self.stop_tracker();
         for t in self.threads.drain(..) {
             match t.join() {
                 Ok(Err(e)) if result.is_ok() => result = Err(e),

@@ -57,11 +57,23 @@ pub mod fuzz {
     const WAIT: Duration = Duration::from_millis(100);
 
     impl Probe {
-        /// Opens the bus as the driver does at start (every motor must answer).
+        /// Opens the bus as the driver does at start; an error when some motor has not
+        /// answered the survey within 2 s.
         pub fn open(t: &TendonConfig) -> anyhow::Result<Self> {
             let mut counts = Counts::default();
+            let mut link = Link::open(t)?;
+            let deadline = std::time::Instant::now() + Duration::from_secs(2);
+            while !link.ready() && std::time::Instant::now() < deadline {
+                link.survey(t, &mut counts, WAIT)
+                    .map_err(|f| anyhow::anyhow!("surveying the motors: {f}"))?;
+            }
+            anyhow::ensure!(
+                link.ready(),
+                "{}: some motor did not answer the survey in 2 s",
+                t.port.display()
+            );
             Ok(Self {
-                link: Link::open(t, true, &mut counts)?,
+                link,
                 reading: Reading::default(),
                 counts,
             })
@@ -228,6 +240,19 @@ const RETRY_AFTER: f64 = 0.4;
 /// A bus silent this long has its device checked (gone, or another one behind the name).
 const CHECK_DEVICE_AFTER_NS: u64 = 500_000_000;
 
+/// How long the survey's first exchange, before the loop, waits for the motors' answers.
+const START_SURVEY_WAIT: Duration = Duration::from_millis(100);
+
+/// Says that every motor answered the survey.
+fn said_ready(t: &TendonConfig) {
+    tracing::info!(
+        port = %t.port.display(),
+        baud = t.baud,
+        ids = ?t.ids,
+        "every motor answered; the torque comes on with the first setpoint where they stand"
+    );
+}
+
 impl<'a> Driver<'a> {
     fn open(config: &Config, t: &'a TendonConfig) -> anyhow::Result<Self> {
         let ms = |v: f64| (v * 1e6) as u64;
@@ -236,14 +261,18 @@ impl<'a> Driver<'a> {
             off_after_ns: ms(t.torque_off_after_ms),
         };
         let mut counts = Counts::default();
-        // At start a missing motor is an error the user must fix; later the driver keeps trying.
-        let link = Link::open(t, true, &mut counts)?;
-        tracing::info!(
-            port = %t.port.display(),
-            baud = t.baud,
-            ids = ?t.ids,
-            "motors answered; the torque comes on with the first setpoint"
-        );
+        let mut link = Link::open(t)?;
+        // The first exchange of the survey before the loop, as long as a motor gets to answer:
+        // on a clean bus every motor has answered when it ends. A bus that has not (a stall,
+        // noise, a motor missing) is asked again in the loop, which hears the e-stop meanwhile.
+        match link.survey(t, &mut counts, START_SURVEY_WAIT) {
+            Ok(true) => said_ready(t),
+            Ok(false) | Err(Fault::Bus(_)) => {}
+            Err(Fault::Port(m)) => anyhow::bail!(
+                "asking the motors on {} for their settings: {m}",
+                t.port.display()
+            ),
+        }
         Ok(Self {
             t,
             mapping: Mapping::new(t, &config.arm),
@@ -278,14 +307,15 @@ impl<'a> Driver<'a> {
     }
 
     /// One cycle as named steps: the safety decision, the port kept (reopened only when it is
-    /// gone), the last read's replies taken, the action written, the next read sent, the
-    /// state reported.
+    /// gone), the motors surveyed until every one has answered, the last read's replies
+    /// taken, the action written, the next read sent, the state reported.
     fn cycle(&mut self, now: u64, poll: &Poll) {
         self.cycle += 1;
         self.setpoint_cycles += u64::from(poll.setpoint.is_some());
         let fault = self.reading.hardware_error.iter().any(|&e| e != 0);
         let action = self.supervisor.update(now, poll, fault);
         self.keep_port(now);
+        self.survey();
         self.collect(now);
         self.act(action);
         self.ask(now);
@@ -296,19 +326,17 @@ impl<'a> Driver<'a> {
     /// replaced (the old descriptor would never hear from the new adapter).
     fn keep_port(&mut self, now: u64) {
         match &self.link {
-            None if self.reopen_backoff.ready(now) => {
-                match Link::open(self.t, false, &mut self.counts) {
-                    Ok(l) => {
-                        tracing::warn!(reopens = self.reopens, "motor bus open again");
-                        self.link = Some(l);
-                        self.reopen_backoff.succeeded();
-                    }
-                    Err(e) => {
-                        self.reopen_backoff.failed(now);
-                        tracing::error!(reopens = self.reopens, "{e:#}");
-                    }
+            None if self.reopen_backoff.ready(now) => match Link::open(self.t) {
+                Ok(l) => {
+                    tracing::warn!(reopens = self.reopens, "motor bus open again");
+                    self.link = Some(l);
+                    self.reopen_backoff.succeeded();
                 }
-            }
+                Err(e) => {
+                    self.reopen_backoff.failed(now);
+                    tracing::error!(reopens = self.reopens, "{e:#}");
+                }
+            },
             Some(l)
                 if now.saturating_sub(l.last_reply_ns) > CHECK_DEVICE_AFTER_NS
                     && now.saturating_sub(self.device_checked_ns) > CHECK_DEVICE_AFTER_NS =>
@@ -319,6 +347,28 @@ impl<'a> Driver<'a> {
                 }
             }
             _ => {}
+        }
+    }
+
+    /// A link still surveying asks the motors that have not answered and takes their
+    /// settings, waiting up to [`RETRY_AFTER`] of a period; it is ready once every motor has
+    /// answered and is configured. However long the bus stalls, the motors that answer late
+    /// are taken, and none is engaged before then.
+    fn survey(&mut self) {
+        let Some(l) = self.link.as_mut().filter(|l| !l.ready()) else {
+            return;
+        };
+        let wait = Duration::from_secs_f64(RETRY_AFTER / self.t.rate_hz);
+        match l.survey(self.t, &mut self.counts, wait) {
+            Ok(true) => said_ready(self.t),
+            Ok(false) => {}
+            Err(Fault::Port(m)) => self.close(&format!("surveying: {m}")),
+            Err(f @ Fault::Bus(_)) => {
+                self.write_faults += 1;
+                if self.write_faults.is_power_of_two() {
+                    tracing::error!(write_faults = self.write_faults, "surveying: {f}");
+                }
+            }
         }
     }
 
@@ -339,7 +389,7 @@ impl<'a> Driver<'a> {
     /// The replies to the read sent last cycle, into the reading; the read closed (what has
     /// not come is lost) and the loss rate updated.
     fn collect(&mut self, now: u64) {
-        let Some(l) = self.link.as_mut() else {
+        let Some(l) = self.link.as_mut().filter(|l| l.ready()) else {
             return;
         };
         let late = self.counts.late;
@@ -362,8 +412,15 @@ impl<'a> Driver<'a> {
         }
     }
 
-    /// The action on the bus, every cycle: nothing on the read side holds it back.
+    /// The action on the bus, every cycle: nothing on the read side holds it back. While the
+    /// motors are being surveyed only torque-off goes out: nothing is driven before every
+    /// motor has answered.
     fn act(&mut self, action: Action) {
+        let surveying = self.link.as_ref().is_some_and(|l| !l.ready());
+        let action = match action {
+            Action::Follow(_) if surveying => Action::Hold,
+            a => a,
+        };
         let (goals, engage) = match action {
             Action::Follow(a) => self.goals(&a),
             _ => ([0; ACTUATORS], false),
@@ -396,7 +453,7 @@ impl<'a> Driver<'a> {
     /// motors whose position did not come within [`RETRY_AFTER`] of the period are asked once
     /// more, so a noisy line costs a motor's data a cycle only when both replies are lost.
     fn ask(&mut self, now: u64) {
-        let Some(l) = self.link.as_mut() else {
+        let Some(l) = self.link.as_mut().filter(|l| l.ready()) else {
             return;
         };
         if !self.read_backoff.ready(now) {
@@ -458,10 +515,17 @@ impl<'a> Driver<'a> {
         let mut state = self.supervisor.state();
         let age = self.reading.stamp_ns().map(|s| now.saturating_sub(s));
         let bus = self.health.bus(age, self.stale_after_ns);
-        if state == DriverState::Following && bus != Bus::Good {
+        let surveying = self.link.as_ref().is_some_and(|l| !l.ready());
+        if state == DriverState::Following && surveying {
+            // What `act` does then: nothing driven until every motor has answered.
+            state = DriverState::Holding;
+        } else if state == DriverState::Following && bus != Bus::Good {
             state = DriverState::Degraded;
         }
-        self.health.log(now, bus, age, &self.totals());
+        // A survey names the motors it misses itself.
+        if !surveying {
+            self.health.log(now, bus, age, &self.totals());
+        }
         // FOLLOWING <-> DEGRADED is the bus's to say (`Health::log`, rate-limited).
         let bus_only = [self.reported, state]
             .iter()

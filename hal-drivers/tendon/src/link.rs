@@ -124,6 +124,25 @@ impl Ask {
     }
 }
 
+/// Names the motors that have not answered the survey in `waited_s` seconds, and says it goes on.
+fn name_missing(t: &TendonConfig, ids: &[u8], waited_s: u64) {
+    let named: Vec<String> = ids
+        .iter()
+        .map(|&id| {
+            let actuator = t.ids.iter().position(|&x| x == id).map_or(0, |i| i + 1);
+            format!("id {id} (actuator {actuator})")
+        })
+        .collect();
+    tracing::error!(
+        "no answer on {} at {} baud from motor {} for {waited_s} s: check the motors' power and \
+         wiring, and tendon.ids and tendon.baud against the motors' settings; still asking, and \
+         no torque comes on until every motor has answered",
+        t.port.display(),
+        t.baud,
+        named.join(", ")
+    );
+}
+
 /// A read that was sent and whose replies are being collected.
 #[derive(Debug, Clone, Copy)]
 struct Pending {
@@ -150,143 +169,249 @@ pub(crate) struct Link {
     pub alert: bool,
     /// When a reply last came (ns).
     pub last_reply_ns: u64,
+    /// The motors' settings while they are being asked (`None` once every motor answered and
+    /// is configured).
+    survey: Option<Survey>,
+    configure_faults: u64,
 }
 
-/// At start every motor gets this long to answer, three times: a loaded machine may deliver
-/// a reply tens of milliseconds late, and a restarted driver should not be refused for it.
+/// At start every motor gets this long to answer a write, three times: a loaded machine may
+/// deliver a reply tens of milliseconds late. The survey's sync read is sent again this often
+/// for the motors that have not answered whole.
 const START_REPLY_TIMEOUT: Duration = Duration::from_millis(100);
 const START_ATTEMPTS: usize = 3;
-/// How long the survey asks again for the motors that have not answered whole. Its replies
-/// are the longest the driver asks for (65 bytes): with 2 % of the bytes garbled only about a
-/// quarter of them arrive whole, so three tries missed some motor nearly always and a noisy
-/// bus could not start; 2 s of tries (about twenty) miss one of six 1 time in 300. A motor that
-/// is not there costs these 2 s before the error names it.
-const SURVEY_BUDGET: Duration = Duration::from_secs(2);
+/// A survey this old with motors missing names them in the log, and again every
+/// [`NAME_EVERY_NS`] while it lasts. Its replies are the longest the driver asks for (65 bytes):
+/// with 2 % of the bytes garbled only about a quarter arrive whole, and 2 s of tries (about
+/// twenty) miss one of six 1 time in 300, so a noisy bus is not said to miss a motor.
+const SURVEY_BUDGET_NS: u64 = 2_000_000_000;
+const NAME_EVERY_NS: u64 = 10_000_000_000;
 
 /// The settings read at start: Operating Mode (11) .. Torque Enable (64).
 const SURVEY_FROM: u16 = table::OPERATING_MODE;
 const SURVEY_LEN: u16 = table::TORQUE_ENABLE - table::OPERATING_MODE + 1;
 
+/// What a status packet was to the survey.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Heard {
+    /// A motor's settings, the first time.
+    New,
+    /// A motor already heard (a reply to an earlier ask, delivered late).
+    Again,
+    /// No answer to the survey.
+    Other,
+}
+
+/// Every motor's settings, asked at start until each has answered whole. A slow bus (a
+/// loaded machine's pty holding the replies for seconds) only makes it longer: nobody gives up
+/// on a motor that answers late, and none is engaged before all have answered.
+#[derive(Debug)]
+struct Survey {
+    settings: [Option<Vec<u8>>; ACTUATORS],
+    began_ns: u64,
+    /// When the last sync read went out; `None` before the first.
+    asked_ns: Option<u64>,
+    /// When the missing motors are next named in the log.
+    name_ns: u64,
+}
+
+impl Survey {
+    fn new(now: u64) -> Self {
+        Self {
+            settings: Default::default(),
+            began_ns: now,
+            asked_ns: None,
+            name_ns: now.saturating_add(SURVEY_BUDGET_NS),
+        }
+    }
+
+    fn complete(&self) -> bool {
+        self.settings.iter().all(Option::is_some)
+    }
+
+    /// The ids of the motors that have not answered.
+    fn missing(&self, ids: &[u8; ACTUATORS]) -> Vec<u8> {
+        (0..ACTUATORS)
+            .filter(|&i| self.settings[i].is_none())
+            .map(|i| ids[i])
+            .collect()
+    }
+
+    /// Whether the sync read is due at `now`: at once, then every [`START_REPLY_TIMEOUT`]
+    /// while a motor is missing.
+    fn ask_due(&self, now: u64) -> bool {
+        let every = START_REPLY_TIMEOUT.as_nanos() as u64;
+        !self.complete() && self.asked_ns.is_none_or(|a| now.saturating_sub(a) >= every)
+    }
+
+    /// Takes status packet `s`.
+    fn take(&mut self, ids: &[u8; ACTUATORS], s: &Status) -> Heard {
+        let Some(i) = ids.iter().position(|&id| id == s.id) else {
+            return Heard::Other;
+        };
+        if s.params.len() != usize::from(SURVEY_LEN) {
+            return Heard::Other;
+        }
+        if self.settings[i].is_some() {
+            return Heard::Again;
+        }
+        self.settings[i] = Some(s.params.clone());
+        Heard::New
+    }
+
+    /// Whether to name the missing motors at `now`: after [`SURVEY_BUDGET_NS`], then every
+    /// [`NAME_EVERY_NS`].
+    fn name_due(&mut self, now: u64) -> bool {
+        if self.complete() || now < self.name_ns {
+            return false;
+        }
+        self.name_ns = now.saturating_add(NAME_EVERY_NS);
+        true
+    }
+}
+
 impl Link {
-    /// Opens the port and finds every motor and its settings with one sync read (repeated
-    /// for those that did not answer whole, for up to [`SURVEY_BUDGET`]), writes position control and the limits where they
-    /// differ, and the profile velocity. At start (`strict`) a motor that does not answer is
-    /// an error naming it; on a reopen the link is kept with what answers, so torque-off can
-    /// always go out. On a clean bus start-up is one or two exchanges, not five per motor.
-    pub fn open(t: &TendonConfig, strict: bool, counts: &mut Counts) -> anyhow::Result<Self> {
-        let port = t.port.display();
+    /// Opens the port; the link then surveys the motors ([`Link::survey`]) and is
+    /// [`Link::ready`] once every one has answered and is configured. Until then the torque may
+    /// be on anywhere (a restarted driver's motors hold), so an `Off` reaches every motor.
+    pub fn open(t: &TendonConfig) -> anyhow::Result<Self> {
         // A write finds room in the kernel's buffer at once unless the line is stuck: waiting
         // longer than half a period for one would only stall the next cycle's writes.
         let write_timeout = Duration::from_secs_f64((0.5 / t.rate_hz).clamp(0.002, 0.05));
         let wire = Wire::open(&t.port, t.baud, write_timeout).with_context(|| {
             format!(
-                "cannot open the motor bus {port} (tendon.port); is the adapter plugged in and \
-                 are you in the `dialout` group?"
+                "cannot open the motor bus {} (tendon.port); is the adapter plugged in and \
+                 are you in the `dialout` group?",
+                t.port.display()
             )
         })?;
-        let mut link = Self {
+        let now = now_ns();
+        Ok(Self {
             wire,
             ids: t.ids,
-            torque: false,
+            torque: true,
             pending: None,
             closed: std::collections::VecDeque::new(),
             alert: false,
-            last_reply_ns: now_ns(),
-        };
-        let settings = link.survey(counts)?;
-        let mut missing = Vec::new();
-        for i in 0..ACTUATORS {
-            let id = t.ids[i];
-            let Some(s) = &settings[i] else {
-                missing.push(format!("id {id} (actuator {})", i + 1));
-                // Unknown: assume it is driven, so that an `Off` reaches it.
-                link.torque = true;
-                continue;
-            };
-            let on = link.configure(t, i, s, counts).with_context(|| {
-                format!("configuring motor id {id} (actuator {}) on {port}", i + 1)
-            });
-            match on {
-                Ok(on) => link.torque |= on,
-                Err(e) if strict => return Err(e),
-                Err(e) => {
-                    tracing::error!("{e:#}");
-                    link.torque = true;
-                }
-            }
-        }
-        if !missing.is_empty() {
-            let message = format!(
-                "no answer on {port} at {} baud from motor {}: check the motors' power and \
-                 wiring, and tendon.ids and tendon.baud against the motors' settings",
-                t.baud,
-                missing.join(", ")
-            );
-            if strict {
-                bail!(message);
-            }
-            tracing::error!("{message}");
-        }
-        // RAM, lost at a power cycle: written every open, to every motor (no reply).
-        let velocity = link.for_motors(|_| Some(t.profile_velocity.to_le_bytes()));
-        link.sync_write(table::PROFILE_VELOCITY, &velocity)
-            .map_err(|f| anyhow::anyhow!("writing the profile velocity on {port}: {f}"))?;
-        link.wire.counts.running();
-        Ok(link)
+            last_reply_ns: now,
+            survey: Some(Survey::new(now)),
+            configure_faults: 0,
+        })
     }
 
-    /// Every motor's settings (Operating Mode .. Torque Enable), `None` for one that did not
-    /// answer whole within [`SURVEY_BUDGET`] of sync reads, each asking those still missing.
-    fn survey(&mut self, counts: &mut Counts) -> anyhow::Result<[Option<Vec<u8>>; ACTUATORS]> {
-        let mut settings: [Option<Vec<u8>>; ACTUATORS] = Default::default();
-        let give_up = std::time::Instant::now() + SURVEY_BUDGET;
-        while std::time::Instant::now() < give_up {
-            let ask: Vec<u8> = (0..ACTUATORS)
-                .filter(|&i| settings[i].is_none())
-                .map(|i| self.ids[i])
-                .collect();
-            if ask.is_empty() {
-                break;
-            }
+    /// Every motor has answered the survey and is configured: the link reads and drives.
+    pub fn ready(&self) -> bool {
+        self.survey.is_none()
+    }
+
+    /// One step of the survey: the sync read of Operating Mode .. Torque Enable sent to the
+    /// motors that have not answered whole, when due, and their answers taken, waiting at most
+    /// `wait`. Once every motor has answered: position control and the limits written where
+    /// they differ, the profile velocity, and the link is ready (true: it just became ready).
+    /// On a clean bus that is one exchange, not five per motor.
+    pub fn survey(
+        &mut self,
+        t: &TendonConfig,
+        counts: &mut Counts,
+        wait: Duration,
+    ) -> Result<bool, Fault> {
+        let Some(s) = self.survey.as_mut() else {
+            return Ok(false);
+        };
+        let now = now_ns();
+        if s.ask_due(now) {
+            let ask = s.missing(&self.ids);
+            // The read before ended with some motor's answer missing.
+            counts.timeouts += u64::from(s.asked_ns.is_some());
+            s.asked_ns = Some(now);
             let mut params = SURVEY_FROM.to_le_bytes().to_vec();
             params.extend(SURVEY_LEN.to_le_bytes());
             params.extend(&ask);
+            counts.asked += ask.len() as u64;
             self.wire
                 .send(BROADCAST_ID, instruction::SYNC_READ, &params)
-                .context("asking the motors for their settings")?;
-            counts.asked += ask.len() as u64;
-            let deadline = std::time::Instant::now() + START_REPLY_TIMEOUT;
-            let mut waiting = ask.len();
-            while waiting > 0 {
-                let left = deadline.saturating_duration_since(std::time::Instant::now());
-                match self.wire.receive(left) {
-                    Some(Arrival::Status(s, _)) => {
-                        let i = self.ids.iter().position(|&id| id == s.id);
-                        match i {
-                            Some(i)
-                                if settings[i].is_none()
-                                    && ask.contains(&s.id)
-                                    && s.params.len() == usize::from(SURVEY_LEN) =>
-                            {
-                                settings[i] = Some(s.params);
-                                counts.answered += 1;
-                                waiting -= 1;
-                            }
-                            _ => counts.stray += 1,
-                        }
+                .map_err(write_fault)?;
+        }
+        self.take_survey(counts, wait)?;
+        let Some(s) = self.survey.as_mut() else {
+            return Ok(false);
+        };
+        if !s.complete() {
+            if s.name_due(now) {
+                let waited_s = now.saturating_sub(s.began_ns) / 1_000_000_000;
+                let missing = s.missing(&self.ids);
+                name_missing(t, &missing, waited_s);
+            }
+            return Ok(false);
+        }
+        self.finish(t, counts)
+    }
+
+    /// Takes the survey's answers that have come, waiting at most `wait` for them all.
+    fn take_survey(&mut self, counts: &mut Counts, wait: Duration) -> Result<(), Fault> {
+        let deadline = std::time::Instant::now() + wait;
+        while let Some(s) = self.survey.as_mut()
+            && !s.complete()
+        {
+            let left = deadline.saturating_duration_since(std::time::Instant::now());
+            match self.wire.receive(left) {
+                None => break,
+                Some(Arrival::PortError(e)) => return Err(Fault::Port(e)),
+                Some(Arrival::Status(st, _)) => {
+                    self.last_reply_ns = now_ns();
+                    match s.take(&self.ids, &st) {
+                        // A late answer to an earlier ask is an answer, not a lost reply.
+                        Heard::New | Heard::Again => counts.answered += 1,
+                        Heard::Other => counts.stray += 1,
                     }
-                    Some(Arrival::PortError(e)) => bail!("reading the motor bus: {e}"),
-                    None => break,
                 }
             }
-            if waiting > 0 {
-                counts.timeouts += 1;
+        }
+        Ok(())
+    }
+
+    /// Every motor answered: configures each, writes the profile velocity, and the link is
+    /// ready. A motor whose configuration fails is asked again (and stays unengaged).
+    fn finish(&mut self, t: &TendonConfig, counts: &mut Counts) -> Result<bool, Fault> {
+        let Some(s) = self.survey.as_mut() else {
+            return Ok(false);
+        };
+        let settings = std::mem::take(&mut s.settings);
+        let mut torque = false;
+        let mut failed = false;
+        for (i, found) in settings.into_iter().enumerate() {
+            let found = found.expect("every motor answered");
+            match self.configure(t, i, &found, counts) {
+                Ok(on) => torque |= on,
+                Err(e) => {
+                    failed = true;
+                    self.configure_faults += 1;
+                    if self.configure_faults.is_power_of_two() {
+                        tracing::error!(
+                            configure_faults = self.configure_faults,
+                            "configuring motor id {} (actuator {}) on {}: {e:#}; asking it again",
+                            t.ids[i],
+                            i + 1,
+                            t.port.display()
+                        );
+                    }
+                    continue;
+                }
+            }
+            if let Some(s) = self.survey.as_mut() {
+                s.settings[i] = Some(found);
             }
         }
-        if settings.iter().any(|s| s.is_some()) {
-            self.last_reply_ns = now_ns();
+        if failed {
+            return Ok(false);
         }
-        Ok(settings)
+        // RAM, lost at a power cycle: written every open, to every motor (no reply).
+        let velocity = self.for_motors(|_| Some(t.profile_velocity.to_le_bytes()));
+        self.sync_write(table::PROFILE_VELOCITY, &velocity)?;
+        self.wire.counts.running();
+        self.survey = None;
+        self.torque = torque;
+        Ok(true)
     }
 
     /// Writes position control and the limits where they differ from the config (they live in
@@ -620,4 +745,67 @@ fn take(
     }
     p.answered[i] = true;
     true
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const MS: u64 = 1_000_000;
+    const IDS: [u8; ACTUATORS] = [1, 2, 3, 4, 5, 6];
+
+    fn settings(id: u8) -> Status {
+        Status {
+            id,
+            error: 0,
+            params: vec![3; usize::from(SURVEY_LEN)],
+        }
+    }
+
+    #[test]
+    fn a_survey_asks_the_missing_motors_every_100_ms_until_each_has_answered() {
+        let mut s = Survey::new(0);
+        assert!(s.ask_due(0), "at once");
+        s.asked_ns = Some(0);
+        assert!(!s.ask_due(99 * MS) && s.ask_due(100 * MS));
+        for id in [2, 5] {
+            assert_eq!(s.take(&IDS, &settings(id)), Heard::New);
+        }
+        assert_eq!(s.missing(&IDS), [1, 3, 4, 6]);
+        // A late answer to an earlier ask, a refusal (no data), another length, a stranger.
+        assert_eq!(s.take(&IDS, &settings(2)), Heard::Again);
+        let refused = Status {
+            id: 1,
+            error: 0x02,
+            params: vec![],
+        };
+        assert_eq!(s.take(&IDS, &refused), Heard::Other);
+        let position = Status {
+            params: vec![0; 4],
+            ..settings(1)
+        };
+        assert_eq!(s.take(&IDS, &position), Heard::Other);
+        assert_eq!(s.take(&IDS, &settings(9)), Heard::Other);
+        // However long it takes: no budget ends it.
+        assert!(s.ask_due(3_600_000 * MS));
+        for id in [1, 3, 4, 6] {
+            s.take(&IDS, &settings(id));
+        }
+        assert!(s.complete() && s.missing(&IDS).is_empty());
+        assert!(!s.ask_due(3_600_000 * MS), "nothing left to ask");
+    }
+
+    #[test]
+    fn the_missing_motors_are_named_after_2_s_then_every_10_s() {
+        let mut s = Survey::new(1000 * MS);
+        let named: Vec<u64> = (0..=25_000)
+            .step_by(100)
+            .filter(|&t| s.name_due((1000 + t) * MS))
+            .collect();
+        assert_eq!(named, [2000, 12_000, 22_000]);
+        for id in IDS {
+            s.take(&IDS, &settings(id));
+        }
+        assert!(!s.name_due(100_000 * MS), "all answered: nothing to name");
+    }
 }

@@ -317,7 +317,12 @@ fn read_line(port: SerialPort, tx: Sender<Arrival>, counts: &LineCounts, stop: &
     let mut buf = [0u8; 512];
     while !stop.load(Ordering::Relaxed) {
         let n = match port.read(&mut buf) {
-            Ok(0) => continue,
+            // End of file: the line hung up (its other side closed, the adapter unplugged). A
+            // live port with nothing to read times out instead; reading on spun a core.
+            Ok(0) => {
+                let _ = tx.send(Arrival::PortError("end of file: the line hung up".into()));
+                return;
+            }
             Ok(n) => n,
             Err(e) if is_timeout(&e) => continue,
             Err(e) => {

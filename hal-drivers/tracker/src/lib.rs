@@ -2,12 +2,17 @@
 //! protocol (trakSTAR class). Configures the record format, streams (or polls) records, finds
 //! their boundaries by the phasing bit ([`bird::Decoder`]), converts them to metres in the base
 //! frame and publishes `tracker` samples stamped on arrival. At open it stops a stream left
-//! running and selects the configured hemisphere, read back where the unit allows
-//! (module `setup`). A silent device is reported and asked again with back-off; a lost
-//! port is reopened; the loop never blocks longer than a read time-out (an open, with its drain
-//! and read-back, about 1.4 s at most), so it always hears its stop signal.
+//! running and selects the configured hemisphere, read back where the unit allows (module
+//! `setup`). A silent device is reported and asked again on the same port with back-off:
+//! silence is no evidence that the port is gone (a loaded host delivers a pseudo-terminal's
+//! bytes late). The port is reopened only when it is gone: an I/O error, end of file (a
+//! hang-up), or its name leading to no device or to another one. The loop never blocks longer
+//! than a read time-out (an open, with its drain and read-back, about 1.4 s at most), so it
+//! always hears its stop signal.
 
 use std::io::{ErrorKind, Read, Write};
+use std::os::fd::AsFd;
+use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
@@ -91,18 +96,123 @@ impl Plausibility {
     }
 }
 
-/// One read: at most [`READ_TIMEOUT`]; 0 bytes when nothing came.
+/// One read: at most [`READ_TIMEOUT`]; 0 bytes when nothing came. End of file is an error: the
+/// line hung up (the port's other side closed, an adapter unplugged), and the port is gone.
 fn read(port: &mut SerialPort, buf: &mut [u8]) -> std::io::Result<usize> {
     match port.read(buf) {
-        Ok(0) => {
-            // End of file: a hung-up line answers at once; wait as a time-out would.
-            std::thread::sleep(READ_TIMEOUT);
-            Ok(0)
-        }
+        // The port is non-blocking: a live line with nothing to read times out or would block.
+        Ok(0) => Err(std::io::Error::new(
+            ErrorKind::UnexpectedEof,
+            "end of file: the line hung up",
+        )),
         Ok(n) => Ok(n),
-        Err(e) if matches!(e.kind(), ErrorKind::TimedOut | ErrorKind::WouldBlock) => Ok(0),
-        Err(e) if e.kind() == ErrorKind::Interrupted => Ok(0),
+        Err(e) if is_timeout(&e) => Ok(0),
         Err(e) => Err(e),
+    }
+}
+
+fn is_timeout(e: &std::io::Error) -> bool {
+    matches!(
+        e.kind(),
+        ErrorKind::TimedOut | ErrorKind::WouldBlock | ErrorKind::Interrupted
+    )
+}
+
+/// Which device a port is: `st_dev`, `st_ino` and `st_rdev` of its node. An adapter plugged in
+/// again is a new node behind the same name (another inode, or another device number).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct Device(u64, u64, u64);
+
+impl Device {
+    fn of(m: &std::fs::Metadata) -> Self {
+        use std::os::unix::fs::MetadataExt;
+        Self(m.dev(), m.ino(), m.rdev())
+    }
+
+    /// The device `path` leads to now (symbolic links followed, as udev names are).
+    fn at(path: &Path) -> Option<Self> {
+        std::fs::metadata(path).ok().map(|m| Self::of(&m))
+    }
+
+    /// The device an open port is.
+    fn opened(port: &SerialPort) -> Option<Self> {
+        let fd = port.as_fd().try_clone_to_owned().ok()?;
+        std::fs::File::from(fd)
+            .metadata()
+            .ok()
+            .map(|m| Self::of(&m))
+    }
+}
+
+/// Evidence that a port is gone though no read failed: its name leads to no device now, or to
+/// another than the one `opened`.
+fn replaced(opened: Option<Device>, now: Option<Device>) -> bool {
+    match (opened, now) {
+        (_, None) => true,
+        (Some(o), Some(n)) => o != n,
+        (None, Some(_)) => false,
+    }
+}
+
+/// A unit that sends nothing: reported after `silent_after_ms`, and asked again on the same
+/// port at once, then at doubling intervals up to 2 s, until a record comes. Silence is no
+/// evidence that the port is gone: a loaded host delivers a pseudo-terminal's bytes hundreds
+/// of milliseconds late, and reopening then loses more records than it saves.
+#[derive(Debug)]
+struct Silence {
+    silent_ns: u64,
+    last_record: u64,
+    silent: bool,
+    episodes: u64,
+    /// The unit asked again, in all.
+    asked: u64,
+    ask: Backoff,
+}
+
+impl Silence {
+    fn new(silent_ns: u64, now: u64) -> Self {
+        Self {
+            silent_ns,
+            last_record: now,
+            silent: false,
+            episodes: 0,
+            asked: 0,
+            ask: Backoff::new(silent_ns, 2_000_000_000),
+        }
+    }
+
+    /// A record that arrived at `at`; whether it ended a silence.
+    fn record(&mut self, at: u64) -> bool {
+        self.last_record = self.last_record.max(at);
+        std::mem::take(&mut self.silent)
+    }
+
+    /// A port (re)opened at `now`: the unit's silence counts from here.
+    fn restart(&mut self, now: u64) {
+        self.last_record = now;
+        self.silent = false;
+    }
+
+    fn silent_ms(&self, now: u64) -> u64 {
+        now.saturating_sub(self.last_record) / 1_000_000
+    }
+
+    /// Whether the unit is to be asked again at `now`.
+    fn ask_due(&mut self, now: u64) -> bool {
+        if now.saturating_sub(self.last_record) < self.silent_ns {
+            return false;
+        }
+        if !self.silent {
+            self.silent = true;
+            self.episodes += 1;
+            self.ask.succeeded();
+        }
+        if !self.ask.ready(now) {
+            return false;
+        }
+        self.ask.failed(now);
+        self.asked += 1;
+        true
     }
 }
 
@@ -124,6 +234,9 @@ pub fn run(config: &Config, namespace: Namespace, stop: &AtomicBool) -> anyhow::
     Ok(())
 }
 
+/// While the unit is silent, the device behind `tracker.port` is checked this often.
+const CHECK_DEVICE_EVERY_NS: u64 = 100_000_000;
+
 /// The tracker's line and what was learnt from it between reads: the driver without its
 /// iceoryx2 publisher (so tests can drive it against an emulated unit).
 pub struct Reader<'a> {
@@ -131,21 +244,23 @@ pub struct Reader<'a> {
     frame: Frame,
     /// `None` while the port is closed (being reopened).
     port: Option<SerialPort>,
+    /// The device the port was opened on.
+    device: Option<Device>,
     format: RecordFormat,
     decoder: Decoder,
     plausible: Plausibility,
     period_ns: u64,
-    silent_ns: u64,
     seq: u64,
     reported: bird::DecoderStats,
     next_poll: u64,
-    last_record: u64,
-    /// Silence: reported after silent_after_ms, the device asked again at doubling intervals.
-    silent: bool,
-    silent_episodes: u64,
-    ask: Backoff,
-    /// A lost port: reopened at doubling intervals.
+    silence: Silence,
+    /// When the device behind the port was last checked (only while the unit is silent).
+    device_checked: u64,
+    /// Ports closed because they were gone (to be reopened), and failed opens.
+    reopens: u64,
     port_faults: u64,
+    /// Writes that did not go out within the write time-out: skipped, not a reopen.
+    write_timeouts: u64,
     reopen: Backoff,
     /// How this unit stops a stream, learnt at the first open.
     stop_by: StopBy,
@@ -171,24 +286,24 @@ impl<'a> Reader<'a> {
             stop_by = ?opened.stop_by,
             "tracker open"
         );
-        let silent_ns = (t.silent_after_ms * 1e6) as u64;
+        let now = now_ns();
         let mut reader = Self {
             t,
             frame: Frame::new(t),
+            device: Device::opened(&opened.port),
             port: Some(opened.port),
             format,
             reported: decoder.stats(),
             decoder,
             plausible: Plausibility::new(t.max_speed_m_per_s),
             period_ns: (1e9 / t.rate_hz) as u64,
-            silent_ns,
             seq: 0,
-            next_poll: now_ns(),
-            last_record: now_ns(),
-            silent: false,
-            silent_episodes: 0,
-            ask: Backoff::new(silent_ns, 2_000_000_000),
+            next_poll: now,
+            silence: Silence::new((t.silent_after_ms * 1e6) as u64, now),
+            device_checked: now,
+            reopens: 0,
             port_faults: 0,
+            write_timeouts: 0,
             reopen: Backoff::new(10_000_000, 2_000_000_000),
             stop_by: opened.stop_by,
             readback: opened.readback,
@@ -198,11 +313,12 @@ impl<'a> Reader<'a> {
         Ok(reader)
     }
 
-    /// One turn of the loop: reopen a lost port when due, poll, read (at most [`READ_TIMEOUT`]),
-    /// and hand every plausible record to `publish` as a sample in the base frame.
+    /// One turn of the loop as named steps: the port kept (reopened only when it is gone), a
+    /// poll when due and one read (at most [`READ_TIMEOUT`]), every plausible record handed to
+    /// `publish` as a sample in the base frame, a silent unit asked again.
     pub fn step(&mut self, publish: impl FnMut(TrackerSample)) {
         let now = now_ns();
-        if !self.reopen(now) {
+        if !self.keep_port(now) {
             return;
         }
         let mut buf = [0u8; 256];
@@ -210,14 +326,24 @@ impl<'a> Reader<'a> {
             return;
         };
         let arrived = now_ns();
-        let got_record = self.decode(&buf[..n], arrived, publish);
+        self.decode(&buf[..n], arrived, publish);
         self.report_line();
-        self.watch_silence(got_record, arrived);
+        self.ask_if_silent(arrived);
     }
 
     /// Counts of the records read so far.
     pub fn stats(&self) -> bird::DecoderStats {
         self.decoder.stats()
+    }
+
+    /// Ports closed because they were gone (each reopened once it could be).
+    pub fn reopens(&self) -> u64 {
+        self.reopens
+    }
+
+    /// Times the silent unit was asked again on its port.
+    pub fn asked_again(&self) -> u64 {
+        self.silence.asked
     }
 
     /// What the last open's hemisphere read-back said.
@@ -254,25 +380,46 @@ impl<'a> Reader<'a> {
         }
     }
 
-    /// Whether the port is open; a closed one is opened again once the back-off allows (and
-    /// the loop waits a read time-out while it may not).
-    fn reopen(&mut self, now: u64) -> bool {
-        if self.port.is_some() {
-            return true;
+    /// Whether the port is open and still the device opened. A closed port is opened again
+    /// once the back-off allows (the loop waits a read time-out while it may not); while the
+    /// unit is silent, an open one whose name leads to no device now, or to another (an
+    /// adapter plugged in again), is closed: the old descriptor would never hear from it.
+    fn keep_port(&mut self, now: u64) -> bool {
+        if self.port.is_none() {
+            self.reopen_port(now);
+            return false;
         }
+        if self.silence.silent && now.saturating_sub(self.device_checked) >= CHECK_DEVICE_EVERY_NS {
+            self.device_checked = now;
+            if replaced(self.device, Device::at(&self.t.port)) {
+                self.close(now, "the device behind it is gone or was replaced");
+                return false;
+            }
+        }
+        true
+    }
+
+    /// Opens the port again and sets the unit up, when the back-off allows.
+    fn reopen_port(&mut self, now: u64) {
         if !self.reopen.ready(now) {
             std::thread::sleep(READ_TIMEOUT);
-            return false;
+            return;
         }
         self.decoder.reset();
         match setup::open(self.t, &mut self.decoder, self.stop_by) {
             Ok(opened) => {
-                tracing::info!("tracker port opened");
+                tracing::warn!(
+                    port = %self.t.port.display(),
+                    reopens = self.reopens,
+                    "tracker port open again"
+                );
+                self.device = Device::opened(&opened.port);
                 self.port = Some(opened.port);
                 self.stop_by = opened.stop_by;
                 self.readback = opened.readback;
                 self.report_readback();
                 self.reopen.succeeded();
+                self.silence.restart(now_ns());
             }
             Err(e) => {
                 self.port_faults += 1;
@@ -280,45 +427,66 @@ impl<'a> Reader<'a> {
                 tracing::error!(port_faults = self.port_faults, "{e:#}");
             }
         }
-        false
     }
 
-    /// Polls (in POINT mode, when due) and reads: the bytes read, `None` when the port was
-    /// lost (closed, to be reopened).
+    /// Closes a port that is gone (`why`), to be reopened at once and then with back-off.
+    fn close(&mut self, now: u64, why: &str) {
+        if self.port.take().is_some() {
+            self.reopens += 1;
+            self.reopen.succeeded();
+            self.reopen.failed(now);
+            tracing::error!(
+                port = %self.t.port.display(),
+                reopens = self.reopens,
+                "tracker port lost: {why}; reopening"
+            );
+        }
+    }
+
+    /// Polls (in POINT mode, when due, and not while the unit is silent: then it is asked
+    /// again at the back-off's pace, so a stalled line does not pile up polls whose answers
+    /// would all come at once) and reads: the bytes read, `None` when the port is gone.
     fn exchange(&mut self, now: u64, buf: &mut [u8]) -> Option<usize> {
-        let p = self.port.as_mut()?;
-        let io = if self.t.mode == TrackerMode::Point && now >= self.next_poll {
+        let poll = self.t.mode == TrackerMode::Point && !self.silence.silent;
+        if poll && now >= self.next_poll {
             self.next_poll = self.next_poll.saturating_add(self.period_ns).max(now);
-            p.write_all(&[bird::POINT]).and_then(|()| read(p, buf))
-        } else {
-            read(p, buf)
-        };
-        match io {
+            let written = self.port.as_mut()?.write_all(&[bird::POINT]);
+            self.wrote(now, written, "polling (POINT)");
+        }
+        match read(self.port.as_mut()?, buf) {
             Ok(n) => Some(n),
             Err(e) => {
-                self.port_faults += 1;
-                tracing::error!(
-                    port_faults = self.port_faults,
-                    "tracker port lost: {e}; reopening"
-                );
-                self.port = None;
-                self.reopen.failed(now);
+                self.close(now, &format!("reading: {e}"));
                 None
             }
         }
     }
 
+    /// What a write's result says about the port: a time-out is a line backed up (counted,
+    /// said at powers of two; the write is skipped), any other error a port that is gone.
+    fn wrote(&mut self, now: u64, r: std::io::Result<()>, what: &str) {
+        match r {
+            Ok(()) => {}
+            Err(e) if is_timeout(&e) => {
+                self.write_timeouts += 1;
+                if self.write_timeouts.is_power_of_two() {
+                    tracing::warn!(
+                        port = %self.t.port.display(),
+                        write_timeouts = self.write_timeouts,
+                        "tracker: {what}: the write did not go out in time (the line is backed \
+                         up); skipped"
+                    );
+                }
+            }
+            Err(e) => self.close(now, &format!("{what}: {e}")),
+        }
+    }
+
     /// Decodes `bytes`, read at `arrived`, and hands every plausible record to `publish` as a
-    /// sample in the base frame; whether any record came.
-    fn decode(
-        &mut self,
-        bytes: &[u8],
-        arrived: u64,
-        mut publish: impl FnMut(TrackerSample),
-    ) -> bool {
+    /// sample in the base frame; a record ends a silence.
+    fn decode(&mut self, bytes: &[u8], arrived: u64, mut publish: impl FnMut(TrackerSample)) {
         // Several records in one read waited in the line: the k-th of the last m arrived
         // (m - 1 - k) record periods earlier, as far as anyone can tell.
-        let mut got_record = false;
         let mut behind = (self.decoder.pending() + bytes.len()) / self.format.bytes();
         for &byte in bytes {
             let Some(record) = self.decoder.push(byte) else {
@@ -326,8 +494,12 @@ impl<'a> Reader<'a> {
             };
             behind = behind.saturating_sub(1);
             let arrived = arrived.saturating_sub(behind as u64 * self.period_ns);
-            self.last_record = arrived;
-            got_record = true;
+            if self.silence.record(arrived) {
+                tracing::warn!(
+                    asked_again = self.silence.asked,
+                    "the tracker answers again"
+                );
+            }
             let position = self.frame.to_base(record.position_in);
             if !self.plausible.accept(position, arrived) {
                 if self.plausible.rejected.is_power_of_two() {
@@ -347,7 +519,6 @@ impl<'a> Reader<'a> {
                 position,
             });
         }
-        got_record
     }
 
     /// Reports lost or garbled records, at powers of two: a noisy line must not flood the
@@ -369,34 +540,24 @@ impl<'a> Reader<'a> {
         self.reported = stats;
     }
 
-    /// A device silent for `silent_after_ms` is reported, and asked again through a freshly
-    /// opened port at doubling intervals.
-    fn watch_silence(&mut self, got_record: bool, now: u64) {
-        if got_record && self.silent {
-            tracing::warn!("the tracker answers again");
-            self.silent = false;
-        }
-        if now.saturating_sub(self.last_record) < self.silent_ns {
+    /// A unit silent for `silent_after_ms` is reported and asked again on the same port, at
+    /// doubling intervals ([`Silence`]); the port is reopened only when it is gone.
+    fn ask_if_silent(&mut self, now: u64) {
+        if !self.silence.ask_due(now) {
             return;
         }
-        if !self.silent {
-            self.silent = true;
-            self.silent_episodes += 1;
-            self.ask.succeeded();
-        }
-        if self.ask.ready(now) {
-            tracing::error!(
-                silent_ms = now.saturating_sub(self.last_record) / 1_000_000,
-                silent_episodes = self.silent_episodes,
-                "the tracker sends nothing; reopening the port and asking again"
-            );
-            // Asked again through a freshly opened port: an adapter unplugged and plugged in
-            // again is a new device behind the same name, which the old descriptor never
-            // hears from.
-            self.port = None;
-            self.reopen.succeeded();
-            self.ask.failed(now);
-        }
+        tracing::error!(
+            port = %self.t.port.display(),
+            silent_ms = self.silence.silent_ms(now),
+            silent_episodes = self.silence.episodes,
+            asked_again = self.silence.asked,
+            "the tracker sends nothing; asking it again on the same port"
+        );
+        let Some(p) = self.port.as_mut() else {
+            return;
+        };
+        let written = setup::ask_again(p, self.t);
+        self.wrote(now, written, "asking the silent unit again");
     }
 
     /// Leaves the device quiet for the next one to open it, and says what happened. A unit
@@ -416,8 +577,11 @@ impl<'a> Reader<'a> {
             dropped_bytes = s.dropped_bytes,
             discarded = s.discarded,
             implausible = self.plausible.rejected,
-            silent_episodes = self.silent_episodes,
+            silent_episodes = self.silence.episodes,
+            asked_again = self.silence.asked,
+            reopens = self.reopens,
             port_faults = self.port_faults,
+            write_timeouts = self.write_timeouts,
             "tracker driver stopped"
         );
     }
@@ -445,5 +609,73 @@ mod tests {
         assert!(p.accept([0.132, 0.0, -0.4], 60 * MS));
         // After a long silence the arm may be anywhere within reach of the speed.
         assert!(p.accept([0.3, 0.0, -0.4], 2000 * MS));
+    }
+
+    /// The times (ms) at which a unit silent since 0 is asked again, stepping 1 ms up to `end`.
+    fn asks(s: &mut Silence, from: u64, end: u64) -> Vec<u64> {
+        (from..=end).filter(|&t| s.ask_due(t * MS)).collect()
+    }
+
+    #[test]
+    fn a_silent_unit_is_asked_again_at_doubling_intervals_until_a_record_comes() {
+        let mut s = Silence::new(200 * MS, 0);
+        // Reported and asked at once after 200 ms, then at doubling intervals up to 2 s.
+        assert_eq!(asks(&mut s, 0, 6000), [200, 400, 800, 1600, 3200, 5200]);
+        assert_eq!((s.episodes, s.asked), (1, 6));
+        assert!(s.silent);
+        // A record ends it; the next silence starts over from 200 ms.
+        assert!(s.record(6000 * MS));
+        assert!(!s.record(6010 * MS), "not silent any more");
+        assert_eq!(asks(&mut s, 6011, 7000), [6210, 6410, 6810]);
+        assert_eq!(s.episodes, 2);
+        // Records back-dated behind the newest do not move the silence back.
+        s.record(7000 * MS);
+        s.record(6900 * MS);
+        assert_eq!(asks(&mut s, 7001, 7200), [7200]);
+        // A port opened again: its silence counts from the open.
+        s.restart(9000 * MS);
+        assert!(!s.silent);
+        assert_eq!(asks(&mut s, 9001, 9200), [9200]);
+    }
+
+    #[test]
+    fn only_a_name_that_leads_elsewhere_or_nowhere_is_a_replaced_device() {
+        let (a, b) = (Device(1, 2, 3), Device(1, 5, 3));
+        assert!(!replaced(Some(a), Some(a)));
+        assert!(
+            replaced(Some(a), Some(b)),
+            "another inode: plugged in again"
+        );
+        assert!(
+            replaced(Some(a), Some(Device(1, 2, 4))),
+            "another device number"
+        );
+        assert!(replaced(Some(a), None), "the name leads nowhere");
+        assert!(!replaced(None, Some(a)), "unknown at open: no evidence");
+    }
+
+    #[test]
+    fn a_name_pointed_at_another_node_is_another_device() {
+        let dir = std::env::temp_dir().join(format!("softarm-tracker-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let (a, b, link) = (dir.join("a"), dir.join("b"), dir.join("link"));
+        std::fs::write(&a, b"").unwrap();
+        std::fs::write(&b, b"").unwrap();
+        let _ = std::fs::remove_file(&link);
+        std::os::unix::fs::symlink(&a, &link).unwrap();
+        let opened = Device::at(&link);
+        assert_eq!(opened, Device::at(&a));
+        assert!(!replaced(opened, Device::at(&link)));
+        std::fs::remove_file(&link).unwrap();
+        assert!(
+            replaced(opened, Device::at(&link)),
+            "unplugged: the name is gone"
+        );
+        std::os::unix::fs::symlink(&b, &link).unwrap();
+        assert!(
+            replaced(opened, Device::at(&link)),
+            "the name leads to another node"
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

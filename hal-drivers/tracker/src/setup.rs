@@ -204,6 +204,21 @@ fn select_hemisphere(port: &mut SerialPort, want: Hemisphere) -> anyhow::Result<
     }
 }
 
+/// Asks a silent unit again on the open line: the settings that have no answer (the
+/// hemisphere, the scaling, the record format: a unit power-cycled behind a live line starts
+/// in its defaults, which would mirror or scale its positions) and the stream, or one POINT.
+/// Only POINT is answered, with one record, so the records in the line stay whole and the
+/// decoder in phase; the read-back, which answers with bytes that are no record, needs a quiet
+/// line and is left to an open.
+pub(crate) fn ask_again(port: &mut SerialPort, t: &TrackerConfig) -> std::io::Result<()> {
+    port.write_all(&t.hemisphere.command())?;
+    start(port, t)?;
+    if t.mode == TrackerMode::Point {
+        port.write_all(&[bird::POINT])?;
+    }
+    Ok(())
+}
+
 /// Sets the position scaling the config expects (a device left at the other one would
 /// report every position off by a factor of two), asks for the configured record format and,
 /// in stream mode, starts the stream.

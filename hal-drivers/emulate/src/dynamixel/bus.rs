@@ -39,6 +39,9 @@ pub struct BusFaults {
     /// A status packet is not sent at all with this probability, in parts per million (the
     /// instruction is still executed, as when the reply is lost on the line).
     pub drop_reply_ppm: u32,
+    /// This motor sends no status packet (it still executes every instruction, as with its
+    /// own return line broken): the driver never hears it, the motor hears the driver.
+    pub mute_id: Option<u8>,
 }
 
 /// What the bus has done so far.
@@ -56,7 +59,7 @@ pub struct BusCounters {
     pub garbage_bytes: u64,
     /// Status packets sent (corrupted ones included).
     pub status_packets: u64,
-    /// Status packets not sent because of [`BusFaults::silent`].
+    /// Status packets not sent because of [`BusFaults::silent`] or [`BusFaults::mute_id`].
     pub silenced: u64,
     /// Status packets not sent because of [`BusFaults::drop_reply_ppm`].
     pub dropped_replies: u64,
@@ -87,6 +90,8 @@ pub struct Bus {
     clock_s: f64,
     /// When each goal write arrived (bus clock), while [`Bus::record_goal_writes`] asks.
     goal_write_times: Option<Vec<f64>>,
+    /// The line is stalled until this time of the bus clock ([`Bus::stall`]).
+    stalled_until_s: f64,
 }
 
 impl Bus {
@@ -111,6 +116,7 @@ impl Bus {
             inject: Vec::new(),
             clock_s: 0.0,
             goal_write_times: None,
+            stalled_until_s: 0.0,
         }
     }
 
@@ -189,6 +195,18 @@ impl Bus {
     /// The bus's clock: seconds of [`Bus::step`] time since it was made.
     pub fn clock_s(&self) -> f64 {
         self.clock_s
+    }
+
+    /// Stalls the line for `secs` from now: [`serve`] reads nothing meanwhile, so nothing is
+    /// executed or answered; what the master wrote waits in the line and is read and answered
+    /// when the stall ends, as when a loaded host's pty worker waits for a CPU.
+    pub fn stall(&mut self, secs: f64) {
+        self.stalled_until_s = self.clock_s + secs;
+    }
+
+    /// Whether the line is stalled ([`Bus::stall`]).
+    pub fn stalled(&self) -> bool {
+        self.clock_s < self.stalled_until_s
     }
 
     /// Advances the physics by `dt` seconds. With the torque on in a position mode (3, 4, 5) the
@@ -494,6 +512,10 @@ impl Bus {
         if m.status_return_level() < level {
             return;
         }
+        if self.faults.mute_id == Some(m.id()) {
+            self.counters.silenced += 1;
+            return;
+        }
         let (error, params) = match result {
             Ok(params) => (0, params),
             Err(e) => (e, Vec::new()),
@@ -590,6 +612,17 @@ fn serve_until(pty: &mut Pty, bus: &Mutex<Bus>, stop: &AtomicBool) -> io::Result
     let mut out = Vec::new();
     let mut last = Instant::now();
     while !stop.load(Ordering::Relaxed) {
+        let stalled = {
+            let mut bus = lock(bus);
+            let now = Instant::now();
+            bus.step(now.duration_since(last).as_secs_f64());
+            last = now;
+            bus.stalled()
+        };
+        if stalled {
+            std::thread::sleep(Duration::from_millis(2));
+            continue;
+        }
         let n = match pty.read_timeout(&mut buf, Duration::from_millis(2)) {
             Ok(n) => n,
             // A signal to the process is no reason to stop serving.
@@ -1037,6 +1070,48 @@ mod tests {
         assert_eq!(out[..3], [1, 2, 3]);
         assert_eq!(out[3..], clean);
         assert_eq!(answer(&mut bus, &ping), clean, "once");
+    }
+
+    #[test]
+    fn a_muted_motor_hears_everything_and_answers_nothing() {
+        let mut bus = Bus::new(&[1, 2], 0);
+        bus.set_faults(BusFaults {
+            mute_id: Some(2),
+            ..Default::default()
+        });
+        let read = instruction_packet(BROADCAST_ID, instruction::SYNC_READ, &[132, 0, 4, 0, 1, 2]);
+        let ids: Vec<u8> = parse_status(&answer(&mut bus, &read))
+            .iter()
+            .map(|s| s.0)
+            .collect();
+        assert_eq!(ids, [1]);
+        // Torque on for both, by sync write (no reply) and by write (whose reply is lost).
+        let on = instruction_packet(
+            BROADCAST_ID,
+            instruction::SYNC_WRITE,
+            &[64, 0, 1, 0, 1, 1, 2, 1],
+        );
+        assert!(answer(&mut bus, &on).is_empty());
+        assert!(
+            bus.motor(2).unwrap().torque_enabled(),
+            "the muted motor hears"
+        );
+        let led = instruction_packet(2, instruction::WRITE, &[LED as u8, 0, 1]);
+        assert!(answer(&mut bus, &led).is_empty());
+        assert_eq!(bus.motor(2).unwrap().u8_at(LED), 1);
+        assert_eq!(bus.counters().silenced, 2);
+    }
+
+    #[test]
+    fn a_stall_lasts_its_time_on_the_bus_clock() {
+        let mut bus = Bus::new(&[1], 0);
+        assert!(!bus.stalled());
+        bus.stall(0.5);
+        assert!(bus.stalled());
+        bus.step(0.4);
+        assert!(bus.stalled());
+        bus.step(0.2);
+        assert!(!bus.stalled());
     }
 
     // ---- against the real master (dynamixel2) over a pseudo-terminal ----
