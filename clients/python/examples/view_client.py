@@ -4,9 +4,12 @@ https://github.com/foxglove/ws-protocol documents it), independent of the `foxgl
 that serves it: `websockets` for the connection, `protobuf` to decode the scene with the schema
 the server advertises (a FileDescriptorSet), `json` for the rest.
 
-It offers the subprotocols `foxglove.sdk.v1` and `foxglove.websocket.v1`: the `foxglove` crate
-(0.30) speaks the protocol under its new name `foxglove.sdk.v1` only (the same messages; its
-`foxglove.sdk.v1.1`, not offered here, changes how schemas are advertised).
+It offers the subprotocol the protocol documents, `foxglove.websocket.v1`, unless
+`--subprotocol NAME` (repeated, or a comma list) says otherwise: `softarm view` also accepts
+the `foxglove` crate's names for the same messages, `foxglove.sdk.v1` and `foxglove.sdk.v1.1`
+(the latter changes how schemas are advertised, which this client does not read). A server
+that refuses every name offered ends it with exit code 2 (with `--json`, an object saying the
+HTTP status and the reason the server gave).
 
     python3 -m pip install websockets protobuf
     softarm view &                       # or [view] enabled = true and `softarm up`
@@ -32,9 +35,10 @@ import struct
 import sys
 import time
 
+from websockets.exceptions import InvalidStatus
 from websockets.sync.client import connect
 
-SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
+DOCUMENTED = "foxglove.websocket.v1"
 MESSAGE_DATA = 0x01
 
 
@@ -188,9 +192,15 @@ def channels_summary(client):
 
 def run(args):
     # A slow client's library stops reading its socket once 4 messages wait in it.
-    with connect(args.url, subprotocols=SUBPROTOCOLS, max_size=None,
+    with connect(args.url, subprotocols=args.subprotocols, max_size=None,
                  max_queue=4 if args.slow else 16, open_timeout=10) as ws:
         return session(Client(ws), args)
+
+
+def subprotocols(given):
+    """The names to offer: every --subprotocol, each possibly a comma list."""
+    names = [n.strip() for g in given or [DOCUMENTED] for n in g.split(",")]
+    return [n for n in names if n]
 
 
 def session(client, args):
@@ -274,8 +284,22 @@ def main():
     p.add_argument("--set-id", type=int)
     p.add_argument("--stats", type=int, default=1)
     p.add_argument("--slow", type=float, default=0.0, metavar="S")
+    p.add_argument("--subprotocol", action="append", metavar="NAME",
+                   help=f"a subprotocol to offer (repeat, or a comma list; default {DOCUMENTED})")
     args = p.parse_args()
-    out = run(args)
+    args.subprotocols = subprotocols(args.subprotocol)
+    try:
+        out = run(args)
+    except InvalidStatus as e:
+        r = e.response
+        reason = r.body.decode("utf-8", "replace").strip() if r.body else r.reason_phrase
+        if args.json:
+            print(json.dumps({"refused": {"status": r.status_code, "reason": reason,
+                                          "offered": args.subprotocols}}))
+        else:
+            print(f"{args.url} refused the subprotocols {args.subprotocols}: HTTP "
+                  f"{r.status_code} ({reason})", file=sys.stderr)
+        return 2
     if args.json or args.slow:
         print(json.dumps(out))
     else:
