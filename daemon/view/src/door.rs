@@ -135,9 +135,12 @@ fn accept_loop(listener: &TcpListener, upstream: SocketAddr, stop: &AtomicBool) 
                 continue;
             }
         };
-        let Some(id) = open.admit(&client) else {
-            refuse_busy(client);
-            continue;
+        let id = match open.admit(&client) {
+            Ok(id) => id,
+            Err(why) => {
+                refuse(client, &why);
+                continue;
+            }
         };
         let open = open.clone();
         let spawned = std::thread::Builder::new()
@@ -174,17 +177,23 @@ impl Open {
         self.0.lock().unwrap_or_else(|e| e.into_inner())
     }
 
-    /// Registers a new connection's client socket; None when [`MAX_CONNECTIONS`] are open.
-    fn admit(&self, client: &TcpStream) -> Option<u64> {
+    /// Registers a new connection's client socket; refused, saying why, when
+    /// [`MAX_CONNECTIONS`] are open.
+    fn admit(&self, client: &TcpStream) -> Result<u64, String> {
         let mut s = self.lock();
         if s.by_connection.len() >= MAX_CONNECTIONS {
-            return None;
+            return Err(format!(
+                "{MAX_CONNECTIONS} connections are open, the most it serves at once; try again \
+                 when a viewer leaves"
+            ));
         }
-        let clone = client.try_clone().ok()?;
+        let clone = client
+            .try_clone()
+            .map_err(|e| format!("it cannot take another connection now ({e})"))?;
         s.next += 1;
         let id = s.next;
         s.by_connection.insert(id, vec![clone]);
-        Some(id)
+        Ok(id)
     }
 
     /// Registers connection `id`'s socket to the server; refused once the door is closing.
@@ -219,17 +228,13 @@ impl Drop for Entry<'_> {
     }
 }
 
-/// Answers 503 to a connection beyond [`MAX_CONNECTIONS`] and closes it.
-fn refuse_busy(mut client: TcpStream) {
-    let peer = peer(&client);
+/// Answers 503 to a connection the door cannot take, saying `why`, and closes it.
+fn refuse(mut client: TcpStream, why: &str) {
     tracing::warn!(
-        "the view refused a connection from {peer}: {MAX_CONNECTIONS} are open, the most it \
-         serves at once"
+        "the view refused a connection from {}: {why}",
+        peer(&client)
     );
-    let body = format!(
-        "softarm view: {MAX_CONNECTIONS} connections are open, the most it serves at once; try \
-         again when a viewer leaves\n"
-    );
+    let body = format!("softarm view: {why}\n");
     let _ = client.set_write_timeout(Some(Duration::from_secs(1)));
     let _ = write!(
         client,

@@ -155,18 +155,23 @@ fn reading_a_head_returns_what_came_after_it_and_gives_up_past_its_bounds() {
     assert_eq!(head, b"GET / HTTP/1.1\r\nHost: x\r\n\r\n");
     assert_eq!(rest, b"\x81\x02hi");
 
-    // Oversized: no end within MAX_HEAD bytes.
-    let (mut w, r) = pair();
-    let long = format!("GET / HTTP/1.1\r\nX: {}\r\n\r\n", "a".repeat(MAX_HEAD));
-    let writer = std::thread::spawn(move || {
-        let _ = w.write_all(long.as_bytes());
-        w
-    });
-    let e = read_head(&r, deadline()).unwrap_err();
-    assert_eq!(e.kind(), io::ErrorKind::InvalidData, "{e}");
-    assert!(e.to_string().contains("16384 bytes"), "{e}");
-    drop(r);
-    drop(writer.join().unwrap());
+    // Oversized: the end just past MAX_HEAD bytes, or none in twice as many.
+    let a = "a".repeat(MAX_HEAD);
+    for long in [
+        format!("GET / HTTP/1.1\r\nX: {a}\r\n\r\n"),
+        format!("GET / HTTP/1.1\r\nX: {a}{a}"),
+    ] {
+        let (mut w, r) = pair();
+        let writer = std::thread::spawn(move || {
+            let _ = w.write_all(long.as_bytes());
+            w
+        });
+        let e = read_head(&r, deadline()).unwrap_err();
+        assert_eq!(e.kind(), io::ErrorKind::InvalidData, "{e}");
+        assert!(e.to_string().contains("16384 bytes"), "{e}");
+        drop(r);
+        drop(writer.join().unwrap());
+    }
 
     // Closed before the end.
     let (mut w, r) = pair();
