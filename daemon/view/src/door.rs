@@ -14,10 +14,11 @@
 //! - offering none: passes it unchanged, so the server answers its own HTTP 400, and logs why.
 //!
 //! Then it copies bytes both ways unchanged, each way on a thread of its own with a fixed
-//! buffer: a client that reads slowly blocks only its copy, the back-pressure reaches the
-//! server, whose queue for that client (`view.backlog`) drops its oldest messages. At most
-//! [`MAX_CONNECTIONS`] connections at once (two threads each); another gets HTTP 503. When
-//! either side closes or fails, both sockets are shut down and both threads end.
+//! buffer, and the kernel's send buffer to the client fixed too: a client that reads slowly
+//! blocks only its copy, the back-pressure reaches the server, whose queue for that client
+//! (`view.backlog`) drops its oldest messages. At most [`MAX_CONNECTIONS`] connections at
+//! once (two threads each); another gets HTTP 503. When either side closes or fails, both
+//! sockets are shut down and both threads end.
 
 use std::collections::HashMap;
 use std::io::{self, Read, Write};
@@ -26,6 +27,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
+
+use nix::sys::socket::{setsockopt, sockopt};
 
 /// The subprotocol github.com/foxglove/ws-protocol documents, which older clients offer.
 pub const DOCUMENTED: &str = "foxglove.websocket.v1";
@@ -44,6 +47,13 @@ pub const MAX_HEAD: usize = 16 * 1024;
 pub const HEAD_TIMEOUT: Duration = Duration::from_secs(5);
 /// Each way's copy buffer: what a connection costs the door, whatever the client's speed.
 const COPY_BUFFER: usize = 16 * 1024;
+/// The kernel's send buffer of the door's socket to the client (Linux doubles it: 128 KiB,
+/// the full rate of 500 kB/s up to a round trip of about 250 ms). Left to autotuning it grows
+/// to `net.ipv4.tcp_wmem`'s maximum (4 MiB, 8 s of everything), where a slow client's messages
+/// would wait instead of being dropped from the server's queue for it. The receive buffer from
+/// the server is left alone: it grows only as fast as the door reads, and fixed this small on
+/// loopback (whose segments are 64 KiB) it stalled the flow for seconds after a pause.
+const SOCKET_BUFFER: usize = 64 * 1024;
 /// The header that carries the subprotocols, compared case-insensitively.
 const PROTOCOL_HEADER: &str = "sec-websocket-protocol";
 
@@ -292,6 +302,8 @@ fn handshake(
     let mut server = TcpStream::connect_timeout(&upstream, HEAD_TIMEOUT)
         .map_err(|e| format!("connecting to the view's server at {upstream}: {e}"))?;
     open.add(id, &server).map_err(|e| e.to_string())?;
+    setsockopt(client, sockopt::SndBuf, &SOCKET_BUFFER)
+        .map_err(|e| format!("fixing its send buffer at {SOCKET_BUFFER} bytes: {e}"))?;
     let request = match plan {
         Plan::Rename => rename_request(&head)?,
         Plan::Pass | Plan::Refused => head,
