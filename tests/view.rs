@@ -4,7 +4,7 @@
 //! server advertises). It sees every service as a channel with its schema and the scene,
 //! subscribes, gets messages that decode to what `softarm stats` and `softarm status` say, and
 //! scene updates whose arm ends where the sim's tracker says, sample for sample; it is refused
-//! when it tries to publish or set parameters. A client that reads nothing for 10 s loses
+//! when it tries to publish or set parameters. A client that reads nothing for 20 s loses
 //! messages rather than stalling the stack or growing the view. The client offers the
 //! subprotocol the protocol documents, `foxglove.websocket.v1`, which the view's door renames
 //! for the `foxglove` crate's server; one offering the crate's name gets it, one offering
@@ -247,11 +247,13 @@ fn a_client_that_reads_nothing_loses_messages_not_the_stack_nor_the_views_memory
     assert_eq!(code, 0, "{out}{err}");
     let set = set_id(&out);
 
-    // Reads nothing for 10 s, then reads what still comes for up to 10 s.
+    // Reads nothing for 20 s, then reads what still comes for up to 10 s. The sockets' buffers
+    // on the way hold the first several seconds (the server's send buffer grows to
+    // net.ipv4.tcp_wmem's maximum, 4 MiB, about 8 s of everything), so the pause outlasts them.
     let mut slow = Guard(
         Command::new(&py)
             .arg(CLIENT)
-            .args(["--url", &url, "--slow", "10", "--seconds", "10"])
+            .args(["--url", &url, "--slow", "20", "--seconds", "10"])
             .env("PYTHONDONTWRITEBYTECODE", "1")
             .stdout(Stdio::piped())
             .spawn()
@@ -276,7 +278,7 @@ fn a_client_that_reads_nothing_loses_messages_not_the_stack_nor_the_views_memory
     // It got something once it read again, and not what it missed: dropped, not queued.
     let setpoints = &got["setpoints"];
     eprintln!(
-        "view RSS {before_kib} KiB, peak {peak_kib} KiB with a client that read nothing for 10 s; \
+        "view RSS {before_kib} KiB, peak {peak_kib} KiB with a client that read nothing for 20 s; \
          it missed {} setpoints of seq {} to {}",
         setpoints["missing"], setpoints["first"], setpoints["last"]
     );

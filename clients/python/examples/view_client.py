@@ -23,9 +23,10 @@ the same `seq`); `--set-id ID --stats N` stops once N executions of set ID are i
 and the controller is idle again.
 
 `--slow S` plays a client that stops reading: it subscribes to everything, reads nothing for
-S seconds (its socket fills, the server's queue for it fills), then reads what comes and
-reports how many setpoints it never got (gaps in their `seq`): the server drops for a slow
-client rather than stalling or growing.
+S seconds (the sockets' buffers on the way fill, then the server's queue for it), then reads
+what comes (for up to `--seconds`, or until setpoints went missing) and reports how many
+setpoints it never got (gaps in their `seq`): the server drops for a slow client rather than
+stalling or growing.
 """
 
 import argparse
@@ -241,17 +242,18 @@ def done(tally, args):
 
 
 def slow(client, tally, args):
-    """Reads nothing for `args.slow` s, then drains for up to `args.seconds` s."""
+    """Reads nothing for `args.slow` s, then reads for up to `args.seconds` s, or until it has
+    seen setpoints go missing (checked once a second: what follows a gap is live)."""
     time.sleep(args.slow)
-    start = time.monotonic()
+    start = checked = time.monotonic()
     while time.monotonic() - start < args.seconds:
         got = client.recv(0.5)
-        if got is None:
-            if time.monotonic() - start > 2:
-                break
-            continue
-        if got[0] is not None:
+        if got is not None and got[0] is not None:
             tally.take(got[0], got[2])
+        if time.monotonic() - checked >= 1:
+            if tally.gaps():
+                break
+            checked = time.monotonic()
     out = report(client, tally, time.monotonic() - start)
     s = sorted(set(tally.setpoint_seqs))
     out["setpoints"] = {"received": len(s), "first": s[0] if s else None,
