@@ -47,13 +47,14 @@ pub const MAX_HEAD: usize = 16 * 1024;
 pub const HEAD_TIMEOUT: Duration = Duration::from_secs(5);
 /// Each way's copy buffer: what a connection costs the door, whatever the client's speed.
 const COPY_BUFFER: usize = 16 * 1024;
-/// The kernel's send buffer of the door's socket to the client (Linux doubles it: 128 KiB,
-/// the full rate of 500 kB/s up to a round trip of about 250 ms). Left to autotuning it grows
-/// to `net.ipv4.tcp_wmem`'s maximum (4 MiB, 8 s of everything), where a slow client's messages
-/// would wait instead of being dropped from the server's queue for it. The receive buffer from
-/// the server is left alone: it grows only as fast as the door reads, and fixed this small on
-/// loopback (whose segments are 64 KiB) it stalled the flow for seconds after a pause.
-const SOCKET_BUFFER: usize = 64 * 1024;
+/// The kernel's send buffer of the door's socket to the client (Linux doubles it: 512 KiB,
+/// about 1 s of everything, enough for the full rate over a remote viewer's round trip of a
+/// few hundred ms). Left to autotuning it grows to `net.ipv4.tcp_wmem`'s maximum (4 MiB, 8 s
+/// of everything), where a slow client's messages would wait instead of being dropped from the
+/// server's queue for it. The receive buffer from the server is left alone: it grows only as
+/// fast as the door reads, and fixed at 64 KiB on loopback (whose segments are 64 KiB) it
+/// stalled the flow for seconds after a pause.
+const SOCKET_BUFFER: usize = 256 * 1024;
 /// The header that carries the subprotocols, compared case-insensitively.
 const PROTOCOL_HEADER: &str = "sec-websocket-protocol";
 
@@ -96,7 +97,7 @@ impl Door {
         let Some(accept) = self.accept.take() else {
             return;
         };
-        self.stop.store(true, Ordering::Relaxed);
+        self.stop.store(true, Ordering::Release);
         // `accept` blocks: a connection of our own wakes it to see the flag.
         match TcpStream::connect_timeout(&reachable(self.address), Duration::from_secs(1)) {
             Ok(_) => {
@@ -132,7 +133,7 @@ fn accept_loop(listener: &TcpListener, upstream: SocketAddr, stop: &AtomicBool) 
     let open = Arc::new(Open::default());
     let mut threads: Vec<JoinHandle<()>> = Vec::new();
     for conn in listener.incoming() {
-        if stop.load(Ordering::Relaxed) {
+        if stop.load(Ordering::Acquire) {
             break;
         }
         threads.retain(|t| !t.is_finished());
