@@ -44,6 +44,7 @@ fn install_stages_binary_config_state_and_units_and_keeps_an_edited_config() {
         "softarm-learner.service",
         "softarm-driver@.service",
         "softarm-ros2.service",
+        "softarm-view.service",
         "softarm.target",
     ] {
         let text = std::fs::read_to_string(units.join(unit)).unwrap();
@@ -94,25 +95,39 @@ fn install_stages_binary_config_state_and_units_and_keeps_an_edited_config() {
     std::fs::remove_dir_all(&root).unwrap();
 }
 
-/// The ROS 2 bridge's unit is always written, and wanted by the target only when the config
-/// enables the bridge.
+/// The ROS 2 bridge's and the view's units are always written, and each wanted by the target
+/// only when the config enables it.
 #[test]
-fn the_target_wants_the_ros2_bridge_only_when_enabled() {
+fn the_target_wants_the_ros2_bridge_and_the_view_only_when_enabled() {
     let root = std::env::temp_dir().join(format!("softarm-install-ros2-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&root);
     std::fs::create_dir_all(&root).unwrap();
     let shipped =
         std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("config/softarm.toml"))
             .unwrap();
-    let on = root.join("on.toml");
-    let text = shipped.replace(
-        "[ros2]                        # softarm ros2: the stack bridged to ROS 2 over DDS (no ROS install)\nenabled = false",
-        "[ros2]\nenabled = true",
-    );
-    assert_ne!(text, shipped);
-    std::fs::write(&on, text).unwrap();
-    for (config, wanted) in [(None, false), (Some(&on), true)] {
-        let stage = root.join(format!("stage-{wanted}"));
+    let enable = |text: &str, section: &str| {
+        let (at, _) = text
+            .match_indices(&format!("[{section}] "))
+            .next()
+            .unwrap_or_else(|| panic!("no [{section}] in the shipped config"));
+        let edited =
+            text[..at].to_string() + &text[at..].replacen("enabled = false", "enabled = true", 1);
+        assert_ne!(edited, text, "[{section}] enabled = false not found");
+        edited
+    };
+    let configs = [
+        ("ros2", enable(&shipped, "ros2")),
+        ("view", enable(&shipped, "view")),
+        ("both", enable(&enable(&shipped, "ros2"), "view")),
+    ];
+    let mut runs = vec![(None, "none")];
+    for (name, text) in &configs {
+        let path = root.join(format!("{name}.toml"));
+        std::fs::write(&path, text).unwrap();
+        runs.push((Some(path), *name));
+    }
+    for (config, name) in runs {
+        let stage = root.join(format!("stage-{name}"));
         let mut args = vec!["install".to_string()];
         if let Some(c) = config {
             args.extend(["--config".to_string(), c.display().to_string()]);
@@ -120,14 +135,16 @@ fn the_target_wants_the_ros2_bridge_only_when_enabled() {
         let args: Vec<&str> = args.iter().map(String::as_str).collect();
         softarm(&args, &stage);
         let units = stage.join("etc/systemd/system");
-        let unit = std::fs::read_to_string(units.join("softarm-ros2.service")).unwrap();
-        assert!(
-            unit.contains("ExecStart=/usr/local/bin/softarm ros2 --config "),
-            "{unit}"
-        );
         let target = std::fs::read_to_string(units.join("softarm.target")).unwrap();
         let wants = target.lines().find(|l| l.starts_with("Wants=")).unwrap();
-        assert_eq!(wants.contains("softarm-ros2.service"), wanted, "{wants}");
+        for (unit, command) in [("ros2", "ros2"), ("view", "view")] {
+            let file = format!("softarm-{unit}.service");
+            let text = std::fs::read_to_string(units.join(&file)).unwrap();
+            let exec = format!("ExecStart=/usr/local/bin/softarm {command} --config ");
+            assert!(text.contains(&exec), "{file}: {text}");
+            let wanted = name == unit || name == "both";
+            assert_eq!(wants.contains(&file), wanted, "{name}: {wants}");
+        }
     }
     std::fs::remove_dir_all(&root).unwrap();
 }

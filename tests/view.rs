@@ -4,8 +4,11 @@
 //! server advertises). It sees every service as a channel with its schema and the scene,
 //! subscribes, gets messages that decode to what `softarm stats` and `softarm status` say, and
 //! scene updates whose arm ends where the sim's tracker says, sample for sample; it is refused
-//! when it tries to publish or set parameters. A client that reads nothing for 10 s loses
-//! messages rather than stalling the stack or growing the view.
+//! when it tries to publish or set parameters. A client that reads nothing for 20 s loses
+//! messages rather than stalling the stack or growing the view. The client offers the
+//! subprotocol the protocol documents, `foxglove.websocket.v1`, which the view's door renames
+//! for the `foxglove` crate's server; one offering the crate's name gets it, one offering
+//! neither gets HTTP 400.
 //!
 //! Without `python3` with `websockets` and `protobuf`, a test says "not run" and passes, unless
 //! `SOFTARM_REQUIRE_PYTHON=1` (CI).
@@ -92,8 +95,9 @@ fn an_independent_client_sees_every_service_and_the_arm_where_the_tracker_is() {
     let got = client(&py, &url, &args);
 
     // What the server says about itself: read-only, and refuses what would not be.
-    // The protocol v1 as ws-protocol documents it, under the name the crate negotiates.
-    assert_eq!(got["subprotocol"], "foxglove.sdk.v1", "{got}");
+    // The protocol v1 under the name ws-protocol documents, the only one the client offers
+    // (the view's door renames it for the crate's server, which knows only its own names).
+    assert_eq!(got["subprotocol"], "foxglove.websocket.v1", "{got}");
     assert_eq!(
         got["server"]["capabilities"],
         serde_json::json!([]),
@@ -184,6 +188,48 @@ fn an_independent_client_sees_every_service_and_the_arm_where_the_tracker_is() {
 }
 
 #[test]
+fn a_client_offering_the_crates_name_gets_it_and_one_offering_another_gets_http_400() {
+    let Some(py) = python(&["websockets", "google.protobuf"]) else {
+        return;
+    };
+    let s = stack("view-names", false);
+    let url = url(&s);
+
+    // The crate's own name passes the door unchanged: the server negotiates it.
+    let args = [
+        "--json",
+        "--seconds",
+        "1",
+        "--subprotocol",
+        "foxglove.sdk.v1",
+    ];
+    let got = client(&py, &url, &args);
+    assert_eq!(got["subprotocol"], "foxglove.sdk.v1", "{got}");
+    let channels = got["channels"].as_object().unwrap();
+    assert_eq!(channels.len(), 10, "{channels:?}");
+
+    // Neither the documented name nor the crate's: the server's own refusal, and the view's
+    // log says what it accepts.
+    let out = Command::new(&py)
+        .args([CLIENT, "--url", &url, "--json", "--subprotocol", "foo.v1"])
+        .env("PYTHONDONTWRITEBYTECODE", "1")
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(out.status.code(), Some(2), "{text}");
+    let got: Value = serde_json::from_str(&text).unwrap_or_else(|e| panic!("{e}: {text}"));
+    assert_eq!(got["refused"]["status"], 400, "{got}");
+    eventually("the view's log saying why", Duration::from_secs(30), || {
+        s.logs()
+            .contains(
+                "offered the subprotocols [\"foo.v1\"]; the view accepts \
+                 foxglove.websocket.v1, foxglove.sdk.v1 or foxglove.sdk.v1.1",
+            )
+            .then_some(())
+    });
+}
+
+#[test]
 fn a_client_that_reads_nothing_loses_messages_not_the_stack_nor_the_views_memory() {
     let Some(py) = python(&["websockets", "google.protobuf"]) else {
         return;
@@ -201,11 +247,13 @@ fn a_client_that_reads_nothing_loses_messages_not_the_stack_nor_the_views_memory
     assert_eq!(code, 0, "{out}{err}");
     let set = set_id(&out);
 
-    // Reads nothing for 10 s, then reads what still comes for up to 10 s.
+    // Reads nothing for 20 s, then reads what still comes for up to 10 s. The sockets' buffers
+    // on the way hold the first several seconds (the server's send buffer grows to
+    // net.ipv4.tcp_wmem's maximum, 4 MiB, about 8 s of everything), so the pause outlasts them.
     let mut slow = Guard(
         Command::new(&py)
             .arg(CLIENT)
-            .args(["--url", &url, "--slow", "10", "--seconds", "10"])
+            .args(["--url", &url, "--slow", "20", "--seconds", "10"])
             .env("PYTHONDONTWRITEBYTECODE", "1")
             .stdout(Stdio::piped())
             .spawn()
@@ -230,7 +278,7 @@ fn a_client_that_reads_nothing_loses_messages_not_the_stack_nor_the_views_memory
     // It got something once it read again, and not what it missed: dropped, not queued.
     let setpoints = &got["setpoints"];
     eprintln!(
-        "view RSS {before_kib} KiB, peak {peak_kib} KiB with a client that read nothing for 10 s; \
+        "view RSS {before_kib} KiB, peak {peak_kib} KiB with a client that read nothing for 20 s; \
          it missed {} setpoints of seq {} to {}",
         setpoints["missing"], setpoints["first"], setpoints["last"]
     );

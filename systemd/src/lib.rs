@@ -18,7 +18,7 @@ const UNITS: &str = "etc/systemd/system";
 const UNIT_BINARY: &str = "/usr/local/bin/softarm";
 
 /// The units, as in `systemd/`.
-const UNIT_FILES: [(&str, &str); 5] = [
+const UNIT_FILES: [(&str, &str); 6] = [
     (
         "softarm-controller.service",
         include_str!("../softarm-controller.service"),
@@ -34,6 +34,10 @@ const UNIT_FILES: [(&str, &str); 5] = [
     (
         "softarm-ros2.service",
         include_str!("../softarm-ros2.service"),
+    ),
+    (
+        "softarm-view.service",
+        include_str!("../softarm-view.service"),
     ),
     ("softarm.target", include_str!("../softarm.target")),
 ];
@@ -303,13 +307,15 @@ pub fn install(args: &Args) -> anyhow::Result<()> {
         text: config_text,
     });
     steps.push(Step::StateDir(under(&root, &Path::new("/").join(STATE))));
-    // The target wants the config's drivers, and the ROS 2 bridge when `ros2.enabled`.
+    // The target wants the config's drivers, the ROS 2 bridge when `ros2.enabled` and the
+    // view when `view.enabled`.
     let wanted: Vec<String> = config
         .robot
         .drivers
         .iter()
         .map(|d| format!("softarm-driver@{d}.service"))
         .chain(config.ros2.enabled.then(|| "softarm-ros2.service".into()))
+        .chain(config.view.enabled.then(|| "softarm-view.service".into()))
         .collect();
     for (name, text) in UNIT_FILES {
         let mut text = text.replace(UNIT_BINARY, &binary.display().to_string());

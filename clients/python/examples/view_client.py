@@ -4,9 +4,12 @@ https://github.com/foxglove/ws-protocol documents it), independent of the `foxgl
 that serves it: `websockets` for the connection, `protobuf` to decode the scene with the schema
 the server advertises (a FileDescriptorSet), `json` for the rest.
 
-It offers the subprotocols `foxglove.sdk.v1` and `foxglove.websocket.v1`: the `foxglove` crate
-(0.30) speaks the protocol under its new name `foxglove.sdk.v1` only (the same messages; its
-`foxglove.sdk.v1.1`, not offered here, changes how schemas are advertised).
+It offers the subprotocol the protocol documents, `foxglove.websocket.v1`, unless
+`--subprotocol NAME` (repeated, or a comma list) says otherwise: `softarm view` also accepts
+the `foxglove` crate's names for the same messages, `foxglove.sdk.v1` and `foxglove.sdk.v1.1`
+(the latter changes how schemas are advertised, which this client does not read). A server
+that refuses every name offered ends it with exit code 2 (with `--json`, an object saying the
+HTTP status and the reason the server gave).
 
     python3 -m pip install websockets protobuf
     softarm view &                       # or [view] enabled = true and `softarm up`
@@ -20,9 +23,10 @@ the same `seq`); `--set-id ID --stats N` stops once N executions of set ID are i
 and the controller is idle again.
 
 `--slow S` plays a client that stops reading: it subscribes to everything, reads nothing for
-S seconds (its socket fills, the server's queue for it fills), then reads what comes and
-reports how many setpoints it never got (gaps in their `seq`): the server drops for a slow
-client rather than stalling or growing.
+S seconds (the sockets' buffers on the way fill, then the server's queue for it), then reads
+what comes (for up to `--seconds`, or until setpoints went missing) and reports how many
+setpoints it never got (gaps in their `seq`): the server drops for a slow client rather than
+stalling or growing.
 """
 
 import argparse
@@ -32,9 +36,10 @@ import struct
 import sys
 import time
 
+from websockets.exceptions import InvalidStatus
 from websockets.sync.client import connect
 
-SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
+DOCUMENTED = "foxglove.websocket.v1"
 MESSAGE_DATA = 0x01
 
 
@@ -188,9 +193,15 @@ def channels_summary(client):
 
 def run(args):
     # A slow client's library stops reading its socket once 4 messages wait in it.
-    with connect(args.url, subprotocols=SUBPROTOCOLS, max_size=None,
+    with connect(args.url, subprotocols=args.subprotocols, max_size=None,
                  max_queue=4 if args.slow else 16, open_timeout=10) as ws:
         return session(Client(ws), args)
+
+
+def subprotocols(given):
+    """The names to offer: every --subprotocol, each possibly a comma list."""
+    names = [n.strip() for g in given or [DOCUMENTED] for n in g.split(",")]
+    return [n for n in names if n]
 
 
 def session(client, args):
@@ -231,17 +242,18 @@ def done(tally, args):
 
 
 def slow(client, tally, args):
-    """Reads nothing for `args.slow` s, then drains for up to `args.seconds` s."""
+    """Reads nothing for `args.slow` s, then reads for up to `args.seconds` s, or until it has
+    seen setpoints go missing (checked once a second: what follows a gap is live)."""
     time.sleep(args.slow)
-    start = time.monotonic()
+    start = checked = time.monotonic()
     while time.monotonic() - start < args.seconds:
         got = client.recv(0.5)
-        if got is None:
-            if time.monotonic() - start > 2:
-                break
-            continue
-        if got[0] is not None:
+        if got is not None and got[0] is not None:
             tally.take(got[0], got[2])
+        if time.monotonic() - checked >= 1:
+            if tally.gaps():
+                break
+            checked = time.monotonic()
     out = report(client, tally, time.monotonic() - start)
     s = sorted(set(tally.setpoint_seqs))
     out["setpoints"] = {"received": len(s), "first": s[0] if s else None,
@@ -274,8 +286,22 @@ def main():
     p.add_argument("--set-id", type=int)
     p.add_argument("--stats", type=int, default=1)
     p.add_argument("--slow", type=float, default=0.0, metavar="S")
+    p.add_argument("--subprotocol", action="append", metavar="NAME",
+                   help=f"a subprotocol to offer (repeat, or a comma list; default {DOCUMENTED})")
     args = p.parse_args()
-    out = run(args)
+    args.subprotocols = subprotocols(args.subprotocol)
+    try:
+        out = run(args)
+    except InvalidStatus as e:
+        r = e.response
+        reason = r.body.decode("utf-8", "replace").strip() if r.body else r.reason_phrase
+        if args.json:
+            print(json.dumps({"refused": {"status": r.status_code, "reason": reason,
+                                          "offered": args.subprotocols}}))
+        else:
+            print(f"{args.url} refused the subprotocols {args.subprotocols}: HTTP "
+                  f"{r.status_code} ({reason})", file=sys.stderr)
+        return 2
     if args.json or args.slow:
         print(json.dumps(out))
     else:

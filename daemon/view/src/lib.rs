@@ -1,8 +1,12 @@
 //! `softarm view`: the running stack, live, over the Foxglove WebSocket protocol (v1, the
-//! `foxglove` crate's server), for Foxglove or Lichtblick. The crate (0.30) negotiates the
-//! protocol under its new names only: `foxglove.sdk.v1` (the messages `foxglove.websocket.v1`
-//! documents) or `foxglove.sdk.v1.1` (schemas advertised once per connection); a viewer that
-//! offers nothing but `foxglove.websocket.v1` gets HTTP 400.
+//! `foxglove` crate's server), for Foxglove or Lichtblick. A viewer may offer the subprotocol
+//! under the name the protocol documents, `foxglove.websocket.v1` (older Lichtblick, Foxglove
+//! Studio, `@foxglove/ws-protocol` clients), or under the crate's names for the same messages,
+//! `foxglove.sdk.v1` and `foxglove.sdk.v1.1` (schemas advertised once per connection). The crate
+//! (0.30) negotiates only its own names, so it listens on an ephemeral loopback port behind a
+//! front door ([`door`]) on the configured address, which renames `foxglove.websocket.v1` to
+//! `foxglove.sdk.v1` in the handshake and back in the answer, then copies bytes unchanged. A
+//! viewer that offers none of the three gets the server's HTTP 400, and the log says why.
 //!
 //! What it serves, read-only (no client publishing, no services, no parameters):
 //!
@@ -15,15 +19,19 @@
 //!
 //! It is one more subscriber, like the recorder: the controller never waits for it. Each client
 //! gets at most `view.backlog` messages queued; a client that reads slower loses the oldest
-//! (the server's queue drops them, it never blocks this loop nor grows). It listens on loopback
-//! unless the config says `view.allow_remote = true`.
+//! (the server's queue drops them, it never blocks this loop nor grows; the door copies with a
+//! fixed buffer, so a slow client holds up only its own copy). It listens on loopback unless the
+//! config says `view.allow_remote = true`, and serves at most [`door::MAX_CONNECTIONS`] viewers
+//! at once (more get HTTP 503).
 //!
 //! The loop, every millisecond or sooner: [`View::receive`] (every sample waiting, to its
 //! channel and into the scene), [`View::draw`] (the scene when due), [`View::report`] (clients
-//! that came or went, to the log).
+//! that came or went, to the log). The door runs on threads of its own.
+
+pub mod door;
 
 use std::collections::HashMap;
-use std::net::SocketAddr;
+use std::net::{Ipv4Addr, SocketAddr};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
@@ -36,6 +44,8 @@ use softarm_clients::channels::Services;
 use softarm_clients::scene::{self, Scene};
 use softarm_config::Config;
 use softarm_ipc::{Namespace, Node};
+
+use crate::door::Door;
 
 /// Runs the view of `config`'s stack until `stop` is set, listening on `listen` (a command
 /// line's `--listen`) or the config's `view.listen`.
@@ -51,9 +61,10 @@ pub fn run(config: &Config, listen: Option<&str>, stop: &AtomicBool) -> anyhow::
     let services = Services::open(&node)?;
     let mut view = View::open(config, &namespace, address, services)?;
     tracing::info!(
-        "serving the stack on ws://{} (Foxglove WebSocket protocol, subprotocol foxglove.sdk.v1 \
-         or v1.1): {} channels, read-only",
-        view.address,
+        "serving the stack on ws://{} (Foxglove WebSocket protocol, subprotocol {}): {} \
+         channels, read-only",
+        view.door.address(),
+        door::ACCEPTED,
         view.channels.len() + 1
     );
     while !stop.load(Ordering::Relaxed) {
@@ -64,14 +75,15 @@ pub fn run(config: &Config, listen: Option<&str>, stop: &AtomicBool) -> anyhow::
     }
     tracing::info!(clients = view.server.client_count(), "view stopped");
     view.server.stop().detach_all();
+    view.door.stop();
     drop(node);
     Ok(())
 }
 
-/// The server and what it serves.
+/// The server, its door and what it serves.
 struct View {
     server: WebSocketServerHandle,
-    address: SocketAddr,
+    door: Door,
     /// One per service, in the order of `Services::specs`.
     channels: Vec<Arc<RawChannel>>,
     scene_channel: Channel<SceneUpdate>,
@@ -83,7 +95,8 @@ struct View {
 }
 
 impl View {
-    /// Declares a channel per service and the scene's, and starts the server on `address`.
+    /// Declares a channel per service and the scene's, and starts the server behind a door on
+    /// `address`.
     fn open(
         config: &Config,
         namespace: &Namespace,
@@ -105,26 +118,31 @@ impl View {
         let scene_channel = ChannelBuilder::new(scene::TOPIC)
             .context(&context)
             .build::<SceneUpdate>();
-        let host = match address {
-            SocketAddr::V4(a) => a.ip().to_string(),
-            SocketAddr::V6(a) => format!("[{}]", a.ip()),
-        };
         let info = HashMap::from([
             ("namespace".to_string(), namespace.as_str().to_string()),
             ("softarm".to_string(), env!("CARGO_PKG_VERSION").to_string()),
         ]);
+        // Only the door reaches it: an ephemeral loopback port.
         let server = WebSocketServer::new()
             .name(format!("softarm {}", namespace.as_str()))
             .context(&context)
-            .bind(host, address.port())
+            .bind(Ipv4Addr::LOCALHOST.to_string(), 0)
             .server_info(info)
             .message_backlog_size(config.view.backlog)
             .start_blocking()
-            .with_context(|| format!("listening on {address} (view.listen or --listen)"))?;
-        let address = SocketAddr::new(address.ip(), server.port());
+            .context("starting the view's server on an ephemeral port of 127.0.0.1")?;
+        let upstream = SocketAddr::from((Ipv4Addr::LOCALHOST, server.port()));
+        let door = match Door::start(address, upstream) {
+            Ok(d) => d,
+            Err(e) => {
+                server.stop().detach_all();
+                return Err(e)
+                    .with_context(|| format!("listening on {address} (view.listen or --listen)"));
+            }
+        };
         Ok(Self {
             server,
-            address,
+            door,
             channels,
             scene_channel,
             scene: Scene::new(scene::Settings::of(config)),
