@@ -32,10 +32,9 @@ pub struct TestStack {
 }
 
 /// One stack with emulated devices at a time in this test binary. The emulators stand in for
-/// hardware, which needs no CPU of the computer; on pseudo-terminals every byte waits for a
-/// kernel worker, and two emulated arms side by side, beside the busy loops of a loaded
-/// machine, left those workers waiting tens of milliseconds per delivery (the motor data of
-/// both went stale). No product runs two arms' devices on its own CPUs.
+/// hardware, which needs no CPU of the computer; two emulated arms side by side, beside the
+/// busy loops of a loaded machine, left the motor data of both stale. No product runs two
+/// arms' devices on its own CPUs.
 fn devices_turn() -> std::sync::MutexGuard<'static, ()> {
     static TURN: std::sync::Mutex<()> = std::sync::Mutex::new(());
     // A test that failed while holding it poisons nothing the next one needs.
