@@ -980,17 +980,45 @@ mod tests {
         (got, bytes)
     }
 
+    /// The emulated unit at `rate_hz` on `pty`, on a thread of its own, with its faults and
+    /// counts shared with the test.
+    struct Served {
+        faults: Arc<BirdFaults>,
+        counts: Arc<BirdCounts>,
+        stop: Arc<AtomicBool>,
+        server: thread::JoinHandle<io::Result<()>>,
+    }
+
+    impl Served {
+        fn start(pty: Pty, rate_hz: f64) -> Self {
+            let faults = Arc::new(BirdFaults::new());
+            let stop = Arc::new(AtomicBool::new(false));
+            let counts = Arc::new(BirdCounts::default());
+            let server = {
+                let (faults, stop, counts) = (faults.clone(), stop.clone(), counts.clone());
+                thread::spawn(move || serve(pty, rate_hz, FS, || (P, A), faults, stop, counts))
+            };
+            Self {
+                faults,
+                counts,
+                stop,
+                server,
+            }
+        }
+
+        /// Stops the unit; its thread must end without an error.
+        fn finish(self) {
+            self.stop.store(true, Ordering::Release);
+            self.server.join().unwrap().unwrap();
+        }
+    }
+
     #[test]
     fn serves_a_stream_over_a_pty_with_faults() {
         let pty = Pty::open().unwrap();
         let path = pty.path().to_owned();
-        let faults = Arc::new(BirdFaults::new());
-        let stop = Arc::new(AtomicBool::new(false));
-        let sent = Arc::new(BirdCounts::default());
-        let server = {
-            let (faults, stop, sent) = (faults.clone(), stop.clone(), sent.clone());
-            thread::spawn(move || serve(pty, 250.0, FS, || (P, A), faults, stop, sent))
-        };
+        let unit = Served::start(pty, 250.0);
+        let (faults, sent) = (unit.faults.clone(), unit.counts.clone());
 
         let mut port = serial2::SerialPort::open(&path, 115_200).unwrap();
         port.set_read_timeout(Duration::from_millis(50)).unwrap();
@@ -1047,21 +1075,15 @@ mod tests {
         });
         assert!(!got.is_empty(), "stream resumes");
 
-        stop.store(true, Ordering::Release);
-        server.join().unwrap().unwrap();
+        unit.finish();
     }
 
     #[test]
     fn a_stalled_line_holds_records_and_commands_and_delivers_them_after() {
         let pty = Pty::open().unwrap();
         let path = pty.path().to_owned();
-        let faults = Arc::new(BirdFaults::new());
-        let stop = Arc::new(AtomicBool::new(false));
-        let counts = Arc::new(BirdCounts::default());
-        let server = {
-            let (faults, stop, counts) = (faults.clone(), stop.clone(), counts.clone());
-            thread::spawn(move || serve(pty, 100.0, FS, || (P, A), faults, stop, counts))
-        };
+        let unit = Served::start(pty, 100.0);
+        let (faults, counts) = (unit.faults.clone(), unit.counts.clone());
         let mut port = serial2::SerialPort::open(&path, 115_200).unwrap();
         port.set_read_timeout(Duration::from_millis(20)).unwrap();
         port.write_all(&[POSITION_ANGLES, STREAM]).unwrap();
@@ -1106,21 +1128,15 @@ mod tests {
         assert_eq!(counts.hemisphere_reads.load(Ordering::Acquire), 1);
         assert!(got.len() as u64 <= counts.records.load(Ordering::Acquire));
         assert!(got.iter().all(|r| close(r, P, Some(A), FS)));
-        stop.store(true, Ordering::Release);
-        server.join().unwrap().unwrap();
+        unit.finish();
     }
 
     #[test]
     fn a_host_that_stops_reading_cannot_stall_stop() {
         let pty = Pty::open().unwrap();
         let path = pty.path().to_owned();
-        let faults = Arc::new(BirdFaults::new());
-        let stop = Arc::new(AtomicBool::new(false));
-        let sent = Arc::new(BirdCounts::default());
-        let server = {
-            let (faults, stop, sent) = (faults.clone(), stop.clone(), sent.clone());
-            thread::spawn(move || serve(pty, 5000.0, FS, || (P, A), faults, stop, sent))
-        };
+        let unit = Served::start(pty, 5000.0);
+        let sent = unit.counts.clone();
         let port = serial2::SerialPort::open(&path, 115_200).unwrap();
         port.write_all(&[POSITION_ANGLES, STREAM]).unwrap();
         // 5 kHz × 12 bytes fills the pty's buffers in well under a second; keep not reading
@@ -1133,8 +1149,7 @@ mod tests {
             sent.records.load(Ordering::Relaxed) >= 10_000,
             "the emulator kept going"
         );
-        stop.store(true, Ordering::Release);
-        server.join().unwrap().unwrap();
+        unit.finish();
         drop(port);
     }
 
@@ -1353,13 +1368,8 @@ mod tests {
             rotation_deg: [0.0; 3],
             hemisphere: TrackerHemisphere::Forward,
         };
-        let faults = Arc::new(BirdFaults::new());
-        let stop = Arc::new(AtomicBool::new(false));
-        let counts = Arc::new(BirdCounts::default());
-        let server = {
-            let (faults, stop, counts) = (faults.clone(), stop.clone(), counts.clone());
-            thread::spawn(move || serve(pty, 100.0, FS, || (P, A), faults, stop, counts))
-        };
+        let unit = Served::start(pty, 100.0);
+        let (faults, counts) = (unit.faults.clone(), unit.counts.clone());
         let mut reader = softarm_tracker::Reader::open(&t).unwrap();
         let mut seqs = Vec::new();
         type Done<'d> = &'d dyn Fn(&softarm_tracker::Reader) -> bool;
@@ -1380,8 +1390,7 @@ mod tests {
             let made = counts.records.load(Ordering::Acquire);
             run_until(&mut reader, &|r| r.stats().records >= made);
         }
-        stop.store(true, Ordering::Release);
-        server.join().unwrap().unwrap();
+        unit.finish();
         let s = reader.stats();
         assert_eq!(reader.reopens(), 0, "{mode:?}: reopened on a stall");
         assert!(
