@@ -16,6 +16,7 @@ use std::time::{Duration, Instant};
 
 use softarm_clients::watch::{Limits, Watch};
 use softarm_config::Config;
+use softarm_emulate::canary::Canary;
 use softarm_emulate::dynamixel::{BusCounters, BusFaults};
 use softarm_emulate::rig::Rig;
 use softarm_ipc::{ControllerState, DriverState, MotorState, Namespace, Node, Pub, Setpoint, Sub};
@@ -63,6 +64,11 @@ struct Seen {
     cycles: u64,
     /// Samples whose data was younger than the controller's input time-out.
     fresh: u64,
+    /// Stale samples whose data aged while the kernel held the pty path (the [`Canary`] saw
+    /// it): the machine's doing, not the bus's nor the driver's.
+    excused: u64,
+    /// The first stale samples not excused: (stamp, received, age in cycles).
+    unexcused: Vec<(u64, u64, u16)>,
     max_age_cycles: u16,
     states: std::collections::BTreeMap<&'static str, u64>,
     max_loss_permille: u32,
@@ -73,7 +79,7 @@ struct Seen {
 }
 
 impl Seen {
-    fn take(&mut self, m: &MotorState, fresh_cycles: u16) {
+    fn take(&mut self, m: &MotorState, fresh_cycles: u16, excused: bool) {
         if let Some(l) = &self.last {
             self.cycles += m.seq.saturating_sub(l.seq);
         }
@@ -81,6 +87,7 @@ impl Seen {
         self.last = Some(*m);
         self.samples += 1;
         self.fresh += u64::from(m.age_cycles < fresh_cycles);
+        self.excused += u64::from(excused);
         self.max_age_cycles = self.max_age_cycles.max(m.age_cycles);
         let state = m.driver_state().map_or("?", |s| s.name());
         *self.states.entry(state).or_default() += 1;
@@ -95,8 +102,13 @@ impl Seen {
         self.following_seqs.iter().filter(|&&s| s > seq).count() as u64
     }
 
+    /// Of the samples the machine did not hold up.
     fn fresh_share(&self) -> f64 {
-        self.fresh as f64 / self.samples.max(1) as f64
+        self.fresh as f64 / self.clean().max(1) as f64
+    }
+
+    fn clean(&self) -> u64 {
+        self.samples - self.excused
     }
 }
 
@@ -128,27 +140,42 @@ struct Holds {
 /// delivery of both samples, in the driver's cycles.
 const HOLD_CAUSE_CYCLES: u64 = 20;
 
-/// Reads `motor_state` (and counts HOLD setpoints by cause) until `done` says so.
+/// How long after the kernel lets a held pty path go its backlog still delays replies: the
+/// driver's requests queued meanwhile are answered in order, and the newest request's reply
+/// waits behind the stale ones' (measured: data 100–250 ms old 100–250 ms after a stall).
+const LINE_RECOVERY_NS: u64 = 500_000_000;
+
+/// Reads `motor_state` (and counts HOLD setpoints by cause) until `done` says so. A stale
+/// sample whose data aged while `canary` saw the kernel hold the pty path, or within
+/// [`LINE_RECOVERY_NS`] after, is excused, and so are the HOLDs it explains.
 fn watch_bus(
     motors: &Sub<MotorState>,
     setpoints: &Sub<Setpoint>,
     fresh: u16,
+    canary: &Canary,
     mut done: impl FnMut(&Seen) -> bool,
 ) -> (Seen, Holds) {
     let mut seen = Seen::default();
     let mut holds = Holds::default();
-    let mut stale_seq = None;
+    let mut stale = None;
     let start = Instant::now();
     let mut checked = Instant::now();
     loop {
         while let Ok(Some(m)) = motors.receive() {
-            seen.take(&m, fresh);
-            if m.age_cycles >= fresh {
-                stale_seq = Some(m.seq);
+            let is_stale = m.age_cycles >= fresh;
+            let excused = is_stale
+                && canary.stalled_within(m.stamp_ns.saturating_sub(LINE_RECOVERY_NS), now_ns());
+            seen.take(&m, fresh, excused);
+            if is_stale && !excused && seen.unexcused.len() < 40 {
+                seen.unexcused.push((m.stamp_ns, now_ns(), m.age_cycles));
+            }
+            if is_stale {
+                stale = Some((m.seq, excused));
             }
         }
         let newest = seen.last.map_or(0, |m| m.seq);
-        let bus = stale_seq.is_some_and(|s| newest.saturating_sub(s) <= HOLD_CAUSE_CYCLES);
+        let bus = stale
+            .is_some_and(|(s, excused)| !excused && newest.saturating_sub(s) <= HOLD_CAUSE_CYCLES);
         while let Ok(Some(p)) = setpoints.receive() {
             holds.setpoints += 1;
             if p.state == ControllerState::Hold as u32 {
@@ -192,11 +219,13 @@ fn goal_writes_lost(s: &TestStack, rig: &Rig, motors: &Sub<MotorState>, last: &M
     }
     let (mut arrived, mut moved) = (counters(rig).goal_writes, Instant::now());
     let start = Instant::now();
-    // Drained: all arrived, or nothing more for 5 s (the rest was lost).
+    // Drained: all arrived, or nothing more for 5 s while the kernel held nothing (the rest
+    // was lost).
     while arrived < sent && moved.elapsed() < Duration::from_secs(5) && start.elapsed() < LIMIT {
         std::thread::sleep(Duration::from_millis(20));
         let now = counters(rig).goal_writes;
-        if now != arrived {
+        let held = rig.canary.stalled_within(now_ns() - 20_000_000, now_ns());
+        if now != arrived || held {
             (arrived, moved) = (now, Instant::now());
         }
     }
@@ -206,6 +235,30 @@ fn goal_writes_lost(s: &TestStack, rig: &Rig, motors: &Sub<MotorState>, last: &M
         "{arrived} goal writes arrived of {sent} sent: another writer on the bus?"
     );
     sent.saturating_sub(arrived)
+}
+
+/// Samples the machine did not hold up that a noise test must have seen: 5 s of the driver's.
+const MIN_CLEAN: u64 = 500;
+
+/// One goal write sent per driver cycle with a fresh setpoint, from `first` to `last`; where
+/// the kernel held the pty path a write can time out, at most one per cycle it held.
+fn assert_writes_sent(
+    first: &MotorState,
+    last: &MotorState,
+    canary: &Canary,
+    c: &Config,
+    what: &str,
+) {
+    let wanted = last.setpoint_cycles - first.setpoint_cycles;
+    let sent = last.goal_writes - first.goal_writes;
+    let rate = c.tendon.as_ref().unwrap().rate_hz;
+    let held = canary.stalled_ns(first.stamp_ns, now_ns());
+    let held_cycles = (held as f64 * 1e-9 * rate).ceil() as u64;
+    assert!(
+        sent <= wanted && wanted - sent <= held_cycles,
+        "{what}: {sent} goal writes sent in {wanted} cycles with a fresh setpoint; the kernel \
+         held the pty path for {held_cycles} cycles of them"
+    );
 }
 
 /// The demo set, two executions, run through a noisy bus: the goals keep up with the driver's
@@ -226,8 +279,8 @@ fn demo_through(name: &str, faults: BusFaults) {
     let (code, out, err) = s.submit(Path::new(DEMO_WAYPOINTS), 2);
     assert_eq!(code, 0, "{out}{err}");
     let set = set_id(&out);
-    let (seen, holds) = watch_bus(&motors, &setpoints, fresh_cycles(&c), |_| {
-        watch.executions_of(set) >= 2
+    let (seen, holds) = watch_bus(&motors, &setpoints, fresh_cycles(&c), &rig.canary, |seen| {
+        watch.executions_of(set) >= 2 && seen.clean() >= MIN_CLEAN
     });
     let after = counters(&rig);
     noise(&rig, BusFaults::default(), 20);
@@ -239,7 +292,8 @@ fn demo_through(name: &str, faults: BusFaults) {
     eprintln!(
         "{name}: {writes} goal writes at the motors by then in {} driver cycles with a fresh setpoint \
          ({:.3} per cycle; {} cycles in all), {} motor states, \
-         {:.4} fresher than the controller's time-out (oldest {} cycles), states {:?}, loss up \
+         {:.4} fresher than the controller's time-out (oldest {} cycles; {} stale samples \
+         excused: the kernel held the pty path {:?}), states {:?}, loss up \
          to {} per mille, HOLD setpoints {:?}; bus {:?}; driver: dropped {} crc {} garbage {} \
          time-outs {} reopens {}",
         wanted,
@@ -248,6 +302,8 @@ fn demo_through(name: &str, faults: BusFaults) {
         seen.samples,
         seen.fresh_share(),
         seen.max_age_cycles,
+        seen.excused,
+        rig.canary.stalls(),
         seen.states,
         seen.max_loss_permille,
         holds,
@@ -266,15 +322,16 @@ fn demo_through(name: &str, faults: BusFaults) {
         "{name}: the noise reached too few replies: {lost}"
     );
     // The writes wait for nothing: one per cycle with a setpoint, sent and arrived.
-    assert_eq!(
-        last.goal_writes - first.goal_writes,
-        wanted,
-        "{name}: goal writes sent in cycles with a fresh setpoint"
-    );
+    assert_writes_sent(&first, &last, &rig.canary, &c, name);
     assert!(
         seen.fresh_share() >= 0.99,
-        "{name}: motor data fresh in {:.4} of the samples",
-        seen.fresh_share()
+        "{name}: motor data fresh in {:.4} of the {} samples the machine did not hold up \
+         ({} excused): not excused {:?}; stalls {:?}",
+        seen.fresh_share(),
+        seen.clean(),
+        seen.excused,
+        seen.unexcused,
+        rig.canary.stalls()
     );
     // The noise must not make the controller hold: HOLD on stale motor data in at most 1 % of
     // its setpoints, the issue's "fresher than the time-out 99 % of the time" as the controller
@@ -406,7 +463,7 @@ fn a_failing_bus_is_safe_and_said_so() {
     );
     let before = counters(&rig);
     let start = Instant::now();
-    let (seen, holds) = watch_bus(&motors, &setpoints, fresh_cycles(&c), |_| {
+    let (seen, holds) = watch_bus(&motors, &setpoints, fresh_cycles(&c), &rig.canary, |_| {
         start.elapsed() > Duration::from_secs(6)
     });
     let after = counters(&rig);
@@ -422,11 +479,7 @@ fn a_failing_bus_is_safe_and_said_so() {
     );
     let (first, last) = (seen.first.unwrap(), seen.last.unwrap());
     let wanted = last.setpoint_cycles - first.setpoint_cycles;
-    assert_eq!(
-        last.goal_writes - first.goal_writes,
-        wanted,
-        "goal writes sent"
-    );
+    assert_writes_sent(&first, &last, &rig.canary, &c, "10 %");
     let never = goal_writes_lost(&s, &rig, &motors, &last);
     assert!(
         (wanted - never.min(wanted)) as f64 >= 0.95 * wanted as f64,
@@ -476,8 +529,9 @@ fn settled(motors: &Sub<MotorState>, setpoints: &Pub<Setpoint>, cycles: u64) -> 
 }
 
 /// Each lost reply counted once, each bad CRC once, each garbage byte once: the driver's counts
-/// equal the emulator's, exactly. (The driver at 20 Hz, so a reply the loaded machine delivers
-/// late is still inside its read.)
+/// equal the emulator's, exactly, phase by phase. (The driver at 20 Hz, so a reply the loaded
+/// machine delivers late is still inside its read. A phase in which the kernel held the pty
+/// path longer than the driver waits for late replies is run again, at most twice.)
 #[test]
 fn lost_replies_bad_crcs_and_garbage_are_counted_once_each() {
     const RATE_HZ: f64 = 20.0;
@@ -534,39 +588,79 @@ fn lost_replies_bad_crcs_and_garbage_are_counted_once_each() {
             },
         ),
     ];
+    let mut base = (settled(&motors, &setpoints, 3), counters(&rig));
     for (seed, (what, faults)) in phases.into_iter().enumerate() {
-        noise(&rig, faults, seed as u64 + 1);
-        let start = Instant::now();
-        while start.elapsed() < Duration::from_secs(4) {
-            send(&setpoints, 0.5);
-            std::thread::sleep(Duration::from_millis(10));
+        for attempt in 1.. {
+            let from = now_ns();
+            noise(&rig, faults, seed as u64 + 1);
+            let start = Instant::now();
+            while start.elapsed() < Duration::from_secs(4) {
+                send(&setpoints, 0.5);
+                std::thread::sleep(Duration::from_millis(10));
+            }
+            noise(&rig, BusFaults::default(), 0);
+            let (m0, e0) = base;
+            base = (settled(&motors, &setpoints, 3), counters(&rig));
+            let (m, e) = base;
+            // A reply the kernel held past the driver's wait for late ones is lost to the
+            // driver and sent by the emulator: such a phase cannot be counted exactly.
+            let held = rig
+                .canary
+                .stalls()
+                .iter()
+                .filter(|s| s.to_ns >= from)
+                .map(|s| s.to_ns - s.from_ns)
+                .max()
+                .unwrap_or(0);
+            if held > HELD_PAST_LATE_NS && attempt < 3 {
+                eprintln!(
+                    "{what}: the kernel held the pty path {} ms; again",
+                    held / 1_000_000
+                );
+                continue;
+            }
+            eprintln!(
+                "after {what}: driver dropped {} crc {} garbage {} time-outs {} reopens {} \
+                 faults {}; emulator {e:?}",
+                m.dropped, m.crc_errors, m.garbage_bytes, m.timeouts, m.reopens, m.faults
+            );
+            let dropped = m.dropped - m0.dropped;
+            let crc_errors = m.crc_errors - m0.crc_errors;
+            assert_eq!(
+                dropped,
+                e.dropped_replies - e0.dropped_replies,
+                "{what}: dropped replies"
+            );
+            assert_eq!(
+                crc_errors,
+                e.corrupted_crcs - e0.corrupted_crcs,
+                "{what}: CRC errors"
+            );
+            assert_eq!(
+                m.garbage_bytes - m0.garbage_bytes,
+                e.garbage_sent - e0.garbage_sent,
+                "{what}: garbage bytes"
+            );
+            assert_eq!(m.reopens, 0, "{what}");
+            assert_eq!(
+                m.faults - m0.faults,
+                dropped + crc_errors,
+                "{what}: faults, each once"
+            );
+            assert!(
+                dropped + crc_errors == 0 || m.timeouts > m0.timeouts,
+                "{what}: reads with a reply missing"
+            );
+            break;
         }
-        noise(&rig, BusFaults::default(), 0);
-        let m = settled(&motors, &setpoints, 3);
-        let e = counters(&rig);
-        eprintln!(
-            "after {what}: driver dropped {} crc {} garbage {} time-outs {} reopens {} faults \
-             {}; emulator {e:?}",
-            m.dropped, m.crc_errors, m.garbage_bytes, m.timeouts, m.reopens, m.faults
-        );
-        assert_eq!(m.dropped, e.dropped_replies, "{what}: dropped replies");
-        assert_eq!(m.crc_errors, e.corrupted_crcs, "{what}: CRC errors");
-        assert_eq!(m.garbage_bytes, e.garbage_sent, "{what}: garbage bytes");
-        assert_eq!(m.reopens, 0, "{what}");
-        assert_eq!(
-            m.faults,
-            m.dropped + m.crc_errors,
-            "{what}: faults, each once"
-        );
-        assert!(
-            m.dropped + m.crc_errors == 0 || m.timeouts > 0,
-            "{what}: reads with a reply missing"
-        );
     }
     assert!(counters(&rig).dropped_replies > 10);
     assert!(counters(&rig).corrupted_crcs > 10);
     assert!(driver.stop(LIMIT).success());
 }
+
+/// Longer than the tendon driver waits for a late reply (3 s), less a margin.
+const HELD_PAST_LATE_NS: u64 = 2_500_000_000;
 
 /// Setpoints at the controller's rate (500 Hz) until `stop`, as a running controller sends.
 fn controller_like(
@@ -656,7 +750,7 @@ fn noisy_bus_figures() {
         let before = counters(&rig);
         while start.elapsed() < Duration::from_secs(10) {
             while let Ok(Some(m)) = motors.receive() {
-                seen.take(&m, fresh_cycles(&c));
+                seen.take(&m, fresh_cycles(&c), false);
                 let age = now_ns().saturating_sub(m.stamp_ns);
                 fresh_ms += u64::from(age < timeout_ns);
                 oldest_ms = oldest_ms.max(age as f64 / 1e6);

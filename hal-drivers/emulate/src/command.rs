@@ -45,6 +45,19 @@ pub struct Args {
 }
 
 /// A probability given on the command line, in parts per million; `flag` names it in the error.
+/// Warns of the kernel's pty stalls that ended since the first `said`; returns how many ended.
+fn say_stalls(rig: &Rig, said: usize) -> usize {
+    let ended = rig.canary.ended();
+    for s in ended.iter().skip(said) {
+        tracing::warn!(
+            held_ms = (s.to_ns - s.from_ns) / 1_000_000,
+            "the kernel held the pseudo-terminals (the machine is loaded): what the drivers \
+             saw meanwhile is the computer's doing, not the bus's"
+        );
+    }
+    ended.len()
+}
+
 fn ppm(flag: &str, rate: f64) -> anyhow::Result<u32> {
     if !(0.0..=1.0).contains(&rate) {
         anyhow::bail!("--{flag} must be a probability in [0, 1], got {rate}");
@@ -164,8 +177,10 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
         ),
     }
     println!("Ctrl-C stops the emulators");
+    let mut stalls_said = 0;
     while !stop.load(Ordering::Relaxed) {
         std::thread::sleep(Duration::from_millis(50));
+        stalls_said = say_stalls(&rig, stalls_said);
     }
     let records = rig.tracker_counts.records.load(Ordering::Relaxed);
     let counters = rig.bus.lock().map(|b| b.counters()).ok();

@@ -3,6 +3,7 @@
 //! the real drivers against them. [`command`] is `softarm emulate`.
 
 pub mod bird;
+pub mod canary;
 pub mod command;
 pub mod dynamixel;
 pub mod pty;

@@ -66,6 +66,12 @@ impl Pty {
         }
     }
 
+    /// The device end as a file of its own (a duplicate of the slave kept open here), for a
+    /// reader in this process.
+    pub fn slave_file(&self) -> io::Result<File> {
+        Ok(File::from(self.slave.try_clone()?))
+    }
+
     /// Sends bytes to the driver.
     pub fn write_all(&mut self, bytes: &[u8]) -> io::Result<()> {
         self.master.write_all(bytes)

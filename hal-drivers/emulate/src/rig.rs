@@ -13,6 +13,7 @@ use softarm_config::hardware::{Frame, Mapping};
 use softarm_method::space::ACTUATORS;
 
 use crate::bird::{self, BirdCounts, BirdFaults};
+use crate::canary::Canary;
 use crate::dynamixel;
 use crate::pty::Pty;
 
@@ -38,6 +39,8 @@ pub struct Rig {
     pub tracker_faults: Arc<BirdFaults>,
     /// What the tracker has done: records sent, opens heard.
     pub tracker_counts: Arc<BirdCounts>,
+    /// The kernel's pty path, watched: what a driver did while it was stalled is the machine's.
+    pub canary: Canary,
     stop: Arc<AtomicBool>,
     threads: Vec<JoinHandle<std::io::Result<()>>>,
     tracker: Tracker,
@@ -93,6 +96,7 @@ impl Rig {
             bus,
             tracker_faults: Arc::new(BirdFaults::default()),
             tracker_counts: Arc::new(BirdCounts::default()),
+            canary: Canary::start().context("starting the pty canary")?,
             stop,
             threads,
             tracker: Tracker {
