@@ -14,8 +14,8 @@ use softarm_method::space::{ACTUATORS, Actuation, Position, distance};
 /// Targets closer than this are the same point of the corrections (m).
 const SAME_TARGET_M: f64 = 1e-3;
 
-/// What the visited points needed beyond the trained model, carried over task space to targets
-/// never visited: a Gaussian process of the corrections Δa = a_measured − a_model of the points
+/// What the visited points needed beyond the trained model: the estimate a target visited
+/// before starts from ([`Corrections::visited`]), and a Gaussian process of the corrections Δa = a_measured − a_model of the points
 /// visited (a_measured: where the actuators were at the point's best try; a_model: what the
 /// trained model alone would send there), around their mean m:
 ///
@@ -29,6 +29,12 @@ const SAME_TARGET_M: f64 = 1e-3;
 /// `tool-change`: a second set's first execution 18 mm with a refitted model, 9 mm with this).
 /// From where the actuators were, not from the setpoint: the lag at a conditioning time depends
 /// on the path into it, which differs from set to set; the arm's change does not.
+///
+/// The online learner no longer carries [`Corrections::at`] to targets never visited: the
+/// calibrated arm ([`crate::calibration`]) does that better (the second set after `tool-change`
+/// 3.3–4.0 mm against 7.7–8.1 mm), and this GP on top of it, as a residual, made it worse
+/// (5.7 mm; a best try's actuation moves freely along the null space of the arm's Jacobian,
+/// which carried to another target moves the tip).
 #[derive(Debug, Clone, Default)]
 pub struct Corrections {
     /// At most `transfer_points`, one per target, oldest first.
@@ -263,6 +269,15 @@ impl Footprint {
 
     pub fn samples(&self) -> &[Sample] {
         &self.samples
+    }
+
+    /// The samples that still tell where the arm is: within [`FOOTPRINT_AGE_NS`] of the newest
+    /// (an arm creeps; what it did an hour ago is another arm's).
+    pub fn current(&self) -> impl Iterator<Item = &Sample> {
+        let newest = self.samples.iter().map(|s| s.stamp_ns).max().unwrap_or(0);
+        self.samples
+            .iter()
+            .filter(move |s| newest - s.stamp_ns <= FOOTPRINT_AGE_NS)
     }
 
     /// One (measured actuation, tracked position) sample at `stamp_ns`, checked against the
