@@ -22,7 +22,7 @@
 
 use nalgebra::{Matrix3, SVector, Vector3};
 
-use crate::arm::{Corrected, Corrections, Footprint, Sample, Seen};
+use crate::arm::{Corrected, Corrections, Footprint, Lag, Sample, Seen};
 use crate::cacla::{CaclaMtl, PointMemory, Visit};
 use crate::calibration::CalibratedArm;
 use softarm_method::forward::{ForwardModel, Jacobian};
@@ -234,6 +234,7 @@ pub struct OnlineLearner {
     /// The configured arm fitted to the footprint when a set starts ([`OnlineLearner::carried`]).
     /// Worked out from the footprint, so a restarted learner has it from its checkpoint.
     calibrated: CalibratedArm,
+    lag: Lag,
     set: Vec<Point>,
 }
 
@@ -251,6 +252,8 @@ pub struct ArmState {
     pub corrections: Vec<Corrected>,
     /// [`Footprint::samples`].
     pub footprint: Vec<Sample>,
+    /// [`Lag`].
+    pub lag: Lag,
 }
 
 impl OnlineLearner {
@@ -259,6 +262,7 @@ impl OnlineLearner {
             corrections: Corrections::default(),
             footprint: Footprint::default(),
             calibrated: CalibratedArm::configured(arm),
+            lag: Lag::default(),
             cacla,
             kinematics,
             arm,
@@ -271,6 +275,7 @@ impl OnlineLearner {
         ArmState {
             corrections: self.corrections.points().to_vec(),
             footprint: self.footprint.samples().to_vec(),
+            lag: self.lag,
         }
     }
 
@@ -279,6 +284,7 @@ impl OnlineLearner {
         let c = self.cacla.config().gauss_newton;
         self.corrections = Corrections::from_points(&c, &arm.corrections);
         self.footprint = Footprint::from_samples(&arm.footprint);
+        self.lag = arm.lag;
     }
 
     pub fn algorithm(&self) -> Algorithm {
@@ -316,6 +322,7 @@ impl OnlineLearner {
         if let Seen::Changed(_) = seen {
             self.corrections = Corrections::default();
             self.calibrated = CalibratedArm::configured(self.arm);
+            self.lag = Lag::default();
             let radius = self.cacla.config().gauss_newton.trust_initial;
             for p in &mut self.set {
                 *p = Point {
@@ -345,6 +352,10 @@ impl OnlineLearner {
         self.begin(targets.len())?;
         if targets.iter().flatten().any(|v| !v.is_finite()) {
             return Err(OnlineError::NotFinite);
+        }
+        // Every target first: a point's way in runs from the one before.
+        for (n, t) in targets.iter().enumerate() {
+            self.point(n, t)?;
         }
         targets
             .iter()
@@ -382,6 +393,41 @@ impl OnlineLearner {
         } else {
             CalibratedArm::fit(self.arm, &samples)
         };
+    }
+
+    /// The way into point `n` of the running set, p_n − p_{n−1}, if both are known; none into
+    /// the first (the path into it comes from wherever the arm rests).
+    fn path(&self, n: usize) -> Option<Vector3<f64>> {
+        let t = |i: usize| self.set.get(i).and_then(|p| p.target);
+        let prev = t(n.checked_sub(1)?)?;
+        Some(error_vector(&t(n)?, &prev))
+    }
+
+    /// What a visit of `point` tells of the lag: the estimate it was conditioned on against
+    /// where the actuators were, through the configured arm's slope.
+    fn learn_lag(&mut self, point: usize, action: &Actuation, measured: &Actuation) {
+        let Some(path) = self.path(point) else {
+            return;
+        };
+        let sent = self.set[point].sent.unwrap_or(*action);
+        let lagged = SVector::<f64, ACTUATORS>::from_column_slice(&minus(&sent, measured));
+        self.lag
+            .learn(&path, &(self.arm.jacobian(measured) * lagged));
+    }
+
+    /// `a` moved so that the tip, falling short by the expected lag on the way into `point`,
+    /// lands on it: a minimum-norm step through the configured arm's slope.
+    fn ahead(&self, point: usize, a: &Actuation) -> Actuation {
+        let Some(path) = self.path(point) else {
+            return *a;
+        };
+        let j = self.arm.jacobian(a);
+        let jjt = j * j.transpose() + Matrix3::identity() * 1e-6;
+        let Some(inv) = jjt.try_inverse() else {
+            return *a;
+        };
+        let step = j.transpose() * inv * self.lag.ahead(&path);
+        plus(a, &std::array::from_fn(|i| step[i]))
     }
 
     /// What the calibrated arm needs at `target` beyond what the configured arm needs there,
@@ -439,6 +485,10 @@ impl OnlineLearner {
         }
         let c = self.cacla.config().gauss_newton;
         let gauss_newton = self.algorithm() == Algorithm::GaussNewton;
+        self.point(point, target)?;
+        if gauss_newton && let Some(m) = measured.filter(|m| m.iter().all(|v| v.is_finite())) {
+            self.learn_lag(point, action, m);
+        }
         let p = self.point(point, target)?;
         let error = distance(target, reached);
         let executed = match p.sent {
@@ -591,7 +641,8 @@ impl OnlineLearner {
             Some(estimate) => estimate,
             None => {
                 let model = self.model(point, target);
-                plus(&model, &self.carried(target, &model))
+                let carried = plus(&model, &self.carried(target, &model));
+                self.ahead(point, &carried)
             }
         };
         self.set[point].first = Some(first);

@@ -113,8 +113,7 @@ fn gauss_newton_adapts_to_a_changed_arm_where_the_paper_does_not() {
 /// Issue 19: after `tool-change` on the demo set, the unvisited second set starts within 4 mm
 /// (the trained model alone starts it at 2.5–4.2 mm on the nominal arm, most of it the
 /// actuators' lag into the points). On a plant whose curvature is not constant too
-/// (`not-pcc`), so that fitting the sim's own family cannot pass for adapting to an arm; there
-/// the 4 mm is not met (4.3 mm at this seed, 3.6–3.9 mm at others), and 4.5 mm is asserted.
+/// (`not-pcc`), so that fitting the sim's own family cannot pass for adapting to an arm.
 #[test]
 fn what_the_demo_set_taught_carries_over_to_a_second_set() {
     let model = quick();
@@ -123,7 +122,7 @@ fn what_the_demo_set_taught_carries_over_to_a_second_set() {
         .unwrap()
         .apply(&config.arm, &config.sim)
         .unwrap();
-    for (plant, bound) in [("nominal", 0.004), ("not-pcc", 0.0045)] {
+    for plant in ["nominal", "not-pcc"] {
         let (arm, sim) = Scenario::resolve(plant)
             .unwrap()
             .apply(&tool, &sim)
@@ -142,10 +141,9 @@ fn what_the_demo_set_taught_carries_over_to_a_second_set() {
         );
         assert!(unadapted > 0.015, "the longer tool is felt: {unadapted} m");
         assert!(
-            adapted <= bound,
-            "{plant} plant, second set: adapted {:.2} mm (at most {:.1}), unadapted {:.2} mm",
+            adapted <= 0.004,
+            "{plant} plant, second set: adapted {:.2} mm, unadapted {:.2} mm",
             adapted * 1e3,
-            bound * 1e3,
             unadapted * 1e3
         );
     }
