@@ -9,8 +9,11 @@
 //!   (`online::Point`), Alg. 1 as printed or damped Gauss-Newton steps
 //!   (`softarm_method::learner_config::Algorithm`).
 //! - [`arm`] — what the online learner knows of the arm beyond its trained model: the
-//!   corrections carried between sets, and the footprint that says when the arm has changed.
+//!   corrections of the visited points, and the footprint that says when the arm has changed.
+//! - [`calibration`] — the configured arm fitted to the footprint: what carries a changed
+//!   arm to targets never visited.
 
 pub mod arm;
 pub mod cacla;
+pub mod calibration;
 pub mod online;

@@ -16,7 +16,7 @@ use nalgebra::{DMatrix, DVector};
 use safetensors::{Dtype, SafeTensors, tensor::TensorView};
 use serde::{Deserialize, Serialize};
 
-use softarm_learning::arm::{Corrected, Sample};
+use softarm_learning::arm::{Corrected, Lag, Sample};
 use softarm_learning::cacla::LearnerState;
 use softarm_learning::online::ArmState;
 use softarm_method::learner_config::LearnerConfig;
@@ -577,6 +577,7 @@ fn put_arm(t: &mut Tensors, arm: &ArmState) {
     t.put_u64("arm.footprint.counts", &counts);
     t.put_f64("arm.footprint.actuations", &[m, 6], &actuations);
     t.put_f64("arm.footprint.positions", &[m, 3], &positions);
+    t.put_f64("arm.lag", &[2], &[arm.lag.xy, arm.lag.xx]);
 }
 
 /// The arm's state; none in a checkpoint written before it was kept.
@@ -633,7 +634,30 @@ fn get_arm(t: &Tensors) -> Result<ArmState, String> {
     Ok(ArmState {
         corrections,
         footprint,
+        lag: get_lag(t)?,
     })
+}
+
+/// The lag learnt ([`Lag`]); none in a checkpoint written before it was kept.
+fn get_lag(t: &Tensors) -> Result<Lag, String> {
+    if !t.has("arm.lag") {
+        return Ok(Lag::default());
+    }
+    let (_, v) = t.f64s("arm.lag", &[Some(2)])?;
+    let lag = Lag { xy: v[0], xx: v[1] };
+    if lag.xx < 0.0 {
+        return Err(format!("the lag's Σxᵀx is {}, below 0", lag.xx));
+    }
+    if lag.xy.abs() > Lag::MAX_K * lag.xx {
+        return Err(format!(
+            "the lag's k = {} is beyond ±{} (Σxᵀy {}, Σxᵀx {})",
+            lag.xy / lag.xx,
+            Lag::MAX_K,
+            lag.xy,
+            lag.xx
+        ));
+    }
+    Ok(lag)
 }
 
 #[cfg(test)]
@@ -723,6 +747,10 @@ mod tests {
                 position: [0.1, 0.01, -0.46],
                 count: 7,
             }],
+            lag: Lag {
+                xy: 0.0021,
+                xx: 0.14,
+            },
         };
         write_checkpoint(&dir, &m.learner, &arm, &id).unwrap();
         let back = read_checkpoint(&dir).unwrap();
@@ -740,6 +768,11 @@ mod tests {
         put_arm(&mut t, &broken);
         let e = get_arm(&t).unwrap_err();
         assert!(e.contains("1.5 is outside [0, 1]"), "{e}");
+        broken.footprint[0].actuation[2] = 0.5;
+        broken.lag.xy = 0.1;
+        put_arm(&mut t, &broken);
+        let e = get_arm(&t).unwrap_err();
+        assert!(e.contains("the lag's k"), "{e}");
         fs::remove_dir_all(&dir).unwrap();
     }
 

@@ -20,6 +20,17 @@ fn setup<'a>(
         .unwrap()
         .apply(&config.arm, &config.sim)
         .unwrap();
+    setup_on(model, config, arm, &sim, algorithm)
+}
+
+/// The stack of `config` with `model` and `algorithm`, its sim on `arm` under `sim`.
+fn setup_on<'a>(
+    model: &'a Model,
+    config: &'a Config,
+    arm: ArmGeometry,
+    sim: &SimConfig,
+    algorithm: Algorithm,
+) -> Rehearsal<'a> {
     let configured = LearnerConfig {
         algorithm,
         ..config.learner
@@ -32,7 +43,7 @@ fn setup<'a>(
         config.arm,
     )
     .unwrap();
-    Rehearsal::new(model, config, Learner::new(online, config), arm, &sim).unwrap()
+    Rehearsal::new(model, config, Learner::new(online, config), arm, sim).unwrap()
 }
 
 /// The mean error of each of `executions` executions of `set`.
@@ -99,26 +110,43 @@ fn gauss_newton_adapts_to_a_changed_arm_where_the_paper_does_not() {
     }
 }
 
+/// Issue 19: after `tool-change` on the demo set, the unvisited second set starts within 4 mm
+/// (the trained model alone starts it at 2.5–4.2 mm on the nominal arm, most of it the
+/// actuators' lag into the points). On a plant whose curvature is not constant too
+/// (`not-pcc`), so that fitting the sim's own family cannot pass for adapting to an arm.
 #[test]
 fn what_the_demo_set_taught_carries_over_to_a_second_set() {
     let model = quick();
     let config = Config::default_sim(".".into());
-    let mut adapted = setup(&model, &config, "tool-change", Algorithm::GaussNewton);
-    let demo = means(&mut adapted, DEMO, 8);
-    let adapted = means(&mut adapted, SECOND, 1)[0];
-    let mut fresh = setup(&model, &config, "tool-change", Algorithm::GaussNewton);
-    let unadapted = means(&mut fresh, SECOND, 1)[0];
-    eprintln!(
-        "demo set {:?} mm; second set: adapted {:.1} mm, unadapted {:.1} mm",
-        mm(&demo),
-        adapted * 1e3,
-        unadapted * 1e3
-    );
-    assert!(unadapted > 0.01, "the longer tool is felt: {unadapted} m");
-    assert!(
-        adapted <= 0.5 * unadapted,
-        "second set: adapted {adapted} m, unadapted {unadapted} m"
-    );
+    let (tool, sim) = Scenario::resolve("tool-change")
+        .unwrap()
+        .apply(&config.arm, &config.sim)
+        .unwrap();
+    for plant in ["nominal", "not-pcc"] {
+        let (arm, sim) = Scenario::resolve(plant)
+            .unwrap()
+            .apply(&tool, &sim)
+            .unwrap();
+        let mut adapted = setup_on(&model, &config, arm, &sim, Algorithm::GaussNewton);
+        let demo = means(&mut adapted, DEMO, 8);
+        let adapted = means(&mut adapted, SECOND, 1)[0];
+        let mut fresh = setup_on(&model, &config, arm, &sim, Algorithm::GaussNewton);
+        let unadapted = means(&mut fresh, SECOND, 1)[0];
+        eprintln!(
+            "tool-change on a {plant} plant: demo set {:?} mm; second set: adapted {:.2} mm, \
+             unadapted {:.2} mm",
+            mm(&demo),
+            adapted * 1e3,
+            unadapted * 1e3
+        );
+        assert!(unadapted > 0.015, "the longer tool is felt: {unadapted} m");
+        assert!(
+            adapted <= 0.004,
+            "{plant} plant, second set: adapted {:.2} mm, unadapted {:.2} mm",
+            adapted * 1e3,
+            unadapted * 1e3
+        );
+    }
 }
 
 /// The tick reads what the sim driver last published: one plant step per sim period, the
