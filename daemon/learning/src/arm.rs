@@ -4,7 +4,7 @@
 //! the arm put back), so that they are forgotten before they make things worse.
 //! Pure: no I/O, no clock (times are the caller's stamps).
 
-use nalgebra::{DMatrix, Vector3};
+use nalgebra::Vector3;
 
 use softarm_method::forward::ForwardModel;
 use softarm_method::learner_config::GaussNewtonConfig;
@@ -15,12 +15,9 @@ use softarm_method::space::{ACTUATORS, Actuation, Position, distance};
 const SAME_TARGET_M: f64 = 1e-3;
 
 /// What the visited points needed beyond the trained model: the estimate a target visited
-/// before starts from ([`Corrections::visited`]), and a Gaussian process of the corrections Δa = a_measured − a_model of the points
-/// visited (a_measured: where the actuators were at the point's best try; a_model: what the
-/// trained model alone would send there), around their mean m:
-///
-///   Δa(p) = m + Σ_i κ(p, p_i) α_i,   κ(p, p') = σ_f² exp(−‖p − p'‖² / 2ℓ²),
-///   α = (K + σ_n² I)⁻¹ (ΔA − m).
+/// before starts from ([`Corrections::visited`]), and the correction Δa = a_measured − a_model
+/// of each (a_measured: where the actuators were at the point's best try; a_model: what the
+/// trained model alone would send there), kept in the checkpoint.
 ///
 /// A correction of the actuation, not of the forward model: the corrections of a changed arm
 /// lead off the demonstrations (a longer tool is made up for by shortening every actuator,
@@ -30,18 +27,15 @@ const SAME_TARGET_M: f64 = 1e-3;
 /// From where the actuators were, not from the setpoint: the lag at a conditioning time depends
 /// on the path into it, which differs from set to set; the arm's change does not.
 ///
-/// The online learner no longer carries [`Corrections::at`] to targets never visited: the
-/// calibrated arm ([`crate::calibration`]) does that better (the second set after `tool-change`
-/// 3.3–4.0 mm against 7.7–8.1 mm), and this GP on top of it, as a residual, made it worse
-/// (5.7 mm; a best try's actuation moves freely along the null space of the arm's Jacobian,
-/// which carried to another target moves the tip).
+/// The Δa are no longer carried to targets never visited (a Gaussian process over task space
+/// did that until issue 19): the calibrated arm ([`crate::calibration`]) does it better (the
+/// second set after `tool-change` 3.3–4.0 mm against 7.7–8.1 mm), and the Gaussian process on
+/// top of it, as a residual, made it worse (5.7 mm; a best try's actuation moves freely along
+/// the null space of the arm's Jacobian, which carried to another target moves the tip).
 #[derive(Debug, Clone, Default)]
 pub struct Corrections {
     /// At most `transfer_points`, one per target, oldest first.
     points: Vec<Corrected>,
-    mean: Actuation,
-    /// α, one per point.
-    alpha: Vec<Actuation>,
 }
 
 impl Corrections {
@@ -52,7 +46,6 @@ impl Corrections {
         for p in points {
             out.insert(c, *p);
         }
-        out.solve(c);
         out
     }
 
@@ -88,16 +81,9 @@ impl Corrections {
         self.points.is_empty()
     }
 
-    fn kernel(c: &GaussNewtonConfig, p: &Position, q: &Position) -> f64 {
-        let l = c.transfer_length_m;
-        c.transfer_spread.powi(2) * (-distance(p, q).powi(2) / (2.0 * l * l)).exp()
-    }
-
-    /// Records `point`'s correction and solves for α again: a Cholesky of at most
-    /// `transfer_points`² (well under a millisecond for 64), once per visit, in the learner.
+    /// Records `point`'s correction, the newest per target.
     pub fn set(&mut self, c: &GaussNewtonConfig, point: Corrected) {
         self.insert(c, point);
-        self.solve(c);
     }
 
     fn insert(&mut self, c: &GaussNewtonConfig, point: Corrected) {
@@ -116,45 +102,6 @@ impl Corrections {
             None => {}
         }
         self.points.push(point);
-    }
-
-    fn solve(&mut self, c: &GaussNewtonConfig) {
-        let n = self.points.len();
-        if n == 0 {
-            *self = Self::default();
-            return;
-        }
-        self.mean =
-            std::array::from_fn(|i| self.points.iter().map(|p| p.delta[i]).sum::<f64>() / n as f64);
-        let k = DMatrix::from_fn(n, n, |i, j| {
-            Self::kernel(c, &self.points[i].target, &self.points[j].target)
-                + if i == j {
-                    c.transfer_noise.powi(2)
-                } else {
-                    0.0
-                }
-        });
-        let r = DMatrix::from_fn(n, ACTUATORS, |i, d| self.points[i].delta[d] - self.mean[d]);
-        // K + σ_n² I is positive definite; should rounding say otherwise, the mean alone.
-        self.alpha = match k.cholesky() {
-            Some(ch) => {
-                let a = ch.solve(&r);
-                (0..n).map(|i| std::array::from_fn(|d| a[(i, d)])).collect()
-            }
-            None => vec![[0.0; ACTUATORS]; n],
-        };
-    }
-
-    /// Δa(p); zero before any point was corrected.
-    pub fn at(&self, c: &GaussNewtonConfig, p: &Position) -> Actuation {
-        let mut out = self.mean;
-        for (q, alpha) in self.points.iter().zip(&self.alpha) {
-            let k = Self::kernel(c, p, &q.target);
-            for (o, a) in out.iter_mut().zip(alpha) {
-                *o += k * a;
-            }
-        }
-        out
     }
 }
 
@@ -713,7 +660,7 @@ mod tests {
             estimate: [0.5 + v; ACTUATORS],
         };
         let mut k = Corrections::default();
-        assert_eq!(k.at(&c, &[0.0, 0.0, -0.5]), [0.0; ACTUATORS]);
+        assert!(k.is_empty());
         k.set(&c, at(0.0, 0.1));
         k.set(&c, at(0.1, 0.2));
         k.set(&c, at(0.0, 0.3));
@@ -723,9 +670,6 @@ mod tests {
         assert_eq!(k.visited(&[0.0, 0.0, -0.5005]), Some([0.8; ACTUATORS]));
         assert_eq!(k.visited(&[0.1, 0.0, -0.5]), None);
         let back = Corrections::from_points(&c, k.points());
-        assert_eq!(
-            back.at(&c, &[0.05, 0.0, -0.5]),
-            k.at(&c, &[0.05, 0.0, -0.5])
-        );
+        assert_eq!(back.points(), k.points());
     }
 }

@@ -276,18 +276,8 @@ pub struct GaussNewtonConfig {
     pub noise_m: f64,
     /// Gauss-Newton iterations of a set's first estimates against the trained kinematics.
     pub refine_steps: usize,
-    /// The transfer keeps the corrections of this many targets (the oldest go first).
+    /// The corrections of this many visited targets are kept (the oldest go first).
     pub transfer_points: usize,
-    /// ℓ of the transfer's kernel (m): how far from a visited target its correction still
-    /// holds in full.
-    pub transfer_length_m: f64,
-    /// σ_f of the transfer's kernel: how much a visited point's correction may differ from the
-    /// mean of all of them (normalised units). Small against `transfer_noise`: the mean
-    /// carries most (a changed tool, creep, stiffness shift every point alike), a point's own
-    /// part only near it.
-    pub transfer_spread: f64,
-    /// σ_n: what a point's correction is uncertain by (normalised units).
-    pub transfer_noise: f64,
     /// A point's Jacobian learns from a step only if the step was meant to move the end
     /// effector more than this (m, ‖J Δa‖): the noise of smaller moves would dominate.
     pub broyden_min_m: f64,
@@ -309,9 +299,6 @@ impl Default for GaussNewtonConfig {
             noise_m: 0.002,
             refine_steps: 10,
             transfer_points: 64,
-            transfer_length_m: 0.25,
-            transfer_spread: 0.05,
-            transfer_noise: 0.02,
             broyden_min_m: 0.005,
             change_threshold_m: 0.004,
         }
@@ -330,9 +317,6 @@ impl GaussNewtonConfig {
             ("trust_max", self.trust_max, 0.0, 2.5),
             ("trust_min", self.trust_min, 0.0, 2.5),
             ("noise_m", self.noise_m, 0.0, 1.0),
-            ("transfer_length_m", self.transfer_length_m, 0.0, 10.0),
-            ("transfer_spread", self.transfer_spread, 0.0, 1.0),
-            ("transfer_noise", self.transfer_noise, 0.0, 1.0),
             ("broyden_min_m", self.broyden_min_m, 0.0, 1.0),
             ("change_threshold_m", self.change_threshold_m, 0.0, 1.0),
         ];
