@@ -44,7 +44,7 @@ impl Corrections {
     pub fn from_points(c: &GaussNewtonConfig, points: &[Corrected]) -> Self {
         let mut out = Self::default();
         for p in points {
-            out.insert(c, *p);
+            out.set(c, *p);
         }
         out
     }
@@ -83,10 +83,6 @@ impl Corrections {
 
     /// Records `point`'s correction, the newest per target.
     pub fn set(&mut self, c: &GaussNewtonConfig, point: Corrected) {
-        self.insert(c, point);
-    }
-
-    fn insert(&mut self, c: &GaussNewtonConfig, point: Corrected) {
         match self
             .points
             .iter()

@@ -13,7 +13,7 @@
 //! averaged, and taken where the arm stood still or moved slowly.
 //! Pure: no I/O.
 
-use nalgebra::{DMatrix, DVector, Matrix3, SVector, Vector3};
+use nalgebra::{DMatrix, DVector, SVector, Vector3};
 
 use softarm_method::forward::{ForwardModel, Jacobian};
 use softarm_method::pcc::ArmGeometry;
@@ -155,11 +155,9 @@ impl CalibratedArm {
                 break;
             }
             let j: Jacobian = model.jacobian(&a);
-            let jjt = j * j.transpose() + Matrix3::identity() * 1e-6;
-            let Some(inv) = jjt.try_inverse() else {
+            let Some(pinv) = crate::online::damped_pseudo_inverse(&j, 1e-3) else {
                 break;
             };
-            let pinv = j.transpose() * inv;
             let back = SVector::<f64, ACTUATORS>::from_fn(|i, _| start[i] - a[i]);
             let step = pinv * e + (back - pinv * (j * back));
             a = std::array::from_fn(|i| (a[i] + step[i]).clamp(0.0, 1.0));

@@ -157,11 +157,9 @@ fn gauss_newton_step(
             jf.set_column(i, &Vector3::zeros());
             df[i] = 0.0;
         }
-        let jjt = jf * jf.transpose() + Matrix3::identity() * c.damping_m * c.damping_m;
-        let Some(inv) = jjt.try_inverse() else {
+        let Some(pinv) = damped_pseudo_inverse(&jf, c.damping_m) else {
             return [0.0; ACTUATORS];
         };
-        let pinv = jf.transpose() * inv;
         step = pinv * e * gain + (df - pinv * (jf * df));
         for i in (0..ACTUATORS).filter(|i| !free[*i]) {
             step[i] = 0.0;
@@ -181,6 +179,15 @@ fn gauss_newton_step(
         step *= radius / norm;
     }
     std::array::from_fn(|i| step[i])
+}
+
+/// Jᵀ (J Jᵀ + λ² I)⁻¹: the damped minimum-norm inverse of a Jacobian; none if singular.
+pub(crate) fn damped_pseudo_inverse(
+    j: &Jacobian,
+    damping: f64,
+) -> Option<nalgebra::SMatrix<f64, ACTUATORS, 3>> {
+    let jjt = j * j.transpose() + Matrix3::identity() * damping * damping;
+    Some(j.transpose() * jjt.try_inverse()?)
 }
 
 /// An actuator at `a` that a step of `s` would push out of [0, 1].
@@ -421,12 +428,10 @@ impl OnlineLearner {
         let Some(path) = self.path(point) else {
             return *a;
         };
-        let j = self.arm.jacobian(a);
-        let jjt = j * j.transpose() + Matrix3::identity() * 1e-6;
-        let Some(inv) = jjt.try_inverse() else {
+        let Some(pinv) = damped_pseudo_inverse(&self.arm.jacobian(a), 1e-3) else {
             return *a;
         };
-        let step = j.transpose() * inv * self.lag.ahead(&path);
+        let step = pinv * self.lag.ahead(&path);
         plus(a, &std::array::from_fn(|i| step[i]))
     }
 
