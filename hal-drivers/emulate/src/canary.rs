@@ -209,11 +209,15 @@ mod tests {
     #[test]
     fn a_byte_goes_around() {
         let c = Canary::start().unwrap();
-        let mut waited = 0;
-        while c.seen.trips.load(Ordering::Relaxed) < 3 && waited < 5000 {
+        // A liveness check, not a timing one: a loaded machine holds ptys for seconds.
+        let start = std::time::Instant::now();
+        while c.seen.trips.load(Ordering::Relaxed) < 3 && start.elapsed() < Duration::from_secs(120)
+        {
             std::thread::sleep(Duration::from_millis(1));
-            waited += 1;
         }
-        assert!(waited < 5000, "three echoes did not come in 5 s");
+        assert!(
+            c.seen.trips.load(Ordering::Relaxed) >= 3,
+            "three echoes did not come in 120 s"
+        );
     }
 }
