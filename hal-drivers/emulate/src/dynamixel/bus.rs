@@ -209,19 +209,20 @@ impl Bus {
         self.clock_s < self.stalled_until_s
     }
 
-    /// Advances the physics by `dt` seconds. With the torque on in a position mode (3, 4, 5) the
-    /// present position approaches the goal as a first-order lag of 20 ms, its speed capped at
-    /// 50 rev/min and at the Velocity Limit and (if not 0) Profile Velocity; the present current
-    /// is 1 mA per tick of position error, at most 300 mA. In velocity mode (1) the velocity
-    /// approaches Goal Velocity the same way. With the torque off the motor stays where it is,
-    /// velocity and current 0. Also drops a partial packet that has waited for its remaining
-    /// bytes longer than [`RECEIVE_TIMEOUT_S`].
+    /// `dt` seconds in which the line brought nothing: [`Bus::advance`] and
+    /// [`Bus::line_silent`].
     pub fn step(&mut self, dt: f64) {
-        if !dt.is_finite() || dt <= 0.0 {
+        self.line_silent(dt);
+        self.advance(dt);
+    }
+
+    /// The line was seen to bring nothing for `secs`: a partial packet that has waited for its
+    /// remaining bytes longer than [`RECEIVE_TIMEOUT_S`] is dropped.
+    pub fn line_silent(&mut self, secs: f64) {
+        if !secs.is_finite() || secs <= 0.0 {
             return;
         }
-        self.rx_idle_s += dt;
-        self.clock_s += dt;
+        self.rx_idle_s += secs;
         if self.rx_idle_s > RECEIVE_TIMEOUT_S && !self.rx.is_empty() {
             if self.rx.len() >= HEADER.len() {
                 self.counters.timeouts += 1;
@@ -230,6 +231,19 @@ impl Bus {
             }
             self.rx.clear();
         }
+    }
+
+    /// Advances the clock and the physics by `dt` seconds. With the torque on in a position
+    /// mode (3, 4, 5) the present position approaches the goal as a first-order lag of 20 ms,
+    /// its speed capped at 50 rev/min and at the Velocity Limit and (if not 0) Profile
+    /// Velocity; the present current is 1 mA per tick of position error, at most 300 mA. In
+    /// velocity mode (1) the velocity approaches Goal Velocity the same way. With the torque
+    /// off the motor stays where it is, velocity and current 0.
+    pub fn advance(&mut self, dt: f64) {
+        if !dt.is_finite() || dt <= 0.0 {
+            return;
+        }
+        self.clock_s += dt;
         for m in &mut self.motors {
             m.step(dt);
         }
@@ -612,30 +626,19 @@ fn serve_until(pty: &mut Pty, bus: &Mutex<Bus>, stop: &AtomicBool) -> io::Result
     let mut out = Vec::new();
     let mut last = Instant::now();
     while !stop.load(Ordering::Relaxed) {
-        let stalled = {
-            let mut bus = lock(bus);
-            let now = Instant::now();
-            bus.step(now.duration_since(last).as_secs_f64());
-            last = now;
-            bus.stalled()
-        };
-        if stalled {
+        if lock(bus).stalled() {
             std::thread::sleep(Duration::from_millis(2));
+            step(bus, &mut last, &[], Duration::from_millis(2), &mut out);
             continue;
         }
+        let polled = Instant::now();
         let n = match pty.read_timeout(&mut buf, Duration::from_millis(2)) {
             Ok(n) => n,
             // A signal to the process is no reason to stop serving.
             Err(e) if e.kind() == io::ErrorKind::Interrupted => 0,
             Err(e) => return Err(io::Error::new(e.kind(), format!("reading the master: {e}"))),
         };
-        {
-            let mut bus = lock(bus);
-            let now = Instant::now();
-            bus.step(now.duration_since(last).as_secs_f64());
-            last = now;
-            bus.receive(&buf[..n], &mut out);
-        }
+        step(bus, &mut last, &buf[..n], polled.elapsed(), &mut out);
         if !out.is_empty() {
             let started = Instant::now();
             pty.write_all(&out)
@@ -653,6 +656,22 @@ fn serve_until(pty: &mut Pty, bus: &Mutex<Bus>, stop: &AtomicBool) -> io::Result
         }
     }
     Ok(())
+}
+
+/// The time since `last` passes on the bus, in which the line brought `bytes`, or nothing in a
+/// wait of `waited`. Only a wait that saw nothing counts towards a partial packet's receive
+/// timeout: bytes that waited in the pty while this thread did not run (no CPU, or the bus's
+/// lock held) came in time on a real wire, so a host slow to read never splits an instruction.
+fn step(bus: &Mutex<Bus>, last: &mut Instant, bytes: &[u8], waited: Duration, out: &mut Vec<u8>) {
+    let mut bus = lock(bus);
+    let now = Instant::now();
+    bus.advance(now.duration_since(*last).as_secs_f64());
+    *last = now;
+    if bytes.is_empty() {
+        bus.line_silent(waited.as_secs_f64());
+    } else {
+        bus.receive(bytes, out);
+    }
 }
 
 #[cfg(test)]
@@ -1534,5 +1553,32 @@ mod tests {
             .copy_from_slice(&1023u16.to_le_bytes());
         assert_eq!(write(&mut bus, 1, GOAL_PWM, &data), 0);
         assert_eq!(bus.motor(1).unwrap().i32_at(GOAL_VELOCITY), -515);
+    }
+
+    /// Bytes that waited in the line while the emulator did not run (here its lock is held
+    /// three receive time-outs long, as a holder without a CPU does) are no silent line: the
+    /// ping they complete is answered, not dropped as a packet that stopped coming.
+    #[test]
+    fn an_instruction_completed_while_the_emulator_waited_is_answered() {
+        use std::io::{Read, Write};
+        let served = Served::start(Bus::new(&[1], 0));
+        let mut port = serial2::SerialPort::open(&served.path, 1_000_000).unwrap();
+        port.set_read_timeout(PATIENCE).unwrap();
+        let ping = crate::dynamixel::instruction_packet(1, instruction::PING, &[]);
+        port.write_all(&ping[..5]).unwrap();
+        let deadline = Instant::now() + PATIENCE;
+        while served.bus().rx.len() < 5 && Instant::now() < deadline {
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        assert_eq!(served.bus().rx.len(), 5, "the first half was read");
+        {
+            let _held = served.bus();
+            port.write_all(&ping[5..]).unwrap();
+            std::thread::sleep(Duration::from_secs_f64(RECEIVE_TIMEOUT_S * 3.0));
+        }
+        let mut status = [0u8; 14];
+        port.read_exact(&mut status).unwrap();
+        assert_eq!(parse_status(&status)[0].0, 1, "{status:02X?}");
+        assert_eq!(served.bus().counters.timeouts, 0);
     }
 }
