@@ -18,7 +18,7 @@ use softarm_ipc::{
     Sub, TrackerSample, WaypointReply, WaypointSet,
 };
 use softarm_runtime::now_ns;
-use softarm_test_support::{DEMO_WAYPOINTS, Guard, TestStack, alive, eventually};
+use softarm_test_support::{DEMO_WAYPOINTS, Devices, Guard, TestStack, alive, eventually};
 
 const BIN: &str = env!("CARGO_BIN_EXE_softarm");
 
@@ -452,7 +452,7 @@ fn counted(log: &str, key: &str) -> Option<u64> {
 
 #[test]
 fn setpoints_with_nan_inf_or_out_of_range_values_never_reach_the_tendon_motors() {
-    let (s, c, rig) = TestStack::with_devices(BIN, "bad-tendon", |c| {
+    let (s, c, rig) = TestStack::with_devices(BIN, "bad-tendon", Devices::Shared, |c| {
         let rig = Rig::start(c, 0.5).unwrap();
         let (tendon, tracker) = (rig.tendon_path().into(), rig.tracker_path().into());
         (rig, tendon, tracker)

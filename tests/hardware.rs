@@ -16,7 +16,7 @@ use softarm_emulate::rig::Rig;
 use softarm_ipc::iceoryx2::prelude::ZeroCopySend;
 use softarm_ipc::{DriverState, MotorState, Namespace, Node, Pub, Setpoint, Sub, TrackerSample};
 use softarm_runtime::now_ns;
-use softarm_test_support::{DEMO_WAYPOINTS, Guard, TestStack, alive, set_id};
+use softarm_test_support::{DEMO_WAYPOINTS, Devices, Guard, TestStack, alive, set_id};
 
 const BIN: &str = env!("CARGO_BIN_EXE_softarm");
 const LIMIT: Duration = Duration::from_secs(20);
@@ -24,7 +24,7 @@ const LIMIT: Duration = Duration::from_secs(20);
 /// A test's folder and namespace with the hardware config, quick time-outs, and the
 /// emulators running for it.
 fn rig(name: &str) -> (TestStack, Config, Rig) {
-    TestStack::with_devices(BIN, name, |c| {
+    TestStack::with_devices(BIN, name, Devices::Shared, |c| {
         let rig = Rig::start(c, 0.5).unwrap();
         let (tendon, tracker) = (rig.tendon_path().into(), rig.tracker_path().into());
         (rig, tendon, tracker)
@@ -270,7 +270,7 @@ fn an_estop_whose_sample_was_missed_still_reaches_the_motors_through_the_latch()
 
 #[test]
 fn tendon_survives_a_noisy_and_a_silent_bus_and_stops_commanding_a_faulted_motor() {
-    let (s, c, rig) = rig("hw-faults");
+    let (s, c, rig) = rig("hw-tendon-faults");
     let t = c.tendon.clone().unwrap();
     let n = node(&s);
     let setpoints = n.publisher(&n.setpoint().unwrap()).unwrap();
@@ -763,7 +763,7 @@ fn a_motor_fault_holds_the_controller_and_shows_in_status() {
 fn the_hardware_stack_executes_a_set_through_softarm_emulate() {
     // The emulators as a user runs them, from the hardware config; the stack from the config
     // `softarm emulate` writes.
-    let (mut s, mut emulate) = TestStack::emulated(BIN, "hw-stack");
+    let (mut s, mut emulate) = TestStack::emulated(BIN, "hw-stack", Devices::Shared);
     let c = Config::load(&s.config).unwrap();
     assert!(c.tendon.unwrap().port.starts_with("/dev/pts"));
     s.up();

@@ -12,6 +12,8 @@
 //! stale motor state; the controller holds on either after `controller.tracker_timeout_ms`
 //! (`daemon/controller/src/tick.rs`, `Tick::health`), so the config's limits apply to both.
 //! A failure names the seed; SOFTARM_FAULT_SEED=N reruns that sequence.
+//!
+//! Also `softarm soak` on this code path: its own kills, its report read back.
 
 use std::path::Path;
 use std::time::{Duration, Instant};
@@ -24,7 +26,7 @@ use softarm_clients::watch::{Limits, Watch};
 use softarm_config::Config;
 use softarm_ipc::Namespace;
 use softarm_runtime::now_ns;
-use softarm_test_support::{DEMO_WAYPOINTS, FaultSeed, TestStack, eventually, set_id};
+use softarm_test_support::{DEMO_WAYPOINTS, Devices, FaultSeed, TestStack, eventually, set_id};
 
 const BIN: &str = env!("CARGO_BIN_EXE_softarm");
 const LIMIT: Duration = Duration::from_secs(30);
@@ -48,7 +50,7 @@ fn killed_hardware_drivers_and_controller_break_no_safety_invariant() {
     let started = Instant::now();
 
     // The emulators as a user runs them; the stack from the config `softarm emulate` writes.
-    let (mut s, mut emulate) = TestStack::emulated(BIN, "hw-faults");
+    let (mut s, mut emulate) = TestStack::emulated(BIN, "hw-faults", Devices::Shared);
     let config = Config::load(&s.config).unwrap();
     s.up();
     s.wait_status("every process of the hardware stack", LIMIT, alive_all);
@@ -140,4 +142,47 @@ fn killed_hardware_drivers_and_controller_break_no_safety_invariant() {
     assert_eq!(r.outages, driver_kills, "seed {seed}");
     assert!(r.setpoints > 5000, "seed {seed}: {} setpoints", r.setpoints);
     assert_eq!(r.streams, 2, "seed {seed}: one controller restart");
+}
+
+/// `softarm soak` on the real arm's code path: the tendon and tracker drivers against
+/// `softarm emulate`, killed at random; no sim, so no arm changes.
+#[test]
+fn a_soak_of_the_hardware_stack_kills_its_drivers_and_changes_no_arm() {
+    let (s, _emulator) = TestStack::emulated(BIN, "soak-hw", Devices::Shared);
+    let out = s
+        .command()
+        .args(["soak", "--minutes", "0.75", "--kill-every-s", "8"])
+        .args(["--seed", "5", "--json", "--config"])
+        .arg(&s.config)
+        .env("TMPDIR", &s.dir)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    let r: serde_json::Value = serde_json::from_str(stdout.trim())
+        .unwrap_or_else(|e| panic!("{e}: stdout {stdout:?}\nstderr {stderr}"));
+    let ctx = format!("{r:#}\nstderr:\n{stderr}");
+    assert!(out.status.success(), "{ctx}");
+    assert_eq!(r["invariants"]["violations"], 0, "{ctx}");
+    assert!(r["executions"].as_u64().unwrap() >= 2, "{ctx}");
+    // The drivers the config names run (and may be killed); no sim, so no scenario changes.
+    let roles: Vec<&str> = r["rss"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x[0].as_str().unwrap())
+        .collect();
+    assert_eq!(
+        roles,
+        ["tendon", "tracker", "controller", "learner"],
+        "{ctx}"
+    );
+    assert_eq!(r["scenario_changes"], 0, "{ctx}");
+    assert!(!r["kills"].as_array().unwrap().is_empty(), "{ctx}");
+    assert!(r["kills_survived"].as_u64().unwrap() >= 1, "{ctx}");
+    assert_eq!(
+        r["kills_not_survived"].as_array().unwrap().len(),
+        0,
+        "{ctx}"
+    );
 }

@@ -10,6 +10,7 @@ use softarm_config::Config;
 
 use crate::config::{config_text, hardware_config_text, with_overrides};
 use crate::process::{Guard, eventually};
+use crate::turns::{Devices, DevicesTurn, StackTurn};
 use softarm_model::pipeline::quick_model;
 
 /// The demo way-point set.
@@ -27,18 +28,10 @@ pub struct TestStack {
     pub config: PathBuf,
     pub namespace: String,
     pub up: Option<Child>,
-    /// Held while the stack has emulated devices: see [`devices_turn`].
-    devices: Option<std::sync::MutexGuard<'static, ()>>,
-}
-
-/// One stack with emulated devices at a time in this test binary. The emulators stand in for
-/// hardware, which needs no CPU of the computer; two emulated arms side by side, beside the
-/// busy loops of a loaded machine, left the motor data of both stale. No product runs two
-/// arms' devices on its own CPUs.
-fn devices_turn() -> std::sync::MutexGuard<'static, ()> {
-    static TURN: std::sync::Mutex<()> = std::sync::Mutex::new(());
-    // A test that failed while holding it poisons nothing the next one needs.
-    TURN.lock().unwrap_or_else(|p| p.into_inner())
+    /// The stack's place on the machine, and its devices' turn if it has emulated devices
+    /// ([`crate::turns`]); given back after the stack stopped.
+    _turn: StackTurn,
+    devices: Option<DevicesTurn>,
 }
 
 impl TestStack {
@@ -55,11 +48,15 @@ impl TestStack {
         with_model: bool,
         text: impl FnOnce(&Path, &str) -> String,
     ) -> Self {
+        let turn = StackTurn::take();
+        // Numbered too: two tests of one name side by side would share a namespace.
+        static STACKS: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
+        let n = STACKS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         let pid = std::process::id();
-        let dir = std::env::temp_dir().join(format!("softarm-test-{name}-{pid}"));
+        let dir = std::env::temp_dir().join(format!("softarm-test-{name}-{pid}-{n}"));
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir).unwrap();
-        let namespace = format!("softarm/test-{name}-{pid}");
+        let namespace = format!("softarm/test-{name}-{pid}-{n}");
         let config = dir.join("softarm.toml");
         std::fs::write(&config, text(&dir, &namespace)).unwrap();
         if with_model {
@@ -71,6 +68,7 @@ impl TestStack {
             config,
             namespace,
             up: None,
+            _turn: turn,
             devices: None,
         }
     }
@@ -78,9 +76,9 @@ impl TestStack {
     /// The real arm's stack without the arm, as a user runs it: a stack on the hardware config
     /// (with a quick model), `softarm emulate` started from it (stdout piped: it prints the
     /// device paths; its log in the stack's folder), and the stack switched to the config the
-    /// emulator writes, naming its devices.
-    pub fn emulated(bin: impl AsRef<Path>, name: &str) -> (Self, Guard) {
-        let turn = devices_turn();
+    /// emulator writes, naming its devices. It waits for its `devices` turn first.
+    pub fn emulated(bin: impl AsRef<Path>, name: &str, devices: Devices) -> (Self, Guard) {
+        let turn = DevicesTurn::take(devices);
         let mut s = Self::with_config(bin, name, true, |dir, ns| {
             hardware_config_text(dir, ns, Path::new("/dev/null"), Path::new("/dev/null"))
         });
@@ -109,18 +107,20 @@ impl TestStack {
     /// after 150 ms without a setpoint, torque off after 2 s) and the devices `devices` starts
     /// for it (emulators) from the config's `[tendon]` and `[tracker]`. `devices` gives back
     /// what it started and the devices' paths (tendon, tracker), which the config then names.
+    /// It waits for its `turn` first.
     pub fn with_devices<D>(
         bin: impl AsRef<Path>,
         name: &str,
+        turn: Devices,
         devices: impl FnOnce(&Config) -> (D, PathBuf, PathBuf),
     ) -> (Self, Config, D) {
         let bin = bin.as_ref();
+        let turn = DevicesTurn::take(turn);
         // The devices need the config's [tendon] and [tracker]; the ports are filled in after.
         let probe = Self::with_config(bin, name, false, |dir, ns| {
             hardware_config_text(dir, ns, Path::new("/dev/null"), Path::new("/dev/null"))
         });
         let c = Config::load(&probe.config).unwrap();
-        let turn = devices_turn();
         let (started, tendon, tracker) = devices(&c);
         drop(probe);
         let mut s = Self::with_config(bin, name, false, |dir, ns| {
