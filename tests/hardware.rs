@@ -199,8 +199,12 @@ fn tendon_follows_then_holds_then_turns_the_torque_off_and_obeys_the_estop() {
     });
 
     // Leaving, the driver turns the torque off: nothing stays driven by a process that is gone.
+    // (Its last write may still be in the pty when it has exited: a loaded machine's kernel
+    // was seen to hold it.)
     assert!(stop(driver).success());
-    assert_eq!(torque(&rig, &t.ids), [false; 6]);
+    eventually("the torque off after the driver left", || {
+        (torque(&rig, &t.ids) == [false; 6]).then_some(())
+    });
 }
 
 #[test]
