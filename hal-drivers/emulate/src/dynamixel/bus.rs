@@ -1560,7 +1560,6 @@ mod tests {
     /// ping they complete is answered, not dropped as a packet that stopped coming.
     #[test]
     fn an_instruction_completed_while_the_emulator_waited_is_answered() {
-        use std::io::{Read, Write};
         let served = Served::start(Bus::new(&[1], 0));
         let mut port = serial2::SerialPort::open(&served.path, 1_000_000).unwrap();
         port.set_read_timeout(PATIENCE).unwrap();
