@@ -84,7 +84,9 @@ pub fn run(
         }
         let m = plant.step(&command, dt);
         log_step(config, &plant, &mut in_force);
-        seq += 1;
+        // The sample number counts the sim's periods, the ones it slept through too, so that
+        // seq / rate_hz is the sim's own clock (its scenario's time) on a busy machine as well.
+        seq += wake.missed + 1;
         let stamp_ns = now_ns();
         let _ = motors.send_copy(MotorState {
             seq,
