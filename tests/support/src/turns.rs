@@ -23,7 +23,7 @@ pub enum Devices {
     Alone,
 }
 
-#[derive(Debug, Default)]
+#[derive(Debug)]
 struct Use {
     stacks: usize,
     shared: usize,
