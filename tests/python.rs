@@ -247,7 +247,9 @@ fn rust_layouts() -> Vec<Layout> {
             outbox_backlog,
             outbox_dropped,
             samples_dropped,
-            held_solves
+            held_solves,
+            lag_ns,
+            lead_ns
         }),
         layout!(EstopState {
             seq,

@@ -343,7 +343,7 @@ class Latency(_Payload):
 class ControllerStatus(_Payload):
     """``status``: the controller's state, ~10 Hz."""
 
-    TYPE_NAME = "softarm::ControllerStatus.v2"
+    TYPE_NAME = "softarm::ControllerStatus.v3"
     _fields_ = [
         ("seq", ctypes.c_uint64),
         ("stamp_ns", ctypes.c_uint64),
@@ -363,6 +363,8 @@ class ControllerStatus(_Payload):
         ("outbox_dropped", ctypes.c_uint64),
         ("samples_dropped", ctypes.c_uint64),
         ("held_solves", ctypes.c_uint64),
+        ("lag_ns", ctypes.c_uint64),  # u64::MAX until measured
+        ("lead_ns", ctypes.c_uint64),
     ]
 
 

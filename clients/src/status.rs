@@ -96,7 +96,8 @@ pub fn text(r: &Report) -> String {
                  tick wake-up latency µs: min {} p50 {} p99 {} p99.9 {} max {} ({} ticks, {} overruns)\n\
                  data age: tracker {}, motors {}\n\
                  re-conditionings applied: {} this execution, {} in the last\n\
-                 outbox: {} dropped ({} conditioning samples), {} waiting; group solves held: {}\n",
+                 outbox: {} dropped ({} conditioning samples), {} waiting; group solves held: {}\n\
+                 actuator lag: {}\n",
                 if s.set_id != 0 {
                     format!(" (set {}, execution {})", s.set_id, s.execution)
                 } else {
@@ -122,7 +123,8 @@ pub fn text(r: &Report) -> String {
                 s.outbox_dropped,
                 s.samples_dropped,
                 s.outbox_backlog,
-                s.held_solves
+                s.held_solves,
+                lag(s.lag_ns, s.lead_ns)
             );
         }
     }
@@ -158,6 +160,14 @@ pub fn text(r: &Report) -> String {
     out
 }
 
+/// The actuators' lag and the lead Eq. 11 runs with, in words.
+fn lag(lag_ns: u64, lead_ns: u64) -> String {
+    if lag_ns == u64::MAX {
+        return "not measured yet (the arm has not moved enough)".into();
+    }
+    format!("{}, Eq. 11 evaluated {} ahead", ms(lag_ns), ms(lead_ns))
+}
+
 /// What the loss rate says about the bus, in words (the thresholds the tendon driver uses).
 fn bus_verdict(m: &MotorState) -> &'static str {
     match m.loss_permille {
@@ -184,6 +194,8 @@ pub fn json(r: &Report) -> String {
             "reconditions": {"current": s.reconditions_current, "last": s.reconditions_last},
             "outbox": {"dropped": s.outbox_dropped, "samples_dropped": s.samples_dropped, "backlog": s.outbox_backlog},
             "held_solves": s.held_solves,
+            "lag_ns": (s.lag_ns != u64::MAX).then_some(s.lag_ns),
+            "lead_ns": s.lead_ns,
         })
     });
     let driver = r.motors.map(|m| {
@@ -225,6 +237,8 @@ mod tests {
                 outbox_dropped: 17,
                 samples_dropped: 5,
                 held_solves: 6,
+                lag_ns: 23_400_000,
+                lead_ns: 23_400_000,
                 ..Default::default()
             }),
             motors: Some(MotorState {
@@ -261,6 +275,14 @@ mod tests {
             serde_json::json!({"dropped": 17, "samples_dropped": 5, "backlog": 2})
         );
         assert_eq!(c["held_solves"], 6);
+        assert!(
+            t.contains("actuator lag: 23.4 ms, Eq. 11 evaluated 23.4 ms ahead"),
+            "{t}"
+        );
+        assert_eq!(
+            (c["lag_ns"].as_u64(), c["lead_ns"].as_u64()),
+            (Some(23_400_000), Some(23_400_000))
+        );
         assert!(
             t.contains(
                 "driver: FAULT (bus degraded: replies being lost); goal writes 0 in 0 cycles with \

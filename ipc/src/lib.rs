@@ -364,9 +364,9 @@ pub struct Latency {
 
 /// The controller's state, ~10 Hz.
 #[derive(Debug, Clone, Copy, Default, ZeroCopySend, serde::Serialize)]
-// The type name changed with the layout (re-conditionings, outbox drops, held solves), so a peer
-// built before cannot connect and misread it.
-#[type_name("softarm::ControllerStatus.v2")]
+// The type name changed with the layout (re-conditionings, outbox drops, held solves; the
+// actuators' lag), so a peer built before cannot connect and misread it.
+#[type_name("softarm::ControllerStatus.v3")]
 #[repr(C)]
 pub struct ControllerStatus {
     pub seq: u64,
@@ -396,6 +396,12 @@ pub struct ControllerStatus {
     /// Group evaluations whose solve failed since the controller started, each held at the
     /// group's last good value.
     pub held_solves: u64,
+    /// The actuators' lag behind the setpoints as the controller measures it (ns); u64::MAX
+    /// until the arm has moved enough to tell.
+    pub lag_ns: u64,
+    /// How far ahead of the clock Eq. 11 is evaluated: the lag, at most
+    /// `controller.max_lead_s` (ns).
+    pub lead_ns: u64,
 }
 
 /// Latched e-stop state.

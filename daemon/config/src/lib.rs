@@ -122,6 +122,10 @@ pub struct Controller {
     pub variance_floor: f64,
     /// How long to wait for the learner's first estimates of a new set (s).
     pub estimate_timeout_s: f64,
+    /// Eq. 11 is evaluated ahead of the clock by the actuators' lag as the controller measures
+    /// it, at most this far (s; 0: not at all).
+    #[serde(default = "default_max_lead_s")]
+    pub max_lead_s: f64,
     /// SCHED_FIFO priority of the tick thread; 0 leaves the scheduler alone.
     #[serde(default)]
     pub realtime_priority: i32,
@@ -145,6 +149,12 @@ pub struct WaypointLimits {
     pub min_duration_s: f64,
     pub max_duration_s: f64,
     pub max_executions: u32,
+}
+
+/// Room for a slow arm's lag (a tendon's give, a slow bus) without the lead reaching into
+/// what a way-point set's timing means.
+fn default_max_lead_s() -> f64 {
+    0.1
 }
 
 /// The default arm's longest backbone (two modules at full length, connector and tool: 0.56 m)
@@ -371,6 +381,13 @@ impl Config {
             c.estimate_timeout_s,
             Open(0.0),
             60.0,
+            " s",
+        )?;
+        within(
+            "controller.max_lead_s",
+            c.max_lead_s,
+            Closed(0.0),
+            1.0,
             " s",
         )?;
         if !(0..=99).contains(&c.realtime_priority) {
@@ -1011,6 +1028,7 @@ mod tests {
                 "(0, 60] s",
             ),
             ("controller", "rest_s", "rest_s = inf", "[0, 60] s"),
+            ("controller", "max_lead_s", "max_lead_s = 2", "[0, 1] s"),
             (
                 "controller",
                 "tracker_timeout_ms",

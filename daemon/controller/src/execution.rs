@@ -111,6 +111,12 @@ pub struct Execution {
     execution: u32,
     /// Ticks into the execution, the next to play; negative while resting before it.
     k: i64,
+    /// How far ahead of the clock Eq. 11 is evaluated (ticks): the actuators' lag as measured
+    /// when the set started ([`ActuatorLag`](crate::ActuatorLag)). Fixed for the set: the
+    /// learner's per-point state is the set's, and a lead that changed between two executions
+    /// would move every point by the lag it had corrected for (measured: the nominal arm's
+    /// second execution 2.8 mm against 1.5 with the lead switched on after the first).
+    lead: i64,
     next_point: usize,
     /// A point whose time has come, waiting for the tracker samples after it.
     pending: Option<Pending>,
@@ -142,11 +148,14 @@ pub struct ExecutionTick {
 }
 
 impl Execution {
-    /// The set's first execution, from the start of its rest.
-    pub fn new(set: Box<ReadySet>, rest_ticks: i64) -> Self {
+    /// The set's first execution, from the start of its rest, Eq. 11 evaluated `lead` ticks
+    /// ahead of the clock (see [`Execution::step`]).
+    pub fn new(set: Box<ReadySet>, rest_ticks: i64, lead: i64) -> Self {
+        let last = set.blend.timeline().ticks() as i64 - 1;
         Self {
             execution: 1,
             k: -rest_ticks,
+            lead: lead.clamp(0, last),
             next_point: 0,
             pending: None,
             errors: [0.0; MAX_WAYPOINTS],
@@ -197,6 +206,10 @@ impl Execution {
     /// [`REACH_WINDOW_NS`] after that (or [`REACH_WAIT_NS`] passed), with the position
     /// estimated from the samples around it. The execution ends only once every point's
     /// sample went out.
+    ///
+    /// Eq. 11 is evaluated the set's lead ahead of the clock (its first tick played from the
+    /// rest's last `lead` ticks on, its last held at the end), so the actuators, following
+    /// late, are where it says when it says; the points' times stay on the clock.
     pub fn step(
         &mut self,
         track: &Track,
@@ -209,16 +222,21 @@ impl Execution {
             .k
             .saturating_add(i64::try_from(skipped).unwrap_or(i64::MAX))
             .min(last);
+        let ahead = (self.k + self.lead).min(last);
+        let target = if ahead < 0 {
+            self.set.blend.rest()
+        } else {
+            self.set.blend.tick(ahead as usize)
+        };
         if self.k < 0 {
             self.k += 1;
             return ExecutionTick {
-                target: self.set.blend.rest(),
+                target,
                 point: None,
                 finished: None,
             };
         }
         let tick = self.k as usize;
-        let target = self.set.blend.tick(tick);
         let point = self.sample(track, now);
         let set = &self.set;
         if self.pending.is_none()
@@ -410,7 +428,7 @@ pub(crate) mod tests {
     fn reconditionings_are_counted_per_execution() {
         let (set, mut replanner) = ready_set_and_replanner();
         let ticks = set.blend.timeline().ticks() as i64;
-        let mut x = Execution::new(set, REST);
+        let mut x = Execution::new(set, REST, 0);
         let (mut track, mut clock) = (Track::default(), 0);
         let mut step = |x: &mut Execution| {
             clock += 1;
@@ -446,7 +464,7 @@ pub(crate) mod tests {
             set.points.map(|p| p.tick),
             set.blend.timeline().ticks() as u64,
         );
-        let mut x = Execution::new(set, REST);
+        let mut x = Execution::new(set, REST, 0);
         assert!(x.at_boundary(REST) && !x.through());
         let (mut samples, mut stats) = (Vec::new(), Vec::new());
         let (mut n, mut track) = (0u64, Track::default());
@@ -499,7 +517,7 @@ pub(crate) mod tests {
             set.blend.timeline().ticks() as u64,
         );
         assert_eq!((cond[0], cond[1], ticks), (50, 150, 201));
-        let mut x = Execution::new(set, REST);
+        let mut x = Execution::new(set, REST, 0);
         let jumps = [
             (1, 2),     // in the rest
             (53, 4),    // tick 48 -> 53, over point 0 (tick 50)
@@ -526,6 +544,33 @@ pub(crate) mod tests {
         );
         // The first ends once point 1's sample is out (218), at its last tick held meanwhile.
         assert_eq!(stats, [(218, 1), (219 + REST as u64 + 200, 2)]);
+    }
+
+    /// A lead plays Eq. 11 that many ticks ahead of the clock, from the rest's last ticks to
+    /// the end, and leaves the points' times and samples where they were.
+    #[test]
+    fn a_lead_plays_eq_11_ahead_and_leaves_the_points_on_the_clock() {
+        const LEAD: i64 = 7;
+        let (set, mut reference) = (ready_set(), ready_set());
+        let ticks = set.blend.timeline().ticks() as i64;
+        let mut led = Execution::new(set, REST, LEAD);
+        let mut plain = Execution::new(ready_set(), REST, 0);
+        let (mut track, mut track_plain) = (Track::default(), Track::default());
+        let (mut samples, mut samples_plain) = (Vec::new(), Vec::new());
+        for clock in 0..REST + ticks {
+            let t = play(&mut led, &mut track, clock as u64, 0);
+            let p = play(&mut plain, &mut track_plain, clock as u64, 0);
+            let k = clock - REST;
+            let want = match k + LEAD {
+                ahead if ahead < 0 => reference.blend.rest(),
+                ahead => reference.blend.tick(ahead.min(ticks - 1) as usize),
+            };
+            assert_eq!(t.target, want, "clock {clock}: Eq. 11 at tick {}", k + LEAD);
+            samples.extend(t.point.map(|s| (clock, s.point, s.stamp_ns)));
+            samples_plain.extend(p.point.map(|s| (clock, s.point, s.stamp_ns)));
+        }
+        assert_eq!(samples.len(), 2);
+        assert_eq!(samples, samples_plain, "the points sampled when they were");
     }
 
     #[test]
@@ -559,7 +604,7 @@ pub(crate) mod tests {
     fn a_silent_tracker_leaves_no_point_waiting() {
         let set = ready_set();
         let cond = set.points[0].tick as u64;
-        let mut x = Execution::new(set, REST);
+        let mut x = Execution::new(set, REST, 0);
         let mut track = Track::default();
         // The tracker's last sample comes before point 0; then it falls silent.
         let mut got = None;

@@ -8,17 +8,19 @@
 //! through its own rings; what it publishes leaves over a ring to the io thread.
 //!
 //! The modules: the tick loop ([`tick`]), what its modes play ([`execution`] of way-point sets,
-//! [`demonstration`]s), its [`limiter`] and its wake-up [`latency`]; the [`service`] thread
+//! [`demonstration`]s), the actuators' [`lag`] it leads by, its [`limiter`] and its wake-up
+//! [`latency`]; the [`service`] thread
 //! (estimates, re-conditioning, demonstrations) and the [`admission`] of sets it uses; the
 //! [`io`] thread and the tick's outbox; real-time set-up and the watchdog ([`rt`]).
 //!
-//! Admission, [`Execution`] and the [`Limiter`] are public so that `softarm-rehearsal` runs
+//! Admission, [`Execution`], [`ActuatorLag`] and the [`Limiter`] are public so that `softarm-rehearsal` runs
 //! Alg. 2 with this very code on a simulated plant, in one process.
 
 mod admission;
 mod demonstration;
 mod execution;
 mod io;
+mod lag;
 mod latency;
 mod limiter;
 mod rt;
@@ -29,6 +31,7 @@ pub use admission::{Admitted, admit};
 pub use execution::{
     Execution, ExecutionTick, REACH_WAIT_NS, REACH_WINDOW_NS, ReadySet, Track, rest_ticks,
 };
+pub use lag::ActuatorLag;
 pub use limiter::Limiter;
 
 use std::sync::Arc;

@@ -18,6 +18,7 @@ use softarm_runtime::now_ns;
 use crate::demonstration::{self, DemoPlayback, DemoSequences, NO_DEMO};
 use crate::execution::{self, Execution, ReadySet, Track};
 use crate::io::{Outbox, Outgoing};
+use crate::lag::ActuatorLag;
 use crate::latency::TickLatency;
 use crate::limiter::Limiter;
 use crate::{Retired, Shared, ToTick, rt};
@@ -88,6 +89,7 @@ struct Timing {
     timeout_ns: u64,
     rest_ticks: i64,
     demo_rest_ticks: i64,
+    period_ns: u64,
     /// Ticks per status (10 Hz).
     status_every: u64,
 }
@@ -99,6 +101,7 @@ impl Timing {
             timeout_ns: (c.tracker_timeout_ms * 1e6) as u64,
             rest_ticks: execution::rest_ticks(c),
             demo_rest_ticks: (demonstration::rest_s(c) * c.rate_hz).round() as i64,
+            period_ns: (1e9 / c.rate_hz).round() as u64,
             status_every: (c.rate_hz / 10.0).round().max(1.0) as u64,
         }
     }
@@ -224,6 +227,8 @@ struct Tick<'a> {
     latency: TickLatency,
     /// `None` until the arm's state is known: the first setpoint starts there.
     limiter: Option<Limiter>,
+    /// The actuators' lag behind the setpoints, which executions lead by.
+    lag: ActuatorLag,
     mode: Mode,
     /// The next set, waiting for the running one's execution to end.
     queued: Option<Box<ReadySet>>,
@@ -248,6 +253,7 @@ impl<'a> Tick<'a> {
             links,
             latency: TickLatency::new(),
             limiter: None,
+            lag: ActuatorLag::new(config.max_lead_s),
             mode: Mode::Idle,
             queued: None,
             was_safe: false,
@@ -278,6 +284,7 @@ impl<'a> Tick<'a> {
             }
             let step = self.step_mode(health.safe, now);
             let setpoint = self.limit(step.target);
+            self.measure_lag(now, &setpoint, health.safe);
             self.credit(&setpoint);
             self.publish(state, now, setpoint, step);
         }
@@ -320,7 +327,13 @@ impl<'a> Tick<'a> {
         if let Mode::Demonstrate(d) = std::mem::replace(&mut self.mode, Mode::Idle) {
             self.retire(Retired::Demo(d.into_sequences()));
         }
-        self.mode = Mode::Execute(Execution::new(set, self.timing.rest_ticks));
+        self.mode = Mode::Execute(self.start(set));
+    }
+
+    /// A set's executions, led by the actuators' lag as measured now.
+    fn start(&self, set: Box<ReadySet>) -> Execution {
+        let lead = self.lag.lead_ticks(self.timing.period_ns);
+        Execution::new(set, self.timing.rest_ticks, lead)
     }
 
     /// Demonstrations play only from idle.
@@ -452,6 +465,14 @@ impl<'a> Tick<'a> {
         }
     }
 
+    /// The setpoint published and the actuators' newest state, for their lag; only while the
+    /// arm is safe (held, or stopped, the actuators do not follow the setpoint).
+    fn measure_lag(&mut self, now: u64, setpoint: &Actuation, safe: bool) {
+        let measured = self.inputs.measured.as_ref().filter(|_| safe);
+        self.lag
+            .published(now, setpoint, measured.map(|(m, t)| (*t, m)));
+    }
+
     /// What a conditioning point whose time came at this tick credits: the setpoint published
     /// and where the actuators were.
     fn credit(&mut self, setpoint: &Actuation) {
@@ -516,7 +537,7 @@ impl<'a> Tick<'a> {
             Mode::Idle => {}
         }
         if let Some(set) = self.queued.take() {
-            self.mode = Mode::Execute(Execution::new(set, self.timing.rest_ticks));
+            self.mode = Mode::Execute(self.start(set));
         }
     }
 
@@ -545,6 +566,8 @@ impl<'a> Tick<'a> {
             outbox_dropped: drops.all,
             samples_dropped: drops.samples,
             held_solves: self.count.held_solves + held,
+            lag_ns: self.lag.lag_s().map_or(u64::MAX, |s| (s * 1e9) as u64),
+            lead_ns: self.lag.lead_ns(),
         };
         self.links.outbox.send(Outgoing::Status(status));
     }

@@ -297,13 +297,7 @@ fn observe_and_estimate(
     }
     if s.reached.iter().all(|v| v.is_finite()) {
         let v = learner
-            .observe(
-                s.point as usize,
-                &s.desired,
-                &s.actuation,
-                &s.reached,
-                Some(&s.measured),
-            )
+            .observe(s.point as usize, &s.desired, &s.actuation, &s.reached)
             .map_err(|e| e.to_string())?;
         tracing::debug!(
             point = s.point,

@@ -4,8 +4,6 @@
 //! the arm put back), so that they are forgotten before they make things worse.
 //! Pure: no I/O, no clock (times are the caller's stamps).
 
-use nalgebra::Vector3;
-
 use softarm_method::forward::ForwardModel;
 use softarm_method::learner_config::GaussNewtonConfig;
 use softarm_method::pcc::ArmGeometry;
@@ -105,49 +103,10 @@ impl Corrections {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Corrected {
     pub target: Position,
-    /// Δa = a_measured − a_model, carried to other targets.
-    pub delta: Actuation,
     /// The estimate the target's next visit would have had (the step from its best or last
     /// try; the best try's until that step is known): a set that comes back to this very
-    /// target starts from it, exactly where it left (Δa leaves out the lag into the point on
-    /// its set's path, which the estimate has in), on an arm that creeps too.
+    /// target starts from it, exactly where it left, on an arm that creeps too.
     pub estimate: Actuation,
-}
-
-/// How far the tip falls short of a point on the way into it: the actuators lag the setpoint
-/// by about the path's speed there (2–6 mm a point, as much on the nominal arm as on any), and
-/// the path into point n comes from the point before, so the shortfall is about
-/// k (p_n − p_{n−1}). k is learnt by least squares from every visit: the shortfall is what the
-/// actuators lagged behind the estimate, through the configured arm's slope. A visited
-/// target's estimate already makes up for its lag; this is for the others. Measured on the
-/// second set after `tool-change`, seeds 1–3: 3.1, 2.7, 2.6 mm against 4.0, 3.3, 3.6 without;
-/// with p_{n+1} − p_{n−1} as the way in, 4.0, 3.2, 3.2 (the shortfall points along it, but the
-/// arrival sets its size).
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
-pub struct Lag {
-    /// Σ xᵀy over the visits: x = p_n − p_{n−1} (m), y the shortfall (m).
-    pub xy: f64,
-    /// Σ xᵀx (m²).
-    pub xx: f64,
-}
-
-impl Lag {
-    /// Largest k a checkpoint may hold: a shortfall half the points' spacing is no lag.
-    pub const MAX_K: f64 = 0.5;
-
-    pub fn learn(&mut self, path: &Vector3<f64>, shortfall: &Vector3<f64>) {
-        self.xy += path.dot(shortfall);
-        self.xx += path.dot(path);
-    }
-
-    /// The shortfall expected on the way in `path` (p_n − p_{n−1}); none before any visit.
-    pub fn ahead(&self, path: &Vector3<f64>) -> Vector3<f64> {
-        if self.xx > 0.0 {
-            path * (self.xy / self.xx).clamp(-Self::MAX_K, Self::MAX_K)
-        } else {
-            Vector3::zeros()
-        }
-    }
 }
 
 /// Samples kept of the arm (one per neighbourhood of the actuation space).
@@ -621,30 +580,6 @@ mod tests {
     }
 
     #[test]
-    fn the_lag_is_learnt_along_the_way_in() {
-        let mut lag = Lag::default();
-        assert_eq!(lag.ahead(&Vector3::new(0.1, 0.0, 0.0)), Vector3::zeros());
-        // Shortfalls of about 2 % of the way in, the disturbance across it.
-        lag.learn(
-            &Vector3::new(0.1, 0.0, 0.0),
-            &Vector3::new(0.002, 0.001, 0.0),
-        );
-        lag.learn(
-            &Vector3::new(0.0, -0.2, 0.0),
-            &Vector3::new(-0.001, -0.004, 0.0),
-        );
-        let ahead = lag.ahead(&Vector3::new(0.0, 0.0, 0.05));
-        assert!(
-            (ahead - Vector3::new(0.0, 0.0, 0.001)).norm() < 1e-15,
-            "{ahead}"
-        );
-        // A k no lag has is not used as it is.
-        lag.learn(&Vector3::new(0.1, 0.0, 0.0), &Vector3::new(1.0, 0.0, 0.0));
-        let ahead = lag.ahead(&Vector3::new(0.01, 0.0, 0.0));
-        assert_eq!(ahead.x, 0.01 * Lag::MAX_K);
-    }
-
-    #[test]
     fn corrections_keep_the_newest_per_target_and_round_trip() {
         let c = GaussNewtonConfig {
             transfer_points: 2,
@@ -652,7 +587,6 @@ mod tests {
         };
         let at = |x: f64, v: f64| Corrected {
             target: [x, 0.0, -0.5],
-            delta: [v; ACTUATORS],
             estimate: [0.5 + v; ACTUATORS],
         };
         let mut k = Corrections::default();

@@ -16,7 +16,7 @@ use nalgebra::{DMatrix, DVector};
 use safetensors::{Dtype, SafeTensors, tensor::TensorView};
 use serde::{Deserialize, Serialize};
 
-use softarm_learning::arm::{Corrected, Lag, Sample};
+use softarm_learning::arm::{Corrected, Sample};
 use softarm_learning::cacla::LearnerState;
 use softarm_learning::online::ArmState;
 use softarm_method::learner_config::LearnerConfig;
@@ -563,10 +563,8 @@ pub fn read_checkpoint(dir: &Path) -> Result<Checkpoint, BundleError> {
 fn put_arm(t: &mut Tensors, arm: &ArmState) {
     let n = arm.corrections.len();
     let targets: Vec<f64> = arm.corrections.iter().flat_map(|c| c.target).collect();
-    let deltas: Vec<f64> = arm.corrections.iter().flat_map(|c| c.delta).collect();
     let estimates: Vec<f64> = arm.corrections.iter().flat_map(|c| c.estimate).collect();
     t.put_f64("arm.corrections.targets", &[n, 3], &targets);
-    t.put_f64("arm.corrections.deltas", &[n, 6], &deltas);
     t.put_f64("arm.corrections.estimates", &[n, 6], &estimates);
     let m = arm.footprint.len();
     let stamps: Vec<u64> = arm.footprint.iter().map(|s| s.stamp_ns).collect();
@@ -577,7 +575,6 @@ fn put_arm(t: &mut Tensors, arm: &ArmState) {
     t.put_u64("arm.footprint.counts", &counts);
     t.put_f64("arm.footprint.actuations", &[m, 6], &actuations);
     t.put_f64("arm.footprint.positions", &[m, 3], &positions);
-    t.put_f64("arm.lag", &[2], &[arm.lag.xy, arm.lag.xx]);
 }
 
 /// The arm's state; none in a checkpoint written before it was kept.
@@ -586,20 +583,13 @@ fn get_arm(t: &Tensors) -> Result<ArmState, String> {
         return Ok(ArmState::default());
     }
     let (s, targets) = t.f64s("arm.corrections.targets", &[None, Some(3)])?;
-    let (_, deltas) = t.f64s("arm.corrections.deltas", &[Some(s[0]), Some(6)])?;
     let (_, estimates) = t.f64s("arm.corrections.estimates", &[Some(s[0]), Some(6)])?;
-    if let Some(v) = deltas.iter().find(|v| v.abs() > 1.0) {
-        return Err(format!(
-            "a correction of {v} is more than the actuation's whole range"
-        ));
-    }
     if let Some(v) = estimates.iter().find(|v| !(0.0..=1.0).contains(*v)) {
         return Err(format!("an estimate of {v} is outside [0, 1]"));
     }
     let corrections = (0..s[0])
         .map(|i| Corrected {
             target: std::array::from_fn(|d| targets[3 * i + d]),
-            delta: std::array::from_fn(|d| deltas[6 * i + d]),
             estimate: std::array::from_fn(|d| estimates[6 * i + d]),
         })
         .collect();
@@ -634,30 +624,7 @@ fn get_arm(t: &Tensors) -> Result<ArmState, String> {
     Ok(ArmState {
         corrections,
         footprint,
-        lag: get_lag(t)?,
     })
-}
-
-/// The lag learnt ([`Lag`]); none in a checkpoint written before it was kept.
-fn get_lag(t: &Tensors) -> Result<Lag, String> {
-    if !t.has("arm.lag") {
-        return Ok(Lag::default());
-    }
-    let (_, v) = t.f64s("arm.lag", &[Some(2)])?;
-    let lag = Lag { xy: v[0], xx: v[1] };
-    if lag.xx < 0.0 {
-        return Err(format!("the lag's Σxᵀx is {}, below 0", lag.xx));
-    }
-    if lag.xy.abs() > Lag::MAX_K * lag.xx {
-        return Err(format!(
-            "the lag's k = {} is beyond ±{} (Σxᵀy {}, Σxᵀx {})",
-            lag.xy / lag.xx,
-            Lag::MAX_K,
-            lag.xy,
-            lag.xx
-        ));
-    }
-    Ok(lag)
 }
 
 #[cfg(test)]
@@ -738,7 +705,6 @@ mod tests {
         let arm = ArmState {
             corrections: vec![Corrected {
                 target: [0.1, 0.0, -0.45],
-                delta: [0.01, -0.02, 0.0, 0.03, 0.0, -0.01],
                 estimate: [0.41, 0.48, 0.6, 0.53, 0.5, 0.44],
             }],
             footprint: vec![Sample {
@@ -747,10 +713,6 @@ mod tests {
                 position: [0.1, 0.01, -0.46],
                 count: 7,
             }],
-            lag: Lag {
-                xy: 0.0021,
-                xx: 0.14,
-            },
         };
         write_checkpoint(&dir, &m.learner, &arm, &id).unwrap();
         let back = read_checkpoint(&dir).unwrap();
@@ -768,11 +730,6 @@ mod tests {
         put_arm(&mut t, &broken);
         let e = get_arm(&t).unwrap_err();
         assert!(e.contains("1.5 is outside [0, 1]"), "{e}");
-        broken.footprint[0].actuation[2] = 0.5;
-        broken.lag.xy = 0.1;
-        put_arm(&mut t, &broken);
-        let e = get_arm(&t).unwrap_err();
-        assert!(e.contains("the lag's k"), "{e}");
         fs::remove_dir_all(&dir).unwrap();
     }
 

@@ -6,7 +6,8 @@
 //! paper), SEED (the learner's and the plant's, as `softarm demo --seed`; default the config's),
 //! SET (a way-point file, default config/waypoints/demo.toml), SECOND (a way-point file run
 //! once afterwards on the adapted learner, and once on a fresh one), LEARNER (TOML overrides of
-//! [learner], `;` for newlines).
+//! [learner], `;` for newlines), QUICK=1 (write the tests' quick model,
+//! `softarm_model::pipeline::quick_model`, to MODEL_DIR first).
 
 use anyhow::{Context, bail};
 use softarm_config::Config;
@@ -88,6 +89,9 @@ fn main() -> anyhow::Result<()> {
     let Some(dir) = args.get(1) else {
         bail!("usage: online MODEL_DIR [EXECUTIONS]");
     };
+    if env("QUICK") == "1" {
+        softarm_model::pipeline::quick_model(std::path::Path::new(dir));
+    }
     let model = Model::read(std::path::Path::new(dir))?;
     let executions: u32 = match args.get(2) {
         Some(s) => s.parse().context("EXECUTIONS must be a whole number")?,
@@ -111,8 +115,11 @@ fn main() -> anyhow::Result<()> {
     print(&stats);
     if !env("SECOND").is_empty() {
         let second = load("SECOND", "")?;
+        // The fresh learner beside the same controller: the lag it has measured.
+        let fresh = rehearsal(&model, &config, arm, &sim)?
+            .with_lag(adapted.lag())
+            .rehearse(&second, 1)?;
         let after = adapted.rehearse(&second, 1)?;
-        let fresh = rehearsal(&model, &config, arm, &sim)?.rehearse(&second, 1)?;
         println!("second set, adapted, then fresh:");
         print(&after);
         print(&fresh);

@@ -73,12 +73,14 @@ fn main() -> anyhow::Result<()> {
     for (arm, set, name) in phases {
         running.change_arm(arm)?;
         let changes_before = running.learner().arm_changes();
+        let lag = running.lag().clone();
         let r: Vec<String> = running
             .rehearse(set, executions)?
             .iter()
             .map(|s| format!("{:5.1}", s.mean_m * 1e3))
             .collect();
-        let mut fresh = Rehearsal::new(&model, &config, learner()?, arm, &config.sim)?;
+        let mut fresh =
+            Rehearsal::new(&model, &config, learner()?, arm, &config.sim)?.with_lag(&lag);
         let f: Vec<String> = fresh
             .rehearse(set, executions)?
             .iter()

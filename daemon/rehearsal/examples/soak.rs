@@ -99,6 +99,8 @@ fn main() -> anyhow::Result<()> {
             demo.variation(&mut rng)
         };
         let executions = rng.random_range(3..=6);
+        // A fresh learner beside the same controller: the lag it had measured.
+        let lag = r.lag().clone();
         let stats = r.rehearse(&set, executions)?;
         let fresh = Rehearsal::new(
             &model,
@@ -107,6 +109,7 @@ fn main() -> anyhow::Result<()> {
             arm,
             &config.sim,
         )?
+        .with_lag(&lag)
         .rehearse(&set, 1)?[0]
             .mean_m
             * 1e3;

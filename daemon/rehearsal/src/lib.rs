@@ -14,7 +14,7 @@
 use anyhow::{Context, bail};
 use softarm_config::Config;
 use softarm_config::waypoints::WaypointFile;
-use softarm_controller::{Execution, Limiter, Track, admit, rest_ticks};
+use softarm_controller::{ActuatorLag, Execution, Limiter, Track, admit, rest_ticks};
 use softarm_ipc::{ACTUATORS, Actuation, ActuationEstimate, ExecutionStats, WaypointSet};
 use softarm_learner::Learner;
 use softarm_method::blend::Replanner;
@@ -53,6 +53,8 @@ struct SimArm {
     /// The newest setpoint (before the first, where the arm starts, as the sim holds it).
     command: Actuation,
     newest: Measurement,
+    /// When `newest` was published (ns).
+    newest_ns: u64,
 }
 
 impl SimArm {
@@ -72,6 +74,7 @@ impl SimArm {
             due_ns: (dt * NS_PER_S).round() as u64,
             command,
             newest,
+            newest_ns: 0,
         })
     }
 
@@ -87,6 +90,7 @@ impl SimArm {
     fn run_until(&mut self, now_ns: u64, mut published: impl FnMut(u64, &Measurement)) {
         while self.due_ns <= now_ns {
             self.newest = self.plant.step(&self.command, self.dt);
+            self.newest_ns = self.due_ns;
             published(self.due_ns, &self.newest);
             self.due_ns += self.period_ns;
         }
@@ -112,6 +116,8 @@ pub struct Rehearsal<'a> {
     arm: SimArm,
     /// Started, as the tick starts it, from the first measured state.
     limiter: Limiter,
+    /// The actuators' lag, as the tick measures it and leads by.
+    lag: ActuatorLag,
     rest_ticks: i64,
     period_ns: u64,
     /// The simulated clock: the time of the next tick (ns).
@@ -150,6 +156,7 @@ impl<'a> Rehearsal<'a> {
             learner,
             arm,
             limiter,
+            lag: ActuatorLag::new(c.max_lead_s),
             rest_ticks: rest_ticks(c),
             period_ns: (NS_PER_S / c.rate_hz).round() as u64,
             now_ns: 0,
@@ -162,6 +169,19 @@ impl<'a> Rehearsal<'a> {
 
     pub fn learner(&self) -> &Learner {
         &self.learner
+    }
+
+    /// The actuators' lag as its controller has measured it.
+    pub fn lag(&self) -> &ActuatorLag {
+        &self.lag
+    }
+
+    /// Its controller has measured `lag` already: a freshly started learner beside a
+    /// controller that has been running, which is what "a fresh learner" is compared as (a
+    /// fresh controller would lead by nothing in its first set).
+    pub fn with_lag(mut self, lag: &ActuatorLag) -> Self {
+        self.lag = lag.clone();
+        self
     }
 
     /// Another learner takes over (a restarted learner process); the one that ran.
@@ -257,7 +277,11 @@ impl<'a> Rehearsal<'a> {
             bail!("the learner refused the set");
         }
         let (ready, replanner) = admitted.start(set_id, &estimates)?;
-        Ok((Execution::new(Box::new(ready), self.rest_ticks), replanner))
+        let lead = self.lag.lead_ticks(self.period_ns);
+        Ok((
+            Execution::new(Box::new(ready), self.rest_ticks, lead),
+            replanner,
+        ))
     }
 
     /// One tick, as the controller's: read the newest tracker and motor samples, step the
@@ -273,6 +297,8 @@ impl<'a> Rehearsal<'a> {
         }
         let t = execution.step(&self.track, self.rest_ticks, self.now_ns, 0);
         let setpoint = self.limiter.apply(&t.target);
+        let measured = (self.arm.newest_ns, &self.arm.newest.actuation);
+        self.lag.published(self.now_ns, &setpoint, Some(measured));
         execution.published(&setpoint, Some(&self.arm.newest.actuation));
         self.arm.command = setpoint;
         if let Some(sample) = t.point

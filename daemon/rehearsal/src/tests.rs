@@ -129,8 +129,10 @@ fn what_the_demo_set_taught_carries_over_to_a_second_set() {
             .unwrap();
         let mut adapted = setup_on(&model, &config, arm, &sim, Algorithm::GaussNewton);
         let demo = means(&mut adapted, DEMO, 8);
+        let adapted_lag = &adapted.lag().clone();
         let adapted = means(&mut adapted, SECOND, 1)[0];
-        let mut fresh = setup_on(&model, &config, arm, &sim, Algorithm::GaussNewton);
+        let mut fresh =
+            setup_on(&model, &config, arm, &sim, Algorithm::GaussNewton).with_lag(adapted_lag);
         let unadapted = means(&mut fresh, SECOND, 1)[0];
         eprintln!(
             "tool-change on a {plant} plant: demo set {:?} mm; second set: adapted {:.2} mm, \
@@ -221,13 +223,15 @@ fn a_running_learner_keeps_up_with_an_arm_that_changes_and_is_never_worse_than_a
     let mut running = setup(&model, &config, "nominal", Algorithm::GaussNewton);
     for (name, arm, set) in phases {
         running.change_arm(arm).unwrap();
+        // Beside the same controller: the lag it had measured when the set started.
+        let lag = running.lag().clone();
         let ours: Vec<f64> = running
             .rehearse(set, 6)
             .unwrap()
             .iter()
             .map(|s| s.mean_m)
             .collect();
-        let mut fresh = setup(&model, &config, "nominal", Algorithm::GaussNewton);
+        let mut fresh = setup(&model, &config, "nominal", Algorithm::GaussNewton).with_lag(&lag);
         fresh.change_arm(arm).unwrap();
         let fresh: Vec<f64> = fresh
             .rehearse(set, 6)
@@ -315,8 +319,10 @@ fn a_restarted_learner_keeps_what_it_knew_of_the_arm() {
     // Back to nominal: seen through the restored footprint, so the next set starts as a fresh
     // learner would.
     rehearsal.change_arm(nominal).unwrap();
+    let mut fresh =
+        setup(&model, &config, "nominal", Algorithm::GaussNewton).with_lag(rehearsal.lag());
     let back_home = means(&mut rehearsal, DEMO, 1)[0];
-    let fresh = run(&model, "nominal", Algorithm::GaussNewton, 1)[0];
+    let fresh = means(&mut fresh, DEMO, 1)[0];
     assert!(
         back_home <= 1.1 * fresh,
         "back home {back_home} m, fresh {fresh} m"
