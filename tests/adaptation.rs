@@ -43,6 +43,14 @@ fn a_stack_on_a_changed_arm_lowers_its_error_and_reports_its_reconditionings() {
         st["controller"]["reconditions"]["last"].as_u64().unwrap() >= 1,
         "{st}"
     );
+    // The actuators' lag (the sim's first-order 20 ms, and the way a setpoint takes to it)
+    // was measured while the arm moved, and the next set is led by it, up to the 0.1 s cap.
+    let c = &st["controller"];
+    let lag = c["lag_ns"]
+        .as_u64()
+        .unwrap_or_else(|| panic!("no lag measured: {st}"));
+    assert!(lag >= 10_000_000, "a lag of {lag} ns: {st}");
+    assert_eq!(c["lead_ns"].as_u64(), Some(lag.min(100_000_000)), "{st}");
 }
 
 #[test]
@@ -113,22 +121,30 @@ fn run_set(s: &TestStack, set: &str, executions: u32) -> Vec<f64> {
 
 /// A freshly started learner's first execution of `set` on `scenario`'s arm, with the stack's
 /// model and config: Alg. 2 rehearsed in process (it runs the stack's own code, see
-/// `softarm-rehearsal`).
-fn fresh_first(model: &Model, config: &Config, scenario: &str, set: &str) -> f64 {
+/// `softarm-rehearsal`). `led`: beside a controller that has measured the actuators' lag and
+/// leads by it, as the stack's does after its first set (one execution with another learner
+/// first, which the fresh one then replaces).
+fn fresh_first(model: &Model, config: &Config, scenario: &str, set: &str, led: bool) -> f64 {
     let (arm, sim) = Scenario::resolve(scenario)
         .unwrap()
         .apply(&config.arm, &config.sim)
         .unwrap();
-    let online = online_learner(
-        model.learner.clone(),
-        model.kinematics.clone(),
-        config.learner,
-        config.arm,
-    )
-    .unwrap();
-    let learner = Learner::new(online, config);
+    let learner = || {
+        let online = online_learner(
+            model.learner.clone(),
+            model.kinematics.clone(),
+            config.learner,
+            config.arm,
+        )
+        .unwrap();
+        Learner::new(online, config)
+    };
     let set = WaypointFile::load(Path::new(set)).unwrap();
-    let mut r = Rehearsal::new(model, config, learner, arm, &sim).unwrap();
+    let mut r = Rehearsal::new(model, config, learner(), arm, &sim).unwrap();
+    if led {
+        r.rehearse(&set, 1).unwrap();
+        r.replace_learner(learner());
+    }
     r.rehearse(&set, 1).unwrap()[0].mean_m
 }
 
@@ -174,8 +190,10 @@ fn a_running_stack_keeps_up_with_an_arm_that_changes() {
                 || (s.logs().matches("the arm has changed").count() > seen).then_some(()),
             );
         }
+        // The set is led by the lag the controller has measured by now (none before the first).
+        let led = s.status()["controller"]["lead_ns"].as_u64().unwrap_or(0) > 0;
         let m = run_set(&s, set, executions);
-        let fresh = fresh_first(&model, &config, scenario, set);
+        let fresh = fresh_first(&model, &config, scenario, set, led);
         eprintln!(
             "{scenario}: {:?} mm; a fresh learner's first {:.1} mm",
             m.iter()

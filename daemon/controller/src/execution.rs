@@ -112,11 +112,14 @@ pub struct Execution {
     /// Ticks into the execution, the next to play; negative while resting before it.
     k: i64,
     /// How far ahead of the clock Eq. 11 is evaluated (ticks): the actuators' lag as measured
-    /// when the set started ([`ActuatorLag`](crate::ActuatorLag)). Fixed for the set: the
-    /// learner's per-point state is the set's, and a lead that changed between two executions
-    /// would move every point by the lag it had corrected for (measured: the nominal arm's
-    /// second execution 2.8 mm against 1.5 with the lead switched on after the first).
-    lead: i64,
+    /// ([`ActuatorLag`](crate::ActuatorLag)) `max_lead` ticks before the first execution
+    /// starts, so the first rest's slew has told it. Fixed for the set: the learner's
+    /// per-point state is the set's, and a lead that changed between two executions would
+    /// move every point by the lag it had corrected for (measured: the nominal arm's second
+    /// execution 2.8 mm against 1.5 with the lead switched on after the first).
+    lead: Option<i64>,
+    /// The largest lead (ticks): where in the first rest the lead is taken.
+    max_lead: i64,
     next_point: usize,
     /// A point whose time has come, waiting for the tracker samples after it.
     pending: Option<Pending>,
@@ -148,14 +151,14 @@ pub struct ExecutionTick {
 }
 
 impl Execution {
-    /// The set's first execution, from the start of its rest, Eq. 11 evaluated `lead` ticks
-    /// ahead of the clock (see [`Execution::step`]).
-    pub fn new(set: Box<ReadySet>, rest_ticks: i64, lead: i64) -> Self {
-        let last = set.blend.timeline().ticks() as i64 - 1;
+    /// The set's first execution, from the start of its rest; leads of up to `max_lead`
+    /// ticks (see [`Execution::step`]).
+    pub fn new(set: Box<ReadySet>, rest_ticks: i64, max_lead: i64) -> Self {
         Self {
             execution: 1,
             k: -rest_ticks,
-            lead: lead.clamp(0, last),
+            lead: None,
+            max_lead: max_lead.max(0),
             next_point: 0,
             pending: None,
             errors: [0.0; MAX_WAYPOINTS],
@@ -207,13 +210,16 @@ impl Execution {
     /// estimated from the samples around it. The execution ends only once every point's
     /// sample went out.
     ///
-    /// Eq. 11 is evaluated the set's lead ahead of the clock (its first tick played from the
-    /// rest's last `lead` ticks on, its last held at the end), so the actuators, following
-    /// late, are where it says when it says; the points' times stay on the clock.
+    /// `lead`: what the actuators' lag asks for now (ticks). The set takes it once, `max_lead`
+    /// ticks before its first execution starts, and evaluates Eq. 11 that far ahead of the
+    /// clock from then on (its first tick played from the rest's last `lead` ticks, its last
+    /// held at the end), so the actuators, following late, are where it says when it says;
+    /// the points' times stay on the clock.
     pub fn step(
         &mut self,
         track: &Track,
         rest_ticks: i64,
+        lead: i64,
         now: u64,
         skipped: u64,
     ) -> ExecutionTick {
@@ -222,7 +228,10 @@ impl Execution {
             .k
             .saturating_add(i64::try_from(skipped).unwrap_or(i64::MAX))
             .min(last);
-        let ahead = (self.k + self.lead).min(last);
+        if self.lead.is_none() && self.k >= -self.max_lead {
+            self.lead = Some(lead.clamp(0, self.max_lead.min(last)));
+        }
+        let ahead = (self.k + self.lead.unwrap_or(0)).min(last);
         let target = if ahead < 0 {
             self.set.blend.rest()
         } else {
@@ -358,11 +367,11 @@ pub(crate) mod tests {
     const PERIOD: u64 = 20_000_000;
 
     /// One tick played at `clock` (in periods), the tracker at `REACHED` with a sample at the
-    /// tick's time.
+    /// tick's time, the actuators' lag asking for no lead.
     fn play(x: &mut Execution, track: &mut Track, clock: u64, skipped: u64) -> ExecutionTick {
         let now = clock * PERIOD;
         track.push(now, REACHED);
-        let t = x.step(track, REST, now, skipped);
+        let t = x.step(track, REST, 0, now, skipped);
         x.published(&t.target, None);
         t
     }
@@ -547,20 +556,29 @@ pub(crate) mod tests {
     }
 
     /// A lead plays Eq. 11 that many ticks ahead of the clock, from the rest's last ticks to
-    /// the end, and leaves the points' times and samples where they were.
+    /// the end, and leaves the points' times and samples where they were. The set keeps the
+    /// lead it took before its first execution, whatever the lag asks for later.
     #[test]
     fn a_lead_plays_eq_11_ahead_and_leaves_the_points_on_the_clock() {
-        const LEAD: i64 = 7;
+        const LEAD: i64 = 3;
+        let rest = 10;
         let (set, mut reference) = (ready_set(), ready_set());
         let ticks = set.blend.timeline().ticks() as i64;
-        let mut led = Execution::new(set, REST, LEAD);
-        let mut plain = Execution::new(ready_set(), REST, 0);
+        let mut led = Execution::new(set, rest, 4);
+        let mut plain = Execution::new(ready_set(), rest, 0);
         let (mut track, mut track_plain) = (Track::default(), Track::default());
         let (mut samples, mut samples_plain) = (Vec::new(), Vec::new());
-        for clock in 0..REST + ticks {
-            let t = play(&mut led, &mut track, clock as u64, 0);
-            let p = play(&mut plain, &mut track_plain, clock as u64, 0);
-            let k = clock - REST;
+        for clock in 0..rest + ticks {
+            // Taken at the rest's fourth tick from its end: what was asked for before and
+            // after does not count.
+            let asked = match clock - rest {
+                ..-4 => 1,
+                -4 => LEAD,
+                _ => 2,
+            };
+            let t = x_step(&mut led, &mut track, clock as u64, rest, asked);
+            let p = x_step(&mut plain, &mut track_plain, clock as u64, rest, 0);
+            let k = clock - rest;
             let want = match k + LEAD {
                 ahead if ahead < 0 => reference.blend.rest(),
                 ahead => reference.blend.tick(ahead.min(ticks - 1) as usize),
@@ -571,6 +589,20 @@ pub(crate) mod tests {
         }
         assert_eq!(samples.len(), 2);
         assert_eq!(samples, samples_plain, "the points sampled when they were");
+    }
+
+    fn x_step(
+        x: &mut Execution,
+        track: &mut Track,
+        clock: u64,
+        rest: i64,
+        lead: i64,
+    ) -> ExecutionTick {
+        let now = clock * PERIOD;
+        track.push(now, REACHED);
+        let t = x.step(track, rest, lead, now, 0);
+        x.published(&t.target, None);
+        t
     }
 
     #[test]
@@ -612,7 +644,7 @@ pub(crate) mod tests {
             if clock < REST as u64 + cond - 10 {
                 track.push(clock * PERIOD, REACHED);
             }
-            let t = x.step(&track, REST, clock * PERIOD, 0);
+            let t = x.step(&track, REST, 0, clock * PERIOD, 0);
             x.published(&t.target, None);
             got = got.or(t.point.map(|s| (clock, s)));
         }

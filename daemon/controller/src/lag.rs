@@ -9,11 +9,13 @@
 //! says. τ is measured, never configured: a config value would be the sim's own `lag_s`
 //! passing for adaptation.
 //!
-//! The estimate: per actuator, the shortfall e = setpoint(t) − measured(t) at each measured
-//! sample's time t against the setpoint's velocity v there, e ≈ c + τ v (c: any steady offset,
-//! a sagged motor, backlash at rest); τ by least squares over all six, the sums forgotten with
-//! a time constant of [`MEMORY_S`] so a changing arm is followed. A first-order lag T gives
-//! τ = T on a ramp; a dead time d gives d. Fixed size: the tick allocates nothing.
+//! The estimate: per actuator, between two measured samples, the shortfall
+//! e = setpoint − measured at their midpoint against the measured velocity ṁ there,
+//! e ≈ c + τ ṁ (c: any steady offset, a sagged motor); τ by least squares over all six, the
+//! sums forgotten with a time constant of [`MEMORY_S`] so a changing arm is followed. A
+//! first-order lag T gives exactly e = T ṁ, in a slew's start and end too, so the slew of a
+//! set's first rest already tells it; a dead time d gives about d on smooth paths. Fixed size:
+//! the tick allocates nothing.
 
 use softarm_ipc::{ACTUATORS, Actuation};
 
@@ -22,13 +24,16 @@ use softarm_ipc::{ACTUATORS, Actuation};
 const RING: usize = 256;
 /// What the measurement remembers (s): about a minute of motion.
 pub const MEMORY_S: f64 = 60.0;
-/// The setpoint's velocity is taken over this (ns): long enough to average the limiter's
-/// steps, short against the trajectories' changes.
-const VELOCITY_WINDOW_NS: u64 = 10_000_000;
-/// Motion needed before τ is trusted: Σ (v − v̄)² over the samples, (units/s)². 10 is 250
-/// samples of one actuator at 0.2 per s (1.25 s at 200 Hz): less and an execution's first
-/// second of rest would set it from noise.
+/// Two measured samples further apart than this (ns) tell no velocity: the driver was away.
+const MAX_GAP_NS: u64 = 100_000_000;
+/// Motion needed before τ is trusted: Σ (ṁ − mean ṁ)² over the sample pairs, (units/s)². 10 is
+/// 40 pairs of one actuator slewing at 0.5 per s (0.2 s at 200 Hz), or a set's first rest
+/// slewing three actuators by 0.05: less, and noise would set it.
 const MIN_EXCITATION: f64 = 10.0;
+/// The lead changes only when the lag measured is this far (ticks) from it: a set's lead is
+/// what its points' corrections were learnt under, and a lead that flips by a tick between
+/// sets moves a visited target by about a millimetre.
+const HYSTERESIS_TICKS: f64 = 0.75;
 
 /// The actuators' lag as measured, and the lead it asks for.
 #[derive(Debug, Clone)]
@@ -37,38 +42,44 @@ pub struct ActuatorLag {
     published: [(u64, Actuation); RING],
     len: usize,
     next: usize,
-    /// The newest measured sample taken in (ns).
-    last_measured_ns: Option<u64>,
-    /// Exponentially forgotten sums: weight, per actuator Σe, Σv, Σev, Σv².
+    /// The newest measured sample taken in: (stamp ns, actuation).
+    last_measured: Option<(u64, Actuation)>,
+    /// Exponentially forgotten sums: weight, per actuator Σe, Σṁ, Σeṁ, Σṁ².
     weight: f64,
     e: Actuation,
     v: Actuation,
     ev: Actuation,
     vv: Actuation,
-    max_lead_ns: u64,
+    period_ns: u64,
+    max_lead_ticks: i64,
+    /// The lead in force (ticks).
+    lead_ticks: i64,
 }
 
 impl ActuatorLag {
-    /// Leads of at most `max_lead_s` (0: none).
-    pub fn new(max_lead_s: f64) -> Self {
+    /// For a tick of `rate_hz`, leads of at most `max_lead_s` (0: none).
+    pub fn new(rate_hz: f64, max_lead_s: f64) -> Self {
+        let period_ns = (1e9 / rate_hz).round().max(1.0) as u64;
         Self {
             published: [(0, [0.0; ACTUATORS]); RING],
             len: 0,
             next: 0,
-            last_measured_ns: None,
+            last_measured: None,
             weight: 0.0,
             e: [0.0; ACTUATORS],
             v: [0.0; ACTUATORS],
             ev: [0.0; ACTUATORS],
             vv: [0.0; ACTUATORS],
-            max_lead_ns: (max_lead_s.max(0.0) * 1e9) as u64,
+            period_ns,
+            max_lead_ticks: (max_lead_s.max(0.0) * 1e9 / period_ns as f64).floor() as i64,
+            lead_ticks: 0,
         }
     }
 
     /// The setpoint published at `now`, and the actuators' newest measured state (stamp, value)
-    /// if any: a measured sample not taken in before is compared with what was published then.
-    /// Only while the setpoint is the tick's own (the arm safe and driven): held, the arm's
-    /// state says nothing of the lag.
+    /// if any: a measured sample not taken in before is compared with what was published.
+    /// Pass none while the setpoint is not the tick's own (held, stopped): the arm's state
+    /// then says nothing of the lag.
     pub fn published(
         &mut self,
         now: u64,
@@ -84,28 +95,38 @@ impl ActuatorLag {
         let Some((stamp, m)) = measured else {
             return;
         };
-        if self.last_measured_ns.is_some_and(|t| stamp <= t) {
-            return;
+        match self.last_measured {
+            Some((t, _)) if stamp <= t => {}
+            Some((t, before)) if stamp - t <= MAX_GAP_NS => {
+                self.take_in(t, &before, stamp, m);
+                self.last_measured = Some((stamp, *m));
+            }
+            _ => self.last_measured = Some((stamp, *m)),
         }
-        let (Some(at), Some(before)) = (
-            self.setpoint_at(stamp),
-            self.setpoint_at(stamp.saturating_sub(VELOCITY_WINDOW_NS)),
-        ) else {
+    }
+
+    /// One pair of measured samples: the shortfall at their midpoint against their velocity.
+    fn take_in(&mut self, t0: u64, m0: &Actuation, t1: u64, m1: &Actuation) {
+        let mid = t0 + (t1 - t0) / 2;
+        let Some(at) = self.setpoint_at(mid) else {
             return;
         };
-        let forget = self
-            .last_measured_ns
-            .map_or(1.0, |t| (-((stamp - t) as f64 * 1e-9) / MEMORY_S).exp());
-        self.last_measured_ns = Some(stamp);
-        let window_s = VELOCITY_WINDOW_NS as f64 * 1e-9;
+        let dt = (t1 - t0) as f64 * 1e-9;
+        let forget = (-dt / MEMORY_S).exp();
         self.weight = self.weight * forget + 1.0;
         for i in 0..ACTUATORS {
-            let e = at[i] - m[i];
-            let v = (at[i] - before[i]) / window_s;
+            let e = at[i] - 0.5 * (m0[i] + m1[i]);
+            let v = (m1[i] - m0[i]) / dt;
             self.e[i] = self.e[i] * forget + e;
             self.v[i] = self.v[i] * forget + v;
             self.ev[i] = self.ev[i] * forget + e * v;
             self.vv[i] = self.vv[i] * forget + v * v;
+        }
+        if let Some(s) = self.lag_s() {
+            let x = s * 1e9 / self.period_ns as f64;
+            if (x - self.lead_ticks as f64).abs() > HYSTERESIS_TICKS {
+                self.lead_ticks = x.round() as i64;
+            }
         }
     }
 
@@ -123,16 +144,21 @@ impl ActuatorLag {
         (var >= MIN_EXCITATION).then(|| (cov / var).max(0.0))
     }
 
-    /// How far ahead Eq. 11 is evaluated (ns): the lag measured, at most the configured lead;
-    /// 0 until it is measured.
-    pub fn lead_ns(&self) -> u64 {
-        self.lag_s()
-            .map_or(0, |s| ((s * 1e9) as u64).min(self.max_lead_ns))
+    /// How far ahead Eq. 11 is to be evaluated (ticks): the lag measured, rounded, changed only
+    /// when the lag has moved by more than [`HYSTERESIS_TICKS`], at most the configured lead;
+    /// 0 until measured.
+    pub fn lead_ticks(&self) -> i64 {
+        self.lead_ticks.min(self.max_lead_ticks)
     }
 
-    /// The lead in ticks of `period_ns`, rounded.
-    pub fn lead_ticks(&self, period_ns: u64) -> i64 {
-        ((self.lead_ns() + period_ns / 2) / period_ns.max(1)) as i64
+    /// [`ActuatorLag::lead_ticks`] in ns.
+    pub fn lead_ns(&self) -> u64 {
+        self.lead_ticks() as u64 * self.period_ns
+    }
+
+    /// The lead's cap (ticks).
+    pub fn max_lead_ticks(&self) -> i64 {
+        self.max_lead_ticks
     }
 
     fn newest(&self) -> Option<(u64, Actuation)> {
@@ -143,8 +169,7 @@ impl ActuatorLag {
     /// next (the arm's drivers take setpoints as they come); none before the oldest kept.
     fn setpoint_at(&self, t: u64) -> Option<Actuation> {
         let at = |k: usize| self.published[(self.next + RING - self.len + k) % RING];
-        let (oldest, _) = at(0);
-        if self.len == 0 || t < oldest {
+        if self.len == 0 || t < at(0).0 {
             return None;
         }
         // Newest first: the samples asked for are recent.
@@ -163,29 +188,45 @@ impl ActuatorLag {
 mod tests {
     use super::*;
 
+    const RATE_HZ: f64 = 500.0;
     const PERIOD: u64 = 2_000_000;
     /// The sim's motor_state period.
     const SAMPLE: u64 = 5_000_000;
 
-    /// Setpoints at 500 Hz along `path`, actuators following them as first-order lag `lag_s`
-    /// after `dead_ns`, plus `offset`, sampled every 5 ms; the lag measured after `seconds`.
-    fn measure(
-        path: impl Fn(f64) -> Actuation,
+    /// How the actuators follow: a first-order lag after a dead time, and a steady offset.
+    #[derive(Clone, Copy)]
+    struct Actuators {
         lag_s: f64,
         dead_ns: u64,
         offset: f64,
+    }
+
+    /// The actuators take each setpoint as it comes and hold it to the next (half a tick, 1 ms,
+    /// behind the path on average), then lag it by 19 ms: 20 ms in all, which the lead is to
+    /// make up.
+    const SIM: Actuators = Actuators {
+        lag_s: 0.019,
+        dead_ns: 0,
+        offset: 0.0,
+    };
+    const HALF_TICK_S: f64 = 0.001;
+
+    /// Setpoints at 500 Hz along `path` for `seconds` from `lag`'s newest, the actuators
+    /// following as `how` (from on the path), sampled every 5 ms, into `lag`.
+    fn measure_into(
+        lag: &mut ActuatorLag,
+        path: impl Fn(f64) -> Actuation,
+        how: Actuators,
         seconds: f64,
-        max_lead_s: f64,
-    ) -> ActuatorLag {
-        let mut lag = ActuatorLag::new(max_lead_s);
-        let mut actuators = path(0.0);
+    ) {
+        let start = lag.newest().map_or(0, |(t, _)| t + PERIOD);
+        let mut actuators = path(start as f64 * 1e-9);
         let mut history: Vec<(u64, Actuation)> = Vec::new();
         let mut measured = None;
-        let ticks = (seconds * 1e9) as u64 / PERIOD;
-        for k in 0..ticks {
-            let now = k * PERIOD;
+        for k in 0..(seconds * 1e9) as u64 / PERIOD {
+            let now = start + k * PERIOD;
             if now.is_multiple_of(SAMPLE) {
-                measured = Some((now, actuators.map(|a| a + offset)));
+                measured = Some((now, actuators.map(|a| a + how.offset)));
             }
             let sp = path(now as f64 * 1e-9);
             history.push((now, sp));
@@ -196,15 +237,25 @@ mod tests {
                 let driving = history
                     .iter()
                     .rev()
-                    .find(|(s, _)| *s + dead_ns <= t)
-                    .map_or(path(0.0), |(_, a)| *a);
+                    .find(|(s, _)| *s + how.dead_ns <= t)
+                    .map_or(path(start as f64 * 1e-9), |(_, a)| *a);
                 let dt = PERIOD as f64 * 1e-10;
                 for i in 0..ACTUATORS {
-                    actuators[i] += (driving[i] - actuators[i]) * dt / lag_s;
+                    actuators[i] += (driving[i] - actuators[i]) * dt / how.lag_s;
                 }
             }
             lag.published(now, &sp, measured.as_ref().map(|(t, m)| (*t, m)));
         }
+    }
+
+    fn measure(
+        path: impl Fn(f64) -> Actuation,
+        how: Actuators,
+        seconds: f64,
+        max_lead_s: f64,
+    ) -> ActuatorLag {
+        let mut lag = ActuatorLag::new(RATE_HZ, max_lead_s);
+        measure_into(&mut lag, path, how, seconds);
         lag
     }
 
@@ -212,39 +263,81 @@ mod tests {
         std::array::from_fn(|i| 0.5 + 0.3 * (1.3 * t + i as f64).sin())
     }
 
+    /// A set's first rest: three actuators slewed by 0.05 at the limiter's 1.5 per s, then
+    /// held.
+    fn slew(t: f64) -> Actuation {
+        let x = 0.5 + (1.5 * t).min(0.05);
+        [x, x, x, 0.5, 0.5, 0.5]
+    }
+
     #[test]
     fn a_first_order_lag_is_measured_as_its_time_constant() {
-        let lag = measure(swinging, 0.02, 0, 0.0, 20.0, 0.1);
+        let lag = measure(swinging, SIM, 20.0, 0.1);
+        let s = lag.lag_s().expect("measured");
+        assert!((s - 0.02).abs() < 0.0005, "{s} s for 20 ms");
+        assert_eq!((lag.lead_ticks(), lag.lead_ns()), (10, 20_000_000));
+    }
+
+    #[test]
+    fn one_slew_tells_the_lag() {
+        let lag = measure(slew, SIM, 0.8, 0.1);
         let s = lag.lag_s().expect("measured");
         assert!((s - 0.02).abs() < 0.001, "{s} s for 20 ms");
-        assert_eq!(lag.lead_ticks(PERIOD), 10);
+        assert_eq!(lag.lead_ticks(), 10);
     }
 
     #[test]
     fn a_dead_time_and_a_steady_offset_are_measured_as_the_lag_alone() {
-        let lag = measure(swinging, 0.01, 30_000_000, -0.02, 20.0, 0.1);
-        let s = lag.lag_s().expect("measured");
-        assert!((s - 0.04).abs() < 0.001, "{s} s for 10 ms + 30 ms dead");
+        let how = Actuators {
+            lag_s: 0.01,
+            dead_ns: 30_000_000,
+            offset: -0.02,
+        };
+        let s = measure(swinging, how, 20.0, 0.1).lag_s().expect("measured");
+        let want = 0.04 + HALF_TICK_S;
+        assert!((s - want).abs() < 0.001, "{s} s for 10 ms + 30 ms dead");
     }
 
     #[test]
     fn the_lead_is_capped_and_none_until_the_arm_has_moved() {
-        let still = measure(|_| [0.5; ACTUATORS], 0.02, 0, 0.0, 10.0, 0.1);
+        let still = measure(|_| [0.5; ACTUATORS], SIM, 10.0, 0.1);
         assert_eq!((still.lag_s(), still.lead_ns()), (None, 0));
-        let slow = measure(swinging, 0.3, 0, 0.0, 20.0, 0.1);
+        let slow = Actuators { lag_s: 0.3, ..SIM };
         assert_eq!(
-            slow.lead_ns(),
+            measure(swinging, slow, 20.0, 0.1).lead_ns(),
             100_000_000,
             "capped at the configured 0.1 s"
         );
-        let off = measure(swinging, 0.02, 0, 0.0, 20.0, 0.0);
+        let off = measure(swinging, SIM, 20.0, 0.0);
         assert!(off.lag_s().is_some());
-        assert_eq!(off.lead_ticks(PERIOD), 0, "0: no lead");
+        assert_eq!(off.lead_ticks(), 0, "0: no lead");
+    }
+
+    /// A lag measured a little off the lead leaves it; one that has moved by more than the
+    /// hysteresis takes it along.
+    #[test]
+    fn the_lead_follows_the_lag_with_hysteresis() {
+        let mut lag = measure(swinging, SIM, 20.0, 0.1);
+        assert_eq!(lag.lead_ticks(), 10);
+        let near = Actuators {
+            lag_s: 0.0202,
+            ..SIM
+        };
+        measure_into(&mut lag, swinging, near, 200.0);
+        let s = lag.lag_s().unwrap();
+        assert!((s - 0.0212).abs() < 0.0005, "{s}");
+        assert_eq!(lag.lead_ticks(), 10, "10.6 ticks measured: 10 kept");
+        let slower = Actuators {
+            lag_s: 0.029,
+            ..SIM
+        };
+        measure_into(&mut lag, swinging, slower, 200.0);
+        assert_eq!(lag.lead_ticks(), 15);
     }
 
     #[test]
     fn setpoints_between_ticks_are_interpolated_and_old_samples_not_taken_twice() {
-        let mut lag = ActuatorLag::new(0.1);
+        let mut lag = ActuatorLag::new(RATE_HZ, 0.1);
         lag.published(0, &[0.0; ACTUATORS], None);
         lag.published(PERIOD, &[1.0; ACTUATORS], None);
         assert_eq!(lag.setpoint_at(PERIOD / 4), Some([0.25; ACTUATORS]));
@@ -252,11 +345,25 @@ mod tests {
         // A tick at the same time again is not kept.
         lag.published(PERIOD, &[9.0; ACTUATORS], None);
         assert_eq!(lag.setpoint_at(PERIOD), Some([1.0; ACTUATORS]));
-        // The same measured sample read on two ticks counts once.
-        let m = [0.5; ACTUATORS];
-        for k in 2..20 {
-            lag.published(k * PERIOD, &[1.0; ACTUATORS], Some((PERIOD * 15 / 2, &m)));
+        // The same measured sample read on many ticks counts once; a first sample only starts
+        // a pair.
+        lag.published(
+            2 * PERIOD,
+            &[1.0; ACTUATORS],
+            Some((PERIOD, &[0.1; ACTUATORS])),
+        );
+        assert_eq!(lag.weight, 0.0);
+        for k in 3..20 {
+            lag.published(
+                k * PERIOD,
+                &[1.0; ACTUATORS],
+                Some((3 * PERIOD, &[0.2; ACTUATORS])),
+            );
         }
+        assert_eq!(lag.weight, 1.0);
+        // After a gap the driver was away for, a sample starts a pair again.
+        let late = 3 * PERIOD + MAX_GAP_NS + 1;
+        lag.published(late, &[1.0; ACTUATORS], Some((late, &[0.3; ACTUATORS])));
         assert_eq!(lag.weight, 1.0);
     }
 }

@@ -89,7 +89,6 @@ struct Timing {
     timeout_ns: u64,
     rest_ticks: i64,
     demo_rest_ticks: i64,
-    period_ns: u64,
     /// Ticks per status (10 Hz).
     status_every: u64,
 }
@@ -101,7 +100,6 @@ impl Timing {
             timeout_ns: (c.tracker_timeout_ms * 1e6) as u64,
             rest_ticks: execution::rest_ticks(c),
             demo_rest_ticks: (demonstration::rest_s(c) * c.rate_hz).round() as i64,
-            period_ns: (1e9 / c.rate_hz).round() as u64,
             status_every: (c.rate_hz / 10.0).round().max(1.0) as u64,
         }
     }
@@ -253,7 +251,7 @@ impl<'a> Tick<'a> {
             links,
             latency: TickLatency::new(),
             limiter: None,
-            lag: ActuatorLag::new(config.max_lead_s),
+            lag: ActuatorLag::new(config.rate_hz, config.max_lead_s),
             mode: Mode::Idle,
             queued: None,
             was_safe: false,
@@ -330,10 +328,9 @@ impl<'a> Tick<'a> {
         self.mode = Mode::Execute(self.start(set));
     }
 
-    /// A set's executions, led by the actuators' lag as measured now.
+    /// A set's executions, to be led by the actuators' lag.
     fn start(&self, set: Box<ReadySet>) -> Execution {
-        let lead = self.lag.lead_ticks(self.timing.period_ns);
-        Execution::new(set, self.timing.rest_ticks, lead)
+        Execution::new(set, self.timing.rest_ticks, self.lag.max_lead_ticks())
     }
 
     /// Demonstrations play only from idle.
@@ -451,6 +448,7 @@ impl<'a> Tick<'a> {
                 let t = x.step(
                     &self.inputs.track,
                     self.timing.rest_ticks,
+                    self.lag.lead_ticks(),
                     now,
                     self.skipped,
                 );

@@ -156,7 +156,7 @@ impl<'a> Rehearsal<'a> {
             learner,
             arm,
             limiter,
-            lag: ActuatorLag::new(c.max_lead_s),
+            lag: ActuatorLag::new(c.rate_hz, c.max_lead_s),
             rest_ticks: rest_ticks(c),
             period_ns: (NS_PER_S / c.rate_hz).round() as u64,
             now_ns: 0,
@@ -277,9 +277,9 @@ impl<'a> Rehearsal<'a> {
             bail!("the learner refused the set");
         }
         let (ready, replanner) = admitted.start(set_id, &estimates)?;
-        let lead = self.lag.lead_ticks(self.period_ns);
+        let max_lead = self.lag.max_lead_ticks();
         Ok((
-            Execution::new(Box::new(ready), self.rest_ticks, lead),
+            Execution::new(Box::new(ready), self.rest_ticks, max_lead),
             replanner,
         ))
     }
@@ -295,7 +295,8 @@ impl<'a> Rehearsal<'a> {
         for e in self.sim_until_now() {
             recondition(replanner, &e);
         }
-        let t = execution.step(&self.track, self.rest_ticks, self.now_ns, 0);
+        let lead = self.lag.lead_ticks();
+        let t = execution.step(&self.track, self.rest_ticks, lead, self.now_ns, 0);
         let setpoint = self.limiter.apply(&t.target);
         let measured = (self.arm.newest_ns, &self.arm.newest.actuation);
         self.lag.published(self.now_ns, &setpoint, Some(measured));
