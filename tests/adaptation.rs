@@ -121,30 +121,23 @@ fn run_set(s: &TestStack, set: &str, executions: u32) -> Vec<f64> {
 
 /// A freshly started learner's first execution of `set` on `scenario`'s arm, with the stack's
 /// model and config: Alg. 2 rehearsed in process (it runs the stack's own code, see
-/// `softarm-rehearsal`). `led`: beside a controller that has measured the actuators' lag and
-/// leads by it, as the stack's does after its first set (one execution with another learner
-/// first, which the fresh one then replaces).
-fn fresh_first(model: &Model, config: &Config, scenario: &str, set: &str, led: bool) -> f64 {
+/// `softarm-rehearsal`), whose controller measures the actuators' lag in the set's first rest
+/// and leads by it, as the stack's has measured it.
+fn fresh_first(model: &Model, config: &Config, scenario: &str, set: &str) -> f64 {
     let (arm, sim) = Scenario::resolve(scenario)
         .unwrap()
         .apply(&config.arm, &config.sim)
         .unwrap();
-    let learner = || {
-        let online = online_learner(
-            model.learner.clone(),
-            model.kinematics.clone(),
-            config.learner,
-            config.arm,
-        )
-        .unwrap();
-        Learner::new(online, config)
-    };
+    let online = online_learner(
+        model.learner.clone(),
+        model.kinematics.clone(),
+        config.learner,
+        config.arm,
+    )
+    .unwrap();
+    let learner = Learner::new(online, config);
     let set = WaypointFile::load(Path::new(set)).unwrap();
-    let mut r = Rehearsal::new(model, config, learner(), arm, &sim).unwrap();
-    if led {
-        r.rehearse(&set, 1).unwrap();
-        r.replace_learner(learner());
-    }
+    let mut r = Rehearsal::new(model, config, learner, arm, &sim).unwrap();
     r.rehearse(&set, 1).unwrap()[0].mean_m
 }
 
@@ -190,10 +183,8 @@ fn a_running_stack_keeps_up_with_an_arm_that_changes() {
                 || (s.logs().matches("the arm has changed").count() > seen).then_some(()),
             );
         }
-        // The set is led by the lag the controller has measured by now (none before the first).
-        let led = s.status()["controller"]["lead_ns"].as_u64().unwrap_or(0) > 0;
         let m = run_set(&s, set, executions);
-        let fresh = fresh_first(&model, &config, scenario, set, led);
+        let fresh = fresh_first(&model, &config, scenario, set);
         eprintln!(
             "{scenario}: {:?} mm; a fresh learner's first {:.1} mm",
             m.iter()

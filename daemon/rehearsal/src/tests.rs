@@ -110,10 +110,11 @@ fn gauss_newton_adapts_to_a_changed_arm_where_the_paper_does_not() {
     }
 }
 
-/// Issue 19: after `tool-change` on the demo set, the unvisited second set starts within 4 mm
-/// (the trained model alone starts it at 2.5–4.2 mm on the nominal arm, most of it the
-/// actuators' lag into the points). On a plant whose curvature is not constant too
-/// (`not-pcc`), so that fitting the sim's own family cannot pass for adapting to an arm.
+/// Issue 19: after `tool-change` on the demo set, the unvisited second set starts within 4 mm;
+/// asserted at 3 mm (2.25 and 2.64 mm here), which the learner without the controller's lead
+/// and the calibrated arm's own inverse failed (3.09, 3.49 mm). On a plant whose curvature is
+/// not constant too (`not-pcc`), so that fitting the sim's own family cannot pass for adapting
+/// to an arm.
 #[test]
 fn what_the_demo_set_taught_carries_over_to_a_second_set() {
     let model = quick();
@@ -143,7 +144,7 @@ fn what_the_demo_set_taught_carries_over_to_a_second_set() {
         );
         assert!(unadapted > 0.015, "the longer tool is felt: {unadapted} m");
         assert!(
-            adapted <= 0.004,
+            adapted <= 0.003,
             "{plant} plant, second set: adapted {:.2} mm, unadapted {:.2} mm",
             adapted * 1e3,
             unadapted * 1e3
