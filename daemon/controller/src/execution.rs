@@ -272,8 +272,14 @@ impl Execution {
         }
     }
 
-    /// The setpoint published at this tick (after the limiter) and the actuators' newest
-    /// measured state: what a point whose time came at this tick credits.
+    /// The set's lead (ticks; 0 until taken).
+    pub fn lead(&self) -> i64 {
+        self.lead.unwrap_or(0)
+    }
+
+    /// The setpoint the actuators were following at this tick (after the limiter: the one
+    /// published the set's lead before, see [`ActuatorLag::followed`](crate::ActuatorLag)) and
+    /// their newest measured state: what a point whose time came at this tick credits.
     pub fn published(&mut self, setpoint: &Actuation, measured: Option<&Actuation>) {
         if let Some(p) = self.pending.as_mut()
             && p.setpoint[0].is_nan()

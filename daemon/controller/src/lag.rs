@@ -161,6 +161,13 @@ impl ActuatorLag {
         self.max_lead_ticks
     }
 
+    /// The setpoint the actuators were following at `now` under a lead of `lead` ticks: the
+    /// one published that long before (Eq. 11 at `now`, limited); none if no longer kept.
+    pub fn followed(&self, now: u64, lead: i64) -> Option<Actuation> {
+        let back = u64::try_from(lead).ok()?.saturating_mul(self.period_ns);
+        self.setpoint_at(now.checked_sub(back)?)
+    }
+
     fn newest(&self) -> Option<(u64, Actuation)> {
         (self.len > 0).then(|| self.published[(self.next + RING - 1) % RING])
     }
@@ -342,6 +349,9 @@ mod tests {
         lag.published(PERIOD, &[1.0; ACTUATORS], None);
         assert_eq!(lag.setpoint_at(PERIOD / 4), Some([0.25; ACTUATORS]));
         assert_eq!(lag.setpoint_at(5 * PERIOD), Some([1.0; ACTUATORS]));
+        assert_eq!(lag.followed(PERIOD, 1), Some([0.0; ACTUATORS]));
+        assert_eq!(lag.followed(PERIOD, 0), Some([1.0; ACTUATORS]));
+        assert_eq!(lag.followed(PERIOD, 2), None, "before the oldest kept");
         // A tick at the same time again is not kept.
         lag.published(PERIOD, &[9.0; ACTUATORS], None);
         assert_eq!(lag.setpoint_at(PERIOD), Some([1.0; ACTUATORS]));

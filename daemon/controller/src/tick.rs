@@ -283,7 +283,7 @@ impl<'a> Tick<'a> {
             let step = self.step_mode(health.safe, now);
             let setpoint = self.limit(step.target);
             self.measure_lag(now, &setpoint, health.safe);
-            self.credit(&setpoint);
+            self.credit(now, &setpoint);
             self.publish(state, now, setpoint, step);
         }
         self.was_safe = health.safe;
@@ -471,11 +471,12 @@ impl<'a> Tick<'a> {
             .published(now, setpoint, measured.map(|(m, t)| (*t, m)));
     }
 
-    /// What a conditioning point whose time came at this tick credits: the setpoint published
-    /// and where the actuators were.
-    fn credit(&mut self, setpoint: &Actuation) {
+    /// What a conditioning point whose time came at this tick credits: the setpoint the
+    /// actuators were following (published the set's lead before) and where they were.
+    fn credit(&mut self, now: u64, setpoint: &Actuation) {
         if let Mode::Execute(x) = &mut self.mode {
-            x.published(setpoint, self.inputs.measured.as_ref().map(|(m, _)| m));
+            let followed = self.lag.followed(now, x.lead()).unwrap_or(*setpoint);
+            x.published(&followed, self.inputs.measured.as_ref().map(|(m, _)| m));
         }
     }
 

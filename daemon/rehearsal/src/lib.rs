@@ -300,7 +300,11 @@ impl<'a> Rehearsal<'a> {
         let setpoint = self.limiter.apply(&t.target);
         let measured = (self.arm.newest_ns, &self.arm.newest.actuation);
         self.lag.published(self.now_ns, &setpoint, Some(measured));
-        execution.published(&setpoint, Some(&self.arm.newest.actuation));
+        let followed = self.lag.followed(self.now_ns, execution.lead());
+        execution.published(
+            &followed.unwrap_or(setpoint),
+            Some(&self.arm.newest.actuation),
+        );
         self.arm.command = setpoint;
         if let Some(sample) = t.point
             && let Some(e) = self.learner.visit(&sample)
