@@ -741,7 +741,7 @@ mod tests {
                 size_of::<ControllerStatus>(),
                 align_of::<ControllerStatus>()
             ),
-            (160, 8)
+            (176, 8)
         );
         assert_eq!(
             (

@@ -12,24 +12,21 @@ use softarm_method::space::{ACTUATORS, Actuation, Position, distance};
 /// Targets closer than this are the same point of the corrections (m).
 const SAME_TARGET_M: f64 = 1e-3;
 
-/// What the visited points needed beyond the trained model: the estimate a target visited
-/// before starts from ([`Corrections::visited`]), and the correction Δa = a_measured − a_model
-/// of each (a_measured: where the actuators were at the point's best try; a_model: what the
-/// trained model alone would send there), kept in the checkpoint.
+/// Where each visited target stands: the estimate a target visited before starts from
+/// ([`Corrections::visited`]), kept in the checkpoint.
 ///
-/// A correction of the actuation, not of the forward model: the corrections of a changed arm
-/// lead off the demonstrations (a longer tool is made up for by shortening every actuator,
-/// which no demonstration did), where the trained model extrapolates by centimetres, so a model
-/// corrected at the visited actuations is wrong exactly where the next set goes (measured on
-/// `tool-change`: a second set's first execution 18 mm with a refitted model, 9 mm with this).
-/// From where the actuators were, not from the setpoint: the lag at a conditioning time depends
-/// on the path into it, which differs from set to set; the arm's change does not.
+/// An estimate of the actuation, not a correction of the forward model: the corrections of a
+/// changed arm lead off the demonstrations (a longer tool is made up for by shortening every
+/// actuator, which no demonstration did), where the trained model extrapolates by centimetres,
+/// so a model corrected at the visited actuations is wrong exactly where the next set goes
+/// (measured on `tool-change`: a second set's first execution 18 mm with a refitted model, 9 mm
+/// with corrections).
 ///
-/// The Δa are no longer carried to targets never visited (a Gaussian process over task space
-/// did that until issue 19): the calibrated arm ([`crate::calibration`]) does it better (the
-/// second set after `tool-change` 3.3–4.0 mm against 7.7–8.1 mm), and the Gaussian process on
-/// top of it, as a residual, made it worse (5.7 mm; a best try's actuation moves freely along
-/// the null space of the arm's Jacobian, which carried to another target moves the tip).
+/// They are not carried to targets never visited (a Gaussian process over task space of each
+/// target's departure from the trained model did that until issue 19): the calibrated arm
+/// ([`crate::calibration`]) does it better, and the Gaussian process on top of it, as a
+/// residual, made it worse (5.7 mm; a best try's actuation moves freely along the null space of
+/// the arm's Jacobian, which carried to another target moves the tip).
 #[derive(Debug, Clone, Default)]
 pub struct Corrections {
     /// At most `transfer_points`, one per target, oldest first.

@@ -10,11 +10,11 @@
 //!   (`[arm]`, [`ArmGeometry`]), Broyden-updated per point from what each step did on the real
 //!   arm, inside a per-point trust region that shrinks when a step makes things worse.
 //!
-//! What one set taught carries over to the next: a set's first estimates are what the trained
+//! What one set taught carries over to the next: a target never visited starts at the inverse
+//! of the arm as calibrated to its [`Footprint`] ([`CalibratedArm`]), from what the trained
 //! model would send (the actor's mean refined against the polynomial kinematics,
-//! [`softarm_method::poly`]), plus what the arm as calibrated to its [`Footprint`]
-//! ([`CalibratedArm`]) needs there beyond the configured arm; a target visited before starts
-//! where its visits left it ([`Corrections`]). Under gauss-newton the actor stays the trained
+//! [`softarm_method::poly`]), which alone it is before the arm is calibrated; a target visited
+//! before starts where its visits left it ([`Corrections`]). Under gauss-newton the actor stays the trained
 //! prior and the footprint and corrections hold all that an arm taught, so when the footprint
 //! says the arm has changed they are forgotten at once, and the learner is never worse than
 //! one that knows nothing of the arm.
