@@ -132,6 +132,10 @@ struct Holds {
     /// wall-clock time-out passed because a process waited for a CPU (a loaded machine), or
     /// the tracker's data was late; no bus does that.
     machine: u64,
+    /// With motor data older than the time-out within the last [`HOLD_CAUSE_CYCLES`], whether
+    /// or not a stall of the machine's explains that (`bus` and those of `machine`): on a bus
+    /// that is failing, the data is stale whatever else holds the machine up.
+    after_stale: u64,
     /// Setpoints seen, HOLD or not.
     setpoints: u64,
 }
@@ -174,11 +178,13 @@ fn watch_bus(
             }
         }
         let newest = seen.last.map_or(0, |m| m.seq);
-        let bus = stale
-            .is_some_and(|(s, excused)| !excused && newest.saturating_sub(s) <= HOLD_CAUSE_CYCLES);
+        let recent = |s: u64| newest.saturating_sub(s) <= HOLD_CAUSE_CYCLES;
+        let bus = stale.is_some_and(|(s, excused)| !excused && recent(s));
+        let after_stale = stale.is_some_and(|(s, _)| recent(s));
         while let Ok(Some(p)) = setpoints.receive() {
             holds.setpoints += 1;
             if p.state == ControllerState::Hold as u32 {
+                holds.after_stale += u64::from(after_stale);
                 *if bus {
                     &mut holds.bus
                 } else {
@@ -493,9 +499,11 @@ fn a_failing_bus_is_safe_and_said_so() {
         seen.states
     );
     assert!(text.contains("DEGRADED (bus failing"), "{text}");
+    // Held on stale motor data; on a loaded machine the canary's stalls may explain the
+    // staleness too (seen: 1744 HOLD setpoints, all after stale data the stalls covered).
     assert!(
-        holds.bus > 0,
-        "the controller should hold on stale motor data"
+        holds.after_stale > 0,
+        "the controller should hold on stale motor data: {holds:?}"
     );
     // Clean again: following, fresh.
     noise(&rig, BusFaults::default(), 10);
