@@ -547,7 +547,10 @@ fn setpoints_with_nan_inf_or_out_of_range_values_never_reach_the_tendon_motors()
     eventually("HOLDING at 0.4 on non-numbers", LIMIT, || {
         let m = newest(&motors).filter(|m| m.driver_state() == Some(DriverState::Holding))?;
         last = Some(m.actuation);
-        m.actuation.iter().all(|a| (a - 0.4).abs() < 0.01).then_some(())
+        m.actuation
+            .iter()
+            .all(|a| (a - 0.4).abs() < 0.01)
+            .then_some(())
     });
     assert_eq!(goals(&rig, &t.ids), good, "a goal moved: {last:?}");
     assert!(alive(pid), "the driver died");
