@@ -23,7 +23,7 @@ use softarm_ipc::{ACTUATORS, Actuation};
 /// samples' age at any supported rate.
 const RING: usize = 256;
 /// What the measurement remembers (s): about a minute of motion.
-pub const MEMORY_S: f64 = 60.0;
+const MEMORY_S: f64 = 60.0;
 /// Two measured samples further apart than this (ns) tell no velocity: the driver was away.
 const MAX_GAP_NS: u64 = 100_000_000;
 /// Motion needed before τ is trusted: Σ (ṁ − mean ṁ)² over the sample pairs, (units/s)². 10 is
