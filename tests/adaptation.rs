@@ -116,10 +116,16 @@ fn mean_m(v: &serde_json::Value) -> f64 {
 fn run_set(s: &TestStack, set: &str, executions: u32) -> Vec<f64> {
     let (code, out, err) = s.submit(Path::new(set), executions);
     assert_eq!(code, 0, "{out}{err}");
-    s.wait_stats(set_id(&out), executions as usize, Duration::from_secs(180))
-        .iter()
-        .map(mean_m)
-        .collect()
+    let stats = s.wait_stats(set_id(&out), executions as usize, Duration::from_secs(180));
+    // Each point's error and the estimates not in force, so that a failure on a loaded
+    // machine says which point and whether its estimate was late.
+    for v in &stats {
+        eprintln!(
+            "  {set} execution {}: {} mm, {} late",
+            v["execution"], v["errors_mm"], v["late_estimates"]
+        );
+    }
+    stats.iter().map(mean_m).collect()
 }
 
 /// A freshly started learner's first execution of `set` on `scenario`'s arm, with the stack's
@@ -189,11 +195,12 @@ fn a_running_stack_keeps_up_with_an_arm_that_changes() {
         let m = run_set(&s, set, executions);
         let fresh = fresh_first(&model, &config, scenario, set);
         eprintln!(
-            "{scenario}: {:?} mm; a fresh learner's first {:.1} mm",
+            "{scenario}: {:?} mm; a fresh learner's first {:.1} mm; arm changes seen so far {}",
             m.iter()
                 .map(|e| format!("{:.1}", e * 1e3))
                 .collect::<Vec<_>>(),
-            fresh * 1e3
+            fresh * 1e3,
+            s.logs().matches("the arm has changed").count()
         );
         // The stack's sim has run before (other noise, another start) where the rehearsal's
         // starts new: 0.5 mm for that.

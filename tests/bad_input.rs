@@ -160,6 +160,7 @@ fn visit(
         next_execution: if next == 0 { execution + 1 } else { execution },
         next_desired: TARGETS[next as usize],
         measured: [f64::NAN; 6],
+        conditioned: actuation,
     }
 }
 

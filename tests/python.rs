@@ -162,7 +162,8 @@ fn rust_layouts() -> Vec<Layout> {
             next_point,
             next_execution,
             next_desired,
-            measured
+            measured,
+            conditioned
         }),
         layout!(EstimateRequest {
             seq,
@@ -177,7 +178,7 @@ fn rust_layouts() -> Vec<Layout> {
             stamp_ns,
             set_id,
             point,
-            _pad,
+            execution,
             actuation
         }),
         layout!(WaypointSet {

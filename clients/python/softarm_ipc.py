@@ -199,7 +199,7 @@ class MotorState(_Payload):
 class ConditioningSample(_Payload):
     """``cp_sample``: controller -> learner at each conditioning point."""
 
-    TYPE_NAME = "softarm::ConditioningSample.v3"
+    TYPE_NAME = "softarm::ConditioningSample.v4"
     _fields_ = [
         ("seq", ctypes.c_uint64),
         ("stamp_ns", ctypes.c_uint64),
@@ -215,6 +215,7 @@ class ConditioningSample(_Payload):
         ("next_execution", ctypes.c_uint32),
         ("next_desired", Position),
         ("measured", Actuation),  # NaN without motor state
+        ("conditioned", Actuation),  # the estimate the point's group ran on
     ]
 
 
@@ -241,7 +242,7 @@ class ActuationEstimate(_Payload):
         ("stamp_ns", ctypes.c_uint64),
         ("set_id", ctypes.c_uint64),
         ("point", ctypes.c_uint32),
-        ("_pad", ctypes.c_uint32),
+        ("execution", ctypes.c_uint32),  # the one it is for (1-based)
         ("actuation", Actuation),
     ]
 

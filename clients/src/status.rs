@@ -1,5 +1,6 @@
 //! `softarm status`: which processes are alive, the controller's state, tick timing, data ages,
-//! the re-conditionings applied per execution, and what the tick's outbox could not keep.
+//! the points that ran on their estimate in time per execution, and what the tick's outbox
+//! could not keep.
 
 use std::time::Duration;
 
@@ -95,7 +96,7 @@ pub fn text(r: &Report) -> String {
                 "controller: {state}{}, {} Hz, model {}\n\
                  tick wake-up latency µs: min {} p50 {} p99 {} p99.9 {} max {} ({} ticks, {} overruns)\n\
                  data age: tracker {}, motors {}\n\
-                 re-conditionings applied: {} this execution, {} in the last\n\
+                 points on their estimate in time: {} this execution, {} in the last\n\
                  outbox: {} dropped ({} conditioning samples), {} waiting; group solves held: {}\n\
                  actuator lag: {}\n",
                 if s.set_id != 0 {
@@ -255,7 +256,7 @@ mod tests {
         };
         let t = text(&r);
         assert!(
-            t.contains("re-conditionings applied: 1 this execution, 4 in the last"),
+            t.contains("points on their estimate in time: 1 this execution, 4 in the last"),
             "{t}"
         );
         assert!(

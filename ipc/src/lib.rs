@@ -175,9 +175,9 @@ impl MotorState {
 /// Sent by the controller at each conditioning point: what was executed there and where the end
 /// effector was (one visit of Alg. 1), and which estimate it wants next.
 #[derive(Debug, Clone, Copy, Default, ZeroCopySend, serde::Serialize)]
-// The type name changed with the layout (the `executed` flag left for `EstimateRequest`), so a
-// peer built before cannot connect and misread it.
-#[type_name("softarm::ConditioningSample.v3")]
+// The type name changed with the layout (`conditioned` added), so a peer built before cannot
+// connect and misread it.
+#[type_name("softarm::ConditioningSample.v4")]
 #[repr(C)]
 pub struct ConditioningSample {
     pub seq: u64,
@@ -198,6 +198,10 @@ pub struct ConditioningSample {
     /// What the actuators reported (`motor_state`) at the point; NaN without motor state. With
     /// `reached` a quasi-static pair of the arm, free of the lag between setpoint and actuator.
     pub measured: Actuation,
+    /// The estimate the point's group ran conditioned on: the learner's for this execution,
+    /// or an older one when that came too late (a loaded machine). What a learner stepping
+    /// from its estimates steps from.
+    pub conditioned: Actuation,
 }
 
 /// Sent by the controller when it accepts a way-point set: the learner answers with one
@@ -223,6 +227,8 @@ impl EstimateRequest {
 /// The learner's actuation for a conditioning point: the controller conditions group `point`
 /// on it.
 #[derive(Debug, Clone, Copy, Default, ZeroCopySend, serde::Serialize)]
+// `execution` took the place of padding: the layout, and so the type name, are unchanged (an
+// estimate from a peer built before says 0, which is counted as late).
 #[type_name("softarm::ActuationEstimate")]
 #[repr(C)]
 pub struct ActuationEstimate {
@@ -230,7 +236,9 @@ pub struct ActuationEstimate {
     pub stamp_ns: u64,
     pub set_id: u64,
     pub point: u32,
-    pub _pad: u32,
+    /// The execution (1-based) it is for: it is in force there if it reaches the controller
+    /// before the point's group starts in that execution (`ExecutionStats::reconditions`).
+    pub execution: u32,
     pub actuation: Actuation,
 }
 
@@ -334,8 +342,9 @@ pub struct ExecutionStats {
     pub execution: u32,
     pub executions: u32,
     pub count: u32,
-    /// Re-conditioned tables swapped in (learner estimates applied) during this execution. It
-    /// took the place of padding: the layout, and so the type name, are unchanged.
+    /// Points that ran conditioned on the learner's estimate for this execution (it came in
+    /// time); `count − reconditions` ran on an older one. It took the place of padding: the
+    /// layout, and so the type name, are unchanged.
     pub reconditions: u32,
     /// Eq. 9: ‖P_cond[n] − p_reached[n]‖ (m).
     pub errors_m: [f64; MAX_WAYPOINTS],
@@ -383,8 +392,9 @@ pub struct ControllerStatus {
     pub motor_age_ns: u64,
     /// Whether the controller has a trained model loaded.
     pub model_loaded: u32,
-    /// Re-conditioned tables swapped in (learner estimates applied) during the execution under
-    /// way (0 if none), and during the last completed one.
+    /// Points that ran on the learner's estimate for their execution
+    /// ([`ExecutionStats::reconditions`]), so far in the execution under way (0 if none), and in
+    /// the last completed one.
     pub reconditions_current: u32,
     pub reconditions_last: u32,
     /// Conditioning samples and stats waiting in the tick's backlog for room in its outbox.
@@ -748,7 +758,7 @@ mod tests {
                 size_of::<ConditioningSample>(),
                 align_of::<ConditioningSample>()
             ),
-            (216, 8)
+            (264, 8)
         );
     }
 

@@ -7,7 +7,7 @@ use softarm_config::Controller;
 use softarm_ipc::{
     ACTUATORS, Actuation, ConditioningSample, ExecutionStats, MAX_WAYPOINTS, Position,
 };
-use softarm_method::blend::{Blend, ConditioningPoint};
+use softarm_method::blend::{Blend, ConditionedOn, ConditioningPoint};
 use softarm_method::distance;
 
 /// Tracker samples kept for the reach estimate: 320 ms at 200 Hz.
@@ -93,6 +93,12 @@ pub fn rest_ticks(c: &Controller) -> i64 {
     (c.rest_s * c.rate_hz).round() as i64
 }
 
+/// What a point's group ran on before its point's time was played.
+const NOT_RUN: ConditionedOn<ACTUATORS> = ConditionedOn {
+    actuation: [f64::NAN; ACTUATORS],
+    execution: 0,
+};
+
 /// A way-point set ready to run: its blend and what the tick needs to know. Made by
 /// [`Admitted::start`](crate::Admitted::start).
 pub struct ReadySet {
@@ -124,8 +130,11 @@ pub struct Execution {
     /// A point whose time has come, waiting for the tracker samples after it.
     pending: Option<Pending>,
     errors: [f64; MAX_WAYPOINTS],
-    /// The blend's count of tables swapped in when the current execution's rest began.
-    applied_before: u64,
+    /// Points of the current execution so far that ran on their estimate for it.
+    in_force: u32,
+    /// What each point's group ran on in the current execution, for the first `evaluated`.
+    ran_on: [ConditionedOn<ACTUATORS>; MAX_WAYPOINTS],
+    evaluated: usize,
 }
 
 /// A conditioning point whose time has come.
@@ -138,6 +147,8 @@ struct Pending {
     /// newest measured state then (NaN if none), once [`Execution::published`] said them.
     setpoint: Actuation,
     measured: Actuation,
+    /// The estimate its group ran on.
+    conditioned: Actuation,
 }
 
 /// What one tick of an execution produced.
@@ -162,7 +173,9 @@ impl Execution {
             next_point: 0,
             pending: None,
             errors: [0.0; MAX_WAYPOINTS],
-            applied_before: set.blend.applied(),
+            in_force: 0,
+            ran_on: [NOT_RUN; MAX_WAYPOINTS],
+            evaluated: 0,
             set,
         }
     }
@@ -176,10 +189,11 @@ impl Execution {
         self.execution
     }
 
-    /// Re-conditioned tables swapped in during the current execution (its rest included: what
-    /// is swapped in there is in force for it).
+    /// Points of the current execution so far whose group ran on the estimate meant for this
+    /// execution: it reached the tick before the group's window (the rest included). The
+    /// others ran on an older one, the learner's answer too late (a loaded machine).
     pub fn reconditions(&self) -> u32 {
-        u32::try_from(self.set.blend.applied() - self.applied_before).unwrap_or(u32::MAX)
+        self.in_force
     }
 
     /// Group solves of this set that failed and were held at their last good value.
@@ -232,11 +246,7 @@ impl Execution {
             self.lead = Some(lead.clamp(0, self.max_lead.min(last)));
         }
         let ahead = (self.k + self.lead.unwrap_or(0)).min(last);
-        let target = if ahead < 0 {
-            self.set.blend.rest()
-        } else {
-            self.set.blend.tick(ahead as usize)
-        };
+        let target = self.evaluate(ahead);
         if self.k < 0 {
             self.k += 1;
             return ExecutionTick {
@@ -252,11 +262,16 @@ impl Execution {
             && self.next_point < set.count
             && set.points[self.next_point].tick <= tick
         {
+            let on = self.ran_on[self.next_point];
+            if on.execution == self.execution {
+                self.in_force += 1;
+            }
             self.pending = Some(Pending {
                 point: self.next_point,
                 t_cond: now,
                 setpoint: [f64::NAN; ACTUATORS],
                 measured: [f64::NAN; ACTUATORS],
+                conditioned: on.actuation,
             });
             self.next_point += 1;
         }
@@ -270,6 +285,24 @@ impl Execution {
             point,
             finished,
         }
+    }
+
+    /// Eq. 11 at tick `ahead` of the execution (the rest's target before it), noting what the
+    /// groups whose points' times it reaches run on.
+    fn evaluate(&mut self, ahead: i64) -> Actuation {
+        let Ok(ahead) = usize::try_from(ahead) else {
+            return self.set.blend.rest();
+        };
+        let target = self.set.blend.tick(ahead);
+        // A group's table is swapped only while the group is inactive, and it is active at its
+        // own point's time: what is in force then is what its whole window ran on (taken here,
+        // where Eq. 11 plays it, since a lead plays it before the point's time on the clock).
+        let set = &self.set;
+        while self.evaluated < set.count && set.points[self.evaluated].tick <= ahead {
+            self.ran_on[self.evaluated] = set.blend.conditioned_on(self.evaluated);
+            self.evaluated += 1;
+        }
+        target
     }
 
     /// The set's lead (ticks; 0 until taken).
@@ -296,6 +329,7 @@ impl Execution {
             t_cond,
             setpoint,
             measured,
+            conditioned,
         } = self.pending?;
         let covered = track
             .newest()
@@ -331,6 +365,7 @@ impl Execution {
             next_execution,
             next_desired: set.points[next].position,
             measured,
+            conditioned,
         })
     }
 
@@ -354,7 +389,8 @@ impl Execution {
         self.execution += 1;
         self.k = -rest_ticks;
         self.next_point = 0;
-        self.applied_before = set.blend.applied();
+        self.in_force = 0;
+        self.evaluated = 0;
         stats
     }
 }
@@ -439,37 +475,45 @@ pub(crate) mod tests {
         (set, replanner)
     }
 
+    /// Each point's sample says which estimate its group ran on, and the stats count the
+    /// points that ran on the one meant for their execution: an estimate that reaches the tick
+    /// once its group is active runs an execution late.
     #[test]
-    fn reconditionings_are_counted_per_execution() {
+    fn estimates_in_force_are_counted_and_each_sample_says_what_ran() {
         let (set, mut replanner) = ready_set_and_replanner();
-        let ticks = set.blend.timeline().ticks() as i64;
         let mut x = Execution::new(set, REST, 0);
         let (mut track, mut clock) = (Track::default(), 0);
+        let mut samples = Vec::new();
         let mut step = |x: &mut Execution| {
             clock += 1;
-            play(x, &mut track, clock, 0).finished
+            let t = play(x, &mut track, clock, 0);
+            samples.extend(t.point.map(|s| (s.execution, s.point, s.conditioned[0])));
+            t.finished
         };
         for _ in 0..REST + 10 {
             assert!(step(&mut x).is_none());
         }
-        // Group 1 is inactive at tick 10: swapped in on the next tick.
-        replanner.recondition(1, &[0.6; ACTUATORS]).unwrap();
-        step(&mut x);
-        assert_eq!(x.reconditions(), 1);
-        for _ in 11..ticks - 1 {
+        // Execution 1 runs on the first estimates (for it); group 1 is inactive at tick 10, so
+        // an estimate for it then is in time.
+        replanner.recondition(1, &[0.6; ACTUATORS], 1).unwrap();
+        let first = (0..1000).find_map(|_| step(&mut x)).unwrap();
+        assert_eq!((first.execution, first.reconditions), (1, 2));
+        assert_eq!(x.reconditions(), 0, "nothing of execution 2 has run yet");
+
+        // Execution 2: group 0's estimate comes in the rest, in time; group 1's once group 1
+        // is active (tick 100 of 200, between the points), so point 1 runs on execution 1's.
+        replanner.recondition(0, &[0.4; ACTUATORS], 2).unwrap();
+        for _ in 0..REST + 100 {
             assert!(step(&mut x).is_none());
         }
-        let first = step(&mut x).expect("execution 1 ends");
-        assert_eq!((first.execution, first.reconditions), (1, 1));
-        assert_eq!(x.reconditions(), 0, "execution 2 has applied nothing yet");
-
-        // Group 0's estimate after the end: the rest of execution 2 takes it in, for execution 2.
-        replanner.recondition(0, &[0.4; ACTUATORS]).unwrap();
-        step(&mut x);
-        assert_eq!(x.reconditions(), 1);
-        replanner.recondition(1, &[0.7; ACTUATORS]).unwrap();
-        let second = (0..10 * ticks).find_map(|_| step(&mut x)).unwrap();
-        assert_eq!((second.execution, second.reconditions), (2, 2));
+        replanner.recondition(1, &[0.7; ACTUATORS], 2).unwrap();
+        let second = (0..1000).find_map(|_| step(&mut x)).unwrap();
+        assert_eq!((second.execution, second.reconditions), (2, 1));
+        assert_eq!(
+            samples,
+            [(1, 0, 0.5), (1, 1, 0.6), (2, 0, 0.4), (2, 1, 0.6)],
+            "(execution, point, what its group ran on)"
+        );
     }
 
     #[test]

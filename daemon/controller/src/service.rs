@@ -58,15 +58,17 @@ impl Replanners {
         self.sets.push((set_id, replanner));
     }
 
-    /// Re-conditions `point` of set `set_id`; `None` if that set is not with the tick.
+    /// Re-conditions `point` of set `set_id` for `execution`; `None` if that set is not with
+    /// the tick.
     fn recondition(
         &mut self,
         set_id: u64,
         point: usize,
         actuation: &Actuation,
+        execution: u32,
     ) -> Option<Result<(), BlendError>> {
         let (_, r) = self.sets.iter_mut().find(|(id, _)| *id == set_id)?;
-        Some(r.recondition(point, actuation))
+        Some(r.recondition(point, actuation, execution))
     }
 
     /// The tick is done with the set: its replanner goes (here, off the tick thread).
@@ -299,7 +301,10 @@ impl Service {
                 if point < p.estimates.len() {
                     p.estimates[point] = Some(s.actuation);
                 }
-            } else if let Some(Err(err)) = self.handed.recondition(s.set_id, point, &s.actuation) {
+            } else if let Some(Err(err)) =
+                self.handed
+                    .recondition(s.set_id, point, &s.actuation, s.execution)
+            {
                 tracing::warn!(set_id = s.set_id, point, "estimate not used: {err}");
             }
         }
@@ -405,7 +410,7 @@ mod tests {
 
         // The running set's estimates still re-condition it, and only it.
         assert!(matches!(
-            handed.recondition(1, 1, &[0.6; ACTUATORS]),
+            handed.recondition(1, 1, &[0.6; ACTUATORS], 2),
             Some(Ok(()))
         ));
         running.rest();
@@ -413,7 +418,7 @@ mod tests {
         assert_eq!((running.applied(), queued.applied()), (1, 0));
         // Once the queued set runs, its own.
         assert!(matches!(
-            handed.recondition(2, 0, &[0.4; ACTUATORS]),
+            handed.recondition(2, 0, &[0.4; ACTUATORS], 2),
             Some(Ok(()))
         ));
         queued.rest();
@@ -421,9 +426,9 @@ mod tests {
 
         // A queued set replaced by a newer one goes back; the running set keeps its replanner.
         handed.remove(2);
-        assert!(handed.recondition(2, 0, &[0.4; ACTUATORS]).is_none());
+        assert!(handed.recondition(2, 0, &[0.4; ACTUATORS], 2).is_none());
         assert!(matches!(
-            handed.recondition(1, 0, &[0.6; ACTUATORS]),
+            handed.recondition(1, 0, &[0.6; ACTUATORS], 2),
             Some(Ok(()))
         ));
         running.rest();

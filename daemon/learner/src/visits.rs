@@ -81,7 +81,10 @@ impl Learner {
         );
         estimates
             .into_iter()
-            .map(|(point, a)| estimate(self.set_id, point as u32, a))
+            .map(|(point, a)| {
+                let point = point as u32;
+                estimate(self.set_id, point, self.next_execution(point), a)
+            })
             .collect()
     }
 
@@ -133,7 +136,7 @@ impl Learner {
         first
             .into_iter()
             .enumerate()
-            .map(|(point, a)| estimate(r.set_id, point as u32, a))
+            .map(|(point, a)| estimate(r.set_id, point as u32, 1, a))
             .collect()
     }
 
@@ -166,12 +169,27 @@ impl Learner {
             Ok(next) => {
                 tracing::debug!(point = s.next_point, estimate = ?next, "estimate");
                 self.last_visit = Some((s.set_id, s.execution, s.point));
-                Some(estimate(s.set_id, s.next_point, next))
+                Some(estimate(s.set_id, s.next_point, s.next_execution, next))
             }
             Err(why) => {
                 self.refuse(&s, &why);
                 None
             }
+        }
+    }
+
+    /// The execution of the running set whose `point` is visited next: the one last visited if
+    /// the point comes after the last visit's, else the one after.
+    fn next_execution(&self, point: u32) -> u32 {
+        match self.last_visit {
+            Some((set_id, execution, last)) if set_id == self.set_id => {
+                if point > last {
+                    execution
+                } else {
+                    execution + 1
+                }
+            }
+            _ => 1,
         }
     }
 
@@ -187,13 +205,14 @@ impl Learner {
     }
 }
 
-fn estimate(set_id: u64, point: u32, actuation: Actuation) -> ActuationEstimate {
+/// `point`'s estimate for `execution` of set `set_id`.
+fn estimate(set_id: u64, point: u32, execution: u32, actuation: Actuation) -> ActuationEstimate {
     ActuationEstimate {
         seq: 0,
         stamp_ns: 0,
         set_id,
         point,
-        _pad: 0,
+        execution,
         actuation,
     }
 }
@@ -237,6 +256,14 @@ fn check(s: &ConditioningSample) -> Result<(), String> {
         if !v.iter().all(|x| x.is_finite()) {
             return Err(format!("{name} {v:?} is not finite"));
         }
+    }
+    // All NaN is "not known"; a part of it is a broken peer.
+    let known = s.conditioned.iter().filter(|x| x.is_finite()).count();
+    if known != 0 && known != s.conditioned.len() {
+        return Err(format!(
+            "conditioned {:?} is neither finite nor unknown (all NaN)",
+            s.conditioned
+        ));
     }
     Ok(())
 }
@@ -295,9 +322,17 @@ fn observe_and_estimate(
             s.points
         ));
     }
+    // NaN: the controller did not say (`check` refuses a half-known one).
+    let conditioned = s.conditioned[0].is_finite().then_some(&s.conditioned);
     if s.reached.iter().all(|v| v.is_finite()) {
         let v = learner
-            .observe(s.point as usize, &s.desired, &s.actuation, &s.reached)
+            .observe(
+                s.point as usize,
+                &s.desired,
+                &s.actuation,
+                conditioned,
+                &s.reached,
+            )
             .map_err(|e| e.to_string())?;
         tracing::debug!(
             point = s.point,
@@ -305,6 +340,7 @@ fn observe_and_estimate(
             error_mm = v.error * 1e3,
             td = ?v.td_error,
             action = ?s.actuation,
+            conditioned = ?s.conditioned,
             measured = ?s.measured,
             "visit"
         );
@@ -378,7 +414,19 @@ mod tests {
                 next_execution: 0,
                 ..sample()
             },
+            ConditioningSample {
+                conditioned: [0.5, f64::NAN, 0.5, 0.5, 0.5, 0.5],
+                ..sample()
+            },
         ];
+        // Not known (all NaN) is fine.
+        assert_eq!(
+            check(&ConditioningSample {
+                conditioned: [f64::NAN; 6],
+                ..sample()
+            }),
+            Ok(())
+        );
         for s in bad {
             assert!(check(&s).is_err(), "{s:?}");
         }
@@ -454,8 +502,11 @@ mod tests {
             ..Default::default()
         };
         let first = l.request(&request);
-        let named: Vec<_> = first.iter().map(|e| (e.set_id, e.point)).collect();
-        assert_eq!(named, [(5, 0), (5, 1)]);
+        let named: Vec<_> = first
+            .iter()
+            .map(|e| (e.set_id, e.point, e.execution))
+            .collect();
+        assert_eq!(named, [(5, 0, 1), (5, 1, 1)], "(set, point, execution)");
         assert_eq!(l.set_id(), 5);
 
         // The last point of execution 1: the answer is what the sample asks for next.
@@ -471,10 +522,13 @@ mod tests {
             reached: [p1[0] + 0.01, p1[1], p1[2]],
             next_desired: p0,
             measured: first[1].actuation,
+            conditioned: first[1].actuation,
             ..Default::default()
         };
         let next = l.visit(&visit).expect("a good visit is answered");
-        assert_eq!((next.set_id, next.point), (5, 0));
+        assert_eq!((next.set_id, next.point, next.execution), (5, 0, 2));
+        // New first estimates (a changed arm) are for each point's next visit: execution 2.
+        assert_eq!((l.next_execution(0), l.next_execution(1)), (2, 2));
         assert!(next.actuation.iter().all(|a| (0.0..=1.0).contains(a)));
 
         // The same visit again, and a request that is no set: refused, counted, nothing changes.
@@ -524,24 +578,28 @@ mod tests {
                 prop::array::uniform3(value()),
                 prop::array::uniform3(value()),
                 prop::array::uniform6(value()),
+                prop::array::uniform6(value()),
                 0u64..3,
             )
-                .prop_map(|((points, point, next_point, exec), a, d, r, m, set_id)| {
-                    ConditioningSample {
-                        set_id,
-                        points,
-                        point,
-                        next_point,
-                        execution: exec,
-                        next_execution: exec + 1,
-                        actuation: a,
-                        desired: d,
-                        reached: r,
-                        next_desired: d,
-                        measured: m,
-                        ..Default::default()
-                    }
-                })
+                .prop_map(
+                    |((points, point, next_point, exec), a, d, r, m, c, set_id)| {
+                        ConditioningSample {
+                            set_id,
+                            points,
+                            point,
+                            next_point,
+                            execution: exec,
+                            next_execution: exec + 1,
+                            actuation: a,
+                            desired: d,
+                            reached: r,
+                            next_desired: d,
+                            measured: m,
+                            conditioned: c,
+                            ..Default::default()
+                        }
+                    },
+                )
         }
 
         proptest! {

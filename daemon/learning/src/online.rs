@@ -54,7 +54,11 @@ struct Try {
     /// Under gauss-newton the estimate the try was conditioned on, which is what the learner
     /// controls: the setpoint at T_cond can fall short of it (the slew limit on a steep path
     /// into the point), by an amount that changes with the path, so steps taken from setpoints
-    /// wander (measured: a point 6 mm off went to 22 mm and stayed). Under paper, the setpoint.
+    /// wander (measured: a point 6 mm off went to 22 mm and stayed). The one the controller
+    /// says the point ran on, not the one last sent: on a loaded machine an estimate can come
+    /// after its point's window has started and run an execution later, and a step credited
+    /// with it taught the point's Jacobian that it moved nothing (measured: 9 mm, then 76 mm
+    /// the execution after). Under paper, the setpoint.
     action: Actuation,
     reached: Position,
     error: f64,
@@ -89,8 +93,6 @@ struct Point {
     bias: Option<(Vector3<f64>, f64)>,
     /// The pending estimate went back to the best try after a worse one.
     retry: bool,
-    /// The estimate last sent: what its next visit was conditioned on.
-    sent: Option<Actuation>,
     /// Visits so far.
     visits: u32,
 }
@@ -109,7 +111,6 @@ impl Point {
             jacobian: None,
             bias: None,
             retry: false,
-            sent: None,
             visits: 0,
         }
     }
@@ -435,26 +436,32 @@ impl OnlineLearner {
         Ok(p)
     }
 
-    /// One visit: `action` was executed for `point` and the end effector reached `reached`.
-    /// Alg. 1's update under both
-    /// algorithms; under `gauss-newton` also the point's Jacobian, error filter and trust region,
-    /// and the transfer.
+    /// One visit: `action` was executed for `point` (the setpoint at T_cond), its group
+    /// conditioned on `conditioned` (if known), and the end effector reached `reached`. Alg.
+    /// 1's update under both algorithms; under `gauss-newton` also the point's Jacobian, error
+    /// filter and trust region, and the transfer, all from `conditioned` (see [`Try::action`]).
     pub fn observe(
         &mut self,
         point: usize,
         target: &Position,
         action: &Actuation,
+        conditioned: Option<&Actuation>,
         reached: &Position,
     ) -> Result<Visit, OnlineError> {
-        if !action.iter().chain(reached).all(|v| v.is_finite()) {
+        if !action
+            .iter()
+            .chain(reached)
+            .chain(conditioned.into_iter().flatten())
+            .all(|v| v.is_finite())
+        {
             return Err(OnlineError::NotFinite);
         }
         let c = self.cacla.config().gauss_newton;
         let gauss_newton = self.algorithm() == Algorithm::GaussNewton;
         let p = self.point(point, target)?;
         let error = distance(target, reached);
-        let executed = match p.sent {
-            Some(sent) if gauss_newton => sent,
+        let executed = match conditioned {
+            Some(on) if gauss_newton => *on,
             _ => *action,
         };
         let action = &executed;
@@ -552,9 +559,7 @@ impl OnlineLearner {
             let memory = self.set[point].memory;
             return Ok(self.cacla.act(memory.as_ref(), target, explore));
         }
-        let a = self.directed(point, target, explore);
-        self.set[point].sent = Some(a);
-        Ok(a)
+        Ok(self.directed(point, target, explore))
     }
 
     /// Gauss-Newton's estimate: the first, or a step from the last or best try.
@@ -717,7 +722,10 @@ mod tests {
                     stamp_ns += 5_000_000;
                     l.observe_arm(stamp_ns, &a[n], &reached);
                 }
-                sum += l.observe(n, &t[n], &a[n], &reached).unwrap().error;
+                sum += l
+                    .observe(n, &t[n], &a[n], Some(&a[n]), &reached)
+                    .unwrap()
+                    .error;
                 a[n] = l.estimate(n, &t[n], true).unwrap();
             }
             means.push(sum / t.len() as f64);
@@ -787,15 +795,21 @@ mod tests {
     fn a_failed_step_shrinks_the_trust_region_and_backtracks() {
         let mut l = learner(Algorithm::GaussNewton);
         let t = targets();
-        // Joined (as after a restart): no estimate sent yet, so the actions are the setpoints.
+        // What the points ran on unknown: the actions are the setpoints.
         l.begin(t.len()).unwrap();
         let good = [0.5; 6];
-        l.observe(0, &t[0], &good, &[t[0][0] + 0.004, t[0][1], t[0][2]])
+        l.observe(0, &t[0], &good, None, &[t[0][0] + 0.004, t[0][1], t[0][2]])
             .unwrap();
         let r0 = l.set[0].radius;
         // Much worse than the best: the radius halves and the next step starts from the best.
-        l.observe(0, &t[0], &[0.9; 6], &[t[0][0] + 0.05, t[0][1], t[0][2]])
-            .unwrap();
+        l.observe(
+            0,
+            &t[0],
+            &[0.9; 6],
+            None,
+            &[t[0][0] + 0.05, t[0][1], t[0][2]],
+        )
+        .unwrap();
         assert_eq!(l.set[0].radius, r0 * 0.5);
         let next = l.estimate(0, &t[0], true).unwrap();
         let from_good: f64 = next.iter().map(|v| (v - 0.5).powi(2)).sum::<f64>().sqrt();
@@ -803,7 +817,7 @@ mod tests {
         // Worse than the best again from there: the best was luck, so this try becomes the
         // base and a point is never stuck on one lucky sample.
         let stale = [t[0][0] + 0.012, t[0][1], t[0][2]];
-        l.observe(0, &t[0], &next, &stale).unwrap();
+        l.observe(0, &t[0], &next, Some(&next), &stale).unwrap();
         assert_eq!(l.set[0].best.unwrap().reached, stale);
         let after = l.estimate(0, &t[0], true).unwrap();
         let from_stale: f64 = (0..6)
@@ -859,18 +873,18 @@ mod tests {
         l.start_set(&t).unwrap();
         let a = [0.5; 6];
         assert_eq!(
-            l.observe(3, &t[0], &a, &t[0]).unwrap_err(),
+            l.observe(3, &t[0], &a, None, &t[0]).unwrap_err(),
             OnlineError::PointOutOfRange {
                 point: 3,
                 points: 3
             }
         );
         assert!(matches!(
-            l.observe(0, &t[1], &a, &t[0]).unwrap_err(),
+            l.observe(0, &t[1], &a, None, &t[0]).unwrap_err(),
             OnlineError::TargetMismatch { point: 0, .. }
         ));
         assert_eq!(
-            l.observe(0, &t[0], &a, &[f64::NAN; 3]).unwrap_err(),
+            l.observe(0, &t[0], &a, None, &[f64::NAN; 3]).unwrap_err(),
             OnlineError::NotFinite
         );
         assert_eq!(l.transfer_points(), 0);
@@ -878,7 +892,7 @@ mod tests {
         assert_eq!(l.start_set(&[]).unwrap_err(), OnlineError::SetSize(0));
         // A learner that joined a running set learns the targets from the samples.
         l.begin(2).unwrap();
-        l.observe(1, &t[2], &a, &t[2]).unwrap();
-        assert!(l.observe(1, &t[0], &a, &t[0]).is_err());
+        l.observe(1, &t[2], &a, None, &t[2]).unwrap();
+        assert!(l.observe(1, &t[0], &a, None, &t[0]).is_err());
     }
 }

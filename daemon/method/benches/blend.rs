@@ -45,7 +45,7 @@ fn benches(c: &mut Criterion) {
     c.bench_function("recondition + ready (10 s at 500 Hz)", |b| {
         b.iter(|| {
             x = (x + 0.01) % 0.3;
-            replanner.recondition(1, &[0.4 + x; D]).unwrap();
+            replanner.recondition(1, &[0.4 + x; D], 2).unwrap();
             black_box(blend.tick(k3));
         })
     });

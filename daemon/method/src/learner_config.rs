@@ -258,9 +258,9 @@ impl Algorithm {
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct GaussNewtonConfig {
-    /// Fraction of the Gauss-Newton step taken for errors well above `noise_m`. Near the noise
-    /// it falls as g e² / (e² + noise²), so the steps average the tracker noise out
-    /// instead of chasing it.
+    /// Fraction of the Gauss-Newton step taken. The error a step is taken on is filtered over
+    /// the point's executions (a Kalman filter whose measurement noise is `noise_m`), so near
+    /// the noise the steps average it out instead of chasing it.
     pub gain: f64,
     /// μ of the damped pseudo-inverse Jᵀ(JJᵀ + μ²I)⁻¹ (m): directions that move the end
     /// effector less than this per unit actuation are not pushed along.

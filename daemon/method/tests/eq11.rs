@@ -8,7 +8,7 @@ mod common;
 use common::{D, primitives};
 use nalgebra::{DMatrix, DVector};
 use softarm_method::activation::{ActivationConfig, MAX_PRIMITIVES};
-use softarm_method::blend::{Blend, BlendError, Planner, Timeline};
+use softarm_method::blend::{Blend, BlendError, ConditionedOn, Planner, Timeline};
 use softarm_method::classify::classify;
 use softarm_method::promp::{Basis, Demonstration, Primitive, TrainConfig, ViaPoint};
 
@@ -126,7 +126,7 @@ fn reconditioning_the_next_group_never_changes_the_past_or_present() {
         let before: Vec<_> = (0..tl.ticks()).map(|k| blend.evaluate(k)).collect();
 
         let estimate: [f64; D] = std::array::from_fn(|d| 0.6 - 0.04 * d as f64);
-        replanner.recondition(next, &estimate).unwrap();
+        replanner.recondition(next, &estimate, 2).unwrap();
         // The controller ticks on: at T_cond[n] group n+ is inactive, so the swap happens now.
         let k_n = tl.tick_of(T_COND[n]);
         blend.tick(k_n);
@@ -158,7 +158,7 @@ fn an_update_waits_while_its_group_is_active() {
     let k2 = tl.tick_of(T_COND[2]);
     let old = blend.evaluate(k2);
     let estimate = [0.9; D];
-    replanner.recondition(2, &estimate).unwrap();
+    replanner.recondition(2, &estimate, 2).unwrap();
     // Inside group 2's window: held back, v unchanged.
     assert_eq!(blend.tick(k2), old);
     assert!(blend.has_pending());
@@ -209,7 +209,7 @@ fn a_one_point_set_applies_each_estimate_in_its_next_execution() {
     play(&mut blend, rest, |e, k| {
         played.push(e.evaluate(k));
         if k == k0 + 3 {
-            replanner.recondition(0, &second).unwrap();
+            replanner.recondition(0, &second, 2).unwrap();
         }
     });
     assert!(near(&played[k0], &first, 1e-3), "{:?}", played[k0]);
@@ -218,6 +218,14 @@ fn a_one_point_set_applies_each_estimate_in_its_next_execution() {
         blend.evaluate(k0),
         played[k0],
         "nothing moved during execution 1"
+    );
+    // What ran in execution 1, as its point's sample says: the first estimate, for it.
+    assert_eq!(
+        blend.conditioned_on(0),
+        ConditionedOn {
+            actuation: first,
+            execution: 1
+        }
     );
 
     // Execution 2 uses it; an estimate arriving after execution 2 ended is used in execution 3.
@@ -230,7 +238,14 @@ fn a_one_point_set_applies_each_estimate_in_its_next_execution() {
     });
     assert!(near(&at_point.unwrap(), &second, 1e-3), "{at_point:?}");
     assert_eq!(blend.applied(), 1);
-    replanner.recondition(0, &third).unwrap();
+    assert_eq!(
+        blend.conditioned_on(0),
+        ConditionedOn {
+            actuation: second,
+            execution: 2
+        }
+    );
+    replanner.recondition(0, &third, 3).unwrap();
     play(&mut blend, rest, |e, k| {
         if k == k0 {
             at_point = Some(e.evaluate(k));
@@ -238,9 +253,10 @@ fn a_one_point_set_applies_each_estimate_in_its_next_execution() {
     });
     assert!(near(&at_point.unwrap(), &third, 1e-3), "{at_point:?}");
     assert_eq!(blend.applied(), 2);
+    assert_eq!(blend.conditioned_on(0).execution, 3);
 
     // Without a rest (controller.rest_s = 0), the execution's first tick takes it in.
-    replanner.recondition(0, &first).unwrap();
+    replanner.recondition(0, &first, 4).unwrap();
     play(&mut blend, 0, |_, _| {});
     assert!(near(&blend.evaluate(k0), &first, 1e-3));
     assert_eq!(blend.applied(), 3);
@@ -254,7 +270,7 @@ fn an_estimate_for_group_0_arriving_after_the_execution_is_used_in_the_next() {
     play(&mut blend, 20, |_, _| {});
     // The answer to the last point's sample comes once the execution is over.
     let estimate = [0.7; D];
-    replanner.recondition(0, &estimate).unwrap();
+    replanner.recondition(0, &estimate, 2).unwrap();
     let mut at_point = None;
     play(&mut blend, 20, |e, k| {
         if k == k0 {
@@ -273,9 +289,9 @@ fn bad_estimates_are_refused_and_change_nothing() {
         .collect();
     let mut bad = [0.5; D];
     bad[3] = f64::NAN;
-    let e = replanner.recondition(1, &bad).unwrap_err();
+    let e = replanner.recondition(1, &bad, 2).unwrap_err();
     assert!(e.to_string().contains("actuation estimate"), "{e}");
-    assert!(replanner.recondition(7, &[0.5; D]).is_err());
+    assert!(replanner.recondition(7, &[0.5; D], 2).is_err());
     for (k, b) in before.iter().enumerate() {
         assert_eq!(&blend.tick(k), b);
     }
@@ -287,16 +303,16 @@ fn a_replanner_never_blocks_on_a_tick_that_does_not_run() {
     let groups = T_COND.len();
     // The tick takes nothing in: after one update per group waiting, the next is refused.
     for _ in 0..groups {
-        replanner.recondition(1, &[0.6; D]).unwrap();
+        replanner.recondition(1, &[0.6; D], 2).unwrap();
     }
-    let e = replanner.recondition(1, &[0.6; D]).unwrap_err();
+    let e = replanner.recondition(1, &[0.6; D], 2).unwrap_err();
     assert!(matches!(e, BlendError::Busy(n) if n == groups), "{e}");
     // Once the tick runs it takes them in, and there is room again.
     blend.tick(blend.timeline().tick_of(T_COND[3]));
-    replanner.recondition(1, &[0.7; D]).unwrap();
+    replanner.recondition(1, &[0.7; D], 2).unwrap();
     drop(blend);
     assert!(matches!(
-        replanner.recondition(1, &[0.7; D]),
+        replanner.recondition(1, &[0.7; D], 2),
         Err(BlendError::Disconnected)
     ));
 }

@@ -31,7 +31,7 @@ fn ticks_allocate_and_free_nothing() {
     let worker = std::thread::spawn(move || {
         for n in 0..5 {
             replanner
-                .recondition(n, &[0.4 + 0.05 * n as f64; D])
+                .recondition(n, &[0.4 + 0.05 * n as f64; D], 2)
                 .unwrap();
         }
         replanner

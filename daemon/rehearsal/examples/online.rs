@@ -7,7 +7,9 @@
 //! SET (a way-point file, default config/waypoints/demo.toml), SECOND (a way-point file run
 //! once afterwards on the adapted learner, and once on a fresh one), LEARNER (TOML overrides of
 //! [learner], `;` for newlines), QUICK=1 (write the tests' quick model,
-//! `softarm_model::pipeline::quick_model`, to MODEL_DIR first).
+//! `softarm_model::pipeline::quick_model`, to MODEL_DIR first), STALL=WHO:EVERY_MS:FOR_MS
+//! (a loaded machine: `controller`, `sim` or `learner` kept from its CPU for FOR_MS every
+//! EVERY_MS).
 
 use anyhow::{Context, bail};
 use softarm_config::Config;
@@ -19,7 +21,7 @@ use softarm_method::learner_config::LearnerConfig;
 use softarm_method::pcc::ArmGeometry;
 use softarm_method::plant::SimConfig;
 use softarm_model::bundle::Model;
-use softarm_rehearsal::Rehearsal;
+use softarm_rehearsal::{Rehearsal, Stalled, Stalls};
 
 fn env(k: &str) -> String {
     std::env::var(k).unwrap_or_default()
@@ -65,7 +67,37 @@ fn rehearsal<'a>(
         config.arm,
     )
     .map_err(anyhow::Error::msg)?;
-    Rehearsal::new(model, config, Learner::new(online, config), arm, sim)
+    let r = Rehearsal::new(model, config, Learner::new(online, config), arm, sim)?;
+    Ok(match stalls()? {
+        Some(s) => r.with_stalls(s),
+        None => r,
+    })
+}
+
+/// STALL=WHO:EVERY_MS:FOR_MS.
+fn stalls() -> anyhow::Result<Option<Stalls>> {
+    let v = env("STALL");
+    if v.is_empty() {
+        return Ok(None);
+    }
+    let parts: Vec<&str> = v.split(':').collect();
+    let [who, every, length] = parts[..] else {
+        bail!("STALL is WHO:EVERY_MS:FOR_MS, got {v}");
+    };
+    let of = match who {
+        "controller" => Stalled::Controller,
+        "sim" => Stalled::Sim,
+        "learner" => Stalled::Learner,
+        _ => bail!("STALL: WHO is controller, sim or learner, got {who}"),
+    };
+    let ms = |s: &str| -> anyhow::Result<u64> {
+        Ok(s.parse::<u64>().context("STALL: a whole number of ms")? * 1_000_000)
+    };
+    Ok(Some(Stalls {
+        of,
+        every_ns: ms(every)?,
+        for_ns: ms(length)?,
+    }))
 }
 
 fn print(stats: &[ExecutionStats]) {

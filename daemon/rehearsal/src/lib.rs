@@ -41,6 +41,67 @@ pub const CHANGE_HOLD_NS: u64 = 80_000_000;
 /// last stats, the next `submit` starting and the controller planning its set take longer.
 pub const SET_GAP_NS: u64 = 200_000_000;
 
+/// A loaded machine, as the stack meets one: a process kept from its CPU for `for_ns` every
+/// `every_ns` of simulated time, the first at `every_ns`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Stalls {
+    pub of: Stalled,
+    pub every_ns: u64,
+    pub for_ns: u64,
+}
+
+/// The process a [`Stalls`] keeps from its CPU.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Stalled {
+    /// The controller's tick: no setpoint is published meanwhile (the sim holds the last),
+    /// then the tick plays with the periods it missed as `skipped`, as the stack's does.
+    Controller,
+    /// The sim driver: no sample is published meanwhile, then it steps its plant by all the
+    /// time that passed on the newest setpoint, as hal-drivers/sim does.
+    Sim,
+    /// The learner: what it answers meanwhile reaches the controller when the stall ends,
+    /// which may be after the point it is for has started.
+    Learner,
+}
+
+/// When the stalls of [`Stalls`] come.
+#[derive(Debug, Clone, Copy)]
+struct StallClock {
+    stalls: Stalls,
+    next_ns: u64,
+    /// When the latest stall started.
+    last_ns: Option<u64>,
+}
+
+impl StallClock {
+    fn new(stalls: Stalls) -> Self {
+        Self {
+            stalls,
+            next_ns: stalls.every_ns,
+            last_ns: None,
+        }
+    }
+
+    /// The stall's length if one is due at or before `now_ns` and was not taken yet.
+    fn due(&mut self, now_ns: u64) -> Option<u64> {
+        if now_ns < self.next_ns {
+            return None;
+        }
+        while self.next_ns <= now_ns {
+            self.last_ns = Some(self.next_ns);
+            self.next_ns += self.stalls.every_ns.max(1);
+        }
+        Some(self.stalls.for_ns)
+    }
+
+    /// When the stall under way at `now_ns` ends, if one is.
+    fn busy_until(&mut self, now_ns: u64) -> Option<u64> {
+        self.due(now_ns);
+        let end = self.last_ns? + self.stalls.for_ns;
+        (now_ns < end).then_some(end)
+    }
+}
+
 /// The sim driver in simulated time: on its own deadlines (`sim.rate_hz`) it takes the newest
 /// setpoint, steps the plant by one period and publishes the measurement, which is the newest
 /// tracker and motor sample the controller's tick reads until the next.
@@ -55,6 +116,10 @@ struct SimArm {
     newest: Measurement,
     /// When `newest` was published (ns).
     newest_ns: u64,
+    /// Its own stalls, if the machine has them.
+    stalls: Option<StallClock>,
+    /// Periods slept through in the stall under way, stepped at its next deadline.
+    missed: u64,
 }
 
 impl SimArm {
@@ -75,6 +140,8 @@ impl SimArm {
             command,
             newest,
             newest_ns: 0,
+            stalls: None,
+            missed: 0,
         })
     }
 
@@ -87,9 +154,19 @@ impl SimArm {
 
     /// Every step whose deadline is at or before `now_ns`: a sample published at the instant
     /// of a tick is read by that tick. `published` sees each measurement with its time.
+    /// A stall moves the next deadline by its length; the step there covers the periods
+    /// slept through too, on the setpoint newest then.
     fn run_until(&mut self, now_ns: u64, mut published: impl FnMut(u64, &Measurement)) {
         while self.due_ns <= now_ns {
-            self.newest = self.plant.step(&self.command, self.dt);
+            if self.missed == 0
+                && let Some(for_ns) = self.stalls.as_mut().and_then(|s| s.due(self.due_ns))
+            {
+                self.missed = for_ns / self.period_ns;
+                self.due_ns += self.missed * self.period_ns;
+                continue;
+            }
+            let dt = self.dt * (std::mem::take(&mut self.missed) + 1) as f64;
+            self.newest = self.plant.step(&self.command, dt);
             self.newest_ns = self.due_ns;
             published(self.due_ns, &self.newest);
             self.due_ns += self.period_ns;
@@ -100,9 +177,9 @@ impl SimArm {
 /// The controller's tick, the learner and the sim on one simulated clock: way-point sets run
 /// one after another on the same arm and learner, as `softarm submit` runs them on a stack.
 ///
-/// Where it differs from the running stack, knowingly: the tick never overruns (`skipped` is
-/// always 0, so every point is sampled at its own tick; the stack under load samples at the
-/// first tick played after it); the learner's estimate re-conditions the set at once, where the
+/// Where it differs from the running stack, knowingly: the tick never overruns unless
+/// [`Rehearsal::with_stalls`] says so (`skipped` is 0, so every point is sampled at its own
+/// tick; the stack under load samples at the first tick played after it); the learner's estimate re-conditions the set at once, where the
 /// stack's goes through two processes polling every 2 ms (a few ticks; the blend swaps a group
 /// in only while it is inactive, at least `window_s / 2` after its point, so this changes no
 /// table); a set starts as soon as it is admitted (the stack idles a few ms waiting for the
@@ -130,6 +207,11 @@ pub struct Rehearsal<'a> {
     /// A set ended and the arm has not held since: [`SET_GAP_NS`] before the next set, or
     /// [`END_HOLD_NS`] before a change of the arm.
     gap_due: bool,
+    /// The tick's own stalls, if the machine has them.
+    stalls: Option<StallClock>,
+    /// The learner's stalls, and its answers held back by them (when they arrive).
+    learner_stalls: Option<StallClock>,
+    late: Vec<(u64, ActuationEstimate)>,
 }
 
 impl<'a> Rehearsal<'a> {
@@ -164,7 +246,20 @@ impl<'a> Rehearsal<'a> {
             next_set_id: 0,
             gap_due: false,
             sim: *sim,
+            stalls: None,
+            learner_stalls: None,
+            late: Vec::new(),
         })
+    }
+
+    /// On a loaded machine: `stalls` keep the controller's tick or the sim from the CPU.
+    pub fn with_stalls(mut self, stalls: Stalls) -> Self {
+        match stalls.of {
+            Stalled::Controller => self.stalls = Some(StallClock::new(stalls)),
+            Stalled::Sim => self.arm.stalls = Some(StallClock::new(stalls)),
+            Stalled::Learner => self.learner_stalls = Some(StallClock::new(stalls)),
+        }
+        self
     }
 
     pub fn learner(&self) -> &Learner {
@@ -292,11 +387,19 @@ impl<'a> Rehearsal<'a> {
         execution: &mut Execution,
         replanner: &mut Replanner<ACTUATORS>,
     ) -> Option<ExecutionStats> {
+        // A stalled tick publishes nothing meanwhile and then plays with what it missed.
+        let skipped = self
+            .stalls
+            .as_mut()
+            .and_then(|s| s.due(self.now_ns))
+            .map_or(0, |for_ns| for_ns / self.period_ns);
+        self.now_ns += skipped * self.period_ns;
         for e in self.sim_until_now() {
             recondition(replanner, &e);
         }
+        self.deliver_late(replanner);
         let lead = self.lag.lead_ticks();
-        let t = execution.step(&self.track, self.rest_ticks, lead, self.now_ns, 0);
+        let t = execution.step(&self.track, self.rest_ticks, lead, self.now_ns, skipped);
         let setpoint = self.limiter.apply(&t.target);
         let measured = (self.arm.newest_ns, &self.arm.newest.actuation);
         self.lag.published(self.now_ns, &setpoint, Some(measured));
@@ -309,17 +412,39 @@ impl<'a> Rehearsal<'a> {
         if let Some(sample) = t.point
             && let Some(e) = self.learner.visit(&sample)
         {
-            recondition(replanner, &e);
+            self.answer(replanner, e);
         }
         self.now_ns += self.period_ns;
         t.finished
+    }
+
+    /// The learner's answer re-conditions the set now, or when the learner's stall under way
+    /// ends.
+    fn answer(&mut self, replanner: &mut Replanner<ACTUATORS>, e: ActuationEstimate) {
+        let now = self.now_ns;
+        match self.learner_stalls.as_mut().and_then(|s| s.busy_until(now)) {
+            Some(at) => self.late.push((at, e)),
+            None => recondition(replanner, &e),
+        }
+    }
+
+    /// The answers held back by a learner's stall that has ended, in the order sent.
+    fn deliver_late(&mut self, replanner: &mut Replanner<ACTUATORS>) {
+        let now = self.now_ns;
+        self.late.retain(|(at, e)| {
+            let due = *at <= now;
+            if due {
+                recondition(replanner, e);
+            }
+            !due
+        });
     }
 }
 
 /// An estimate re-conditions its point, as the service thread does; one that does not fit is
 /// not used, and the set runs on.
 fn recondition(replanner: &mut Replanner<ACTUATORS>, e: &ActuationEstimate) {
-    if let Err(err) = replanner.recondition(e.point as usize, &e.actuation) {
+    if let Err(err) = replanner.recondition(e.point as usize, &e.actuation, e.execution) {
         tracing::warn!(
             set_id = e.set_id,
             point = e.point,

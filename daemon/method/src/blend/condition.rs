@@ -124,7 +124,8 @@ impl<const D: usize> Planner<D> {
     }
 
     /// UpdatePrim: the marginals of primitive Q[group] conditioned on passing exactly through
-    /// `actuation` at T_cond[group], written into `into`.
+    /// `actuation` at T_cond[group], written into `into`, which remembers them as meant for
+    /// `execution`.
     ///
     /// Conditioning is a rank-D update of Σ_w, so with G = Σ_w Ψ*, S* = Ψ*ᵀ G and C(t) = Ψ(t)ᵀ G
     /// each tick's marginal is μ_b + C S*⁻¹ (y* − μ_b*) and S_b − C S*⁻¹ Cᵀ: O(K·D²) per tick
@@ -133,6 +134,7 @@ impl<const D: usize> Planner<D> {
         &self,
         group: usize,
         actuation: &[f64; D],
+        execution: u32,
         into: &mut Table<D>,
     ) -> Result<(), BlendError> {
         let groups = self.schedule.points();
@@ -170,6 +172,10 @@ impl<const D: usize> Planner<D> {
         if into.entries.len() != self.timeline.ticks() {
             *into = Table::zeroed(self.timeline.ticks());
         }
+        into.on = ConditionedOn {
+            actuation: *actuation,
+            execution,
+        };
         let (gs, xs) = (g.as_slice(), x.as_slice()); // column-major
         let rows_g = D * k;
         for (tick, entry) in into.entries.iter_mut().enumerate() {
@@ -208,8 +214,8 @@ impl<const D: usize> Planner<D> {
         Ok(())
     }
 
-    /// Builds the Blend with every group conditioned on its initial estimate, and the
-    /// replanner that re-conditions groups while it runs.
+    /// Builds the Blend with every group conditioned on its initial estimate (for the first
+    /// execution), and the replanner that re-conditions groups while it runs.
     pub fn start(self, initial: &[[f64; D]]) -> Result<(Blend<D>, Replanner<D>), BlendError> {
         let n = self.schedule.points();
         if initial.len() != n {
@@ -225,7 +231,7 @@ impl<const D: usize> Planner<D> {
         let mut conditioned = Vec::with_capacity(n);
         for (group, a) in initial.iter().enumerate() {
             let mut t = Table::zeroed(self.timeline.ticks());
-            self.condition(group, a, &mut t)?;
+            self.condition(group, a, 1, &mut t)?;
             conditioned.push(t);
         }
         // Bounded both ways: a replanner can be at most `n` updates ahead, and the retired
@@ -309,15 +315,22 @@ pub struct Replanner<const D: usize> {
 impl<const D: usize> Replanner<D> {
     /// UpdatePrim for one group: conditions primitive Q[group] on `actuation` at T_cond[group]
     /// into a recycled table and sends it to the tick, which swaps it in while b_group = 0.
+    /// `execution`: the one the estimate is for (see [`ConditionedOn`]).
     /// Never blocks: while `n` updates already wait (the tick is not evaluating this set, e.g.
     /// in HOLD) it is refused with [`BlendError::Busy`]; once the Blend is gone, with
     /// [`BlendError::Disconnected`].
-    pub fn recondition(&mut self, group: usize, actuation: &[f64; D]) -> Result<(), BlendError> {
+    pub fn recondition(
+        &mut self,
+        group: usize,
+        actuation: &[f64; D],
+        execution: u32,
+    ) -> Result<(), BlendError> {
         let mut table = match self.retired.pop() {
             Ok(t) => t,
             Err(_) => Table::zeroed(self.planner.timeline.ticks()),
         };
-        self.planner.condition(group, actuation, &mut table)?;
+        self.planner
+            .condition(group, actuation, execution, &mut table)?;
         if self.updates.is_abandoned() {
             return Err(BlendError::Disconnected);
         }

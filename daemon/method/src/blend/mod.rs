@@ -31,7 +31,7 @@ pub mod table;
 pub mod tick;
 
 pub use condition::{Planner, Replanner};
-pub use table::{Table, Update};
+pub use table::{ConditionedOn, Table, Update};
 pub use tick::Blend;
 
 /// A conditioning point as the tick executes it: where the end effector should be (P_cond,

@@ -51,18 +51,34 @@ impl<const D: usize> Information<D> {
 #[derive(Debug, Clone, PartialEq)]
 pub struct Table<const D: usize> {
     pub(super) entries: Box<[Information<D>]>,
+    /// What a group's table was conditioned on; NaN and 0 for a primitive's own.
+    pub(super) on: ConditionedOn<D>,
 }
 
 impl<const D: usize> Table<D> {
     pub(super) fn zeroed(ticks: usize) -> Self {
         Self {
             entries: vec![Information::ZERO; ticks].into_boxed_slice(),
+            on: ConditionedOn {
+                actuation: [f64::NAN; D],
+                execution: 0,
+            },
         }
     }
 
     pub fn ticks(&self) -> usize {
         self.entries.len()
     }
+}
+
+/// What a group was conditioned on (UpdatePrim's input): the actuation estimate at its T_cond
+/// and the execution (1-based) the estimate was for. A group runs on whatever table is in force
+/// when its window comes, so an estimate that comes too late runs an execution later than
+/// meant, and whoever learns from the point needs to know which one ran.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ConditionedOn<const D: usize> {
+    pub actuation: [f64; D],
+    pub execution: u32,
 }
 
 /// A re-conditioned table for one group, on its way to the tick.

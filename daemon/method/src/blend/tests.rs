@@ -102,8 +102,8 @@ fn a_group_whose_solve_fails_holds_its_last_good_value_and_is_counted() {
 #[test]
 fn the_tick_frees_nothing_when_the_retired_ring_is_full() {
     let (mut blend, mut replanner) = start();
-    replanner.recondition(1, &[0.7; D]).unwrap();
-    replanner.recondition(0, &[0.3; D]).unwrap();
+    replanner.recondition(1, &[0.7; D], 2).unwrap();
+    replanner.recondition(0, &[0.3; D], 2).unwrap();
     // Fill the retired ring, as if the replanner had not drained it.
     let capacity = blend.retired.buffer().capacity();
     let fill = |blend: &mut Blend<D>| {
@@ -120,7 +120,7 @@ fn the_tick_frees_nothing_when_the_retired_ring_is_full() {
     assert_eq!(blend.applied(), 0);
     assert_eq!(blend.evaluate(blend.timeline.tick_of(3.0)), before);
     // A newer estimate for a waiting group waits in its ring too.
-    replanner.recondition(1, &[0.8; D]).unwrap();
+    replanner.recondition(1, &[0.8; D], 2).unwrap();
     fill(&mut blend);
     blend.tick(1);
     assert_eq!(blend.pending_count, 2);

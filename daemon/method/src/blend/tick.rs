@@ -61,6 +61,12 @@ impl<const D: usize> Blend<D> {
         self.applied
     }
 
+    /// What `group`'s table in force was conditioned on. A table is swapped in only while its
+    /// group is inactive, so at the group's T_cond this is what its whole window ran on.
+    pub fn conditioned_on(&self, group: usize) -> ConditionedOn<D> {
+        self.conditioned[group].on
+    }
+
     /// Group evaluations so far whose solve failed, so that the group's last good value was
     /// held instead.
     pub fn held_solves(&self) -> u64 {

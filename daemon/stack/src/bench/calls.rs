@@ -103,7 +103,7 @@ impl Timed<'_> {
         for i in 0..reconditions {
             let a = [0.4 + 0.002 * i as f64; 6];
             let start = Instant::now();
-            replanner.recondition(1, &a)?;
+            replanner.recondition(1, &a, 2)?;
             self.sink += blend.tick(k3)[0];
             record(&mut ns, start);
         }
