@@ -177,12 +177,12 @@ impl SimArm {
 /// The controller's tick, the learner and the sim on one simulated clock: way-point sets run
 /// one after another on the same arm and learner, as `softarm submit` runs them on a stack.
 ///
-/// Where it differs from the running stack, knowingly: the tick never overruns unless
-/// [`Rehearsal::with_stalls`] says so (`skipped` is 0, so every point is sampled at its own
-/// tick; the stack under load samples at the first tick played after it); the learner's estimate re-conditions the set at once, where the
-/// stack's goes through two processes polling every 2 ms (a few ticks; the blend swaps a group
-/// in only while it is inactive, at least `window_s / 2` after its point, so this changes no
-/// table); a set starts as soon as it is admitted (the stack idles a few ms waiting for the
+/// Where it differs from the running stack, knowingly, unless [`Rehearsal::with_stalls`] makes
+/// it a loaded machine: the tick never overruns (`skipped` is 0, so every point is sampled at
+/// its own tick; the stack under load samples at the first tick played after it); the
+/// learner's estimate re-conditions the set at once, where the stack's goes through two
+/// processes polling every 2 ms (a few ticks; the blend swaps a group in only while it is
+/// inactive, at least `window_s / 2` after its point, so this changes no table); a set starts as soon as it is admitted (the stack idles a few ms waiting for the
 /// first estimates, the sim stepping on); the sim's deadlines fall on the tick grid's (phase
 /// 0) and the arm starts at `sim.initial_actuation` with the plant's noise drawn from its seed
 /// on, where the stack's sim has run for a while before the set (other noise, same statistics).
