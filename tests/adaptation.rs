@@ -112,8 +112,16 @@ fn mean_m(v: &serde_json::Value) -> f64 {
     v["mean_mm"].as_f64().map_or(f64::NAN, |mm| mm * 1e-3)
 }
 
-/// The mean error of each execution of `set` run `executions` times on the stack.
-fn run_set(s: &TestStack, set: &str, executions: u32) -> Vec<f64> {
+/// One execution as `softarm stats` reports it: its mean error (m) and the points that ran on
+/// an older estimate than the learner's for it (`late_estimates`).
+#[derive(Debug, Clone, Copy)]
+struct Run {
+    mean_m: f64,
+    late: u64,
+}
+
+/// Each execution of `set` run `executions` times on the stack.
+fn run_set(s: &TestStack, set: &str, executions: u32) -> Vec<Run> {
     let (code, out, err) = s.submit(Path::new(set), executions);
     assert_eq!(code, 0, "{out}{err}");
     let stats = s.wait_stats(set_id(&out), executions as usize, Duration::from_secs(180));
@@ -125,7 +133,28 @@ fn run_set(s: &TestStack, set: &str, executions: u32) -> Vec<f64> {
             v["execution"], v["errors_mm"], v["late_estimates"]
         );
     }
-    stats.iter().map(mean_m).collect()
+    stats
+        .iter()
+        .map(|v| Run {
+            mean_m: mean_m(v),
+            late: v["late_estimates"].as_u64().unwrap(),
+        })
+        .collect()
+}
+
+/// The mean errors judged by "from the third execution on": a point whose estimate came late
+/// (the learner's answer after the point's window had begun, on a loaded machine) ran on the
+/// one before and took no step in that execution, so each execution with a late estimate puts
+/// the third off by one. `softarm stats` counts them; the learning is judged, not the machine.
+fn from_the_third(runs: &[Run]) -> Vec<f64> {
+    let mut late = 0;
+    runs.iter()
+        .enumerate()
+        .filter_map(|(i, r)| {
+            late += usize::from(r.late > 0);
+            (i >= 2 + late).then_some(r.mean_m)
+        })
+        .collect()
 }
 
 /// A freshly started learner's first execution of `set` on `scenario`'s arm, with the stack's
@@ -192,7 +221,8 @@ fn a_running_stack_keeps_up_with_an_arm_that_changes() {
                 || (s.logs().matches("the arm has changed").count() > seen).then_some(()),
             );
         }
-        let m = run_set(&s, set, executions);
+        let runs = run_set(&s, set, executions);
+        let m: Vec<f64> = runs.iter().map(|r| r.mean_m).collect();
         let fresh = fresh_first(&model, &config, scenario, set);
         eprintln!(
             "{scenario}: {:?} mm; a fresh learner's first {:.1} mm; arm changes seen so far {}",
@@ -211,10 +241,11 @@ fn a_running_stack_keeps_up_with_an_arm_that_changes() {
             fresh * 1e3
         );
         // Executions with a point the tracker did not see (NaN) tell nothing of the learning.
+        let judged = from_the_third(&runs);
         assert!(
-            m[2..].iter().all(|e| e.is_nan() || *e <= 0.002)
-                && m[2..].iter().any(|e| e.is_finite()),
-            "{scenario}: from the third execution {m:?} m, more than 2 mm"
+            judged.iter().all(|e| e.is_nan() || *e <= 0.002)
+                && judged.iter().any(|e| e.is_finite()),
+            "{scenario}: from the third execution {runs:?}, more than 2 mm"
         );
         // The nominal arm's 1.2 mm target on average is the rehearsal's (many more
         // executions): here one or two, each with about a millimetre of the sim's disturbance.
@@ -224,7 +255,7 @@ fn a_running_stack_keeps_up_with_an_arm_that_changes() {
             // learner that forgot starts it at the fresh learner's ~20 mm), and the next change
             // is still seen.
             restart_learner(&s);
-            let again = run_set(&s, set, 1)[0];
+            let again = run_set(&s, set, 1)[0].mean_m;
             eprintln!(
                 "{scenario} after the learner's restart: {:.1} mm",
                 again * 1e3
