@@ -78,14 +78,24 @@ fn a_one_point_set_improves_across_executions() {
 
 const SECOND_WAYPOINTS: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/config/waypoints/second.toml");
 
+/// The test's own sim driver, killed when dropped: a failed assert leaves none running.
+struct Sim(Child);
+
+impl Drop for Sim {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
 /// The sim as another arm: the running one stopped as a restarting driver would be, and the
 /// scenario's started where the controller holds the arm.
-fn sim_as(s: &TestStack, sim: Option<Child>, scenario: &str) -> Child {
+fn sim_as(s: &TestStack, sim: Option<Sim>, scenario: &str) -> Sim {
     if let Some(mut old) = sim {
-        kill(Pid::from_raw(old.id() as i32), Signal::SIGTERM).unwrap();
-        old.wait().unwrap();
+        kill(Pid::from_raw(old.0.id() as i32), Signal::SIGTERM).unwrap();
+        old.0.wait().unwrap();
     }
-    s.spawn(&["sim", "--scenario", scenario])
+    Sim(s.spawn(&["sim", "--scenario", scenario]))
 }
 
 /// SIGKILL to the learner, and back (a new process) with its model loaded.
@@ -265,8 +275,5 @@ fn a_running_stack_keeps_up_with_an_arm_that_changes() {
     }
     let changes = s.logs().matches("the arm has changed").count();
     assert_eq!(changes, 3, "one change seen per change made: {}", s.logs());
-    if let Some(mut sim) = sim {
-        let _ = sim.kill();
-        let _ = sim.wait();
-    }
+    drop(sim);
 }
