@@ -93,12 +93,6 @@ pub fn rest_ticks(c: &Controller) -> i64 {
     (c.rest_s * c.rate_hz).round() as i64
 }
 
-/// What a point's group ran on before its point's time was played.
-const NOT_RUN: ConditionedOn<ACTUATORS> = ConditionedOn {
-    actuation: [f64::NAN; ACTUATORS],
-    execution: 0,
-};
-
 /// A way-point set ready to run: its blend and what the tick needs to know. Made by
 /// [`Admitted::start`](crate::Admitted::start).
 pub struct ReadySet {
@@ -174,7 +168,7 @@ impl Execution {
             pending: None,
             errors: [0.0; MAX_WAYPOINTS],
             in_force: 0,
-            ran_on: [NOT_RUN; MAX_WAYPOINTS],
+            ran_on: [ConditionedOn::NONE; MAX_WAYPOINTS],
             evaluated: 0,
             set,
         }

@@ -182,8 +182,9 @@ impl SimArm {
 /// its own tick; the stack under load samples at the first tick played after it); the
 /// learner's estimate re-conditions the set at once, where the stack's goes through two
 /// processes polling every 2 ms (a few ticks; the blend swaps a group in only while it is
-/// inactive, at least `window_s / 2` after its point, so this changes no table); a set starts as soon as it is admitted (the stack idles a few ms waiting for the
-/// first estimates, the sim stepping on); the sim's deadlines fall on the tick grid's (phase
+/// inactive, at least `window_s / 2` after its point, so this changes no table); a set starts
+/// as soon as it is admitted (the stack idles a few ms waiting for the first estimates, the
+/// sim stepping on); the sim's deadlines fall on the tick grid's (phase
 /// 0) and the arm starts at `sim.initial_actuation` with the plant's noise drawn from its seed
 /// on, where the stack's sim has run for a while before the set (other noise, same statistics).
 pub struct Rehearsal<'a> {
@@ -208,7 +209,7 @@ pub struct Rehearsal<'a> {
     /// [`END_HOLD_NS`] before a change of the arm.
     gap_due: bool,
     /// The tick's own stalls, if the machine has them.
-    stalls: Option<StallClock>,
+    tick_stalls: Option<StallClock>,
     /// The learner's stalls, and its answers held back by them (when they arrive).
     learner_stalls: Option<StallClock>,
     late: Vec<(u64, ActuationEstimate)>,
@@ -246,16 +247,17 @@ impl<'a> Rehearsal<'a> {
             next_set_id: 0,
             gap_due: false,
             sim: *sim,
-            stalls: None,
+            tick_stalls: None,
             learner_stalls: None,
             late: Vec::new(),
         })
     }
 
-    /// On a loaded machine: `stalls` keep the controller's tick or the sim from the CPU.
+    /// On a loaded machine: `stalls` keep the controller's tick, the sim or the learner from
+    /// the CPU (one kind per call).
     pub fn with_stalls(mut self, stalls: Stalls) -> Self {
         match stalls.of {
-            Stalled::Controller => self.stalls = Some(StallClock::new(stalls)),
+            Stalled::Controller => self.tick_stalls = Some(StallClock::new(stalls)),
             Stalled::Sim => self.arm.stalls = Some(StallClock::new(stalls)),
             Stalled::Learner => self.learner_stalls = Some(StallClock::new(stalls)),
         }
@@ -389,13 +391,13 @@ impl<'a> Rehearsal<'a> {
     ) -> Option<ExecutionStats> {
         // A stalled tick publishes nothing meanwhile and then plays with what it missed.
         let skipped = self
-            .stalls
+            .tick_stalls
             .as_mut()
             .and_then(|s| s.due(self.now_ns))
             .map_or(0, |for_ns| for_ns / self.period_ns);
         self.now_ns += skipped * self.period_ns;
         for e in self.sim_until_now() {
-            recondition(replanner, &e);
+            self.answer(replanner, e);
         }
         self.deliver_late(replanner);
         let lead = self.lag.lead_ticks();

@@ -59,10 +59,7 @@ impl<const D: usize> Table<D> {
     pub(super) fn zeroed(ticks: usize) -> Self {
         Self {
             entries: vec![Information::ZERO; ticks].into_boxed_slice(),
-            on: ConditionedOn {
-                actuation: [f64::NAN; D],
-                execution: 0,
-            },
+            on: ConditionedOn::NONE,
         }
     }
 
@@ -79,6 +76,14 @@ impl<const D: usize> Table<D> {
 pub struct ConditionedOn<const D: usize> {
     pub actuation: [f64; D],
     pub execution: u32,
+}
+
+impl<const D: usize> ConditionedOn<D> {
+    /// Nothing: a primitive's own table, or a group not played yet.
+    pub const NONE: Self = Self {
+        actuation: [f64::NAN; D],
+        execution: 0,
+    };
 }
 
 /// A re-conditioned table for one group, on its way to the tick.
