@@ -1,6 +1,6 @@
 //! `softarm`: one command for every process and client of the stack.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Duration;
 
@@ -11,6 +11,7 @@ use softarm_config::scenario::Scenario;
 use softarm_config::{Config, ConfigError};
 use softarm_emulate::command as emulate;
 use softarm_ipc::Namespace;
+use softarm_runtime::identity::StackUser;
 use softarm_runtime::stop_flag;
 use softarm_stack::supervisor as up;
 use softarm_stack::{bench, demo, soak};
@@ -28,7 +29,8 @@ struct Cli {
 /// Which stack: the config file, and optionally another namespace than the config's.
 #[derive(clap::Args, Clone)]
 struct Stack {
-    /// The config file (default: the embedded simulation config, paths relative to here).
+    /// The config file (default: $SOFTARM_CONFIG, else the installed /etc/softarm/softarm.toml
+    /// if there is one, else the embedded simulation config).
     #[arg(long, global = true)]
     config: Option<PathBuf>,
     /// The iceoryx2 namespace (default: the config's, softarm/<robot-id>).
@@ -37,14 +39,40 @@ struct Stack {
 }
 
 impl Stack {
+    /// The config file this command uses; `None`: the embedded one.
+    fn path(&self) -> Option<PathBuf> {
+        softarm_config::locate(
+            self.config.as_deref(),
+            std::env::var_os(softarm_config::CONFIG_ENV),
+            Path::new(softarm_config::INSTALLED),
+        )
+    }
+
+    /// The config, and this process made the stack's user when the config names one (root and
+    /// its operators become it; anyone else is refused): so it joins the stack's services as
+    /// the stack itself, before it opens any.
     fn load(&self) -> anyhow::Result<Config> {
-        let mut c = match &self.config {
+        let path = self.path();
+        let mut c = match &path {
             Some(p) => Config::load(p)?,
-            None => Config::default_sim(PathBuf::from(".")),
+            None => {
+                let mut c = Config::default_sim(PathBuf::from("."));
+                // The latch is never relative to wherever the command happens to run.
+                c.state.dir = softarm_config::user_state_dir();
+                c
+            }
         };
         if let Some(ns) = &self.namespace {
             Namespace::new(ns).context("--namespace")?;
             c.robot.namespace = Some(ns.clone());
+        }
+        if let (Some(user), Some(group)) = (&c.host.user, &c.host.group) {
+            softarm_runtime::identity::join(&StackUser {
+                user: user.clone(),
+                group: group.clone(),
+                gate: c.host.gate.clone(),
+                config: path.map_or("the embedded config".into(), |p| p.display().to_string()),
+            })?;
         }
         Ok(c)
     }
@@ -71,13 +99,13 @@ impl Stack {
     }
 
     fn namespace(&self) -> anyhow::Result<Namespace> {
-        Ok(Namespace::new(&self.load()?.namespace())?)
+        Ok(self.load()?.bus()?)
     }
 
     /// The arguments that start a child on the same stack.
     fn args(&self) -> Vec<String> {
         let mut v = Vec::new();
-        if let Some(c) = &self.config {
+        if let Some(c) = self.path() {
             v.extend(["--config".into(), c.display().to_string()]);
         }
         if let Some(n) = &self.namespace {
@@ -161,10 +189,14 @@ enum Command {
         #[command(flatten)]
         stack: Stack,
     },
-    /// Engages the e-stop (latched), or releases it with --reset.
+    /// Engages the e-stop (latched), or releases it with --reset; exits 0 once the controller
+    /// and the drivers running say they took it, 1 if one did not.
     Estop {
         #[arg(long)]
         reset: bool,
+        /// How long to wait for the running processes to confirm (s).
+        #[arg(long, default_value_t = 5.0)]
+        timeout: f64,
         #[command(flatten)]
         stack: Stack,
     },
@@ -263,13 +295,7 @@ fn sim(c: &Config, scenario: Option<&str>) -> anyhow::Result<()> {
         }
         None => (c.arm, c.sim),
     };
-    softarm_sim::run(
-        &sim,
-        &arm,
-        Namespace::new(&c.namespace())?,
-        &c.estop_latch(),
-        &*stop_flag()?,
-    )
+    softarm_sim::run(&sim, &arm, c.bus()?, &c.estop_latch(), &*stop_flag()?)
 }
 
 fn run(cli: Cli) -> anyhow::Result<ExitCode> {
@@ -297,11 +323,11 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Sim { stack, scenario } => sim(&stack.load()?, scenario.as_deref())?,
         Command::Tendon(stack) => {
             let c = stack.load_with("tendon", |c| c.tendon.is_some())?;
-            softarm_tendon::run(&c, Namespace::new(&c.namespace())?, &*stop_flag()?)?
+            softarm_tendon::run(&c, c.bus()?, &*stop_flag()?)?
         }
         Command::Tracker(stack) => {
             let c = stack.load_with("tracker", |c| c.tracker.is_some())?;
-            softarm_tracker::run(&c, Namespace::new(&c.namespace())?, &*stop_flag()?)?
+            softarm_tracker::run(&c, c.bus()?, &*stop_flag()?)?
         }
         Command::Emulate(args) => emulate::run(&args, &*stop_flag()?)?,
         Command::Train { stack, seed } => {
@@ -347,7 +373,17 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 return Ok(ExitCode::from(status::NOT_RUNNING));
             }
         }
-        Command::Estop { reset, stack } => estop::run(&stack.load()?, reset)?,
+        Command::Estop {
+            reset,
+            timeout,
+            stack,
+        } => {
+            let timeout = Duration::try_from_secs_f64(timeout)
+                .ok()
+                .filter(|t| *t <= Duration::from_secs(600))
+                .context("--timeout: give 0 to 600 seconds")?;
+            estop::run(&stack.load()?, reset, timeout)?
+        }
         Command::Config { command } => match command {
             ConfigCommand::Check { file } => {
                 let c = Config::load(&file)?;
@@ -362,7 +398,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         } => {
             let config = stack.load()?;
             let settings = scene::Settings::of(&config);
-            let namespace = Namespace::new(&config.namespace())?;
+            let namespace = config.bus()?;
             record::run(&namespace, &settings, &output, duration, &*stop_flag()?)?
         }
         Command::View { listen, stack } => {

@@ -495,7 +495,7 @@ fn estop_without_a_stack_latches_and_says_that_no_process_heard_it() {
             .arg(&config)
             .output()
             .unwrap();
-        let stderr = String::from_utf8_lossy(&out.stderr);
+        let stdout = String::from_utf8_lossy(&out.stdout);
         assert!(
             started.elapsed() < Duration::from_secs(5),
             "{args:?} took {:?}",
@@ -503,10 +503,11 @@ fn estop_without_a_stack_latches_and_says_that_no_process_heard_it() {
         );
         assert!(out.status.success(), "{args:?}: {out:?}");
         assert!(
-            stderr.contains(&format!(
-                "no running process in namespace \"{namespace}\" heard it"
-            )) && stderr.contains(&format!("the latch {} says {word}", latch.display())),
-            "{args:?}: {stderr}"
+            stdout.contains(&format!(
+                "e-stop {word} (latched in {}; no running process in namespace \"{namespace}\")",
+                latch.display()
+            )),
+            "{args:?}: {stdout}"
         );
         assert_eq!(std::fs::read_to_string(&latch).unwrap().trim(), word);
     }

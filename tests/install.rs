@@ -62,6 +62,26 @@ fn install_stages_binary_config_state_and_units_and_keeps_an_edited_config() {
     let text = std::fs::read_to_string(&config).unwrap();
     assert!(text.contains("dir = \"/var/lib/softarm/state\""), "{text}");
     assert!(text.contains("dir = \"/var/lib/softarm/model\""), "{text}");
+    // Its host: the user, the operators, iceoryx2's own folder and the gate.
+    for line in [
+        "user = \"softarm\"",
+        "group = \"softarm\"",
+        "ipc_root = \"/run/softarm/iceoryx2\"",
+        "gate = \"/usr/local/libexec/softarm/softarm\"",
+    ] {
+        assert!(text.contains(line), "{line}: {text}");
+    }
+    // Staged, the gate has no set-user-ID bit (root owns it here): a package sets owner and mode.
+    let gate = root.join("usr/local/libexec/softarm/softarm");
+    let mode =
+        std::os::unix::fs::PermissionsExt::mode(&std::fs::metadata(&gate).unwrap().permissions());
+    assert_eq!(mode & 0o7777, 0o750, "{mode:o}");
+    let tmpfiles = std::fs::read_to_string(root.join("etc/tmpfiles.d/softarm.conf")).unwrap();
+    assert!(
+        tmpfiles.contains("d /run/softarm 0770 softarm softarm"),
+        "{tmpfiles}"
+    );
+    assert!(root.join("run/softarm").is_dir());
     let check = Command::new(BIN)
         .args(["config", "check"])
         .arg(&config)
@@ -89,6 +109,8 @@ fn install_stages_binary_config_state_and_units_and_keeps_an_edited_config() {
     // Uninstall: units and binary go; config and state stay.
     softarm(&["uninstall"], &root);
     assert!(!bin.exists());
+    assert!(!gate.exists());
+    assert!(!root.join("etc/tmpfiles.d/softarm.conf").exists());
     assert!(!units.join("softarm.target").exists());
     assert_eq!(std::fs::read_to_string(&config).unwrap(), edited);
     assert!(root.join("var/lib/softarm").is_dir());

@@ -152,7 +152,7 @@ fn stopping_up_leaves_no_process_behind() {
     let out = s.run(&["status"]);
     assert_eq!(out.status.code(), Some(3), "stopped: {out:?}");
     assert!(
-        String::from_utf8_lossy(&out.stdout).contains("not running?"),
+        String::from_utf8_lossy(&out.stdout).contains("controller: not running"),
         "{out:?}"
     );
 }

@@ -88,7 +88,12 @@ pub fn text(r: &Report) -> String {
         }
     );
     match &r.controller {
-        None => out += "controller: no status (not running?)\n",
+        None if r.alive.iter().any(|n| n == "controller") => {
+            out += "controller: its process is alive, but no status came in time: it is frozen, \
+                    or its shared memory belongs to another user than this command's (run it as \
+                    the stack's user, as root, or as one of the stack's operators)\n"
+        }
+        None => out += "controller: not running\n",
         Some(s) => {
             let state = ControllerState::from_u32(s.state).map_or("?", |s| s.name());
             let l = &s.latency;

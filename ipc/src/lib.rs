@@ -9,7 +9,9 @@
 use iceoryx2::node::NodeView;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::prelude::Path as IoxPath;
 use iceoryx2::prelude::*;
+use std::path::{Path, PathBuf};
 
 pub use iceoryx2;
 
@@ -426,9 +428,15 @@ pub struct EstopState {
     pub _pad: u32,
 }
 
-/// The namespace every service name starts with: `softarm/<robot-id>` unless configured.
+/// Which stack on this host: the namespace every service name starts with (`softarm/<robot-id>`
+/// unless configured), and the iceoryx2 root folder its services live under (iceoryx2's own,
+/// `/tmp/iceoryx2/`, unless the config names one: an installed stack has a folder of its own, so
+/// nobody else's use of iceoryx2 can take its place).
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub struct Namespace(String);
+pub struct Namespace {
+    name: String,
+    root: Option<PathBuf>,
+}
 
 impl Namespace {
     /// A namespace; slashes separate levels, and only [A-Za-z0-9_./-] are allowed.
@@ -441,7 +449,10 @@ impl Namespace {
             && !name.starts_with('/')
             && !name.ends_with('/');
         if ok {
-            Ok(Self(name.to_string()))
+            Ok(Self {
+                name: name.to_string(),
+                root: None,
+            })
         } else {
             Err(Error(format!(
                 "namespace {name:?} is not valid: use 1 to 100 of A-Z a-z 0-9 _ - . /, \
@@ -450,12 +461,51 @@ impl Namespace {
         }
     }
 
+    /// The same namespace under the iceoryx2 root folder `root` (an absolute path).
+    pub fn under(mut self, root: &Path) -> Result<Self, Error> {
+        let text = root
+            .to_str()
+            .filter(|t| root.is_absolute() && !t.is_empty());
+        let Some(text) = text else {
+            return Err(Error(format!(
+                "the iceoryx2 root {} must be an absolute path in UTF-8",
+                root.display()
+            )));
+        };
+        // iceoryx2 appends its folders to the root as it is written: it must end with `/`.
+        let dir = format!("{}/", text.trim_end_matches('/'));
+        IoxPath::new(dir.as_bytes()).map_err(|e| {
+            Error(format!(
+                "the iceoryx2 root {} is not a path iceoryx2 takes: {e:?}",
+                root.display()
+            ))
+        })?;
+        self.root = Some(PathBuf::from(dir));
+        Ok(self)
+    }
+
     pub fn as_str(&self) -> &str {
-        &self.0
+        &self.name
+    }
+
+    /// The iceoryx2 root folder of this stack; `None`: iceoryx2's default.
+    pub fn root(&self) -> Option<&Path> {
+        self.root.as_deref()
+    }
+
+    /// iceoryx2's config for a node of this stack.
+    fn iceoryx2_config(&self) -> Config {
+        let mut config = Config::global_config().clone();
+        if let Some(root) = &self.root {
+            let text = root.to_str().expect("checked by Namespace::under");
+            let path = IoxPath::new(text.as_bytes()).expect("checked by Namespace::under");
+            config.global.set_root_path(&path);
+        }
+        config
     }
 
     fn service(&self, name: &str) -> Result<ServiceName, Error> {
-        let full = format!("{}/{name}", self.0);
+        let full = format!("{}/{name}", self.name);
         ServiceName::new(&full).map_err(|e| Error(format!("service name {full:?}: {e:?}")))
     }
 }
@@ -521,6 +571,7 @@ impl Node {
         let node_name =
             NodeName::new(&name).map_err(|e| Error(format!("node name {name:?}: {e:?}")))?;
         let node = NodeBuilder::new()
+            .config(&namespace.iceoryx2_config())
             .name(&node_name)
             .signal_handling_mode(SignalHandlingMode::Disabled)
             .create::<ipc::Service>()
@@ -715,6 +766,32 @@ mod tests {
         for bad in ["", "/x", "x/", "a b", "ä"] {
             assert!(Namespace::new(bad).is_err(), "{bad:?}");
         }
+    }
+
+    #[test]
+    fn a_stack_of_its_own_root_meets_no_other() {
+        let dir = std::env::temp_dir().join(format!("softarm-ipc-root-{}", std::process::id()));
+        let ns = Namespace::new("softarm/root-test").unwrap();
+        let own = ns.clone().under(&dir).unwrap();
+        assert_eq!(
+            own.root().unwrap().to_str().unwrap(),
+            format!("{}/", dir.display())
+        );
+        assert!(ns.clone().under(Path::new("relative/dir")).is_err());
+        // A publisher under one root is not seen by a node of the same namespace elsewhere.
+        let a = Node::open(own.clone(), "a").unwrap();
+        let p = a.publisher(&a.status().unwrap()).unwrap();
+        p.send_copy(ControllerStatus::default()).unwrap();
+        assert!(
+            dir.join("nodes").exists(),
+            "iceoryx2 keeps its files under the stack's root"
+        );
+        let elsewhere = Node::open(ns, "b").unwrap();
+        assert!(!elsewhere.alive_nodes().unwrap().contains(&"a".to_string()));
+        let same = Node::open(own, "c").unwrap();
+        assert_eq!(same.alive_nodes().unwrap(), ["a", "c"]);
+        drop((p, a, same, elsewhere));
+        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]

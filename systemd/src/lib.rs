@@ -8,12 +8,20 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use anyhow::{Context, bail};
+use softarm_config::host::HostConfig;
 use softarm_config::{Config, ConfigError, DEFAULT};
 
 const USER: &str = "softarm";
 const ETC: &str = "etc/softarm";
 const STATE: &str = "var/lib/softarm";
+/// iceoryx2's folder for the installed stack (`host.ipc_root` is `RUN/iceoryx2`): the stack's
+/// own, so nobody else's use of iceoryx2 on the computer can own it first.
+const RUN: &str = "run/softarm";
+/// Recreates RUN at every boot (/run is a tmpfs).
+const TMPFILES: &str = "etc/tmpfiles.d/softarm.conf";
 const UNITS: &str = "etc/systemd/system";
+/// The operator gate under the prefix.
+const GATE: &str = "libexec/softarm/softarm";
 /// Where the units in the repository start the binary; `--prefix` rewrites it.
 const UNIT_BINARY: &str = "/usr/local/bin/softarm";
 
@@ -74,6 +82,10 @@ pub struct Args {
     /// The config to install (default: the embedded simulation config).
     #[arg(long, value_name = "FILE")]
     config: Option<PathBuf>,
+    /// The operators' group: its members may run every command on the stack (status, submit,
+    /// the e-stop and its reset) through the operator gate. Created if it does not exist.
+    #[arg(long, value_name = "NAME", default_value = USER)]
+    group: String,
 }
 
 #[derive(clap::Args)]
@@ -85,6 +97,20 @@ pub struct UninstallArgs {
 /// One thing an install or uninstall does; printed before it is done.
 enum Step {
     CreateUser,
+    /// The operators' group, when it is not the user's own.
+    CreateGroup(String),
+    /// The operator gate: the binary again, owned by the user and the operators' group,
+    /// set-user-ID, executable by the group alone. Staged (`system` false) without the bits.
+    Gate {
+        path: PathBuf,
+        bytes: Vec<u8>,
+        group: String,
+    },
+    /// A folder of the user's own (mode 770): the state, iceoryx2's.
+    OwnDir {
+        path: PathBuf,
+        what: &'static str,
+    },
     Write {
         path: PathBuf,
         text: Vec<u8>,
@@ -96,7 +122,6 @@ enum Step {
         path: PathBuf,
         text: String,
     },
-    StateDir(PathBuf),
     Remove(PathBuf),
     Systemctl(&'static [&'static str]),
     /// A systemctl call whose failure is reported, not fatal (stopping what may not run).
@@ -115,9 +140,14 @@ impl Step {
                 "write the config {} unless it exists (an edited one is kept; the shipped one goes beside it as softarm.toml.new)",
                 path.display()
             ),
-            Step::StateDir(p) => format!(
-                "create {} (models, checkpoints, the e-stop latch), owned by {USER}:{USER}, mode 770",
-                p.display()
+            Step::CreateGroup(g) => format!("create the system group `{g}` unless it exists"),
+            Step::Gate { path, group, .. } => format!(
+                "write the operator gate {} (owned by {USER}:{group}, set-user-ID, mode 4750)",
+                path.display()
+            ),
+            Step::OwnDir { path, what } => format!(
+                "create {} ({what}), owned by {USER}:{USER}, mode 770",
+                path.display()
             ),
             Step::Remove(p) => format!("remove {}", p.display()),
             Step::Systemctl(args) | Step::SystemctlIfAny(args) => {
@@ -176,11 +206,35 @@ impl Step {
                 }
                 Err(e) => Err(e).with_context(|| format!("reading {}", path.display())),
             },
-            Step::StateDir(p) => {
-                std::fs::create_dir_all(p).with_context(|| format!("creating {}", p.display()))?;
-                set_mode(p, 0o770)?;
+            Step::CreateGroup(g) => {
+                let exists = Command::new("getent")
+                    .args(["group", g])
+                    .output()
+                    .is_ok_and(|o| o.status.success());
+                if exists {
+                    return Ok("exists".into());
+                }
+                run_command("groupadd", &["--system", g])?;
+                Ok("created".into())
+            }
+            Step::Gate { path, bytes, group } => {
+                write_atomic(path, bytes, 0o750)?;
+                if !system {
+                    return Ok(format!(
+                        "staged mode 750: a package sets owner {USER}:{group} and mode 4750"
+                    ));
+                }
+                // In this order: a change of owner clears the set-user-ID bit.
+                chown_to(path, USER, group)?;
+                set_mode(path, 0o4750)?;
+                Ok("done".into())
+            }
+            Step::OwnDir { path, .. } => {
+                std::fs::create_dir_all(path)
+                    .with_context(|| format!("creating {}", path.display()))?;
+                set_mode(path, 0o770)?;
                 if system {
-                    chown(p, USER)?;
+                    chown(path, USER)?;
                 }
                 Ok("done".into())
             }
@@ -226,10 +280,15 @@ fn set_mode(path: &Path, mode: u32) -> anyhow::Result<()> {
 
 /// `chown owner:softarm path`.
 fn chown(path: &Path, owner: &str) -> anyhow::Result<()> {
+    chown_to(path, owner, USER)
+}
+
+/// `chown owner:group path`.
+fn chown_to(path: &Path, owner: &str, group: &str) -> anyhow::Result<()> {
     let user = nix::unistd::User::from_name(owner)?.with_context(|| format!("no user {owner}"))?;
-    let group = nix::unistd::Group::from_name(USER)?.with_context(|| format!("no group {USER}"))?;
-    nix::unistd::chown(path, Some(user.uid), Some(group.gid))
-        .with_context(|| format!("chown {owner}:{USER} {}", path.display()))
+    let g = nix::unistd::Group::from_name(group)?.with_context(|| format!("no group {group}"))?;
+    nix::unistd::chown(path, Some(user.uid), Some(g.gid))
+        .with_context(|| format!("chown {owner}:{group} {}", path.display()))
 }
 
 /// [`softarm_runtime::file::write_atomic`] with the mode set before the file appears.
@@ -244,8 +303,13 @@ fn under(root: &Path, path: &Path) -> PathBuf {
 }
 
 /// The config as installed: its model and state live in /var/lib/softarm, where the services
-/// may write (the units make everything else read-only).
-fn installed_config(source: Option<&Path>) -> anyhow::Result<(String, Config)> {
+/// may write (the units make everything else read-only); `[host]` names the user, the
+/// operators' `group`, iceoryx2's folder and the operator `gate`.
+fn installed_config(
+    source: Option<&Path>,
+    group: &str,
+    gate: &Path,
+) -> anyhow::Result<(String, Config)> {
     let origin = source.map_or("the embedded config".into(), |p| p.display().to_string());
     let text = match source {
         Some(p) => {
@@ -254,12 +318,19 @@ fn installed_config(source: Option<&Path>) -> anyhow::Result<(String, Config)> {
         None => DEFAULT.to_string(),
     };
     // Checked as it is first, so a refusal names the user's file and line; then as installed.
-    Config::parse(&text, &origin, Path::new("/").join(ETC))?;
+    let mut text = text;
+    if Config::parse(&text, &origin, Path::new("/").join(ETC))?.host == HostConfig::default() {
+        text.push_str("\n[host]                        # written by softarm install\n");
+    }
     let text = softarm_config::with_overrides(
         &text,
         &[
             ("model.dir", format!("/{STATE}/model").into()),
             ("state.dir", format!("/{STATE}/state").into()),
+            ("host.user", USER.into()),
+            ("host.group", group.into()),
+            ("host.ipc_root", format!("/{RUN}/iceoryx2").into()),
+            ("host.gate", gate.display().to_string().into()),
         ],
     )
     .map_err(|message| ConfigError {
@@ -278,8 +349,9 @@ fn installed_config(source: Option<&Path>) -> anyhow::Result<(String, Config)> {
 pub fn install(args: &Args) -> anyhow::Result<()> {
     let (root, system) = args.target.root();
     let dry_run = args.target.dry_run;
-    let (config_text, config) = installed_config(args.config.as_deref())?;
     let binary = args.target.prefix.join("bin/softarm");
+    let gate = args.target.prefix.join(GATE);
+    let (config_text, config) = installed_config(args.config.as_deref(), &args.group, &gate)?;
     if !binary.is_absolute() {
         bail!(
             "--prefix must be an absolute path, got {}",
@@ -297,16 +369,40 @@ pub fn install(args: &Args) -> anyhow::Result<()> {
     } else {
         Step::Skip(format!("the user `{USER}` (staged under --root)"))
     }];
+    if system && args.group != USER {
+        steps.push(Step::CreateGroup(args.group.clone()));
+    }
     steps.push(Step::Write {
         path: under(&root, &binary),
-        text: exe_bytes,
+        text: exe_bytes.clone(),
         mode: 0o755,
+    });
+    steps.push(Step::Gate {
+        path: under(&root, &gate),
+        bytes: exe_bytes,
+        group: args.group.clone(),
     });
     steps.push(Step::Config {
         path: under(&root, &Path::new("/").join(ETC).join("softarm.toml")),
         text: config_text,
     });
-    steps.push(Step::StateDir(under(&root, &Path::new("/").join(STATE))));
+    steps.push(Step::OwnDir {
+        path: under(&root, &Path::new("/").join(STATE)),
+        what: "models, checkpoints, the e-stop latch",
+    });
+    steps.push(Step::OwnDir {
+        path: under(&root, &Path::new("/").join(RUN)),
+        what: "iceoryx2's folder for the stack",
+    });
+    steps.push(Step::Write {
+        path: under(&root, &Path::new("/").join(TMPFILES)),
+        text: format!(
+            "# softarm: iceoryx2's folder for the stack, made again at every boot.\n\
+             d /{RUN} 0770 {USER} {USER} -\n"
+        )
+        .into_bytes(),
+        mode: 0o644,
+    });
     // The target wants the config's drivers, the ROS 2 bridge when `ros2.enabled` and the
     // view when `view.enabled`.
     let wanted: Vec<String> = config
@@ -337,7 +433,8 @@ pub fn install(args: &Args) -> anyhow::Result<()> {
     if !dry_run {
         println!(
             "installed. Start it with `systemctl enable --now softarm.target`; check it with \
-             `softarm status --config /{ETC}/softarm.toml`."
+             `softarm status` (as root or a member of the group `{}`).",
+            args.group
         );
     }
     Ok(())
@@ -362,10 +459,13 @@ pub fn uninstall(args: &UninstallArgs) -> anyhow::Result<()> {
             &Path::new("/").join(UNITS).join(name),
         )));
     }
-    steps.push(Step::Remove(under(
-        &root,
-        &args.target.prefix.join("bin/softarm"),
-    )));
+    for path in [
+        args.target.prefix.join("bin/softarm"),
+        args.target.prefix.join(GATE),
+        Path::new("/").join(TMPFILES),
+    ] {
+        steps.push(Step::Remove(under(&root, &path)));
+    }
     steps.push(if system {
         Step::Systemctl(&["daemon-reload"])
     } else {

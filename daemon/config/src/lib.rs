@@ -29,17 +29,56 @@ use softarm_method::skill::DemoRecipe;
 pub const EXIT_CONFIG: u8 = 78;
 
 pub mod hardware;
+pub mod host;
 pub mod ros2;
 pub mod scenario;
 pub mod view;
 pub mod waypoints;
 
 use crate::hardware::{TendonConfig, TrackerConfig};
+use crate::host::HostConfig;
 use crate::ros2::Ros2Config;
 use crate::view::ViewConfig;
 
 /// The drivers this build has: the simulated arm, or the real arm's motors and tracker.
 pub const DRIVERS: [&str; 3] = ["sim", "tendon", "tracker"];
+
+/// The config of an installed stack (`softarm install` writes it): what a command uses when
+/// it is given none and [`CONFIG_ENV`] is not set.
+pub const INSTALLED: &str = "/etc/softarm/softarm.toml";
+/// The environment variable that names the config for commands given no `--config`.
+pub const CONFIG_ENV: &str = "SOFTARM_CONFIG";
+
+/// The config file a command uses: `explicit` (`--config`), else `env` ([`CONFIG_ENV`]'s value),
+/// else `installed` if it exists; `None`: the embedded simulation config.
+pub fn locate(
+    explicit: Option<&Path>,
+    env: Option<std::ffi::OsString>,
+    installed: &Path,
+) -> Option<PathBuf> {
+    explicit
+        .map(Path::to_path_buf)
+        .or_else(|| env.filter(|v| !v.is_empty()).map(PathBuf::from))
+        .or_else(|| installed.exists().then(|| installed.to_path_buf()))
+}
+
+/// Where the embedded config keeps its state (the e-stop latch, checkpoints): the user's own
+/// state folder (`$XDG_STATE_HOME/softarm`, else `~/.local/state/softarm`), never the folder a
+/// command happens to run in.
+pub fn user_state_dir() -> PathBuf {
+    let home = |v: &str| std::env::var_os(v).filter(|p| Path::new(p).is_absolute());
+    match (home("XDG_STATE_HOME"), home("HOME")) {
+        (Some(state), _) => PathBuf::from(state).join("softarm"),
+        (None, Some(h)) => PathBuf::from(h).join(".local/state/softarm"),
+        // No home at all (a bare service account): a folder of this user's own name.
+        (None, None) => {
+            let uid = std::fs::metadata("/proc/self")
+                .map(|m| std::os::unix::fs::MetadataExt::uid(&m))
+                .unwrap_or(0);
+            std::env::temp_dir().join(format!("softarm-{uid}/state"))
+        }
+    }
+}
 
 /// The simulation default, embedded so `softarm demo` needs no file.
 pub const DEFAULT: &str = include_str!("../../../config/softarm.toml");
@@ -88,6 +127,9 @@ pub struct Config {
     /// `softarm ros2`, the bridge to ROS 2; off unless `ros2.enabled`.
     #[serde(default)]
     pub ros2: Ros2Config,
+    /// An installed stack's user, operators' group and iceoryx2 folder.
+    #[serde(default)]
+    pub host: HostConfig,
     /// Where relative paths start: the config file's folder.
     #[serde(skip)]
     pub base_dir: PathBuf,
@@ -274,6 +316,15 @@ impl Config {
             .namespace
             .clone()
             .unwrap_or_else(|| format!("softarm/{}", self.robot.id))
+    }
+
+    /// This stack on this host: its namespace under its iceoryx2 root folder.
+    pub fn bus(&self) -> Result<softarm_ipc::Namespace, softarm_ipc::Error> {
+        let ns = softarm_ipc::Namespace::new(&self.namespace())?;
+        match &self.host.ipc_root {
+            Some(root) => ns.under(root),
+            None => Ok(ns),
+        }
     }
 
     pub fn model_dir(&self) -> PathBuf {
@@ -504,6 +555,10 @@ impl Config {
         }
         self.view.validate()?;
         self.ros2.validate()?;
+        self.host.validate()?;
+        if let Err(m) = self.bus() {
+            return invalid("host.ipc_root", m.to_string());
+        }
         Ok(())
     }
 }

@@ -41,7 +41,6 @@ use std::thread::JoinHandle;
 use anyhow::{Context, anyhow};
 use rtrb::RingBuffer;
 use softarm_config::Config;
-use softarm_ipc::Namespace;
 
 use demonstration::DemoSequences;
 
@@ -67,12 +66,26 @@ struct Shared {
     state: AtomicU32,
     heartbeat: AtomicU64,
     model_loaded: AtomicBool,
+    /// The e-stop latch file says engaged (or cannot be read), as the service thread last read
+    /// it: the tick takes it as it takes the `estop` service, so an e-stop whose sample this
+    /// process missed still stops it (and a reset missed still releases it), without file I/O
+    /// in the tick.
+    latched: AtomicBool,
 }
 
 /// Runs the controller until `stop` is set. The tick loop runs on the calling thread.
 pub fn run(config: &Config, stop: &AtomicBool) -> anyhow::Result<()> {
-    let namespace = Namespace::new(&config.namespace())?;
+    let namespace = config.bus()?;
     let shared = Arc::new(Shared::default());
+    let latch = config.estop_latch();
+    let latched = latch.engaged_or_safe(|e| tracing::error!("{e}; starting STOPPED"));
+    if latched {
+        tracing::warn!(
+            "the e-stop is latched ({}): STOPPED until `softarm estop --reset`",
+            latch.path().display()
+        );
+    }
+    shared.latched.store(latched, Ordering::Relaxed);
     let (to_tick, plans) = RingBuffer::<ToTick>::new(TO_TICK_CAPACITY);
     let (retired, retired_rx) = RingBuffer::<Retired>::new(RETIRED_CAPACITY);
     // Tells the service and io threads to finish once the tick has.

@@ -16,7 +16,7 @@ use softarm_ipc::{
 };
 use softarm_method::blend::{BlendError, Replanner};
 use softarm_model::bundle::{BundleWatch, Model};
-use softarm_runtime::now_ns;
+use softarm_runtime::{EstopLatch, now_ns};
 
 use crate::admission::{Admitted, admit};
 use crate::demonstration::DemoSequences;
@@ -25,6 +25,10 @@ use crate::{Retired, Shared, ToTick, rt};
 /// How often the service thread looks for work: quick enough for users and the learner, and
 /// light on the CPU.
 const POLL: Duration = Duration::from_millis(2);
+
+/// How often the e-stop latch file is read (as the drivers do): an `estop` sample can be
+/// missed, the file cannot.
+const LATCH_EVERY: Duration = Duration::from_millis(50);
 
 /// How long to wait before offering the tick a set again when its ring is full.
 const TO_TICK_RETRY: Duration = Duration::from_micros(200);
@@ -143,6 +147,8 @@ pub(crate) struct Service {
     handed: Replanners,
     next_set_id: u64,
     request_seq: u64,
+    latch: EstopLatch,
+    latch_read: Instant,
 }
 
 impl Service {
@@ -166,7 +172,6 @@ impl Service {
             );
         }
         Ok(Self {
-            config,
             shared,
             ports,
             to_tick,
@@ -176,6 +181,9 @@ impl Service {
             handed: Replanners::default(),
             next_set_id: (now_ns() & 0xffff_ffff) << 16,
             request_seq: 0,
+            latch: config.estop_latch(),
+            latch_read: Instant::now(),
+            config,
         })
     }
 
@@ -191,6 +199,7 @@ impl Service {
                 rt::notify_ready();
             }
             self.slot.refresh(&self.shared);
+            self.read_latch();
             self.admit_sets();
             self.answer_demonstration_requests();
             self.take_estimates();
@@ -346,6 +355,21 @@ impl Service {
     }
 
     /// The e-stop holds the arm (the tick's state, at most a tick old).
+    /// Reads the e-stop latch file every [`LATCH_EVERY`] for the tick ([`Shared::latched`]).
+    fn read_latch(&mut self) {
+        if self.latch_read.elapsed() < LATCH_EVERY {
+            return;
+        }
+        self.latch_read = Instant::now();
+        let latched = self
+            .latch
+            .engaged_or_safe(|e| tracing::error!("{e}; STOPPED"));
+        let was = self.shared.latched.swap(latched, Ordering::Relaxed);
+        if latched && !was {
+            tracing::warn!("the e-stop latch is engaged: STOPPED");
+        }
+    }
+
     fn stopped(&self) -> bool {
         self.shared.state.load(Ordering::Relaxed) == ControllerState::Stopped as u32
     }

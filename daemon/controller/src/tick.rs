@@ -40,14 +40,7 @@ pub(crate) fn run(
     links: Links,
     stop: &AtomicBool,
 ) -> anyhow::Result<()> {
-    let latch = config.estop_latch();
-    let engaged = latch.engaged_or_safe(|e| tracing::error!("{e}; starting STOPPED"));
-    if engaged {
-        tracing::warn!(
-            "the e-stop is latched ({}): STOPPED until `softarm estop --reset`",
-            latch.path().display()
-        );
-    }
+    let engaged = shared.latched.load(Ordering::Relaxed);
     let ports = Inputs::open(namespace, engaged).context("opening the tick's subscribers")?;
     rt::setup(&config.controller);
     let mut tick = Tick::new(&config.controller, ports, shared, links);
@@ -64,12 +57,18 @@ pub(crate) fn run(
             }
         }
     }
-    tracing::info!(
-        overruns = tick.ticker.overruns(),
-        ticks = tick.count.ticks,
-        refused = tick.inputs.refused,
-        "controller stopped (refused: tracker and motor samples that were not numbers)"
-    );
+    let refused = tick.inputs.refused;
+    let overruns = tick.ticker.overruns();
+    let ticks = tick.count.ticks;
+    if refused == 0 {
+        tracing::info!(ticks, overruns, "controller stopped");
+    } else {
+        tracing::warn!(
+            ticks,
+            overruns,
+            "controller stopped; it refused {refused} tracker or motor samples that were not numbers"
+        );
+    }
     Ok(())
 }
 
@@ -117,6 +116,8 @@ struct Inputs {
     /// The measured actuation and its stamp.
     measured: Option<(Actuation, u64)>,
     engaged: bool,
+    /// The latch file said engaged when last looked at ([`Shared::latched`]).
+    latched: bool,
     /// The driver reports a motor with a hardware error, or its torque off (it has not engaged
     /// the setpoint, e.g. one too far from where a sagged motor stands): the arm may not move
     /// until it is fixed; the setpoint stays where it is, so a driver that engages takes it.
@@ -140,14 +141,23 @@ impl Inputs {
             track: Track::default(),
             measured: None,
             engaged,
+            latched: engaged,
             driver_fault: false,
             refused: 0,
             _node: node,
         })
     }
 
-    /// Takes in everything that arrived since the last tick.
-    fn read(&mut self) {
+    /// Takes in everything that arrived since the last tick, and the latch file as the service
+    /// thread last read it.
+    fn read(&mut self, latched: bool) {
+        if self.latched && !latched {
+            // A reset writes the file before it publishes: the file is the authority that one
+            // happened, even if its sample was missed.
+            self.engaged = false;
+        }
+        self.engaged |= latched;
+        self.latched = latched;
         while let Ok(Some(s)) = self.tracker.receive() {
             if s.position.iter().all(|v| v.is_finite()) {
                 self.position = Some((s.position, s.stamp_ns));
@@ -266,7 +276,8 @@ impl<'a> Tick<'a> {
         let now = self.wait();
         // What waited for room goes before anything new.
         self.links.outbox.flush();
-        self.inputs.read();
+        self.inputs
+            .read(self.shared.latched.load(Ordering::Relaxed));
         self.take_plan();
         if self.inputs.engaged {
             self.abandon();

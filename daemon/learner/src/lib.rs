@@ -20,8 +20,8 @@ use std::time::{Duration, Instant};
 
 use softarm_config::Config;
 use softarm_ipc::{
-    Actuation, ActuationEstimate, ConditioningSample, EstimateRequest, MotorState, Namespace, Node,
-    Position, Pub, Sub, TrackerSample,
+    Actuation, ActuationEstimate, ConditioningSample, EstimateRequest, MotorState, Node, Position,
+    Pub, Sub, TrackerSample,
 };
 use softarm_learning::cacla::{CaclaMtl, LearnerState};
 use softarm_learning::online::{ArmState, OnlineLearner};
@@ -241,7 +241,7 @@ struct Ports {
 
 impl Ports {
     fn open(config: &Config) -> anyhow::Result<Self> {
-        let namespace = Namespace::new(&config.namespace())?;
+        let namespace = config.bus()?;
         let node = Node::open(namespace, "learner")?;
         Ok(Self {
             requests: node.subscriber(&node.estimate_request()?)?,

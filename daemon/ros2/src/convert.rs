@@ -160,6 +160,9 @@ pub struct BridgeReport {
     /// Why the last set refused was, if the last set was refused.
     pub last_refusal: Option<String>,
     pub estops: u64,
+    /// What the stack said of the last e-stop from ROS 2 (`confirmed: ...`, `not confirmed
+    /// by: ...`), if one came.
+    pub estop_confirmation: Option<String>,
 }
 
 /// What the diagnostics are made from: the newest samples with their ages (s) when the
@@ -284,7 +287,22 @@ fn estop(s: &Snapshot, name: String) -> DiagnosticStatus {
         ),
     };
     let engaged = s.estop_latched != Some(false);
-    status(level, name, message, vec![("engaged", engaged.to_string())])
+    let confirmation = s.bridge.estop_confirmation.clone().unwrap_or_default();
+    // An e-stop from ROS 2 that the stack did not confirm is a fault whatever the latch says.
+    let level = if confirmation.starts_with("not ") {
+        Level::Error
+    } else {
+        level
+    };
+    status(
+        level,
+        name,
+        message,
+        vec![
+            ("engaged", engaged.to_string()),
+            ("confirmation", confirmation),
+        ],
+    )
 }
 
 fn stats(s: &Snapshot, name: String) -> DiagnosticStatus {

@@ -38,6 +38,7 @@ use ros2_client::{
 use serde::Serialize;
 use serde::de::DeserializeOwned;
 use softarm_clients::channels::{Payload, Services};
+use softarm_clients::estop::{CONFIRM_TIMEOUT, Estop, Pending};
 use softarm_clients::submit::{self, Outcome};
 use softarm_config::Config;
 use softarm_config::ros2::Discovery;
@@ -65,7 +66,7 @@ const SUBMIT_TIMEOUT: Duration = Duration::from_secs(10);
 
 /// Runs the bridge of `config`'s stack until `stop` is set.
 pub fn run(config: &Config, stop: &AtomicBool) -> anyhow::Result<()> {
-    let namespace = Namespace::new(&config.namespace())?;
+    let namespace = config.bus()?;
     let node = Node::open(namespace.clone(), "ros2")
         .with_context(|| format!("joining namespace {:?}", namespace.as_str()))?;
     let services = Services::open(&node)?;
@@ -225,6 +226,9 @@ struct Bridge {
     next_topics: Instant,
     next_status: Instant,
     report: BridgeReport,
+    estop: Estop,
+    /// The e-stop sent from ROS 2 that the stack has not confirmed yet, and when.
+    estop_pending: Option<(Pending, Instant)>,
     /// The controller's answers to sets being submitted (each on a thread of its own, so the
     /// loop and the e-stop never wait for one).
     answers: (mpsc::Sender<Outcome>, mpsc::Receiver<Outcome>),
@@ -236,6 +240,7 @@ impl Bridge {
     fn open(config: &Config, namespace: Namespace, services: Services) -> anyhow::Result<Self> {
         let ros_namespace = convert::ros_namespace(namespace.as_str());
         let ros = Ros::open(config, &ros_namespace)?;
+        let estop = Estop::open(&namespace)?;
         let now = Instant::now();
         Ok(Self {
             config: config.clone(),
@@ -253,6 +258,8 @@ impl Bridge {
                 accept_waypoints: config.ros2.accept_waypoints,
                 ..Default::default()
             },
+            estop,
+            estop_pending: None,
             answers: mpsc::channel(),
             submitting: false,
             publish_failures: 0,
@@ -344,19 +351,58 @@ impl Bridge {
             }
         }
         if heard == 0 {
+            self.confirm_estop();
             return;
         }
         self.report.estops += 1;
         let latch = self.config.estop_latch();
-        match softarm_clients::estop::send(&self.namespace, &latch, true) {
-            Ok(n) => tracing::warn!(
-                "e-stop from ROS 2 ({}/{}): engaged, {n} processes heard it; reset only with \
-                 `softarm estop --reset` on this host",
-                self.ros_namespace,
-                topic::ESTOP
-            ),
-            Err(e) => tracing::error!("e-stop from ROS 2: {e:#}"),
+        match self.estop.send(&latch, true) {
+            Ok(p) => {
+                tracing::warn!(
+                    "e-stop from ROS 2 ({}/{}): sent to {} processes and latched; reset only \
+                     with `softarm estop --reset` on this host",
+                    self.ros_namespace,
+                    topic::ESTOP,
+                    p.receivers
+                );
+                self.report.estop_confirmation = Some("waiting for the stack".into());
+                self.estop_pending = Some((p, Instant::now()));
+            }
+            Err(e) => {
+                tracing::error!("e-stop from ROS 2: {e:#}");
+                self.report.estop_confirmation = Some(format!("not sent: {e:#}"));
+            }
         }
+    }
+
+    /// Whether the stack said STOPPED since the e-stop from ROS 2, without waiting: what the
+    /// diagnostics say of it, and a log line either way.
+    fn confirm_estop(&mut self) {
+        let Some((pending, since)) = &mut self.estop_pending else {
+            return;
+        };
+        let c = match self.estop.poll(pending) {
+            Ok(c) => c,
+            Err(e) => {
+                tracing::error!("confirming the e-stop from ROS 2: {e:#}");
+                return;
+            }
+        };
+        let said = if c.complete() {
+            tracing::warn!("e-stop from ROS 2 confirmed: {}", c.confirmed.join(", "));
+            format!("confirmed: {}", c.confirmed.join(", "))
+        } else if since.elapsed() >= CONFIRM_TIMEOUT {
+            tracing::error!(
+                "e-stop from ROS 2 not confirmed in {:.0} s by: {}",
+                CONFIRM_TIMEOUT.as_secs_f64(),
+                c.missing.join("; ")
+            );
+            format!("not confirmed by: {}", c.missing.join("; "))
+        } else {
+            return;
+        };
+        self.report.estop_confirmation = Some(said);
+        self.estop_pending = None;
     }
 
     /// Way-point sets from ROS 2: refused unless `ros2.accept_waypoints`, checked as `softarm

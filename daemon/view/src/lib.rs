@@ -55,7 +55,7 @@ pub fn run(config: &Config, listen: Option<&str>, stop: &AtomicBool) -> anyhow::
         None => config.view.address(&config.view.listen, "view.listen"),
     }
     .map_err(anyhow::Error::msg)?;
-    let namespace = Namespace::new(&config.namespace())?;
+    let namespace = config.bus()?;
     let node = Node::open(namespace.clone(), "view")
         .with_context(|| format!("joining namespace {:?}", namespace.as_str()))?;
     let services = Services::open(&node)?;

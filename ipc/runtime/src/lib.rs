@@ -4,10 +4,12 @@
 //!   (fixed-rate loops on absolute deadlines), [`clock::Backoff`] (retries at doubling intervals).
 //! - [`latch`]: the e-stop latch on disk ([`EstopLatch`]).
 //! - [`file`]: [`file::write_atomic`], for every file written for others to read.
+//! - [`identity`]: who a process joins an installed stack as ([`identity::join`]).
 //! - [`stop_flag`]: SIGINT and SIGTERM as a flag every loop checks.
 
 pub mod clock;
 pub mod file;
+pub mod identity;
 pub mod latch;
 
 use std::sync::Arc;

@@ -1,0 +1,190 @@
+//! Who a process joins its stack as. iceoryx2 makes every shared memory segment its creator's
+//! alone (0600), so all the processes on a stack's services must be one user: a segment made by
+//! anyone else is one the others cannot map (root's e-stop reached nobody; root's folders kept
+//! the service from starting). An installed stack names that user and its operators' group
+//! (`[host]`); [`join`] makes the calling process that user before it touches any shared
+//! memory or state file:
+//!
+//! - the stack's user: nothing to do;
+//! - root: drops to the user for good (groups, gid, uid);
+//! - a member of the operators' group: runs the same command again through the operator gate,
+//!   a copy of softarm set-user-ID the stack's user that only the group may execute;
+//! - anyone else: refused, with what to do.
+
+use std::ffi::CString;
+use std::path::{Path, PathBuf};
+
+use nix::unistd::{Gid, Group, Uid, User};
+
+/// Set in the environment of a command run again through the gate: the gate must have made
+/// it the stack's user, and must not be entered twice.
+pub const THROUGH_GATE: &str = "SOFTARM_THROUGH_GATE";
+
+/// The stack's identity, as its config names it.
+#[derive(Debug, Clone)]
+pub struct StackUser {
+    pub user: String,
+    pub group: String,
+    /// The operator gate (`host.gate`); `None`: only root and the user may join.
+    pub gate: Option<PathBuf>,
+    /// The config that names them, for messages.
+    pub config: String,
+}
+
+/// Why this process may not join the stack, said so that the person can act on it.
+#[derive(Debug, thiserror::Error)]
+pub enum JoinError {
+    #[error(
+        "the stack's user `{user}` (host.user in {config}) does not exist on this computer: \
+         `softarm install` creates it"
+    )]
+    NoUser { user: String, config: String },
+    #[error(
+        "the operators' group `{group}` (host.group in {config}) does not exist on this \
+         computer: `softarm install` creates it"
+    )]
+    NoGroup { group: String, config: String },
+    #[error(
+        "you ({me}) may not operate this stack: it runs as `{user}`, and only root and the \
+         members of the group `{group}` may join it ({config}). Ask its administrator for \
+         `usermod -aG {group} {me}` (then log in again), or use sudo"
+    )]
+    NotOperator {
+        me: String,
+        user: String,
+        group: String,
+        config: String,
+    },
+    #[error(
+        "you ({me}) are in the operators' group `{group}`, but {config} names no operator gate \
+         (host.gate): run this as root or as `{user}`, or install softarm again to get one"
+    )]
+    NoGate {
+        me: String,
+        user: String,
+        group: String,
+        config: String,
+    },
+    #[error(
+        "the operator gate {gate} could not be run ({reason}): `softarm install` puts it there, \
+         owned by `{user}`, mode 4750"
+    )]
+    Gate {
+        gate: PathBuf,
+        user: String,
+        reason: String,
+    },
+    #[error(
+        "the operator gate {gate} did not make this command `{user}`: it must be owned by \
+         `{user}` with the set-user-ID bit (mode 4750), on a file system mounted without \
+         nosuid; `softarm install` puts it so"
+    )]
+    GateNotSetuid { gate: PathBuf, user: String },
+    #[error("could not become `{user}`: {source}")]
+    Drop { user: String, source: nix::Error },
+}
+
+fn name_of(uid: Uid) -> String {
+    match User::from_uid(uid) {
+        Ok(Some(u)) => u.name,
+        _ => format!("uid {uid}"),
+    }
+}
+
+fn member_of(gid: Gid) -> bool {
+    Gid::effective() == gid
+        || Gid::current() == gid
+        || nix::unistd::getgroups().is_ok_and(|g| g.contains(&gid))
+}
+
+/// Makes this process the stack's user, or says why it may not be. Returns only as that user;
+/// a group member's command is replaced by the same command through the gate (this function
+/// does not return then, unless the gate cannot be run).
+pub fn join(stack: &StackUser) -> Result<(), JoinError> {
+    let user = User::from_name(&stack.user)
+        .ok()
+        .flatten()
+        .ok_or_else(|| JoinError::NoUser {
+            user: stack.user.clone(),
+            config: stack.config.clone(),
+        })?;
+    let group = Group::from_name(&stack.group)
+        .ok()
+        .flatten()
+        .ok_or_else(|| JoinError::NoGroup {
+            group: stack.group.clone(),
+            config: stack.config.clone(),
+        })?;
+    let euid = Uid::effective();
+    let drop = |source| JoinError::Drop {
+        user: stack.user.clone(),
+        source,
+    };
+    if euid == user.uid {
+        // Through the gate the real uid is still the operator's: take the user's wholly, so
+        // nothing this process creates is the operator's.
+        if Uid::current() != user.uid {
+            nix::unistd::setresuid(user.uid, user.uid, user.uid).map_err(drop)?;
+        }
+        return Ok(());
+    }
+    if euid.is_root() {
+        let groups = [user.gid, group.gid];
+        nix::unistd::setgroups(&groups).map_err(drop)?;
+        nix::unistd::setresgid(user.gid, user.gid, user.gid).map_err(drop)?;
+        nix::unistd::setresuid(user.uid, user.uid, user.uid).map_err(drop)?;
+        return Ok(());
+    }
+    let me = name_of(Uid::current());
+    if !member_of(group.gid) {
+        return Err(JoinError::NotOperator {
+            me,
+            user: stack.user.clone(),
+            group: stack.group.clone(),
+            config: stack.config.clone(),
+        });
+    }
+    let Some(gate) = &stack.gate else {
+        return Err(JoinError::NoGate {
+            me,
+            user: stack.user.clone(),
+            group: stack.group.clone(),
+            config: stack.config.clone(),
+        });
+    };
+    if std::env::var_os(THROUGH_GATE).is_some() {
+        return Err(JoinError::GateNotSetuid {
+            gate: gate.clone(),
+            user: stack.user.clone(),
+        });
+    }
+    let reason = enter_gate(gate);
+    Err(JoinError::Gate {
+        gate: gate.clone(),
+        user: stack.user.clone(),
+        reason,
+    })
+}
+
+/// Replaces this process by its own command line run through `gate`; returns only the reason
+/// it could not.
+fn enter_gate(gate: &Path) -> String {
+    use std::os::unix::ffi::OsStrExt;
+    let cstring = |bytes: &[u8]| CString::new(bytes).map_err(|e| e.to_string());
+    let argv: Result<Vec<CString>, String> =
+        std::env::args_os().map(|a| cstring(a.as_bytes())).collect();
+    let path = cstring(gate.as_os_str().as_bytes());
+    let mut env: Vec<Vec<u8>> = std::env::vars_os()
+        .filter(|(k, _)| k != THROUGH_GATE)
+        .map(|(k, v)| [k.as_bytes(), b"=", v.as_bytes()].concat())
+        .collect();
+    env.push(format!("{THROUGH_GATE}=1").into_bytes());
+    let env: Result<Vec<CString>, String> = env.iter().map(|e| cstring(e)).collect();
+    let (Ok(argv), Ok(path), Ok(env)) = (argv, path, env) else {
+        return "an argument or the environment holds a NUL byte".into();
+    };
+    match nix::unistd::execve(&path, &argv, &env) {
+        Err(e) => e.desc().to_string(),
+        Ok(never) => match never {},
+    }
+}
