@@ -24,6 +24,7 @@ mod iox2;
 mod layering;
 mod leftovers;
 mod notify;
+mod operators;
 mod python;
 mod record;
 mod restart;
