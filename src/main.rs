@@ -52,6 +52,12 @@ impl Stack {
     /// its operators become it; anyone else is refused): so it joins the stack's services as
     /// the stack itself, before it opens any.
     fn load(&self) -> anyhow::Result<Config> {
+        Ok(self.load_reading(|| ())?.0)
+    }
+
+    /// [`Stack::load`], running `as_caller` with the rights of the person who ran the command,
+    /// before this process becomes the stack's user: for the files they name.
+    fn load_reading<R>(&self, as_caller: impl FnOnce() -> R) -> anyhow::Result<(Config, R)> {
         let path = self.path();
         let mut c = match &path {
             Some(p) => Config::load(p)?,
@@ -66,15 +72,19 @@ impl Stack {
             Namespace::new(ns).context("--namespace")?;
             c.robot.namespace = Some(ns.clone());
         }
-        if let (Some(user), Some(group)) = (&c.host.user, &c.host.group) {
-            softarm_runtime::identity::join(&StackUser {
+        let (Some(user), Some(group)) = (&c.host.user, &c.host.group) else {
+            return Ok((c.clone(), as_caller()));
+        };
+        let r = softarm_runtime::identity::join_with(
+            &StackUser {
                 user: user.clone(),
                 group: group.clone(),
                 gate: c.host.gate.clone(),
                 config: path.map_or("the embedded config".into(), |p| p.display().to_string()),
-            })?;
-        }
-        Ok(c)
+            },
+            as_caller,
+        )?;
+        Ok((c, r))
     }
 
     /// [`Stack::load`] for a process that needs config section `[section]`: without it the
@@ -346,13 +356,9 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             wait,
             stack,
         } => {
-            let code = submit::run(
-                &stack.load()?,
-                &stack.namespace()?,
-                &waypoints,
-                executions,
-                wait,
-            )?;
+            // The file is read as whoever submits it: an operator's own set is theirs to read.
+            let (config, text) = stack.load_reading(|| std::fs::read_to_string(&waypoints))?;
+            let code = submit::run(&config, &waypoints, text, executions, wait)?;
             return Ok(ExitCode::from(code));
         }
         Command::Stats {

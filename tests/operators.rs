@@ -214,6 +214,36 @@ fn root_and_operators_stop_and_release_the_arm_and_anyone_else_is_refused() {
     }
     assert_eq!(states(&s).0, "IDLE");
 
+    // The operator's own set, in a folder only they may read, is read as them: accepted. An
+    // output only they may write is refused before anything is recorded, saying why.
+    let own_dir = s.dir.join("operator");
+    std::fs::create_dir_all(&own_dir).unwrap();
+    let set = own_dir.join("set.toml");
+    std::fs::copy(DEMO_WAYPOINTS, &set).unwrap();
+    let operator = Users::uid(&users.operator);
+    own(&set, operator, 0o600);
+    own(&own_dir, operator, 0o700);
+    let set = set.to_str().unwrap();
+    let out = run_as(
+        &s,
+        Some(&users.operator),
+        &["submit", set, "--executions", "3"],
+    );
+    assert!(out.status.success(), "{}", text(&out));
+    assert!(text(&out).contains("accepted: set"), "{}", text(&out));
+    let mine = own_dir.join("run.mcap");
+    let args = ["record", "-o", mine.to_str().unwrap(), "--duration", "0.2"];
+    let out = run_as(&s, Some(&users.operator), &args);
+    assert_eq!(out.status.code(), Some(1), "{}", text(&out));
+    assert!(
+        text(&out).contains(&format!(
+            "{}, whom this command runs as, may not write",
+            users.service
+        )),
+        "{}",
+        text(&out)
+    );
+
     // Root and the operator each stop the arm and release it, confirmed by both processes.
     for who in [None, Some(users.operator.as_str())] {
         let out = run_as(&s, who, &["estop"]);

@@ -57,6 +57,21 @@ pub(crate) fn check_output_path(out: &std::path::Path, what: &str) -> anyhow::Re
             dir.display()
         );
     }
+    if nix::unistd::access(dir, nix::unistd::AccessFlags::W_OK).is_err() {
+        // On an installed stack this process runs as the stack's user, whoever started it.
+        let uid = nix::unistd::Uid::effective();
+        let me = nix::unistd::User::from_uid(uid)
+            .ok()
+            .flatten()
+            .map_or(format!("uid {uid}"), |u| u.name);
+        anyhow::bail!(
+            "cannot write {what} to {}: {me}, whom this command runs as, may not write in {} \
+             (on an installed stack every command runs as the stack's user): choose a folder \
+             {me} may write, such as the stack's state folder",
+            out.display(),
+            dir.display(),
+        );
+    }
     Ok(())
 }
 

@@ -37,7 +37,18 @@ pub fn prepare(
     file: &std::path::Path,
     executions: u32,
 ) -> Result<WaypointSet, String> {
-    let f = WaypointFile::load(file)?;
+    prepare_read(config, file, std::fs::read_to_string(file), executions)
+}
+
+/// [`prepare`] of a file already read (`text`, or why it could not be).
+pub fn prepare_read(
+    config: &Config,
+    file: &std::path::Path,
+    text: std::io::Result<String>,
+    executions: u32,
+) -> Result<WaypointSet, String> {
+    let text = text.map_err(|e| format!("{}: cannot read: {e}", file.display()))?;
+    let f = WaypointFile::parse(&text).map_err(|e| format!("{}: {e}", file.display()))?;
     let max = config.waypoints.max_executions;
     if !(1..=max).contains(&executions) {
         return Err(format!(
@@ -93,14 +104,16 @@ pub fn submit(namespace: &Namespace, mut set: WaypointSet, timeout: Duration) ->
 
 /// `softarm submit FILE [--executions N] [--wait]`: checks, sends, prints the answer, and with
 /// `wait` a table row per execution of the set as its stats arrive; the exit code.
+/// `softarm submit FILE`: `text` is FILE as read by whoever submits it.
 pub fn run(
     config: &Config,
-    namespace: &Namespace,
     file: &std::path::Path,
+    text: std::io::Result<String>,
     executions: u32,
     wait: bool,
 ) -> anyhow::Result<u8> {
-    let set = match prepare(config, file, executions) {
+    let namespace = &config.bus()?;
+    let set = match prepare_read(config, file, text, executions) {
         Ok(s) => s,
         Err(reason) => {
             println!("rejected: {reason}");

@@ -101,6 +101,13 @@ fn member_of(gid: Gid) -> bool {
 /// a group member's command is replaced by the same command through the gate (this function
 /// does not return then, unless the gate cannot be run).
 pub fn join(stack: &StackUser) -> Result<(), JoinError> {
+    join_with(stack, || ())
+}
+
+/// [`join`], running `as_caller` first with the rights of the person who ran the command (root,
+/// the operator through the gate, or the stack's user): files they name on the command line are
+/// theirs to read, not the stack's.
+pub fn join_with<R>(stack: &StackUser, as_caller: impl FnOnce() -> R) -> Result<R, JoinError> {
     let user = User::from_name(&stack.user)
         .ok()
         .flatten()
@@ -121,19 +128,25 @@ pub fn join(stack: &StackUser) -> Result<(), JoinError> {
         source,
     };
     if euid == user.uid {
-        // Through the gate the real uid is still the operator's: take the user's wholly, so
-        // nothing this process creates is the operator's.
-        if Uid::current() != user.uid {
-            nix::unistd::setresuid(user.uid, user.uid, user.uid).map_err(drop)?;
+        let caller = Uid::current();
+        if caller == user.uid {
+            return Ok(as_caller());
         }
-        return Ok(());
+        // Through the gate the real uid is still the operator's: read as them, then take the
+        // user's wholly, so nothing this process creates is the operator's.
+        nix::unistd::seteuid(caller).map_err(drop)?;
+        let r = as_caller();
+        nix::unistd::seteuid(user.uid).map_err(drop)?;
+        nix::unistd::setresuid(user.uid, user.uid, user.uid).map_err(drop)?;
+        return Ok(r);
     }
     if euid.is_root() {
+        let r = as_caller();
         let groups = [user.gid, group.gid];
         nix::unistd::setgroups(&groups).map_err(drop)?;
         nix::unistd::setresgid(user.gid, user.gid, user.gid).map_err(drop)?;
         nix::unistd::setresuid(user.uid, user.uid, user.uid).map_err(drop)?;
-        return Ok(());
+        return Ok(r);
     }
     let me = name_of(Uid::current());
     if !member_of(group.gid) {
