@@ -60,7 +60,12 @@ impl Stack {
     fn load_reading<R>(&self, as_caller: impl FnOnce() -> R) -> anyhow::Result<(Config, R)> {
         let path = self.path();
         let mut c = match &path {
-            Some(p) => Config::load(p)?,
+            Some(p) => {
+                if let Some(refused) = softarm_runtime::identity::config_unreadable(p) {
+                    return Err(refused.into());
+                }
+                Config::load(p)?
+            }
             None => {
                 let mut c = Config::default_sim(PathBuf::from("."));
                 // The latch is never relative to wherever the command happens to run.

@@ -504,7 +504,7 @@ fn estop_without_a_stack_latches_and_says_that_no_process_heard_it() {
         assert!(out.status.success(), "{args:?}: {out:?}");
         assert!(
             stdout.contains(&format!(
-                "e-stop {word} (latched in {}; no running process in namespace \"{namespace}\")",
+                "e-stop {word} (the latch {} says {word}; no running process in namespace \"{namespace}\")",
                 latch.display()
             )),
             "{args:?}: {stdout}"

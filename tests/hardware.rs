@@ -230,8 +230,16 @@ fn an_estop_reaches_the_motors_while_their_replies_are_lost() {
         ..BusFaults::default()
     });
     follow(&setpoints, 0.5, Duration::from_millis(300));
-    let out = s.run(&["estop"]);
-    assert!(out.status.success(), "{out:?}");
+    // The motors obey, but the driver cannot read them back: it cannot confirm, and the e-stop
+    // says so (and latches all the same).
+    let out = s.run(&["estop", "--timeout", "1"]);
+    let said = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{out:?}");
+    assert!(
+        said.contains("not confirmed in 1 s by: tendon: alive, but has published nothing"),
+        "{said}"
+    );
+    assert!(c.estop_latch().engaged().unwrap());
     eventually("torque off on e-stop without replies", || {
         send(&setpoints, 0.5);
         (torque(&rig, &t.ids) == [false; 6]).then_some(())

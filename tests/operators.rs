@@ -91,8 +91,8 @@ fn host(s: &mut TestStack, users: &Users) -> PathBuf {
     let gate = s.dir.join("libexec/softarm");
     std::fs::create_dir_all(gate.parent().unwrap()).unwrap();
     std::fs::copy(BIN, &gate).unwrap();
-    // In this order: a change of owner clears the set-user-ID bit.
-    own(&gate, service, 0o4750);
+    // In this order: a change of owner clears the set-ID bits.
+    own(&gate, service, 0o6750);
     let ipc = s.dir.join("run");
     for dir in [s.dir.join("state"), ipc.clone()] {
         std::fs::create_dir_all(&dir).unwrap();
@@ -113,6 +113,8 @@ fn host(s: &mut TestStack, users: &Users) -> PathBuf {
         ],
     );
     std::fs::write(&s.config, text).unwrap();
+    // As installed: root's, for root and the operators only.
+    own(&s.config, (0, service.1), 0o640);
     s.bin = bin;
     ipc
 }
@@ -269,21 +271,40 @@ fn root_and_operators_stop_and_release_the_arm_and_anyone_else_is_refused() {
     // An outsider is refused, saying what to do, and nothing changes: not the arm, not the latch.
     let latch = s.dir.join("state/estop");
     let before = std::fs::read_to_string(&latch).unwrap();
-    for args in [&["estop"][..], &["estop", "--reset"], &["status"]] {
-        let out = run_as(&s, Some(&users.outsider), args);
-        let said = text(&out);
-        assert_eq!(out.status.code(), Some(1), "{args:?}: {said}");
-        assert!(
-            said.contains("may not operate this stack")
-                && said.contains(&format!("usermod -aG {} {}", users.service, users.outsider)),
-            "{args:?}: {said}"
-        );
-        assert_eq!(said.lines().count(), 1, "one line: {said}");
-    }
+    let refused = |config: &Path, why: &str| {
+        for args in [&["estop"][..], &["estop", "--reset"], &["status"]] {
+            let out = Command::new("runuser")
+                .args(["-u", &users.outsider, "--"])
+                .arg(&s.bin)
+                .args(args)
+                .arg("--config")
+                .arg(config)
+                .output()
+                .unwrap();
+            let said = text(&out);
+            assert_eq!(out.status.code(), Some(1), "{args:?}: {said}");
+            assert!(
+                said.contains(why)
+                    && said.contains(&format!("usermod -aG {} {}", users.service, users.outsider)),
+                "{args:?}: {said}"
+            );
+            assert_eq!(said.lines().count(), 1, "one line: {said}");
+        }
+    };
+    // The installed config is not theirs to read; nor, were it, the stack theirs to join.
+    refused(&s.config, "may not read the stack's config");
+    let readable = s.dir.join("readable.toml");
+    std::fs::copy(&s.config, &readable).unwrap();
+    own(&readable, (0, 0), 0o644);
+    refused(&readable, "may not operate this stack");
     assert_eq!(std::fs::read_to_string(&latch).unwrap(), before);
     assert_eq!(states(&s).0, "IDLE");
     let wrong = all_owned_by(&ipc, service_uid);
     assert!(wrong.is_empty(), "not the stack's user's: {wrong:?}");
+    // What the operator wrote through the gate is the stack's, group and all, for its group.
+    let latch = std::fs::metadata(&latch).unwrap();
+    assert_eq!((latch.uid(), latch.gid()), Users::uid(&users.service));
+    assert_eq!(latch.mode() & 0o007, 0, "{:o}", latch.mode());
     assert!(s.stop().unwrap().success());
 
     // Root first: every client on a host where nothing of the stack's iceoryx2 is left (as

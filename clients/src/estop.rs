@@ -93,8 +93,8 @@ impl Pending {
                     .missing
                     .push(format!("{role}: says {state}, not {wanted}")),
                 None => c.missing.push(format!(
-                    "{role}: alive, but published nothing since (frozen, or it cannot read \
-                     what this process sent)"
+                    "{role}: alive, but has published nothing since (frozen, its device \
+                     silent, or it cannot read what this process sent)"
                 )),
             }
         }
@@ -228,16 +228,17 @@ pub fn run(config: &softarm_config::Config, reset: bool, timeout: Duration) -> a
     if c.confirmed.is_empty() {
         // Not an error: the latch is what a process starting later reads.
         println!(
-            "e-stop {word} (latched in {}; no running process in namespace {:?})",
+            "e-stop {word} (the latch {} says {word}; no running process in namespace {:?})",
             latch.path().display(),
             namespace.as_str(),
         );
     } else {
-        println!(
-            "e-stop {word}: {} (latched in {})",
-            c.confirmed.join(", "),
-            latch.path().display()
-        );
+        let latch = if reset {
+            format!("the latch {} says released", latch.path().display())
+        } else {
+            format!("latched in {}", latch.path().display())
+        };
+        println!("e-stop {word}: {} ({latch})", c.confirmed.join(", "));
     }
     Ok(())
 }

@@ -100,7 +100,7 @@ enum Step {
     /// The operators' group, when it is not the user's own.
     CreateGroup(String),
     /// The operator gate: the binary again, owned by the user and the operators' group,
-    /// set-user-ID, executable by the group alone. Staged (`system` false) without the bits.
+    /// set-user-ID and set-group-ID, executable by the group alone. Staged (`system` false) without the bits.
     Gate {
         path: PathBuf,
         bytes: Vec<u8>,
@@ -142,7 +142,7 @@ impl Step {
             ),
             Step::CreateGroup(g) => format!("create the system group `{g}` unless it exists"),
             Step::Gate { path, group, .. } => format!(
-                "write the operator gate {} (owned by {USER}:{group}, set-user-ID, mode 4750)",
+                "write the operator gate {} (owned by {USER}:{group}, set-user-ID and set-group-ID, mode 6750)",
                 path.display()
             ),
             Step::OwnDir { path, what } => format!(
@@ -221,12 +221,12 @@ impl Step {
                 write_atomic(path, bytes, 0o750)?;
                 if !system {
                     return Ok(format!(
-                        "staged mode 750: a package sets owner {USER}:{group} and mode 4750"
+                        "staged mode 750: a package sets owner {USER}:{group} and mode 6750"
                     ));
                 }
-                // In this order: a change of owner clears the set-user-ID bit.
+                // In this order: a change of owner clears the set-ID bits.
                 chown_to(path, USER, group)?;
-                set_mode(path, 0o4750)?;
+                set_mode(path, 0o6750)?;
                 Ok("done".into())
             }
             Step::OwnDir { path, .. } => {
@@ -350,14 +350,14 @@ pub fn install(args: &Args) -> anyhow::Result<()> {
     let (root, system) = args.target.root();
     let dry_run = args.target.dry_run;
     let binary = args.target.prefix.join("bin/softarm");
-    let gate = args.target.prefix.join(GATE);
-    let (config_text, config) = installed_config(args.config.as_deref(), &args.group, &gate)?;
     if !binary.is_absolute() {
         bail!(
             "--prefix must be an absolute path, got {}",
             args.target.prefix.display()
         );
     }
+    let gate = args.target.prefix.join(GATE);
+    let (config_text, config) = installed_config(args.config.as_deref(), &args.group, &gate)?;
     let exe = std::env::current_exe().context("finding my own executable")?;
     let exe_bytes = if dry_run {
         Vec::new()

@@ -367,6 +367,8 @@ impl Service {
         let was = self.shared.latched.swap(latched, Ordering::Relaxed);
         if latched && !was {
             tracing::warn!("the e-stop latch is engaged: STOPPED");
+        } else if was && !latched {
+            tracing::warn!("the e-stop latch is released: IDLE until a set is submitted");
         }
     }
 

@@ -8,7 +8,8 @@
 //! - the stack's user: nothing to do;
 //! - root: drops to the user for good (groups, gid, uid);
 //! - a member of the operators' group: runs the same command again through the operator gate,
-//!   a copy of softarm set-user-ID the stack's user that only the group may execute;
+//!   a copy of softarm set-user-ID the stack's user (and set-group-ID the group) that only the
+//!   group may execute;
 //! - anyone else: refused, with what to do.
 
 use std::ffi::CString;
@@ -67,7 +68,7 @@ pub enum JoinError {
     },
     #[error(
         "the operator gate {gate} could not be run ({reason}): `softarm install` puts it there, \
-         owned by `{user}`, mode 4750"
+         owned by `{user}`, mode 6750"
     )]
     Gate {
         gate: PathBuf,
@@ -76,10 +77,20 @@ pub enum JoinError {
     },
     #[error(
         "the operator gate {gate} did not make this command `{user}`: it must be owned by \
-         `{user}` with the set-user-ID bit (mode 4750), on a file system mounted without \
+         `{user}` with the set-user-ID bit (mode 6750), on a file system mounted without \
          nosuid; `softarm install` puts it so"
     )]
     GateNotSetuid { gate: PathBuf, user: String },
+    #[error(
+        "you ({me}) may not read the stack's config {config}: only root and the members of the \
+         group `{group}` may. Ask its administrator for `usermod -aG {group} {me}` (then log in \
+         again), or use sudo"
+    )]
+    ConfigUnreadable {
+        me: String,
+        group: String,
+        config: String,
+    },
     #[error("could not become `{user}`: {source}")]
     Drop { user: String, source: nix::Error },
 }
@@ -89,6 +100,26 @@ fn name_of(uid: Uid) -> String {
         Ok(Some(u)) => u.name,
         _ => format!("uid {uid}"),
     }
+}
+
+/// Why `config` cannot be read, when the reason is who this process is: an installed
+/// stack's config is for root and its operators' group only (mode 640). `None`: it can be
+/// opened, or fails for another reason (the config loader says that one).
+pub fn config_unreadable(config: &Path) -> Option<JoinError> {
+    use std::os::unix::fs::MetadataExt;
+    match std::fs::File::open(config) {
+        Err(e) if e.kind() == std::io::ErrorKind::PermissionDenied => {}
+        _ => return None,
+    }
+    let group = std::fs::metadata(config)
+        .ok()
+        .and_then(|m| Group::from_gid(Gid::from_raw(m.gid())).ok().flatten())
+        .map_or("softarm".to_string(), |g| g.name);
+    Some(JoinError::ConfigUnreadable {
+        me: name_of(Uid::current()),
+        group,
+        config: config.display().to_string(),
+    })
 }
 
 fn member_of(gid: Gid) -> bool {
@@ -132,12 +163,18 @@ pub fn join_with<R>(stack: &StackUser, as_caller: impl FnOnce() -> R) -> Result<
         if caller == user.uid {
             return Ok(as_caller());
         }
-        // Through the gate the real uid is still the operator's: read as them, then take the
-        // user's wholly, so nothing this process creates is the operator's.
+        // Through the gate the real ids are still the operator's: read as them, then take the
+        // gate's wholly (the user, and the operators' group from the set-group-ID bit), so
+        // nothing this process creates is the operator's.
+        let (gate_gid, caller_gid) = (Gid::effective(), Gid::current());
+        nix::unistd::setegid(caller_gid).map_err(drop)?;
         nix::unistd::seteuid(caller).map_err(drop)?;
         let r = as_caller();
         nix::unistd::seteuid(user.uid).map_err(drop)?;
+        nix::unistd::setegid(gate_gid).map_err(drop)?;
+        nix::unistd::setresgid(gate_gid, gate_gid, gate_gid).map_err(drop)?;
         nix::unistd::setresuid(user.uid, user.uid, user.uid).map_err(drop)?;
+        stack_umask();
         return Ok(r);
     }
     if euid.is_root() {
@@ -146,6 +183,7 @@ pub fn join_with<R>(stack: &StackUser, as_caller: impl FnOnce() -> R) -> Result<
         nix::unistd::setgroups(&groups).map_err(drop)?;
         nix::unistd::setresgid(user.gid, user.gid, user.gid).map_err(drop)?;
         nix::unistd::setresuid(user.uid, user.uid, user.uid).map_err(drop)?;
+        stack_umask();
         return Ok(r);
     }
     let me = name_of(Uid::current());
@@ -177,6 +215,11 @@ pub fn join_with<R>(stack: &StackUser, as_caller: impl FnOnce() -> R) -> Result<
         user: stack.user.clone(),
         reason,
     })
+}
+
+/// What the services' units set (`UMask=0007`): files the stack writes are for its group.
+fn stack_umask() {
+    nix::sys::stat::umask(nix::sys::stat::Mode::from_bits_truncate(0o007));
 }
 
 /// Replaces this process by its own command line run through `gate`; returns only the reason
