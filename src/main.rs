@@ -281,6 +281,8 @@ enum ConfigCommand {
     Check { file: PathBuf },
     /// Prints the embedded default config.
     Default,
+    /// Prints the reference of every config key (Markdown: docs/config.md).
+    Reference,
 }
 
 fn init_logging(default: &str) {
@@ -401,6 +403,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 println!("{}: ok (namespace {})", file.display(), c.namespace());
             }
             ConfigCommand::Default => print!("{}", softarm_config::DEFAULT),
+            ConfigCommand::Reference => print!("{}", softarm_config::reference::markdown()),
         },
         Command::Record {
             output,

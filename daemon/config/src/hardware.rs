@@ -19,11 +19,12 @@ pub const METRES_PER_INCH: f64 = 0.0254;
 /// count on a power cycle, so `zero_ticks` would no longer hold, and it ignores the limits.
 pub const TICKS_RANGE: (i32, i32) = (0, 4095);
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct TendonConfig {
     /// The serial device of the motor bus (a udev rule gives it a stable name).
     pub port: PathBuf,
+    /// The bus's baud rate, as the motors are set to.
     pub baud: u32,
     /// The motor id of actuator 1..6.
     pub ids: [u8; ACTUATORS],
@@ -54,7 +55,7 @@ pub struct TendonConfig {
     pub torque_off_after_ms: f64,
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum TrackerRecord {
     /// X, Y, Z.
@@ -63,7 +64,7 @@ pub enum TrackerRecord {
     PositionAngles,
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum TrackerMode {
     /// The device sends records continuously (STREAM).
@@ -78,7 +79,7 @@ pub enum TrackerMode {
 /// sensor on the other side of the boundary plane comes out mirrored through the transmitter's
 /// centre. The names are the Bird's, on the tracker's own axes (X forward, Y right, Z down),
 /// not the room's.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum TrackerHemisphere {
     /// +X (the unit's own default).
@@ -158,10 +159,12 @@ impl<'de> Deserialize<'de> for TrackerHemisphere {
     }
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct TrackerConfig {
+    /// The tracker's serial device (a udev rule gives it a stable name).
     pub port: PathBuf,
+    /// The tracker's baud rate, as its switches are set.
     pub baud: u32,
     pub record: TrackerRecord,
     pub mode: TrackerMode,

@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 use crate::{Invalid, invalid};
 
 /// The `[host]` section; every key is optional and the section may be absent.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct HostConfig {
     /// The user the stack's processes run as. iceoryx2 makes every shared memory segment its

@@ -30,6 +30,7 @@ pub const EXIT_CONFIG: u8 = 78;
 
 pub mod hardware;
 pub mod host;
+pub mod reference;
 pub mod ros2;
 pub mod scenario;
 pub mod view;
@@ -91,7 +92,7 @@ pub const MAX_TICKS: f64 = 120_000.0;
 /// CPUs a Linux CPU set can name (`CPU_SETSIZE`): the ceiling of `controller.cpu`.
 pub const MAX_CPUS: usize = 1024;
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct Config {
     pub robot: Robot,
@@ -135,9 +136,10 @@ pub struct Config {
     pub base_dir: PathBuf,
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct Robot {
+    /// The robot's name: the namespace is `softarm/<id>` unless `namespace` is given.
     pub id: String,
     /// Service namespace; `softarm/<id>` when absent.
     #[serde(default)]
@@ -146,7 +148,7 @@ pub struct Robot {
     pub drivers: Vec<String>,
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct Controller {
     pub rate_hz: f64,
@@ -157,6 +159,7 @@ pub struct Controller {
     pub slew_per_s: f64,
     /// Actuator limits in normalised units; setpoints are clamped to them.
     pub actuator_min: Actuation,
+    /// The upper limits, as `actuator_min`.
     pub actuator_max: Actuation,
     /// Time between executions to slew to the next start (s).
     pub rest_s: f64,
@@ -174,22 +177,27 @@ pub struct Controller {
     /// CPU to pin the tick thread to; absent leaves it free.
     #[serde(default)]
     pub cpu: Option<usize>,
+    /// Locks the controller's memory (`mlockall`), so a page fault never stalls a tick.
     #[serde(default)]
     pub mlockall: bool,
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct WaypointLimits {
     /// Way-points must lie in this box (m, tracker frame).
     pub workspace_min_m: Position,
+    /// The box's upper corner (m), as `workspace_min_m`.
     pub workspace_max_m: Position,
     /// Farthest a way-point may be from the base (the frame's origin, where the arm is
     /// mounted): the box's corners lie beyond any arm's reach (m).
     #[serde(default = "default_reach_m")]
     pub reach_m: f64,
+    /// Shortest a way-point set may last (s).
     pub min_duration_s: f64,
+    /// Longest a way-point set may last (s).
     pub max_duration_s: f64,
+    /// Most executions one submitted set may ask for.
     pub max_executions: u32,
 }
 
@@ -215,7 +223,7 @@ impl WaypointLimits {
     }
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct ModelConfig {
     /// The model bundle's folder.
@@ -223,7 +231,7 @@ pub struct ModelConfig {
     pub basis_functions: usize,
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct StateConfig {
     /// Learner checkpoints live here.

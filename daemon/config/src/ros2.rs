@@ -10,7 +10,7 @@ pub const MAX_DOMAIN_ID: u16 = 232;
 
 /// How far DDS discovery reaches: this host only, or every host of the attached networks (as
 /// ROS 2's `ROS_AUTOMATIC_DISCOVERY_RANGE` = LOCALHOST / SUBNET).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "lowercase")]
 pub enum Discovery {
     /// Advertises and multicasts on loopback (127.0.0.1) only; peers on this host find it.
@@ -20,7 +20,7 @@ pub enum Discovery {
 }
 
 /// The `[ros2]` section; every key has a default, and the section may be absent (off).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct Ros2Config {
     /// `softarm up` starts `softarm ros2` beside the stack.

@@ -8,7 +8,7 @@ use serde::{Deserialize, Serialize};
 use crate::{Closed, Invalid, count, within};
 
 /// The `[view]` section; every key has a default, and the section may be absent (off).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct ViewConfig {
     /// `softarm up` starts `softarm view` beside the stack.

@@ -16,7 +16,7 @@ use crate::space::MAX_WAYPOINTS;
 pub const MAX_PRIMITIVES: usize = 8;
 
 /// Shape of a cross-fade from 0 to 1 over s ∈ [0, 1]; each is exactly 0 and 1 at the ends.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum Fade {
     /// ½ − ½ cos(π s)
@@ -48,7 +48,7 @@ impl Fade {
 }
 
 /// Shape of the activations; one section of the controller config.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct ActivationConfig {
     /// Width (s) of the window around each T_cond where b_i = 1 and the point is evaluated.

@@ -23,7 +23,7 @@ pub struct Step {
 
 /// A scenario's `[drift]`: slow changes that go on all the time, on whatever arm the steps
 /// have made. Zero turns each off.
-#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct Drift {
     /// How fast each actuator lengthens (mm per minute; negative: shortens), from time 0, added

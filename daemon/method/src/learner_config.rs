@@ -20,7 +20,7 @@ use crate::space::{ACTUATORS, Position};
 /// Hyper-parameters; the `[learner]` section of the config. Defaults: the starting values the
 /// paper's method suggests (α_V 0.1, α_Ac 0.2, γ 0.5, b 30 mm, c 100 /m, lattices 30/15 mm), but
 /// for h (`sigma_max`, see there).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct LearnerConfig {
     /// α_V
@@ -49,9 +49,11 @@ pub struct LearnerConfig {
     /// Centres evaluated per axis (2: the two bracketing the input, 3: the nearest and its
     /// neighbours).
     pub critic_span: usize,
+    /// The same for the actor's lattice.
     pub actor_span: usize,
     /// The box the lattices span (m): the arm's reachable workspace.
     pub workspace_min_m: Position,
+    /// The box's upper corner (m).
     pub workspace_max_m: Position,
     /// The actuation an untrained actor proposes.
     pub initial_actuation: f64,
@@ -60,8 +62,10 @@ pub struct LearnerConfig {
     /// they bound its memory over many sets (the default model stores ~4k and ~30k).
     #[serde(skip_serializing)]
     pub actor_max_centres: usize,
+    /// The critic's, as `actor_max_centres`.
     #[serde(skip_serializing)]
     pub critic_max_centres: usize,
+    /// Seeds the exploration noise.
     pub seed: u64,
     /// Which online learner runs ([`crate::online`]): `gauss-newton` or the paper's. Like
     /// `gauss_newton`, a setting of the running learner, read from the config and never written
@@ -231,7 +235,9 @@ impl LearnerConfig {
 }
 
 /// Which online learner runs: `learner.algorithm`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize, schemars::JsonSchema,
+)]
 #[serde(rename_all = "lowercase")]
 pub enum Algorithm {
     /// The paper's Alg. 1, as printed (with its three corrections), for comparison.
@@ -255,7 +261,7 @@ impl Algorithm {
 
 /// `[learner.gauss_newton]`: the directed steps of [`Algorithm::GaussNewton`] (not to be
 /// confused with the three `Correction`s to the printed paper in [`crate::cacla`]).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct GaussNewtonConfig {
     /// Fraction of the Gauss-Newton step taken. The error a step is taken on is filtered over
@@ -270,6 +276,7 @@ pub struct GaussNewtonConfig {
     /// The trust region grows ×1.5 per improving step up to this, and halves per failed one
     /// down to `trust_min`.
     pub trust_max: f64,
+    /// The smallest the trust region shrinks to.
     pub trust_min: f64,
     /// What one measurement of the error at a point scatters by (m): tracker noise, timing
     /// jitter, backlash. A rise smaller than this is noise, not a failed step.
@@ -353,13 +360,16 @@ impl GaussNewtonConfig {
 /// Offline pre-training: epochs of random targets inside the demonstrated subspace, each
 /// visited in turn (as the conditioning points of one execution are) until all are within the
 /// threshold or the cap.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct PretrainConfig {
+    /// Targets drawn per epoch of pre-training against the forward model (0: no pre-training).
     pub targets_per_epoch: usize,
+    /// An epoch ends early once every target is reached within this (m).
     pub threshold_m: f64,
     /// Visits of each target at most per epoch.
     pub visits_per_epoch: usize,
+    /// Epochs at most (`budget_s` usually ends pre-training first).
     pub max_epochs: u64,
     /// Wall-clock budget (s) for whoever runs the pre-training (`softarm train`).
     pub budget_s: f64,

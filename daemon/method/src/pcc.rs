@@ -16,7 +16,7 @@ pub const MODULES: usize = 2;
 const _: () = assert!(ACTUATORS == ACTUATORS_PER_MODULE * MODULES);
 
 /// How the arm is mounted.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum Mount {
     /// Base frame diag(1, −1, −1): the arm points down, −Z.
@@ -27,7 +27,7 @@ pub enum Mount {
 
 /// The arm's geometry; the `[arm]` section of the config. Defaults: two modules,
 /// actuator radius 25 mm, actuator length 0.19–0.25 m, second module rotated 60°, hanging base.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct ArmGeometry {
     /// Distance of each actuator from the backbone (m).

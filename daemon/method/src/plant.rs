@@ -15,7 +15,7 @@ use crate::changes::Changes;
 use crate::pcc::{ACTUATORS, ArmGeometry};
 
 /// The `[sim]` section: the sim driver's rate and start, and the plant's realism.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct SimConfig {
     /// Rate of `tracker` and `motor_state` (Hz).
@@ -65,9 +65,10 @@ impl SimConfig {
 }
 
 /// The `[sim]` realism settings. Zero turns an effect off.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct Realism {
+    /// Seeds the sim's noise and drift.
     pub seed: u64,
     /// Time constant of each actuator's first-order lag (s).
     pub lag_s: f64,

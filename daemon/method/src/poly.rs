@@ -27,10 +27,12 @@ pub struct Polynomial {
 }
 
 /// How the polynomial is fitted; part of `[forward_model]`.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct PolynomialConfig {
+    /// Total degree of the polynomial in the actuations.
     pub degree: usize,
+    /// Ridge λ of the fit.
     pub ridge: f64,
 }
 

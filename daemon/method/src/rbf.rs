@@ -419,7 +419,7 @@ impl<const OUT: usize> LinearRbf<OUT> {
 }
 
 /// How the forward model is fitted.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct NetworkConfig {
     /// Gaussian centres, picked from the data by farthest-point sampling.

@@ -13,7 +13,7 @@ use crate::promp::{Basis, Demonstration, Primitive, PrimitiveError, TrainConfig}
 use crate::space::{Actuation, Position};
 
 /// The extremes of one primitive class: where its motions start and end.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct ClassExtremes {
     pub start: Actuation,
@@ -21,10 +21,12 @@ pub struct ClassExtremes {
 }
 
 /// How demonstrations are made.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct DemoRecipe {
+    /// Demonstrations recorded per class (primitive).
     pub demos_per_class: usize,
+    /// Length of each demonstration (s).
     pub duration_s: f64,
     /// Recorded samples per second.
     pub sample_rate_hz: f64,
@@ -32,6 +34,7 @@ pub struct DemoRecipe {
     pub spread: f64,
     /// Random points between start and end.
     pub intermediate_points: usize,
+    /// One primitive each: its nominal start and end actuations.
     pub classes: Vec<ClassExtremes>,
 }
 
