@@ -14,6 +14,7 @@ mod bad_input;
 mod bench;
 mod changing_arm;
 mod cli;
+mod docs;
 mod estop;
 mod faults;
 mod hardware;
