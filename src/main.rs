@@ -140,7 +140,7 @@ enum Command {
         stack: Stack,
         /// Runs the sim on another arm than the config's: a shipped scenario (nominal,
         /// tool-change, creep, twist, stiffer, not-pcc; changing while it runs: tool-swap,
-        /// creeping, stiffness-cycle, combined) or a scenario file.
+        /// creeping, stiffness-cycle, combined, sequence) or a scenario file.
         #[arg(long)]
         scenario: Option<String>,
     },

@@ -281,7 +281,7 @@ mod tests {
             "{c:?}"
         );
         assert!(
-            c.missing[1].starts_with("sim: alive, but published nothing"),
+            c.missing[1].starts_with("sim: alive, but has published nothing"),
             "{c:?}"
         );
 

@@ -15,7 +15,14 @@ pub fn late_estimates(s: &ExecutionStats) -> u32 {
     }
 }
 
-/// One JSON object per execution: `execution`, `errors_mm`, `mean_mm`, `max_mm`,
+/// Points of an execution the tracker did not see (their error is NaN, `null` in JSON): the
+/// mean and the worst are of the others.
+pub fn unseen(s: &ExecutionStats) -> usize {
+    s.errors().iter().filter(|e| !e.is_finite()).count()
+}
+
+/// One JSON object per execution: `execution`, `errors_mm` (`null` for a point the tracker
+/// did not see), `mean_mm`, `max_mm` (of the points seen), `unseen` ([`unseen`]),
 /// `reconditions` (estimates applied during it), `late_estimates` ([`late_estimates`]), and
 /// the set.
 pub fn json_line(s: &ExecutionStats) -> String {
@@ -26,6 +33,7 @@ pub fn json_line(s: &ExecutionStats) -> String {
         "errors_mm": s.errors().iter().map(|e| round3(e * 1e3)).collect::<Vec<_>>(),
         "mean_mm": round3(s.mean_m * 1e3),
         "max_mm": round3(s.max_m * 1e3),
+        "unseen": unseen(s),
         "reconditions": s.reconditions,
         "late_estimates": late_estimates(s),
     })
@@ -68,20 +76,26 @@ pub fn table_header(points: usize) -> String {
     for n in 1..=points {
         h += &format!(" {:>7}", format!("CP{n} mm"));
     }
-    h + &format!(" {:>8} {:>8} {:>5}", "mean mm", "max mm", "late")
+    h + &format!(
+        " {:>8} {:>8} {:>5} {:>6}",
+        "mean mm", "max mm", "late", "unseen"
+    )
 }
 
+/// A row of the table: a point the tracker did not see is `-`.
 pub fn table_row(s: &ExecutionStats) -> String {
+    let mm = |v: f64, width: usize| {
+        if v.is_finite() {
+            format!(" {:>width$.2}", v * 1e3)
+        } else {
+            format!(" {:>width$}", "-")
+        }
+    };
     let mut r = format!("{:>5}", s.execution);
     for e in s.errors() {
-        r += &format!(" {:>7.2}", e * 1e3);
+        r += &mm(*e, 7);
     }
-    r + &format!(
-        " {:>8.2} {:>8.2} {:>5}",
-        s.mean_m * 1e3,
-        s.max_m * 1e3,
-        late_estimates(s)
-    )
+    r + &mm(s.mean_m, 8) + &mm(s.max_m, 8) + &format!(" {:>5} {:>6}", late_estimates(s), unseen(s))
 }
 
 /// A subscription to `stats` (the last 64 executions arrive first).
@@ -168,7 +182,27 @@ mod tests {
         assert_eq!(late_estimates(&s(3, 1)), 3);
         let j: serde_json::Value = serde_json::from_str(&json_line(&s(3, 1))).unwrap();
         assert_eq!(j["late_estimates"], 3);
-        assert!(table_row(&s(3, 1)).ends_with("    3"));
-        assert!(table_header(4).ends_with(" late"));
+        assert!(table_row(&s(3, 1)).ends_with("    3      0"));
+        assert!(table_header(4).ends_with(" late unseen"));
+    }
+
+    #[test]
+    fn a_point_the_tracker_did_not_see_is_counted_and_shown_as_such() {
+        let mut s = ExecutionStats {
+            execution: 2,
+            count: 3,
+            reconditions: 3,
+            mean_m: 0.0015,
+            max_m: 0.002,
+            ..Default::default()
+        };
+        s.errors_m[..3].copy_from_slice(&[0.001, f64::NAN, 0.002]);
+        assert_eq!(unseen(&s), 1);
+        let j: serde_json::Value = serde_json::from_str(&json_line(&s)).unwrap();
+        assert_eq!(j["errors_mm"], serde_json::json!([1.0, null, 2.0]));
+        assert_eq!(j["unseen"], 1);
+        let row = table_row(&s);
+        assert!(row.contains("    1.00       -    2.00"), "{row}");
+        assert!(row.ends_with("    0      1"), "{row}");
     }
 }

@@ -121,6 +121,8 @@ enum Step {
     Config {
         path: PathBuf,
         text: String,
+        /// The operators' group: they read it (mode 640) before the gate makes them the user.
+        group: String,
     },
     Remove(PathBuf),
     Systemctl(&'static [&'static str]),
@@ -187,7 +189,7 @@ impl Step {
                 write_atomic(path, text, *mode)?;
                 Ok("done".into())
             }
-            Step::Config { path, text } => match std::fs::read_to_string(path) {
+            Step::Config { path, text, group } => match std::fs::read_to_string(path) {
                 Ok(old) if old == *text => Ok("unchanged".into()),
                 Ok(_) => {
                     let new = path.with_extension("toml.new");
@@ -200,7 +202,7 @@ impl Step {
                 Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
                     write_atomic(path, text.as_bytes(), 0o640)?;
                     if system {
-                        chown(path, "root")?;
+                        chown_to(path, "root", group)?;
                     }
                     Ok("done".into())
                 }
@@ -385,6 +387,7 @@ pub fn install(args: &Args) -> anyhow::Result<()> {
     steps.push(Step::Config {
         path: under(&root, &Path::new("/").join(ETC).join("softarm.toml")),
         text: config_text,
+        group: args.group.clone(),
     });
     steps.push(Step::OwnDir {
         path: under(&root, &Path::new("/").join(STATE)),

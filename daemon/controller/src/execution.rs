@@ -367,7 +367,13 @@ impl Execution {
     fn finish(&mut self, now: u64, rest_ticks: i64) -> ExecutionStats {
         let reconditions = self.reconditions();
         let set = &self.set;
-        let errs = &self.errors[..set.count];
+        // A point the tracker did not see (NaN: no sample in its window, a missed window on a
+        // loaded machine or a tracker that dropped out) says nothing of the error: the mean and
+        // the worst are of the points seen, NaN if none was.
+        let seen = self.errors[..set.count].iter().filter(|e| e.is_finite());
+        let (sum, n, max) = seen.fold((0.0, 0usize, f64::NAN), |(s, n, m), e| {
+            (s + e, n + 1, m.max(*e))
+        });
         let stats = ExecutionStats {
             seq: 0,
             stamp_ns: now,
@@ -377,8 +383,8 @@ impl Execution {
             count: set.count as u32,
             reconditions,
             errors_m: self.errors,
-            mean_m: errs.iter().sum::<f64>() / errs.len() as f64,
-            max_m: errs.iter().cloned().fold(0.0, f64::max),
+            mean_m: if n > 0 { sum / n as f64 } else { f64::NAN },
+            max_m: max,
         };
         self.execution += 1;
         self.k = -rest_ticks;
@@ -699,6 +705,34 @@ pub(crate) mod tests {
         assert!(
             s.actuation.iter().all(|v| v.is_finite()),
             "the setpoint it credits"
+        );
+    }
+
+    #[test]
+    fn a_point_the_tracker_did_not_see_is_left_out_of_the_mean_and_the_worst() {
+        let set = ready_set();
+        let (cond, desired) = (set.points[0].tick as u64, set.points[1].position);
+        let ticks = set.blend.timeline().ticks() as u64;
+        let mut x = Execution::new(set, REST, 0);
+        let mut track = Track::default();
+        let mut stats = None;
+        // Silent from before point 0 to after its wait; back for point 1.
+        let silent = REST as u64 + cond - 10..REST as u64 + cond + 6;
+        for clock in 0..2 * (REST as u64 + ticks) {
+            if !silent.contains(&clock) {
+                track.push(clock * PERIOD, REACHED);
+            }
+            let t = x.step(&track, REST, 0, clock * PERIOD, 0);
+            x.published(&t.target, None);
+            stats = stats.or(t.finished);
+        }
+        let s = stats.expect("the execution finished");
+        assert!(s.errors_m[0].is_nan(), "{:?}", s.errors_m);
+        let seen = distance(&desired, &REACHED);
+        assert!((s.errors_m[1] - seen).abs() < 1e-12);
+        assert!(
+            (s.mean_m - seen).abs() < 1e-12 && (s.max_m - seen).abs() < 1e-12,
+            "{s:?}"
         );
     }
 }
