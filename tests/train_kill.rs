@@ -99,7 +99,7 @@ fn train(s: &TestStack, train_seed: u64, how: Kill, model: &Path) -> (bool, Vec<
         s.command()
             .args(["train", "--seed", &train_seed.to_string(), "--config"])
             .arg(&s.config)
-            .env("RUST_LOG", "warn")
+            .env("RUST_LOG", "info")
             .stdout(Stdio::null())
             .stderr(log)
             .spawn()
@@ -109,6 +109,11 @@ fn train(s: &TestStack, train_seed: u64, how: Kill, model: &Path) -> (bool, Vec<
     let ours = format!(".{pid}.tmp");
     let before: Vec<String> = tensors_files(model);
     let start = Instant::now();
+    let log_path = s.dir.join(format!("train-{train_seed}.log"));
+    // A train says each step it starts (the demonstrations with its own deadline, the fits,
+    // the pre-training, the write): one that says nothing new for 60 s is stuck where its
+    // last line says, however slow the machine is otherwise.
+    let mut said = (0, Instant::now());
     loop {
         if let Some(status) = child.0.try_wait().unwrap() {
             let log = std::fs::read_to_string(s.dir.join(format!("train-{train_seed}.log")));
@@ -141,9 +146,14 @@ fn train(s: &TestStack, train_seed: u64, how: Kill, model: &Path) -> (bool, Vec<
                 .collect();
             return (false, left);
         }
+        let log = std::fs::read_to_string(&log_path).unwrap_or_default();
+        if log.len() != said.0 {
+            said = (log.len(), Instant::now());
+        }
         assert!(
-            start.elapsed() < Duration::from_secs(40),
-            "train {train_seed} ({how:?}) did not end"
+            said.1.elapsed() < Duration::from_secs(60),
+            "train {train_seed} ({how:?}) said nothing new for 60 s ({:.0} s in all): {log}",
+            start.elapsed().as_secs_f64()
         );
         std::thread::sleep(Duration::from_micros(200));
     }

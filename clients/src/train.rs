@@ -82,6 +82,10 @@ struct Sample {
 fn record(namespace: &Namespace, seed: u64) -> Result<(Vec<Sample>, usize, f64)> {
     let mut r = Recorder::open(namespace)?;
     let (demos, deadline) = r.request(namespace, seed)?;
+    tracing::info!(
+        "recording {demos} demonstrations through the stack (giving up after {:.0} s)",
+        deadline.as_secs_f64()
+    );
     let progress = bar(demos as u64, "demonstrations");
     let start = Instant::now();
     loop {
@@ -304,6 +308,11 @@ pub fn training(config: &Config) -> Training {
 pub fn train(config: &Config, namespace: &Namespace, seed: u64) -> Result<Trained> {
     let budget = budget(config.pretrain.budget_s)?;
     let (samples, demos, demonstrate_s) = record(namespace, seed)?;
+    tracing::info!(
+        "{demos} demonstrations recorded in {demonstrate_s:.1} s ({} samples): fitting the \
+         primitives, the forward model and the kinematics",
+        samples.len()
+    );
     let data = TrainingData {
         recordings: recordings(&samples, demos)?,
         duration_s: config.demonstrations.duration_s,
@@ -315,8 +324,13 @@ pub fn train(config: &Config, namespace: &Namespace, seed: u64) -> Result<Traine
     // The budget and the progress bar start with the pre-training, after the fits.
     let mut started: Option<(Instant, ProgressBar)> = None;
     let trained = pipeline::train(&data, &training(config), |_| {
-        let (start, progress) = started
-            .get_or_insert_with(|| (Instant::now(), bar(budget.as_secs(), "pre-training s")));
+        let (start, progress) = started.get_or_insert_with(|| {
+            tracing::info!(
+                "fitted: pre-training the learner for up to {:.1} s",
+                budget.as_secs_f64()
+            );
+            (Instant::now(), bar(budget.as_secs(), "pre-training s"))
+        });
         progress.set_position(start.elapsed().as_secs());
         start.elapsed() < budget
     });
@@ -325,6 +339,10 @@ pub fn train(config: &Config, namespace: &Namespace, seed: u64) -> Result<Traine
         start.elapsed().as_secs_f64()
     });
     let (model, report) = trained.context("training on the demonstrations; nothing was written")?;
+    tracing::info!(
+        "writing the model bundle to {}",
+        config.model_dir().display()
+    );
     let model_id = model
         .write(&config.model_dir())
         .context("writing the model bundle")?;
