@@ -1,14 +1,17 @@
 //! End to end: systemd's notify protocol against a fake NOTIFY_SOCKET, as `Type=notify` units
 //! with `WatchdogSec=` see it. The controller says READY=1 once it ticks and WATCHDOG=1 only
-//! while the tick's heartbeat advances: a frozen loop (an injected stall, debug builds only)
-//! stops the watchdog, so systemd would kill and restart it. The learner says READY=1 once its
+//! while the tick's heartbeat advances: a frozen loop (the tick thread alone stopped from
+//! outside, by ptrace, the rest of the process running on) stops the watchdog, so systemd
+//! would kill and restart it. The learner says READY=1 once its
 //! ports are open, and what it waits for.
 
 use std::os::unix::net::UnixDatagram;
 use std::process::{Child, Stdio};
 use std::time::{Duration, Instant};
 
-use softarm_test_support::TestStack;
+use nix::sys::ptrace;
+use nix::unistd::Pid;
+use softarm_test_support::{Guard, TestStack};
 
 const BIN: &str = env!("CARGO_BIN_EXE_softarm");
 
@@ -70,18 +73,19 @@ fn stop(mut child: Child) {
 fn the_controller_is_ready_once_it_ticks_and_its_watchdog_stops_with_the_loop() {
     let s = TestStack::new(BIN, "notify-controller", false);
     let systemd = FakeSystemd::new(&s);
-    // 500 Hz: the loop freezes after about 2 s; a watchdog of 200 ms asks every 100 ms.
-    let child = systemd.spawn(
-        &s,
-        "controller",
-        &[
-            ("WATCHDOG_USEC", "200000"),
-            ("SOFTARM_TEST_STALL_AFTER_TICKS", "1000"),
-        ],
-    );
-    let got = systemd.until(Duration::from_secs(60), |m| {
-        m.iter().any(|l| l.contains("tick stalled"))
+    // A watchdog of 200 ms asks every 100 ms.
+    let child = Guard(systemd.spawn(&s, "controller", &[("WATCHDOG_USEC", "200000")]));
+    let mut got = systemd.until(Duration::from_secs(60), |m| {
+        m.iter().filter(|l| *l == "WATCHDOG=1").count() >= 3
     });
+    // The tick runs on the process's main thread: stopped alone (PTRACE_INTERRUPT stops the
+    // thread it is given, not its process), as a deadlocked or starved loop would stand.
+    let tick = Pid::from_raw(child.id() as i32);
+    ptrace::seize(tick, ptrace::Options::empty()).expect("ptrace the controller's tick thread");
+    ptrace::interrupt(tick).unwrap();
+    got.extend(systemd.until(Duration::from_secs(60), |m| {
+        m.iter().any(|l| l.contains("tick stalled"))
+    }));
     let stalled = got
         .iter()
         .position(|l| l.contains("tick stalled"))
@@ -115,7 +119,13 @@ fn the_controller_is_ready_once_it_ticks_and_its_watchdog_stops_with_the_loop() 
         after.iter().any(|l| l.contains("tick stalled")),
         "{after:?}"
     );
-    stop(child);
+    // Let go, it ticks again and the watchdog comes back.
+    ptrace::detach(tick, None).unwrap();
+    let again = systemd.until(Duration::from_secs(60), |m| {
+        m.iter().any(|l| l == "WATCHDOG=1")
+    });
+    assert!(again.iter().any(|l| l == "WATCHDOG=1"), "{again:?}");
+    child.stop(Duration::from_secs(20));
 }
 
 #[test]

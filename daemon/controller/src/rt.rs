@@ -94,13 +94,3 @@ pub(crate) fn start_watchdog(shared: Arc<Shared>) -> Option<JoinHandle<()>> {
         })
         .ok()
 }
-
-/// Tests only (debug builds): `SOFTARM_TEST_STALL_AFTER_TICKS=N` freezes the tick thread after
-/// N ticks while the rest of the process runs, as a deadlocked or starved loop would.
-#[cfg(debug_assertions)]
-pub(crate) fn stall_after() -> Option<u64> {
-    std::env::var("SOFTARM_TEST_STALL_AFTER_TICKS")
-        .ok()?
-        .parse()
-        .ok()
-}

@@ -45,17 +45,8 @@ pub(crate) fn run(
     rt::setup(&config.controller);
     let mut tick = Tick::new(&config.controller, ports, shared, links);
     tracing::info!(rate_hz = tick.timing.rate_hz, "controller running");
-    #[cfg(debug_assertions)]
-    let stall = rt::stall_after();
     while !stop.load(Ordering::Relaxed) {
         tick.tick();
-        // Tests only, and only in debug builds: the loop freezes, the process lives on.
-        #[cfg(debug_assertions)]
-        if stall == Some(tick.count.ticks) {
-            while !stop.load(Ordering::Relaxed) {
-                std::thread::park_timeout(std::time::Duration::from_millis(100));
-            }
-        }
     }
     let refused = tick.inputs.refused;
     let overruns = tick.ticker.overruns();
