@@ -106,6 +106,20 @@ fn install_stages_binary_config_state_and_units_and_keeps_an_edited_config() {
         text
     );
 
+    // One from before `[host]`, edited: it gets its `[host]`, and keeps the edit.
+    let hostless = edited[..edited.find("\n[host]").unwrap()].to_string() + "\n";
+    std::fs::write(&config, &hostless).unwrap();
+    let out = softarm(&["install"], &root);
+    assert!(
+        String::from_utf8_lossy(&out.stdout)
+            .contains("kept your edited config and added its [host]"),
+        "{out:?}"
+    );
+    let upgraded = std::fs::read_to_string(&config).unwrap();
+    assert!(upgraded.starts_with(&hostless), "{upgraded}");
+    assert!(upgraded.contains("user = \"softarm\"") && upgraded.contains("rate_hz = 250.0"));
+    std::fs::write(&config, &edited).unwrap();
+
     // Uninstall: units and binary go; config and state stay.
     softarm(&["uninstall"], &root);
     assert!(!bin.exists());

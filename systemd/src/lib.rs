@@ -123,6 +123,8 @@ enum Step {
         text: String,
         /// The operators' group: they read it (mode 640) before the gate makes them the user.
         group: String,
+        /// The gate `[host]` names; an edited config without a `[host]` gets one.
+        gate: PathBuf,
     },
     Remove(PathBuf),
     Systemctl(&'static [&'static str]),
@@ -189,13 +191,35 @@ impl Step {
                 write_atomic(path, text, *mode)?;
                 Ok("done".into())
             }
-            Step::Config { path, text, group } => match std::fs::read_to_string(path) {
+            Step::Config {
+                path,
+                text,
+                group,
+                gate,
+            } => match std::fs::read_to_string(path) {
                 Ok(old) if old == *text => Ok("unchanged".into()),
-                Ok(_) => {
+                Ok(old) => {
                     let new = path.with_extension("toml.new");
                     write_atomic(&new, text.as_bytes(), 0o640)?;
+                    // A config from before `[host]` would leave the stack to whoever runs a
+                    // command first: it gets its `[host]`, the rest as the user left it.
+                    let origin = path.display().to_string();
+                    let hostless = Config::parse(&old, &origin, Path::new("/").join(ETC))
+                        .is_ok_and(|c| c.host == HostConfig::default());
+                    if !hostless {
+                        return Ok(format!(
+                            "kept your edited config; the shipped one is {}",
+                            new.display()
+                        ));
+                    }
+                    let hosted = with_host(&old, group, gate).map_err(anyhow::Error::msg)?;
+                    write_atomic(path, hosted.as_bytes(), 0o640)?;
+                    if system {
+                        chown_to(path, "root", group)?;
+                    }
                     Ok(format!(
-                        "kept your edited config; the shipped one is {}",
+                        "kept your edited config and added its [host] section; the shipped one \
+                         is {}",
                         new.display()
                     ))
                 }
@@ -320,21 +344,15 @@ fn installed_config(
         None => DEFAULT.to_string(),
     };
     // Checked as it is first, so a refusal names the user's file and line; then as installed.
-    let mut text = text;
-    if Config::parse(&text, &origin, Path::new("/").join(ETC))?.host == HostConfig::default() {
-        text.push_str("\n[host]                        # written by softarm install\n");
-    }
+    Config::parse(&text, &origin, Path::new("/").join(ETC))?;
     let text = softarm_config::with_overrides(
         &text,
         &[
             ("model.dir", format!("/{STATE}/model").into()),
             ("state.dir", format!("/{STATE}/state").into()),
-            ("host.user", USER.into()),
-            ("host.group", group.into()),
-            ("host.ipc_root", format!("/{RUN}/iceoryx2").into()),
-            ("host.gate", gate.display().to_string().into()),
         ],
     )
+    .and_then(|text| with_host(&text, group, gate))
     .map_err(|message| ConfigError {
         origin: origin.clone(),
         line: None,
@@ -346,6 +364,28 @@ fn installed_config(
         Path::new("/").join(ETC),
     )?;
     Ok((text, config))
+}
+
+/// `text` (a valid config) with its `[host]` naming the stack's user, the operators' `group`,
+/// iceoryx2's folder and the `gate`; a `[host]` section is added if it has none.
+fn with_host(text: &str, group: &str, gate: &Path) -> Result<String, String> {
+    let mut text = text.to_string();
+    let has_host = text
+        .parse::<toml_edit::DocumentMut>()
+        .map_err(|e| e.to_string())?
+        .contains_key("host");
+    if !has_host {
+        text.push_str("\n[host]                        # written by softarm install\n");
+    }
+    softarm_config::with_overrides(
+        &text,
+        &[
+            ("host.user", USER.into()),
+            ("host.group", group.into()),
+            ("host.ipc_root", format!("/{RUN}/iceoryx2").into()),
+            ("host.gate", gate.display().to_string().into()),
+        ],
+    )
 }
 
 pub fn install(args: &Args) -> anyhow::Result<()> {
@@ -388,6 +428,7 @@ pub fn install(args: &Args) -> anyhow::Result<()> {
         path: under(&root, &Path::new("/").join(ETC).join("softarm.toml")),
         text: config_text,
         group: args.group.clone(),
+        gate: gate.clone(),
     });
     steps.push(Step::OwnDir {
         path: under(&root, &Path::new("/").join(STATE)),
