@@ -55,9 +55,9 @@ pub fn markdown() -> String {
 
 const HEADER: &str = "# Config reference\n\n\
 Every key of softarm's config file, one section a table. Written by `softarm config reference` \
-from the config's own types (their doc comments and defaults) and its validator (the range is \
-what `softarm config check` says of a value far outside it); a test fails when this file and \
-the command differ. Defaults are the shipped simulation config's (`config/softarm.toml`), for \
+from the config's own types (their doc comments, else the comment beside the key in the shipped \
+config; their defaults) and its validator (the range is what `softarm config check` says of a \
+value far outside it); a test fails when this file and the command differ. Defaults are the shipped simulation config's (`config/softarm.toml`), for \
 the real arm's sections `config/hardware.toml`'s; \"none\" is a key that may be left out. \
 Relative paths start at the config file's folder.\n";
 

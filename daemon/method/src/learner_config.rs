@@ -17,9 +17,10 @@ use serde::{Deserialize, Serialize};
 use crate::rbf::{Lattice, LinearRbf, RbfError};
 use crate::space::{ACTUATORS, Position};
 
-/// Hyper-parameters; the `[learner]` section of the config. Defaults: the starting values the
-/// paper's method suggests (α_V 0.1, α_Ac 0.2, γ 0.5, b 30 mm, c 100 /m, lattices 30/15 mm), but
-/// for h (`sigma_max`, see there).
+/// Hyper-parameters; the `[learner]` section of the config. A key left out takes the starting
+/// value the paper's method suggests (α_V 0.1, α_Ac 0.2, γ 0.5, b 30 mm, c 100 /m, lattices
+/// 30/15 mm; h 0.03, see `sigma_max`); the shipped config sets some otherwise (the defaults
+/// below are its values).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct LearnerConfig {
