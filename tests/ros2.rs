@@ -362,6 +362,16 @@ fn an_estop_from_ros2_stops_the_stack_and_latches() {
     s.wait_status("STOPPED", Duration::from_secs(10), |st| {
         st["controller"]["state"] == "STOPPED"
     });
+    // Confirmed as `softarm estop` confirms it: by what the controller and the sim say after.
+    eventually(
+        "the bridge to confirm the e-stop",
+        Duration::from_secs(30),
+        || {
+            s.logs()
+                .contains("e-stop from ROS 2 confirmed: controller STOPPED, sim STOPPED")
+                .then_some(())
+        },
+    );
     // Latched as `softarm estop` latches it, and the set is gone: no more executions.
     let latch = std::fs::read_to_string(s.dir.join("state/estop")).unwrap();
     assert_eq!(latch.trim(), "engaged");
