@@ -152,6 +152,9 @@ fn a_soak_of_the_hardware_stack_kills_its_drivers_and_changes_no_arm() {
     let out = s
         .command()
         .args(["soak", "--minutes", "0.75", "--kill-every-s", "8"])
+        // Two executions to count, however slow the machine (a loaded one got through one in
+        // the 45 s).
+        .args(["--at-least-executions", "2"])
         .args(["--seed", "5", "--json", "--config"])
         .arg(&s.config)
         .env("TMPDIR", &s.dir)

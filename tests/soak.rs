@@ -22,6 +22,9 @@ fn a_short_soak_survives_its_kills_and_reports_everything() {
     let out = Command::new(BIN)
         .args(["soak", "--minutes", "1", "--kill-every-s", "12"])
         .args(["--scenario-every-s", "10", "--seed", "3", "--json"])
+        // What the checks below count, however slow the machine: 3 executions, one after
+        // the last change of the arm (a minute of a loaded machine got through one change only).
+        .args(["--at-least-executions", "3"])
         .args(["--scenarios", &rotation])
         .arg("--model-dir")
         .arg(&model)

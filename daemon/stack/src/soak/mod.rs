@@ -71,6 +71,12 @@ pub struct Args {
     /// code path against emulated devices). Without a sim there are no scenario changes.
     #[arg(long, value_name = "FILE")]
     config: Option<PathBuf>,
+    /// After `--minutes`, go on (without kills or changes of the arm) until this many
+    /// executions have finished and one after the last change of the arm, for at most as long
+    /// again (at least 5 minutes): a slow machine gets through what a soak is run to see,
+    /// and one where the stack no longer executes fails, saying so.
+    #[arg(long, default_value_t = 0)]
+    at_least_executions: u64,
     /// The report as one JSON object on stdout, and nothing else there.
     #[arg(long)]
     json: bool,
@@ -156,14 +162,38 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<bool> {
         .map(|m| (m.learner.actor.len(), m.learner.critic.len()))
         .unwrap_or_default();
     let mut soak = Soak::start(args, stop, &scratch, sup, roles, lattice_start, rotation)?;
-    let end = soak.started + Duration::from_secs_f64(args.minutes * 60.0);
+    let minutes = Duration::from_secs_f64(args.minutes * 60.0);
+    let end = soak.started + minutes;
     while Instant::now() < end {
         if stop.load(Ordering::Relaxed) {
             bail!("interrupted");
         }
         soak.step()?;
     }
-    let report = soak.finish();
+    let overtime = Instant::now() + minutes.max(Duration::from_secs(300));
+    soak.calm();
+    while soak.owed() && Instant::now() < overtime {
+        if stop.load(Ordering::Relaxed) {
+            bail!("interrupted");
+        }
+        soak.step()?;
+    }
+    let owed = soak.owed();
+    let mut report = soak.finish();
+    if owed {
+        report.failures.push(format!(
+            "{} executions, {} of them after the last change of the arm, in {:.1} minutes \
+             and as long again: --at-least-executions {} and one after the last change were not \
+             reached (the stack executes too slowly, or not at all, on this machine)",
+            report.executions,
+            report
+                .arm_changes
+                .last()
+                .map_or(report.executions, |c| c.executions),
+            args.minutes,
+            args.at_least_executions
+        ));
+    }
     if args.json {
         println!("{}", serde_json::to_string(&report)?);
     } else {
@@ -444,6 +474,22 @@ impl<'a> Soak<'a> {
             self.report.kills_not_survived.push(why);
             self.pending = None;
         }
+    }
+
+    /// No more kills and changes of the arm: the soak's time is up.
+    fn calm(&mut self) {
+        self.kill_at = None;
+        self.scenario_at = None;
+    }
+
+    /// Whether the soak still owes executions: fewer than `--at-least-executions`, or none yet
+    /// after the last change of the arm (a change superseded by the next before an execution
+    /// ran on it never gets one).
+    fn owed(&self) -> bool {
+        let r = &self.report;
+        r.executions < self.args.at_least_executions
+            || (self.args.at_least_executions > 0
+                && r.arm_changes.last().is_some_and(|c| c.executions == 0))
     }
 
     /// Whether the sim is due to become another arm.
