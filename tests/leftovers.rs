@@ -6,13 +6,13 @@
 
 use std::io::{BufRead, BufReader};
 use std::path::Path;
-use std::process::{Child, Stdio};
+use std::process::Stdio;
 use std::sync::mpsc;
 use std::time::Duration;
 
 use nix::sys::signal::{Signal, kill};
 use nix::unistd::Pid;
-use softarm_test_support::TestStack;
+use softarm_test_support::{Guard, TestStack};
 
 const BIN: &str = env!("CARGO_BIN_EXE_softarm");
 const RESTARTS: usize = 50;
@@ -37,8 +37,9 @@ fn files(prefix: &str, root: &Path) -> usize {
     shm + walk(root)
 }
 
-/// Starts `softarm <role>` in `dir` and waits until it says `ready` on stderr.
-fn start(s: &TestStack, dir: &Path, role: &str, ready: &str) -> Child {
+/// Starts `softarm <role>` in `dir` and waits until it says `ready` on stderr; killed when
+/// dropped, so a failing test leaves it behind neither.
+fn start(s: &TestStack, dir: &Path, role: &str, ready: &str) -> Guard {
     let mut child = s
         .command()
         .arg(role)
@@ -50,8 +51,9 @@ fn start(s: &TestStack, dir: &Path, role: &str, ready: &str) -> Child {
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
-    let (tx, rx) = mpsc::channel();
     let err = child.stderr.take().unwrap();
+    let child = Guard(child);
+    let (tx, rx) = mpsc::channel();
     let ready = ready.to_string();
     std::thread::spawn(move || {
         let mut log = String::new();
@@ -71,7 +73,7 @@ fn start(s: &TestStack, dir: &Path, role: &str, ready: &str) -> Child {
     }
 }
 
-fn kill9(mut child: Child) {
+fn kill9(mut child: Guard) {
     kill(Pid::from_raw(child.id() as i32), Signal::SIGKILL).unwrap();
     child.wait().unwrap();
 }

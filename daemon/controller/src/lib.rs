@@ -67,9 +67,8 @@ struct Shared {
     heartbeat: AtomicU64,
     model_loaded: AtomicBool,
     /// The e-stop latch file says engaged (or cannot be read), as the service thread last read
-    /// it: the tick takes it as it takes the `estop` service, so an e-stop whose sample this
-    /// process missed still stops it (and a reset missed still releases it), without file I/O
-    /// in the tick.
+    /// it: the tick takes it beside the `estop` service, so an e-stop whose sample this process
+    /// missed still stops it, without file I/O in the tick (`tick::Inputs::read`).
     latched: AtomicBool,
 }
 

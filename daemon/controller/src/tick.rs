@@ -142,12 +142,14 @@ impl Inputs {
     /// Takes in everything that arrived since the last tick, and the latch file as the service
     /// thread last read it.
     fn read(&mut self, latched: bool) {
-        if self.latched && !latched {
-            // A reset writes the file before it publishes: the file is the authority that one
-            // happened, even if its sample was missed.
-            self.engaged = false;
+        // The file engages (newly engaged: an e-stop whose sample was missed); only the reset's
+        // sample releases. A reset writes the file before it publishes, so releasing on the
+        // file would set the controller going before the reset is on the `estop` service, and
+        // a reader of both (a safety watch) would see motion after an e-stop it saw no reset
+        // of. A reset sample missed leaves it STOPPED, and `softarm estop --reset` says so.
+        if latched && !self.latched {
+            self.engaged = true;
         }
-        self.engaged |= latched;
         self.latched = latched;
         while let Ok(Some(s)) = self.tracker.receive() {
             if s.position.iter().all(|v| v.is_finite()) {
