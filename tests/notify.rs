@@ -61,14 +61,6 @@ impl FakeSystemd {
     }
 }
 
-fn stop(mut child: Child) {
-    let _ = nix::sys::signal::kill(
-        nix::unistd::Pid::from_raw(child.id() as i32),
-        nix::sys::signal::Signal::SIGTERM,
-    );
-    let _ = child.wait();
-}
-
 #[test]
 fn the_controller_is_ready_once_it_ticks_and_its_watchdog_stops_with_the_loop() {
     let s = TestStack::new(BIN, "notify-controller", false);
@@ -132,7 +124,7 @@ fn the_controller_is_ready_once_it_ticks_and_its_watchdog_stops_with_the_loop() 
 fn the_learner_is_ready_once_its_ports_are_open_and_says_what_it_waits_for() {
     let s = TestStack::new(BIN, "notify-learner", false);
     let systemd = FakeSystemd::new(&s);
-    let child = systemd.spawn(&s, "learner", &[("WATCHDOG_USEC", "200000")]);
+    let child = Guard(systemd.spawn(&s, "learner", &[("WATCHDOG_USEC", "200000")]));
     let got = systemd.until(Duration::from_secs(30), |m| {
         m.iter().filter(|l| *l == "WATCHDOG=1").count() >= 2
     });
@@ -147,5 +139,5 @@ fn the_learner_is_ready_once_its_ports_are_open_and_says_what_it_waits_for() {
         got.iter().filter(|l| *l == "WATCHDOG=1").count() >= 2,
         "{got:?}"
     );
-    stop(child);
+    child.stop(Duration::from_secs(20));
 }
