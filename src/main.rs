@@ -78,7 +78,7 @@ impl Stack {
             c.robot.namespace = Some(ns.clone());
         }
         let (Some(user), Some(group)) = (&c.host.user, &c.host.group) else {
-            return Ok((c.clone(), as_caller()));
+            return Ok((c, as_caller()));
         };
         let r = softarm_runtime::identity::join_with(
             &StackUser {

@@ -130,14 +130,9 @@ fn member_of(gid: Gid) -> bool {
 
 /// Makes this process the stack's user, or says why it may not be. Returns only as that user;
 /// a group member's command is replaced by the same command through the gate (this function
-/// does not return then, unless the gate cannot be run).
-pub fn join(stack: &StackUser) -> Result<(), JoinError> {
-    join_with(stack, || ())
-}
-
-/// [`join`], running `as_caller` first with the rights of the person who ran the command (root,
-/// the operator through the gate, or the stack's user): files they name on the command line are
-/// theirs to read, not the stack's.
+/// does not return then, unless the gate cannot be run). `as_caller` runs first with the rights
+/// of the person who ran the command (root, the operator through the gate, or the stack's
+/// user): files they name on the command line are theirs to read, not the stack's.
 pub fn join_with<R>(stack: &StackUser, as_caller: impl FnOnce() -> R) -> Result<R, JoinError> {
     let user = User::from_name(&stack.user)
         .ok()

@@ -4,7 +4,7 @@
 //!   (fixed-rate loops on absolute deadlines), [`clock::Backoff`] (retries at doubling intervals).
 //! - [`latch`]: the e-stop latch on disk ([`EstopLatch`]).
 //! - [`file`]: [`file::write_atomic`], for every file written for others to read.
-//! - [`identity`]: who a process joins an installed stack as ([`identity::join`]).
+//! - [`identity`]: who a process joins an installed stack as ([`identity::join_with`]).
 //! - [`stop_flag`]: SIGINT and SIGTERM as a flag every loop checks.
 
 pub mod clock;
