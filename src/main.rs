@@ -6,16 +6,19 @@ use std::time::Duration;
 
 use anyhow::Context;
 use clap::{Parser, Subcommand};
-use softarm_clients::{estop, record, scene, stats, status, submit, train};
+use softarm_channels::scene;
+use softarm_clients::{estop, stats, status, submit};
 use softarm_config::scenario::Scenario;
 use softarm_config::{Config, ConfigError};
 use softarm_emulate::command as emulate;
 use softarm_ipc::Namespace;
+use softarm_record::{plot, record};
 use softarm_runtime::identity::StackUser;
 use softarm_runtime::stop_flag;
 use softarm_stack::supervisor as up;
 use softarm_stack::{bench, demo, soak};
 use softarm_systemd as install;
+use softarm_train as train;
 
 /// Task-driven skill learning for a two-module soft continuum arm: ProMPs blended by the paper's
 /// Eq. 11, conditioning points learned online by CACLA-MTL.
@@ -420,7 +423,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         }
         Command::Ros2 { stack } => softarm_ros2::run(&stack.load()?, &*stop_flag()?)?,
         Command::Replay { recording, json } => record::replay_command(&recording, json)?,
-        Command::Plot { recording, output } => softarm_clients::plot::run(&recording, &output)?,
+        Command::Plot { recording, output } => plot::run(&recording, &output)?,
         Command::Bench(args) => bench::run(&args)?,
         Command::Soak(args) => {
             if !soak::run(&args, &*stop_flag()?)? {
@@ -453,5 +456,26 @@ fn main() -> ExitCode {
                 ExitCode::FAILURE
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `softarm up`, soak and systemd start a driver as `softarm <name>`: each driver of the
+    /// registry is a subcommand.
+    #[test]
+    fn every_driver_is_a_subcommand() {
+        for d in softarm_ipc::DRIVERS {
+            let e = Cli::try_parse_from(["softarm", d.name, "--help"])
+                .err()
+                .unwrap();
+            assert_eq!(e.kind(), clap::error::ErrorKind::DisplayHelp, "{}", d.name);
+        }
+        let e = Cli::try_parse_from(["softarm", "no-such-driver", "--help"])
+            .err()
+            .unwrap();
+        assert_ne!(e.kind(), clap::error::ErrorKind::DisplayHelp);
     }
 }

@@ -3,7 +3,6 @@
 //! knows), the default `softarm` learner, errors as the tracker measures them.
 
 use std::path::Path;
-use std::process::Child;
 use std::time::Duration;
 
 use nix::sys::signal::{Signal, kill};
@@ -15,7 +14,7 @@ use softarm_learner::{Learner, online_learner};
 use softarm_model::bundle::Model;
 use softarm_rehearsal::Rehearsal;
 use softarm_test_support::config::{config_text, with_overrides};
-use softarm_test_support::{DEMO_WAYPOINTS, TestStack, eventually, set_id};
+use softarm_test_support::{DEMO_WAYPOINTS, Guard, TestStack, eventually, set_id};
 
 const BIN: &str = env!("CARGO_BIN_EXE_softarm");
 
@@ -78,24 +77,15 @@ fn a_one_point_set_improves_across_executions() {
 
 const SECOND_WAYPOINTS: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/config/waypoints/second.toml");
 
-/// The test's own sim driver, killed when dropped: a failed assert leaves none running.
-struct Sim(Child);
-
-impl Drop for Sim {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
 /// The sim as another arm: the running one stopped as a restarting driver would be, and the
 /// scenario's started where the controller holds the arm.
-fn sim_as(s: &TestStack, sim: Option<Sim>, scenario: &str) -> Sim {
+/// The test's own sim driver is a guard: a failed assert leaves none running.
+fn sim_as(s: &TestStack, sim: Option<Guard>, scenario: &str) -> Guard {
     if let Some(mut old) = sim {
-        kill(Pid::from_raw(old.0.id() as i32), Signal::SIGTERM).unwrap();
-        old.0.wait().unwrap();
+        kill(Pid::from_raw(old.id() as i32), Signal::SIGTERM).unwrap();
+        old.wait().unwrap();
     }
-    Sim(s.spawn(&["sim", "--scenario", scenario]))
+    s.spawn(&["sim", "--scenario", scenario])
 }
 
 /// SIGKILL to the learner, and back (a new process) with its model loaded.

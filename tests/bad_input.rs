@@ -18,9 +18,7 @@ use softarm_ipc::{
     Sub, TrackerSample, WaypointReply, WaypointSet,
 };
 use softarm_runtime::now_ns;
-use softarm_test_support::{
-    DEMO_WAYPOINTS, Devices, Guard, TestStack, alive, eventually, with_overrides,
-};
+use softarm_test_support::{DEMO_WAYPOINTS, Devices, TestStack, alive, eventually, with_overrides};
 
 const BIN: &str = env!("CARGO_BIN_EXE_softarm");
 
@@ -199,7 +197,7 @@ fn actuations(e: &[ActuationEstimate]) -> Vec<(u32, Actuation)> {
 #[test]
 fn malformed_conditioning_samples_and_requests_are_refused_by_the_learner_and_change_nothing() {
     let s = TestStack::new(BIN, "bad-learner", true);
-    let learner = Guard(s.spawn(&["learner"]));
+    let learner = s.spawn(&["learner"]);
     let n = node(&s);
     let requests = n.publisher(&n.estimate_request().unwrap()).unwrap();
     let samples = n.publisher(&n.cp_sample().unwrap()).unwrap();
@@ -495,7 +493,7 @@ fn setpoints_with_nan_inf_or_out_of_range_values_never_reach_the_tendon_motors()
     let n = node(&s);
     let setpoints = n.publisher(&n.setpoint().unwrap()).unwrap();
     let motors = n.subscriber(&n.motor_state().unwrap()).unwrap();
-    let driver = Guard(s.spawn(&["tendon"]));
+    let driver = s.spawn(&["tendon"]);
     let pid = driver.id() as i32;
     let send = |actuation: Actuation| {
         setpoints
@@ -590,7 +588,7 @@ fn state_of(s: &ControllerStatus) -> ControllerState {
 fn tracker_samples_that_are_not_numbers_hold_the_controller() {
     let s = TestStack::new(BIN, "bad-tracker", true);
     let arm = Config::load(&s.config).unwrap().arm;
-    let controller = Guard(s.spawn(&["controller"]));
+    let controller = s.spawn(&["controller"]);
     let n = node(&s);
     let status = n.subscriber(&n.status().unwrap()).unwrap();
     let samples = n.subscriber(&n.cp_sample().unwrap()).unwrap();
@@ -691,7 +689,7 @@ fn waypoint_requests_with_nonsense_are_rejected_by_the_controller_naming_it() {
     // What `softarm submit` checks before sending, sent anyway, as a peer of another make
     // (the Python mirrors) could: the controller's own checks.
     let s = TestStack::new(BIN, "bad-waypoints", true);
-    let controller = Guard(s.spawn(&["controller"]));
+    let controller = s.spawn(&["controller"]);
     let n = node(&s);
     let status = n.subscriber(&n.status().unwrap()).unwrap();
     let asked = n.subscriber(&n.estimate_request().unwrap()).unwrap();
@@ -770,7 +768,7 @@ fn waypoint_requests_with_nonsense_are_rejected_by_the_controller_naming_it() {
 fn motor_states_that_are_not_numbers_hold_the_controller_and_never_reach_its_setpoints() {
     let s = TestStack::new(BIN, "bad-motors", true);
     let arm = Config::load(&s.config).unwrap().arm;
-    let controller = Guard(s.spawn(&["controller"]));
+    let controller = s.spawn(&["controller"]);
     let n = node(&s);
     let status = n.subscriber(&n.status().unwrap()).unwrap();
     let setpoints = n.subscriber(&n.setpoint().unwrap()).unwrap();

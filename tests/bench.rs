@@ -7,18 +7,19 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use serde_json::Value;
+use softarm_test_support::Guard;
 
 const BIN: &str = env!("CARGO_BIN_EXE_softarm");
 
-/// Runs `softarm <args>` to completion (killed and failed after `limit`); its stdout and pid.
-fn run(args: &[&str], limit: Duration) -> (String, u32) {
-    let mut child = Command::new(BIN)
-        .args(args)
-        .stdin(Stdio::null())
-        .stdout(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let pid = child.id();
+/// Runs `softarm <args>` to completion (killed and failed after `limit`); its stdout, and the
+/// exited process, whose group is killed when dropped: after the check that nothing is left.
+fn run(args: &[&str], limit: Duration) -> (String, Guard) {
+    let mut child = Guard::spawn(
+        Command::new(BIN)
+            .args(args)
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped()),
+    );
     let mut stdout = child.stdout.take().unwrap();
     let reader = std::thread::spawn(move || {
         let mut s = String::new();
@@ -42,7 +43,7 @@ fn run(args: &[&str], limit: Duration) -> (String, u32) {
     };
     let out = reader.join().unwrap();
     assert!(status.success(), "softarm {args:?}: {status}\n{out}");
-    (out, pid)
+    (out, child)
 }
 
 /// A percentile summary: samples, and min ≤ p50 ≤ p99 ≤ p99.9 ≤ max, all whole ns.
@@ -74,7 +75,7 @@ fn leftovers(pid: u32) -> Vec<String> {
 
 #[test]
 fn bench_json_has_every_section() {
-    let (out, pid) = run(
+    let (out, bench) = run(
         &[
             "bench",
             "--json",
@@ -133,6 +134,7 @@ fn bench_json_has_every_section() {
     }
 
     // The stack and the peer are gone, and so is the run folder.
+    let pid = bench.id();
     assert!(leftovers(pid).is_empty(), "{:?}", leftovers(pid));
     assert!(
         !std::env::temp_dir()

@@ -7,7 +7,7 @@
 use std::time::Duration;
 
 use softarm_ipc::{Namespace, Node};
-use softarm_test_support::{Guard, TestStack, eventually};
+use softarm_test_support::{TestStack, eventually};
 
 const BIN: &str = env!("CARGO_BIN_EXE_softarm");
 /// `sim.rate_hz` of the test config (the default).
@@ -25,7 +25,7 @@ fn the_sim_changes_its_arm_at_the_scenarios_time() {
     let node = Node::open(Namespace::new(&s.namespace).unwrap(), "test").unwrap();
     let tracker = node.subscriber(&node.tracker().unwrap()).unwrap();
     let motors = node.subscriber(&node.motor_state().unwrap()).unwrap();
-    let _sim = Guard(s.spawn(&["sim", "--scenario", scenario.to_str().unwrap()]));
+    let _sim = s.spawn(&["sim", "--scenario", scenario.to_str().unwrap()]);
 
     // (sim time, tip z) and (sim time, actuation) until the sim's clock is 1 s past the step.
     let (mut tips, mut actuations) = (Vec::new(), Vec::new());

@@ -14,7 +14,9 @@ use std::sync::Mutex;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
 
-use softarm_test_support::{DEMO_WAYPOINTS, config_text, hardware_config_text, with_overrides};
+use softarm_test_support::{
+    DEMO_WAYPOINTS, Guard, config_text, hardware_config_text, output, with_overrides,
+};
 
 const BIN: &str = env!("CARGO_BIN_EXE_softarm");
 /// Longest any case may take: none waits for a stack that is not there.
@@ -311,14 +313,16 @@ fn processes_in(dir: &Path) -> Vec<(i32, String)> {
 /// A valid recording of a namespace where nothing runs: the MCAP header, schemas, no message.
 fn empty_recording(base: &Path) -> Vec<u8> {
     let out = base.join("empty.mcap");
-    let status = Command::new(BIN)
-        .args(["record", "-o"])
-        .arg(&out)
-        .args(["--duration", "0.1", "--namespace"])
-        .arg(format!("softarm/test-cli-{}-recording", std::process::id()))
-        .stdout(Stdio::null())
-        .status()
-        .unwrap();
+    let status = Guard::spawn(
+        Command::new(BIN)
+            .args(["record", "-o"])
+            .arg(&out)
+            .args(["--duration", "0.1", "--namespace"])
+            .arg(format!("softarm/test-cli-{}-recording", std::process::id()))
+            .stdout(Stdio::null()),
+    )
+    .wait()
+    .unwrap();
     assert!(status.success(), "recording the fixture: {status}");
     std::fs::read(&out).unwrap()
 }
@@ -337,19 +341,20 @@ fn run(i: usize, c: &Case, base: &Path, recording: &[u8]) -> Option<String> {
         .collect();
     let (out, err) = (base.join(format!("{i}.out")), base.join(format!("{i}.err")));
     let started = Instant::now();
-    let mut child = Command::new(BIN)
-        .args(&args)
-        .current_dir(&dir)
-        // Nothing the command might write for the user (a cache, a model) goes elsewhere.
-        .env("HOME", &dir)
-        .env("XDG_CACHE_HOME", dir.join("cache"))
-        .env("RUST_LOG", "warn")
-        .env_remove("RUST_BACKTRACE")
-        .stdin(Stdio::null())
-        .stdout(std::fs::File::create(&out).unwrap())
-        .stderr(std::fs::File::create(&err).unwrap())
-        .spawn()
-        .unwrap();
+    // Its group is killed when `child` is dropped, after the check that nothing is left.
+    let mut child = Guard::spawn(
+        Command::new(BIN)
+            .args(&args)
+            .current_dir(&dir)
+            // Nothing the command might write for the user (a cache, a model) goes elsewhere.
+            .env("HOME", &dir)
+            .env("XDG_CACHE_HOME", dir.join("cache"))
+            .env("RUST_LOG", "warn")
+            .env_remove("RUST_BACKTRACE")
+            .stdin(Stdio::null())
+            .stdout(std::fs::File::create(&out).unwrap())
+            .stderr(std::fs::File::create(&err).unwrap()),
+    );
     let status = loop {
         if let Some(s) = child.try_wait().unwrap() {
             break s;
@@ -450,7 +455,7 @@ fn bad_arguments_are_refused_naming_what_and_where_and_change_nothing() {
 
 #[test]
 fn every_subcommand_has_a_bad_argument_case() {
-    let out = Command::new(BIN).arg("--help").output().unwrap();
+    let out = output(Command::new(BIN).arg("--help"));
     let help = String::from_utf8_lossy(&out.stdout);
     let commands: Vec<&str> = help
         .split("Commands:")
@@ -489,12 +494,7 @@ fn estop_without_a_stack_latches_and_says_that_no_process_heard_it() {
         (&["estop", "--reset"][..], "released"),
     ] {
         let started = Instant::now();
-        let out = Command::new(BIN)
-            .args(args)
-            .arg("--config")
-            .arg(&config)
-            .output()
-            .unwrap();
+        let out = output(Command::new(BIN).args(args).arg("--config").arg(&config));
         let stdout = String::from_utf8_lossy(&out.stdout);
         assert!(
             started.elapsed() < Duration::from_secs(5),

@@ -6,6 +6,8 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+use softarm_test_support::output;
+
 const BIN: &str = env!("CARGO_BIN_EXE_softarm");
 const ROOT: &str = env!("CARGO_MANIFEST_DIR");
 
@@ -255,12 +257,12 @@ fn every_command_line_of_readme_and_the_guide_parses() {
         for (line, args) in command_lines(&text) {
             for words in variants(&args) {
                 checked += 1;
-                let out = Command::new(BIN)
-                    .args(&words)
-                    .arg("--help")
-                    .env("SOFTARM_CONFIG", root.join("config/softarm.toml"))
-                    .output()
-                    .unwrap();
+                let out = output(
+                    Command::new(BIN)
+                        .args(&words)
+                        .arg("--help")
+                        .env("SOFTARM_CONFIG", root.join("config/softarm.toml")),
+                );
                 if !out.status.success() {
                     wrong.push(format!(
                         "{}:{line}: softarm {}: {}",

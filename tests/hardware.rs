@@ -76,7 +76,7 @@ fn follow(setpoints: &Pub<Setpoint>, a: f64, d: Duration) {
 }
 
 fn spawn(s: &TestStack, role: &str) -> Guard {
-    Guard(s.spawn(&[role]))
+    s.spawn(&[role])
 }
 
 fn stop(child: Guard) -> std::process::ExitStatus {

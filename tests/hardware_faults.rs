@@ -2,7 +2,7 @@
 //! bus and the tracker on pseudo-terminals) and `softarm up` with the hardware config, the
 //! `tendon` and `tracker` drivers and the controller SIGKILLed at seeded random moments of
 //! running executions while `up` restarts them. An independent subscriber
-//! (`softarm_clients::watch`) checks every setpoint: within the actuator limits, no step
+//! (`softarm_watch`) checks every setpoint: within the actuator limits, no step
 //! beyond the slew limit (nor a jump across a controller restart), HOLD and nothing executed
 //! from twice the stale age after a driver died until it can be back, no execution's
 //! statistics twice or lost. After each kill the driver is back (a new process), the
@@ -22,11 +22,13 @@ use nix::sys::signal::{Signal, kill};
 use nix::unistd::Pid;
 use rand::seq::SliceRandom;
 use rand::{RngExt, SeedableRng};
-use softarm_clients::watch::{Limits, Watch};
 use softarm_config::Config;
 use softarm_ipc::Namespace;
 use softarm_runtime::now_ns;
-use softarm_test_support::{DEMO_WAYPOINTS, Devices, FaultSeed, TestStack, eventually, set_id};
+use softarm_test_support::{
+    DEMO_WAYPOINTS, Devices, FaultSeed, TestStack, eventually, output, set_id,
+};
+use softarm_watch::{Limits, Watch};
 
 const BIN: &str = env!("CARGO_BIN_EXE_softarm");
 const LIMIT: Duration = Duration::from_secs(30);
@@ -147,9 +149,9 @@ fn killed_hardware_drivers_and_controller_break_no_safety_invariant() {
     }
     let r = watch.finish();
     s.stop();
-    kill(Pid::from_raw(emulate.0.id() as i32), Signal::SIGTERM).unwrap();
+    kill(Pid::from_raw(emulate.id() as i32), Signal::SIGTERM).unwrap();
     let status = eventually("softarm emulate to stop", LIMIT, || {
-        emulate.0.try_wait().unwrap()
+        emulate.try_wait().unwrap()
     });
     assert!(status.success(), "softarm emulate: {status}");
     eprintln!(
@@ -176,17 +178,16 @@ fn killed_hardware_drivers_and_controller_break_no_safety_invariant() {
 #[test]
 fn a_soak_of_the_hardware_stack_kills_its_drivers_and_changes_no_arm() {
     let (s, _emulator) = TestStack::emulated(BIN, "soak-hw", Devices::Shared);
-    let out = s
-        .command()
-        .args(["soak", "--minutes", "0.75", "--kill-every-s", "8"])
-        // Two executions to count, however slow the machine (a loaded one got through one in
-        // the 45 s).
-        .args(["--at-least-executions", "2"])
-        .args(["--seed", "5", "--json", "--config"])
-        .arg(&s.config)
-        .env("TMPDIR", &s.dir)
-        .output()
-        .unwrap();
+    let out = output(
+        s.command()
+            .args(["soak", "--minutes", "0.75", "--kill-every-s", "8"])
+            // Two executions to count, however slow the machine (a loaded one got through one in
+            // the 45 s).
+            .args(["--at-least-executions", "2"])
+            .args(["--seed", "5", "--json", "--config"])
+            .arg(&s.config)
+            .env("TMPDIR", &s.dir),
+    );
     let stdout = String::from_utf8_lossy(&out.stdout);
     let stderr = String::from_utf8_lossy(&out.stderr);
     let r: serde_json::Value = serde_json::from_str(stdout.trim())

@@ -14,14 +14,14 @@
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use softarm_clients::watch::{Limits, Watch};
 use softarm_config::Config;
 use softarm_emulate::canary::Canary;
 use softarm_emulate::dynamixel::{BusCounters, BusFaults};
 use softarm_emulate::rig::Rig;
 use softarm_ipc::{ControllerState, DriverState, MotorState, Namespace, Node, Pub, Setpoint, Sub};
 use softarm_runtime::now_ns;
-use softarm_test_support::{DEMO_WAYPOINTS, Devices, Guard, TestStack, eventually, set_id};
+use softarm_test_support::{DEMO_WAYPOINTS, Devices, TestStack, eventually, set_id};
+use softarm_watch::{Limits, Watch};
 
 use crate::hardware::send;
 
@@ -550,7 +550,7 @@ fn lost_replies_bad_crcs_and_garbage_are_counted_once_each() {
     let n = node(&s);
     let setpoints = n.publisher(&n.setpoint().unwrap()).unwrap();
     let motors = n.subscriber(&n.motor_state().unwrap()).unwrap();
-    let driver = Guard(s.spawn(&["tendon"]));
+    let driver = s.spawn(&["tendon"]);
     // Samples before FOLLOWING whose data was older than the controller's time-out: the
     // machine delivered the first replies late (a loaded machine holds a pty's bytes), which
     // no driver can help; the driver must say FOLLOWING as soon as it may.
@@ -723,7 +723,7 @@ fn noisy_bus_figures() {
     let stop = Arc::new(AtomicBool::new(false));
     let feeder = controller_like(s.namespace.clone(), stop.clone());
     let started = Instant::now();
-    let driver = Guard(s.spawn(&["tendon"]));
+    let driver = s.spawn(&["tendon"]);
     let first = eventually("following", LIMIT, || {
         motors
             .receive()

@@ -5,15 +5,12 @@
 use std::path::Path;
 use std::process::{Command, Output};
 
+use softarm_test_support::output;
+
 const BIN: &str = env!("CARGO_BIN_EXE_softarm");
 
 fn softarm(args: &[&str], root: &Path) -> Output {
-    let out = Command::new(BIN)
-        .args(args)
-        .arg("--root")
-        .arg(root)
-        .output()
-        .unwrap();
+    let out = output(Command::new(BIN).args(args).arg("--root").arg(root));
     assert!(out.status.success(), "{args:?}: {out:?}");
     out
 }
@@ -82,11 +79,7 @@ fn install_stages_binary_config_state_and_units_and_keeps_an_edited_config() {
         "{tmpfiles}"
     );
     assert!(root.join("run/softarm").is_dir());
-    let check = Command::new(BIN)
-        .args(["config", "check"])
-        .arg(&config)
-        .output()
-        .unwrap();
+    let check = output(Command::new(BIN).args(["config", "check"]).arg(&config));
     assert!(check.status.success(), "{check:?}");
     assert!(root.join("var/lib/softarm").is_dir());
 
@@ -206,13 +199,13 @@ fn a_bad_config_to_install_is_refused_and_nothing_is_written() {
         (&no_state, "no-state.toml:1: missing field", 78),
     ] {
         let stage = root.join("stage");
-        let out = Command::new(BIN)
-            .args(["install", "--root"])
-            .arg(&stage)
-            .arg("--config")
-            .arg(config)
-            .output()
-            .unwrap();
+        let out = output(
+            Command::new(BIN)
+                .args(["install", "--root"])
+                .arg(&stage)
+                .arg("--config")
+                .arg(config),
+        );
         let err = String::from_utf8_lossy(&out.stderr);
         assert_eq!(out.status.code(), Some(code), "{err}");
         assert!(err.contains(says), "{err}");

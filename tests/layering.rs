@@ -146,6 +146,41 @@ fn each_crate_links_only_what_its_layer_allows() {
         );
     }
     forbid(
+        "softarm-clients",
+        &[
+            "plotters",
+            "mcap",
+            "softarm-model",
+            "softarm-learning",
+            "softarm-train",
+            "softarm-watch",
+        ],
+        "the commands that talk to a running stack (submit, stats, status, estop) link no \
+         plotting, no recording, no training pipeline and no learning code",
+    );
+    forbid(
+        "softarm-channels",
+        &["plotters", "mcap", "softarm-model", "softarm-learning"],
+        "the channels and the scene, what the view and the recorder share, are drawn from the \
+         samples alone: no plotting, no file format, no pipeline, no learning code",
+    );
+    forbid(
+        "softarm-record",
+        &["softarm-model", "softarm-learning", "softarm-train"],
+        "recording and plotting read samples and files: no pipeline and no learning code",
+    );
+    // The view and the bridge run beside the stack for hours: neither the recorder's plotting
+    // nor the pipeline and learner (CACLA) come with them.
+    let tools = [
+        "plotters",
+        "mcap",
+        "softarm-record",
+        "softarm-train",
+        "softarm-model",
+        "softarm-learning",
+        "softarm-watch",
+    ];
+    forbid(
         "softarm-view",
         &[
             &drivers[..],
@@ -154,6 +189,12 @@ fn each_crate_links_only_what_its_layer_allows() {
         ]
         .concat(),
         "the view is one more subscriber: it sees the stack only through its services",
+    );
+    forbid(
+        "softarm-view",
+        &tools,
+        "the view serves the channels and the scene: it links no plotting, recording, pipeline, \
+         learning code nor test kit",
     );
     forbid(
         "softarm-ros2",
@@ -166,6 +207,33 @@ fn each_crate_links_only_what_its_layer_allows() {
         "the ROS 2 bridge is one more subscriber and client: it sees the stack only through its \
          services, as `softarm submit` and `softarm estop` do",
     );
+    forbid(
+        "softarm-ros2",
+        &tools,
+        "the ROS 2 bridge needs the channels, submit and estop: it links no plotting, recording, \
+         pipeline, learning code nor test kit",
+    );
+    // The stack (demo, soak), the binary and the dev-only harness (which runs the stack's
+    // sandbox) are the only ones above these.
+    let above = ["softarm", "softarm-stack", "softarm-test-support"];
+    for p in g
+        .keys()
+        .filter(|p| !above.contains(&p.as_str()) && p.as_str() != "softarm-record")
+    {
+        forbid(
+            p,
+            &["softarm-record", "plotters", "mcap"],
+            "only `softarm record`, `replay`, `plot` and demo write recordings and draw figures",
+        );
+    }
+    for p in g.keys().filter(|p| !above.contains(&p.as_str())) {
+        forbid(
+            p,
+            &["softarm-watch"],
+            "the safety watch is test kit: only soak (softarm-stack, for now, so the binary) and \
+             the tests use it, no daemon, driver or client links it",
+        );
+    }
     for p in g
         .keys()
         .filter(|p| !["softarm", "softarm-view"].contains(&p.as_str()))

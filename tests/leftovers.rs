@@ -40,19 +40,17 @@ fn files(prefix: &str, root: &Path) -> usize {
 /// Starts `softarm <role>` in `dir` and waits until it says `ready` on stderr; killed when
 /// dropped, so a failing test leaves it behind neither.
 fn start(s: &TestStack, dir: &Path, role: &str, ready: &str) -> Guard {
-    let mut child = s
-        .command()
-        .arg(role)
-        .arg("--config")
-        .arg(&s.config)
-        .current_dir(dir)
-        .env("RUST_LOG", "info")
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let mut child = Guard::spawn(
+        s.command()
+            .arg(role)
+            .arg("--config")
+            .arg(&s.config)
+            .current_dir(dir)
+            .env("RUST_LOG", "info")
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped()),
+    );
     let err = child.stderr.take().unwrap();
-    let child = Guard(child);
     let (tx, rx) = mpsc::channel();
     let ready = ready.to_string();
     std::thread::spawn(move || {

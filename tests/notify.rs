@@ -6,7 +6,7 @@
 //! ports are open, and what it waits for.
 
 use std::os::unix::net::UnixDatagram;
-use std::process::{Child, Stdio};
+use std::process::Stdio;
 use std::time::{Duration, Instant};
 
 use nix::sys::ptrace;
@@ -30,7 +30,7 @@ impl FakeSystemd {
         Self { socket, path }
     }
 
-    fn spawn(&self, s: &TestStack, role: &str, env: &[(&str, &str)]) -> Child {
+    fn spawn(&self, s: &TestStack, role: &str, env: &[(&str, &str)]) -> Guard {
         let mut c = s.command();
         c.arg(role)
             .arg("--config")
@@ -41,7 +41,7 @@ impl FakeSystemd {
         for (k, v) in env {
             c.env(k, v);
         }
-        c.spawn().unwrap()
+        Guard::spawn(&mut c)
     }
 
     /// Every message until `done` says so or `limit` passes.
@@ -66,7 +66,7 @@ fn the_controller_is_ready_once_it_ticks_and_its_watchdog_stops_with_the_loop() 
     let s = TestStack::new(BIN, "notify-controller", false);
     let systemd = FakeSystemd::new(&s);
     // A watchdog of 200 ms asks every 100 ms.
-    let child = Guard(systemd.spawn(&s, "controller", &[("WATCHDOG_USEC", "200000")]));
+    let child = systemd.spawn(&s, "controller", &[("WATCHDOG_USEC", "200000")]);
     let mut got = systemd.until(Duration::from_secs(60), |m| {
         m.iter().filter(|l| *l == "WATCHDOG=1").count() >= 3
     });
@@ -124,7 +124,7 @@ fn the_controller_is_ready_once_it_ticks_and_its_watchdog_stops_with_the_loop() 
 fn the_learner_is_ready_once_its_ports_are_open_and_says_what_it_waits_for() {
     let s = TestStack::new(BIN, "notify-learner", false);
     let systemd = FakeSystemd::new(&s);
-    let child = Guard(systemd.spawn(&s, "learner", &[("WATCHDOG_USEC", "200000")]));
+    let child = systemd.spawn(&s, "learner", &[("WATCHDOG_USEC", "200000")]);
     let got = systemd.until(Duration::from_secs(30), |m| {
         m.iter().filter(|l| *l == "WATCHDOG=1").count() >= 2
     });

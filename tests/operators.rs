@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 use std::time::Duration;
 
-use softarm_test_support::{DEMO_WAYPOINTS, TestStack, config_text, with_overrides};
+use softarm_test_support::{DEMO_WAYPOINTS, Guard, TestStack, config_text, output, with_overrides};
 
 const BIN: &str = env!("CARGO_BIN_EXE_softarm");
 
@@ -23,7 +23,7 @@ struct Users {
 }
 
 fn sh(program: &str, args: &[&str]) {
-    let out = Command::new(program).args(args).output().unwrap();
+    let out = output(Command::new(program).args(args));
     assert!(out.status.success(), "{program} {args:?}: {out:?}");
 }
 
@@ -129,12 +129,12 @@ fn run_as(s: &TestStack, user: Option<&str>, args: &[&str]) -> Output {
         }
         None => Command::new(&s.bin),
     };
-    c.args(args)
-        .arg("--config")
-        .arg(&s.config)
-        .env("RUST_LOG", "warn")
-        .output()
-        .unwrap()
+    output(
+        c.args(args)
+            .arg("--config")
+            .arg(&s.config)
+            .env("RUST_LOG", "warn"),
+    )
 }
 
 fn text(out: &Output) -> String {
@@ -150,16 +150,16 @@ fn text(out: &Output) -> String {
 fn up_as_service(s: &mut TestStack, users: &Users) {
     let (uid, gid) = Users::uid(&users.service);
     let log = std::fs::File::create(s.dir.join("up.log")).unwrap();
-    let child = Command::new(&s.bin)
-        .args(["up", "--config"])
-        .arg(&s.config)
-        .env("RUST_LOG", "info")
-        .uid(uid)
-        .gid(gid)
-        .stdout(Stdio::null())
-        .stderr(log)
-        .spawn()
-        .unwrap();
+    let child = Guard::spawn(
+        Command::new(&s.bin)
+            .args(["up", "--config"])
+            .arg(&s.config)
+            .env("RUST_LOG", "info")
+            .uid(uid)
+            .gid(gid)
+            .stdout(Stdio::null())
+            .stderr(log),
+    );
     s.up = Some(child);
     s.wait_status("the stack to come up", Duration::from_secs(90), |st| {
         st["alive"].as_array().is_some_and(|a| a.len() >= 3)
@@ -273,14 +273,14 @@ fn root_and_operators_stop_and_release_the_arm_and_anyone_else_is_refused() {
     let before = std::fs::read_to_string(&latch).unwrap();
     let refused = |config: &Path, why: &str| {
         for args in [&["estop"][..], &["estop", "--reset"], &["status"]] {
-            let out = Command::new("runuser")
-                .args(["-u", &users.outsider, "--"])
-                .arg(&s.bin)
-                .args(args)
-                .arg("--config")
-                .arg(config)
-                .output()
-                .unwrap();
+            let out = output(
+                Command::new("runuser")
+                    .args(["-u", &users.outsider, "--"])
+                    .arg(&s.bin)
+                    .args(args)
+                    .arg("--config")
+                    .arg(config),
+            );
             let said = text(&out);
             assert_eq!(out.status.code(), Some(1), "{args:?}: {said}");
             assert!(

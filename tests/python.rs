@@ -16,7 +16,7 @@ use std::time::Duration;
 
 use softarm_ipc::iceoryx2::prelude::{PortFactory, ZeroCopySend};
 use softarm_ipc::*;
-use softarm_test_support::{DEMO_WAYPOINTS, TestStack, set_id};
+use softarm_test_support::{DEMO_WAYPOINTS, TestStack, output, set_id};
 
 const BIN: &str = env!("CARGO_BIN_EXE_softarm");
 const PY: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/clients/python");
@@ -53,12 +53,12 @@ pub(crate) fn python(modules: &[&str]) -> Option<String> {
 /// Runs `py <args>` from this package's folder (as the stack's processes run: iceoryx2 looks
 /// for `config/iceoryx2.toml` there first) and insists on success.
 pub fn run_python(py: &str, args: &[&str]) -> Output {
-    let out = Command::new(py)
-        .args(args)
-        // No __pycache__ in the work tree.
-        .env("PYTHONDONTWRITEBYTECODE", "1")
-        .output()
-        .unwrap();
+    let out = output(
+        Command::new(py)
+            .args(args)
+            // No __pycache__ in the work tree.
+            .env("PYTHONDONTWRITEBYTECODE", "1"),
+    );
     assert!(
         out.status.success(),
         "{py} {args:?}: {}\n{}{}",

@@ -10,7 +10,7 @@ use std::time::{Duration, Instant};
 
 use nix::sys::signal::{Signal, kill};
 use nix::unistd::Pid;
-use softarm_test_support::{DEMO_WAYPOINTS, TestStack, set_id};
+use softarm_test_support::{DEMO_WAYPOINTS, Guard, TestStack, output, set_id};
 
 const BIN: &str = env!("CARGO_BIN_EXE_softarm");
 
@@ -52,16 +52,15 @@ fn a_recorded_run_replays_and_plots_with_the_same_counts_everywhere() {
     let mut s = TestStack::new(BIN, "record", true);
     s.up();
     let run = s.dir.join("run.mcap");
-    let recorder = s
-        .command()
-        .args(["record", "--duration", "20", "-o"])
-        .arg(&run)
-        .arg("--config")
-        .arg(&s.config)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let recorder = Guard::spawn(
+        s.command()
+            .args(["record", "--duration", "20", "-o"])
+            .arg(&run)
+            .arg("--config")
+            .arg(&s.config)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped()),
+    );
     // The recorder's node is up before the set starts.
     s.wait_status("the recorder", Duration::from_secs(20), |st| {
         st["alive"]
@@ -93,12 +92,7 @@ fn a_recorded_run_replays_and_plots_with_the_same_counts_everywhere() {
     assert!(recorded["setpoint"] > 2000, "{recorded:?}");
 
     // The Rust reader.
-    let replay = s
-        .command()
-        .args(["replay", "--json"])
-        .arg(&run)
-        .output()
-        .unwrap();
+    let replay = output(s.command().args(["replay", "--json"]).arg(&run));
     assert!(replay.status.success(), "{replay:?}");
     let r: serde_json::Value = serde_json::from_slice(&replay.stdout).unwrap();
     let read: BTreeMap<String, u64> = serde_json::from_value(r["counts"].clone()).unwrap();
@@ -108,7 +102,7 @@ fn a_recorded_run_replays_and_plots_with_the_same_counts_everywhere() {
     let ours: Vec<_> = executions.iter().filter(|e| e["set_id"] == set).collect();
     assert_eq!(ours.len(), 2, "{executions:?}");
     assert!(r["setpoint_interval_us"]["p50"].as_f64().unwrap() > 0.0);
-    let text = s.command().arg("replay").arg(&run).output().unwrap();
+    let text = output(s.command().arg("replay").arg(&run));
     let text = String::from_utf8_lossy(&text.stdout);
     assert!(
         text.contains(&format!("set {set}")) && text.contains("mean mm"),
@@ -135,11 +129,7 @@ fn a_recorded_run_replays_and_plots_with_the_same_counts_everywhere() {
             \x20       cls = message_factory.GetMessageClass(pool.FindMessageTypeByName(schema.name))\n\
             \x20       entities |= {e.id for e in cls.FromString(message.data).entities}\n\
             print(json.dumps({'counts': c, 'entities': sorted(entities)}))\n";
-        let py = Command::new("python3")
-            .args(["-c", script])
-            .arg(&run)
-            .output()
-            .unwrap();
+        let py = output(Command::new("python3").args(["-c", script]).arg(&run));
         assert!(py.status.success(), "{py:?}");
         let py: serde_json::Value = serde_json::from_slice(&py.stdout).unwrap();
         let counts: BTreeMap<String, u64> = serde_json::from_value(py["counts"].clone()).unwrap();
@@ -152,20 +142,13 @@ fn a_recorded_run_replays_and_plots_with_the_same_counts_everywhere() {
 
     // The plot.
     let png = s.dir.join("run.png");
-    let plot = s
-        .command()
-        .arg("plot")
-        .arg(&run)
-        .arg("-o")
-        .arg(&png)
-        .output()
-        .unwrap();
+    let plot = output(s.command().arg("plot").arg(&run).arg("-o").arg(&png));
     assert!(plot.status.success(), "{plot:?}");
     let bytes = std::fs::read(&png).unwrap();
     assert_eq!(&bytes[1..4], b"PNG");
     let width = u32::from_be_bytes(bytes[16..20].try_into().unwrap());
     let height = u32::from_be_bytes(bytes[20..24].try_into().unwrap());
-    assert_eq!((width, height), softarm_clients::plot::SIZE);
+    assert_eq!((width, height), softarm_record::plot::SIZE);
 }
 
 #[test]
@@ -173,15 +156,15 @@ fn a_killed_recorder_leaves_no_file_that_looks_whole_and_a_stopped_one_does() {
     let s = TestStack::new(BIN, "record-kill", false);
     let run = s.dir.join("killed.mcap");
     let spawn = |out: &Path| {
-        s.command()
-            .args(["record", "-o"])
-            .arg(out)
-            .arg("--config")
-            .arg(&s.config)
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .unwrap()
+        Guard::spawn(
+            s.command()
+                .args(["record", "-o"])
+                .arg(out)
+                .arg("--config")
+                .arg(&s.config)
+                .stdout(Stdio::null())
+                .stderr(Stdio::null()),
+        )
     };
     let partial = s.dir.join("killed.mcap.partial");
     let mut killed = spawn(&run);
@@ -202,22 +185,12 @@ fn a_killed_recorder_leaves_no_file_that_looks_whole_and_a_stopped_one_does() {
     std::thread::sleep(Duration::from_millis(500));
     kill(Pid::from_raw(child.id() as i32), Signal::SIGTERM).unwrap();
     assert!(child.wait().unwrap().success());
-    let replay = s
-        .command()
-        .args(["replay", "--json"])
-        .arg(&stopped)
-        .output()
-        .unwrap();
+    let replay = output(s.command().args(["replay", "--json"]).arg(&stopped));
     assert!(replay.status.success(), "{replay:?}");
 
     // Not a recording: refused, named.
     std::fs::write(s.dir.join("junk.mcap"), b"not mcap").unwrap();
-    let out = s
-        .command()
-        .arg("replay")
-        .arg(s.dir.join("junk.mcap"))
-        .output()
-        .unwrap();
+    let out = output(s.command().arg("replay").arg(s.dir.join("junk.mcap")));
     assert!(!out.status.success());
     assert!(
         String::from_utf8_lossy(&out.stderr).contains("junk.mcap"),

@@ -23,7 +23,7 @@ use nix::unistd::Pid;
 use serde_json::Value;
 use softarm_ipc::{Namespace, Node};
 use softarm_test_support::{
-    DEMO_WAYPOINTS, Guard, TestStack, alive, config_text, eventually, with_overrides,
+    DEMO_WAYPOINTS, TestStack, alive, config_text, eventually, with_overrides,
 };
 
 use crate::python::{python, run_python};
@@ -415,7 +415,7 @@ fn killing_the_stack_leaves_the_bridge_reporting_it() {
     let mut s = stack("ros2-kill-stack", false, &[]);
     s.up();
     // The bridge beside the stack, as another unit would run it.
-    let mut bridge = Guard(s.spawn(&["ros2"]));
+    let mut bridge = s.spawn(&["ros2"]);
     let got = peer(&py, &s, &["--until", "running", "--seconds", "60"]);
     assert_eq!(diagnostic(&got, "controller")["level"], 0, "{got}");
 

@@ -5,7 +5,7 @@
 
 use std::process::Command;
 
-use softarm_test_support::quick_model;
+use softarm_test_support::{output, quick_model};
 
 const BIN: &str = env!("CARGO_BIN_EXE_softarm");
 
@@ -19,18 +19,19 @@ fn a_short_soak_survives_its_kills_and_reports_everything() {
     let swap = dir.join("swap.toml");
     std::fs::write(&swap, "[[step]]\nat_s = 1.0\n[step.arm]\ntool_m = 0.05\n").unwrap();
     let rotation = format!("{},creep", swap.display());
-    let out = Command::new(BIN)
-        .args(["soak", "--minutes", "1", "--kill-every-s", "12"])
-        .args(["--scenario-every-s", "10", "--seed", "3", "--json"])
-        // What the checks below count, however slow the machine: 3 executions, one after
-        // the last change of the arm (a minute of a loaded machine got through one change only).
-        .args(["--at-least-executions", "3"])
-        .args(["--scenarios", &rotation])
-        .arg("--model-dir")
-        .arg(&model)
-        .env("TMPDIR", &dir)
-        .output()
-        .unwrap();
+    let out = output(
+        Command::new(BIN)
+            .args(["soak", "--minutes", "1", "--kill-every-s", "12"])
+            .args(["--scenario-every-s", "10", "--seed", "3", "--json"])
+            // What the checks below count, however slow the machine: 3 executions, one after
+            // the last change of the arm (a minute of a loaded machine got through one change
+            // only).
+            .args(["--at-least-executions", "3"])
+            .args(["--scenarios", &rotation])
+            .arg("--model-dir")
+            .arg(&model)
+            .env("TMPDIR", &dir),
+    );
     let stdout = String::from_utf8_lossy(&out.stdout);
     let stderr = String::from_utf8_lossy(&out.stderr);
     // Nothing of the soak's own left behind: only the model is in its temporary folder.
@@ -105,7 +106,7 @@ fn a_soak_of_no_time_or_a_kill_every_instant_is_refused() {
             "--scenario-every-s",
         ),
     ] {
-        let out = Command::new(BIN).arg("soak").args(args).output().unwrap();
+        let out = output(Command::new(BIN).arg("soak").args(args));
         let err = String::from_utf8_lossy(&out.stderr);
         assert_eq!(out.status.code(), Some(2), "{args:?}: {err}");
         assert!(err.contains(want), "{args:?}: {err}");

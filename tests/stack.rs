@@ -6,7 +6,7 @@ use std::time::Duration;
 
 use nix::sys::signal::{Signal, kill};
 use nix::unistd::Pid;
-use softarm_test_support::{DEMO_WAYPOINTS, TestStack, alive, eventually, set_id};
+use softarm_test_support::{DEMO_WAYPOINTS, TestStack, alive, eventually, output, set_id};
 
 const BIN: &str = env!("CARGO_BIN_EXE_softarm");
 
@@ -97,16 +97,12 @@ fn an_invalid_set_is_rejected_with_its_reason_and_the_running_one_goes_on() {
         "duration_s = 2.0\n[[point]]\nt_s = 1.0\nposition_m = [0.0, 0.0, 0.3]\n",
     )
     .unwrap();
-    let out = s
-        .command()
-        .args([
-            "submit",
-            far.to_str().unwrap(),
-            "--config",
-            wide.to_str().unwrap(),
-        ])
-        .output()
-        .unwrap();
+    let out = output(s.command().args([
+        "submit",
+        far.to_str().unwrap(),
+        "--config",
+        wide.to_str().unwrap(),
+    ]));
     let text = String::from_utf8_lossy(&out.stdout);
     assert_eq!(out.status.code(), Some(2), "{text}");
     assert!(
@@ -245,12 +241,7 @@ fn config_check_names_the_key_and_line() {
         .replace("rate_hz = 500.0", "rate_hz = 5000.0");
     let bad = s.dir.join("bad.toml");
     std::fs::write(&bad, &text).unwrap();
-    let out = s
-        .command()
-        .args(["config", "check"])
-        .arg(&bad)
-        .output()
-        .unwrap();
+    let out = output(s.command().args(["config", "check"]).arg(&bad));
     let err = String::from_utf8_lossy(&out.stderr);
     let line = text
         .lines()
@@ -263,20 +254,9 @@ fn config_check_names_the_key_and_line() {
         err.contains(&format!("bad.toml:{line}: controller.rate_hz")),
         "{err}"
     );
-    let out = s
-        .command()
-        .arg("controller")
-        .arg("--config")
-        .arg(&bad)
-        .output()
-        .unwrap();
+    let out = output(s.command().arg("controller").arg("--config").arg(&bad));
     assert_eq!(out.status.code(), Some(78), "{out:?}");
-    let out = s
-        .command()
-        .args(["config", "check"])
-        .arg(&s.config)
-        .output()
-        .unwrap();
+    let out = output(s.command().args(["config", "check"]).arg(&s.config));
     assert!(out.status.success());
 }
 
@@ -286,15 +266,14 @@ fn a_bad_scenario_is_refused_before_anything_starts() {
     let bad = s.dir.join("bad-scenario.toml");
     std::fs::write(&bad, "# a typo\n[arm]\ntool_m = 0.05\ntool_mm = 0.06\n").unwrap();
     for role in ["sim", "up"] {
-        let out = s
-            .command()
-            .arg(role)
-            .arg("--scenario")
-            .arg(&bad)
-            .arg("--config")
-            .arg(&s.config)
-            .output()
-            .unwrap();
+        let out = output(
+            s.command()
+                .arg(role)
+                .arg("--scenario")
+                .arg(&bad)
+                .arg("--config")
+                .arg(&s.config),
+        );
         let err = String::from_utf8_lossy(&out.stderr);
         assert_eq!(out.status.code(), Some(78), "{role}: {err}");
         assert!(
@@ -302,12 +281,11 @@ fn a_bad_scenario_is_refused_before_anything_starts() {
             "{role}: {err}"
         );
     }
-    let out = s
-        .command()
-        .args(["sim", "--scenario", "no-such-arm", "--config"])
-        .arg(&s.config)
-        .output()
-        .unwrap();
+    let out = output(
+        s.command()
+            .args(["sim", "--scenario", "no-such-arm", "--config"])
+            .arg(&s.config),
+    );
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(78), "{err}");
     assert!(err.contains("tool-change"), "names the shipped ones: {err}");

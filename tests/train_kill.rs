@@ -95,17 +95,15 @@ fn made_by(m: &Model, quick: &Model, seed: u64, when: &str) -> Option<String> {
 /// itself, the temporaries its pid left behind).
 fn train(s: &TestStack, train_seed: u64, how: Kill, model: &Path) -> (bool, Vec<String>) {
     let log = std::fs::File::create(s.dir.join(format!("train-{train_seed}.log"))).unwrap();
-    let mut child = Guard(
+    let mut child = Guard::spawn(
         s.command()
             .args(["train", "--seed", &train_seed.to_string(), "--config"])
             .arg(&s.config)
             .env("RUST_LOG", "info")
             .stdout(Stdio::null())
-            .stderr(log)
-            .spawn()
-            .unwrap(),
+            .stderr(log),
     );
-    let pid = child.0.id();
+    let pid = child.id();
     let ours = format!(".{pid}.tmp");
     let before: Vec<String> = tensors_files(model);
     let start = Instant::now();
@@ -115,7 +113,7 @@ fn train(s: &TestStack, train_seed: u64, how: Kill, model: &Path) -> (bool, Vec<
     // last line says, however slow the machine is otherwise.
     let mut said = (0, Instant::now());
     loop {
-        if let Some(status) = child.0.try_wait().unwrap() {
+        if let Some(status) = child.try_wait().unwrap() {
             let log = std::fs::read_to_string(s.dir.join(format!("train-{train_seed}.log")));
             assert!(
                 status.success(),
@@ -139,7 +137,7 @@ fn train(s: &TestStack, train_seed: u64, how: Kill, model: &Path) -> (bool, Vec<
         };
         if due {
             kill(Pid::from_raw(pid as i32), Signal::SIGKILL).unwrap();
-            child.0.wait().unwrap();
+            child.wait().unwrap();
             let left = temporaries(model)
                 .into_iter()
                 .filter(|n| n.ends_with(&ours))

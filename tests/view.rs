@@ -23,7 +23,7 @@ use softarm_clients::stats;
 use softarm_ipc::ControllerState;
 use softarm_stack::supervisor::rss_kib;
 use softarm_test_support::{
-    DEMO_WAYPOINTS, Guard, TestStack, config_text, eventually, set_id, with_overrides,
+    DEMO_WAYPOINTS, Guard, TestStack, config_text, eventually, output, set_id, with_overrides,
 };
 
 use crate::python::{python, run_python};
@@ -112,7 +112,7 @@ fn an_independent_client_sees_every_service_and_the_arm_where_the_tracker_is() {
 
     // Every service and the scene, each with a schema that is what it says.
     let channels = got["channels"].as_object().unwrap();
-    for topic in softarm_clients::channels::TOPICS {
+    for topic in softarm_channels::TOPICS {
         let c = &channels[topic];
         assert_eq!(c["encoding"], "json", "{topic}: {c}");
         assert_eq!(c["schemaEncoding"], "jsonschema", "{topic}: {c}");
@@ -210,11 +210,11 @@ fn a_client_offering_the_crates_name_gets_it_and_one_offering_another_gets_http_
 
     // Neither the documented name nor the crate's: the server's own refusal, and the view's
     // log says what it accepts.
-    let out = Command::new(&py)
-        .args([CLIENT, "--url", &url, "--json", "--subprotocol", "foo.v1"])
-        .env("PYTHONDONTWRITEBYTECODE", "1")
-        .output()
-        .unwrap();
+    let out = output(
+        Command::new(&py)
+            .args([CLIENT, "--url", &url, "--json", "--subprotocol", "foo.v1"])
+            .env("PYTHONDONTWRITEBYTECODE", "1"),
+    );
     let text = String::from_utf8_lossy(&out.stdout);
     assert_eq!(out.status.code(), Some(2), "{text}");
     let got: Value = serde_json::from_str(&text).unwrap_or_else(|e| panic!("{e}: {text}"));
@@ -250,14 +250,12 @@ fn a_client_that_reads_nothing_loses_messages_not_the_stack_nor_the_views_memory
     // Reads nothing for 20 s, then reads what still comes for up to 10 s. The sockets' buffers
     // on the way hold the first several seconds (the server's send buffer grows to
     // net.ipv4.tcp_wmem's maximum, 4 MiB, about 8 s of everything), so the pause outlasts them.
-    let mut slow = Guard(
+    let mut slow = Guard::spawn(
         Command::new(&py)
             .arg(CLIENT)
             .args(["--url", &url, "--slow", "20", "--seconds", "10"])
             .env("PYTHONDONTWRITEBYTECODE", "1")
-            .stdout(Stdio::piped())
-            .spawn()
-            .unwrap(),
+            .stdout(Stdio::piped()),
     );
     let mut stdout = slow.stdout.take().unwrap();
     let reader = std::thread::spawn(move || {

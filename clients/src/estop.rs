@@ -17,9 +17,8 @@ use softarm_ipc::{
 use softarm_runtime::{EstopLatch, now_ns};
 
 /// The processes that move the arm, and so must confirm: the controller by its `status`, a
-/// driver that moves actuators by its `motor_state`. (The tracker driver only reads.)
+/// driver that moves actuators ([`softarm_ipc::Driver::moves`]) by its `motor_state`.
 const CONTROLLER: &str = "controller";
-const MOVERS: [&str; 2] = ["sim", "tendon"];
 
 /// How long `softarm estop` waits for the stack to confirm.
 pub const CONFIRM_TIMEOUT: Duration = Duration::from_secs(5);
@@ -79,7 +78,7 @@ impl Pending {
                     self.controller.map(ControllerState::name),
                     self.controller.is_some_and(|s| self.controller_took(s)),
                 )
-            } else if MOVERS.contains(&role.as_str()) {
+            } else if softarm_ipc::Driver::named(role).is_some_and(|d| d.moves) {
                 (
                     self.driver.map(DriverState::name),
                     self.driver.is_some_and(|s| self.driver_took(s)),

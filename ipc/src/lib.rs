@@ -15,6 +15,8 @@ use std::path::{Path, PathBuf};
 
 pub use iceoryx2;
 
+pub mod drivers;
+pub use drivers::{DRIVERS, Driver};
 pub use softarm_space::{ACTUATORS, Actuation, MAX_WAYPOINTS, Position};
 /// Longest reason text in a reply.
 pub const MAX_REASON: usize = 200;
@@ -616,7 +618,7 @@ impl Node {
         self.pubsub("tracker", 1, ARM_BUFFER, 2, MAX_SUBSCRIBERS)
     }
 
-    /// `motor_state`: from sim or the tendon driver.
+    /// `motor_state`: from the drivers that move the arm ([`Driver::moves`]: sim or tendon).
     pub fn motor_state(&self) -> Result<PubSub<MotorState>, Error> {
         self.pubsub("motor_state", 1, ARM_BUFFER, 2, MAX_SUBSCRIBERS)
     }

@@ -36,13 +36,12 @@ pub mod scenario;
 pub mod view;
 pub mod waypoints;
 
+use softarm_ipc::drivers::{DRIVERS, Driver};
+
 use crate::hardware::{TendonConfig, TrackerConfig};
 use crate::host::HostConfig;
 use crate::ros2::Ros2Config;
 use crate::view::ViewConfig;
-
-/// The drivers this build has: the simulated arm, or the real arm's motors and tracker.
-pub const DRIVERS: [&str; 3] = ["sim", "tendon", "tracker"];
 
 /// The config of an installed stack (`softarm install` writes it): what a command uses when
 /// it is given none and [`CONFIG_ENV`] is not set.
@@ -279,6 +278,16 @@ pub struct ConfigError {
 }
 
 impl Config {
+    /// Whether the config has the section of hardware driver `driver` ([`Driver::hardware`]:
+    /// `[tendon]`, `[tracker]`), which that driver needs.
+    pub fn has_section(&self, driver: &str) -> bool {
+        match driver {
+            "tendon" => self.tendon.is_some(),
+            "tracker" => self.tracker.is_some(),
+            _ => false,
+        }
+    }
+
     /// Reads and checks a config file.
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
         let text = std::fs::read_to_string(path).map_err(|e| ConfigError {
@@ -361,28 +370,34 @@ impl Config {
             (key.to_string(), m.to_string())
         })?;
         for (i, d) in r.drivers.iter().enumerate() {
-            if !DRIVERS.contains(&d.as_str()) {
+            if Driver::named(d).is_none() {
                 return invalid(
                     "robot.drivers",
-                    format!("unknown driver {d:?}; this build has {DRIVERS:?}"),
+                    format!("unknown driver {d:?}; this build has {:?}", Driver::names()),
                 );
             }
             if r.drivers[..i].contains(d) {
                 return invalid("robot.drivers", format!("driver {d:?} is listed twice"));
             }
         }
-        let has = |d: &str| r.drivers.iter().any(|x| x == d);
-        if has("sim") && (has("tendon") || has("tracker")) {
+        let listed = || {
+            DRIVERS
+                .iter()
+                .filter(|d| r.drivers.iter().any(|x| x == d.name))
+        };
+        if let Some(whole) = listed().find(|d| !d.hardware)
+            && listed().any(|d| d.hardware)
+        {
             return invalid(
                 "robot.drivers",
-                "\"sim\" is the whole arm: list it alone, or the hardware drivers".into(),
+                format!(
+                    "\"{}\" is the whole arm: list it alone, or the hardware drivers",
+                    whole.name
+                ),
             );
         }
-        for (driver, present) in [
-            ("tendon", self.tendon.is_some()),
-            ("tracker", self.tracker.is_some()),
-        ] {
-            if has(driver) && !present {
+        for driver in listed().filter(|d| d.hardware).map(|d| d.name) {
+            if !self.has_section(driver) {
                 return invalid(
                     "robot.drivers",
                     format!("lists \"{driver}\" but the config has no [{driver}] section"),
@@ -848,6 +863,36 @@ mod tests {
         assert_eq!(
             (&c.arm, &c.learner, &c.controller),
             (&d.arm, &d.learner, &d.controller)
+        );
+    }
+
+    #[test]
+    fn every_driver_of_the_registry_is_checked() {
+        // Each hardware driver's section is one the config knows.
+        let hardware = Config::parse(HARDWARE, "hardware.toml", ".".into()).unwrap();
+        let sim = Config::default_sim(".".into());
+        for d in DRIVERS.iter().filter(|d| d.hardware) {
+            assert!(
+                hardware.has_section(d.name) && !sim.has_section(d.name),
+                "{}",
+                d.name
+            );
+        }
+        let unknown = DEFAULT.replace(r#"drivers = ["sim"]"#, r#"drivers = ["arm"]"#);
+        assert_ne!(unknown, DEFAULT);
+        let e = Config::parse(&unknown, "c.toml", ".".into()).unwrap_err();
+        assert_eq!(
+            e.message,
+            r#"robot.drivers: unknown driver "arm"; this build has ["sim", "tendon", "tracker"]"#
+        );
+        let mixed = HARDWARE.replace(
+            r#"drivers = ["tendon", "tracker"]"#,
+            r#"drivers = ["tracker", "sim"]"#,
+        );
+        let e = Config::parse(&mixed, "h.toml", ".".into()).unwrap_err();
+        assert_eq!(
+            e.message,
+            r#"robot.drivers: "sim" is the whole arm: list it alone, or the hardware drivers"#
         );
     }
 

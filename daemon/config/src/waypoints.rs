@@ -74,28 +74,6 @@ impl WaypointFile {
         check_points(d, &times, &positions)
     }
 
-    /// A set like this one at new places, as `softarm soak` submits them: each point moved up to
-    /// 25 mm along each axis, and, in three of ten, one point left out (of sets of three or
-    /// more).
-    pub fn variation(&self, rng: &mut impl rand::Rng) -> Self {
-        use rand::RngExt;
-        let mut point: Vec<Point> = self
-            .point
-            .iter()
-            .map(|p| Point {
-                t_s: p.t_s,
-                position_m: p.position_m.map(|v| v + rng.random_range(-0.025..0.025)),
-            })
-            .collect();
-        if point.len() > 2 && rng.random_bool(0.3) {
-            point.remove(rng.random_range(0..point.len()));
-        }
-        Self {
-            duration_s: self.duration_s,
-            point,
-        }
-    }
-
     /// The request payload; more than `MAX_WAYPOINTS` points is an error here already.
     pub fn to_set(&self, executions: u32) -> Result<WaypointSet, String> {
         if self.point.len() > MAX_WAYPOINTS {

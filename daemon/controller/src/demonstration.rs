@@ -9,7 +9,7 @@ use softarm_ipc::Actuation;
 pub(crate) const NO_DEMO: u32 = u32::MAX;
 
 /// Demonstration sequences to play, as the service thread hands them to the tick.
-pub(crate) struct DemoSequences {
+pub struct DemoSequences {
     /// (class, samples) per demonstration.
     pub(crate) sequences: Vec<(usize, Vec<Actuation>)>,
     /// Ticks per sequence sample.

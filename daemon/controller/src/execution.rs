@@ -450,7 +450,7 @@ pub(crate) mod tests {
     }
 
     /// [`planner`]'s set, executed twice.
-    fn ready_set() -> Box<ReadySet> {
+    pub(crate) fn ready_set() -> Box<ReadySet> {
         ready_set_and_replanner().0
     }
 

@@ -17,6 +17,7 @@
 //! Alg. 2 with this very code on a simulated plant, in one process.
 
 mod admission;
+mod control;
 mod demonstration;
 mod execution;
 mod io;
@@ -28,6 +29,8 @@ mod service;
 mod tick;
 
 pub use admission::{Admitted, admit};
+pub use control::{Control, Decided, Health, Latest, Outputs, Plan, Report, Retired};
+pub use demonstration::DemoSequences;
 pub use execution::{
     Execution, ExecutionTick, REACH_WAIT_NS, REACH_WINDOW_NS, ReadySet, Track, rest_ticks,
 };
@@ -41,20 +44,6 @@ use std::thread::JoinHandle;
 use anyhow::{Context, anyhow};
 use rtrb::RingBuffer;
 use softarm_config::Config;
-
-use demonstration::DemoSequences;
-
-/// What the service thread hands the tick.
-enum ToTick {
-    Execute(Box<ReadySet>),
-    Demonstrate(Box<DemoSequences>),
-}
-
-/// What the tick is done with, handed back to be freed off the tick thread.
-enum Retired {
-    Set(Box<ReadySet>),
-    Demo(Box<DemoSequences>),
-}
 
 /// Room for sets and demonstrations on their way to the tick, and back.
 const TO_TICK_CAPACITY: usize = 4;
@@ -85,7 +74,7 @@ pub fn run(config: &Config, stop: &AtomicBool) -> anyhow::Result<()> {
         );
     }
     shared.latched.store(latched, Ordering::Relaxed);
-    let (to_tick, plans) = RingBuffer::<ToTick>::new(TO_TICK_CAPACITY);
+    let (to_tick, plans) = RingBuffer::<Plan>::new(TO_TICK_CAPACITY);
     let (retired, retired_rx) = RingBuffer::<Retired>::new(RETIRED_CAPACITY);
     // Tells the service and io threads to finish once the tick has.
     let threads_stop = Arc::new(AtomicBool::new(false));

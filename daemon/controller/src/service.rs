@@ -19,8 +19,9 @@ use softarm_model::bundle::{BundleWatch, Model};
 use softarm_runtime::{EstopLatch, now_ns};
 
 use crate::admission::{Admitted, admit};
+use crate::control::{Plan, Retired};
 use crate::demonstration::DemoSequences;
-use crate::{Retired, Shared, ToTick, rt};
+use crate::{Shared, rt};
 
 /// How often the service thread looks for work: quick enough for users and the learner, and
 /// light on the CPU.
@@ -139,7 +140,7 @@ pub(crate) struct Service {
     config: Config,
     shared: Arc<Shared>,
     ports: Ports,
-    to_tick: Producer<ToTick>,
+    to_tick: Producer<Plan>,
     retired: Consumer<Retired>,
     slot: ModelSlot,
     pending: Option<PendingSet>,
@@ -156,7 +157,7 @@ impl Service {
         config: Config,
         namespace: Namespace,
         shared: Arc<Shared>,
-        to_tick: Producer<ToTick>,
+        to_tick: Producer<Plan>,
         retired: Consumer<Retired>,
     ) -> anyhow::Result<Self> {
         let ports = Ports::open(namespace).context("opening the service thread's ports")?;
@@ -279,7 +280,7 @@ impl Service {
                 let sent = !self.to_tick.is_abandoned()
                     && self
                         .to_tick
-                        .push(ToTick::Demonstrate(Box::new(sequences)))
+                        .push(Plan::Demonstrate(Box::new(sequences)))
                         .is_ok();
                 if sent {
                     DemonstrateReply {
@@ -346,7 +347,7 @@ impl Service {
         }
         match p.admitted.start(p.set_id, &p.estimates) {
             Ok((set, replanner)) => {
-                if self.send_to_tick(ToTick::Execute(Box::new(set))) {
+                if self.send_to_tick(Plan::Execute(Box::new(set))) {
                     self.handed.add(p.set_id, replanner);
                 }
             }
@@ -378,7 +379,7 @@ impl Service {
 
     /// Hands the tick a message, waiting (this thread only) while its ring is full; false if
     /// the tick is gone.
-    fn send_to_tick(&mut self, mut m: ToTick) -> bool {
+    fn send_to_tick(&mut self, mut m: Plan) -> bool {
         loop {
             if self.to_tick.is_abandoned() {
                 return false;

@@ -13,7 +13,7 @@
 //! averaged, and taken where the arm stood still or moved slowly.
 //! Pure: no I/O.
 
-use nalgebra::{DMatrix, DVector, SVector, Vector3};
+use nalgebra::{DMatrix, DVector, Matrix3, SVector, Vector3};
 
 use softarm_method::forward::{ForwardModel, Jacobian};
 use softarm_method::pcc::ArmGeometry;
@@ -155,7 +155,7 @@ impl CalibratedArm {
                 break;
             }
             let j: Jacobian = model.jacobian(&a);
-            let Some(pinv) = crate::online::damped_pseudo_inverse(&j, 1e-3) else {
+            let Some(pinv) = damped_pseudo_inverse(&j, 1e-3) else {
                 break;
             };
             let back = SVector::<f64, ACTUATORS>::from_fn(|i, _| start[i] - a[i]);
@@ -164,6 +164,17 @@ impl CalibratedArm {
         }
         a
     }
+}
+
+/// Jᵀ (J Jᵀ + λ² I)⁻¹: the damped minimum-norm inverse of a Jacobian; none if singular. Here
+/// rather than in `online`, which uses it too, so that `online` depends on this module and not
+/// the other way round.
+pub(crate) fn damped_pseudo_inverse(
+    j: &Jacobian,
+    damping: f64,
+) -> Option<nalgebra::SMatrix<f64, ACTUATORS, 3>> {
+    let jjt = j * j.transpose() + Matrix3::identity() * damping * damping;
+    Some(j.transpose() * jjt.try_inverse()?)
 }
 
 fn dist2(a: &Position, b: &Position) -> f64 {

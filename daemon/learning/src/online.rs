@@ -20,11 +20,11 @@
 //! one that knows nothing of the arm.
 //! Pure: no I/O, no clock; allocation only when a set starts.
 
-use nalgebra::{Matrix3, SVector, Vector3};
+use nalgebra::{SVector, Vector3};
 
 use crate::arm::{Corrected, Corrections, Footprint, Sample, Seen};
 use crate::cacla::{CaclaMtl, PointMemory, Visit};
-use crate::calibration::CalibratedArm;
+use crate::calibration::{CalibratedArm, damped_pseudo_inverse};
 use softarm_method::forward::{ForwardModel, Jacobian};
 use softarm_method::learner_config::{Algorithm, GaussNewtonConfig};
 use softarm_method::pcc::ArmGeometry;
@@ -178,15 +178,6 @@ fn gauss_newton_step(
         step *= radius / norm;
     }
     std::array::from_fn(|i| step[i])
-}
-
-/// Jᵀ (J Jᵀ + λ² I)⁻¹: the damped minimum-norm inverse of a Jacobian; none if singular.
-pub(crate) fn damped_pseudo_inverse(
-    j: &Jacobian,
-    damping: f64,
-) -> Option<nalgebra::SMatrix<f64, ACTUATORS, 3>> {
-    let jjt = j * j.transpose() + Matrix3::identity() * damping * damping;
-    Some(j.transpose() * jjt.try_inverse()?)
 }
 
 /// An actuator at `a` that a step of `s` would push out of [0, 1].

@@ -69,12 +69,26 @@ fn direct(
     std::array::from_fn(|d| v[d])
 }
 
+/// v at tick `k` as the controller plays it (`Blend::tick`), used here as a read: it must take
+/// no re-conditioned table in and hold no group, so it is v of the tables in force.
+fn read(blend: &mut Blend<D>, k: usize) -> [f64; D] {
+    let (applied, held) = (blend.applied(), blend.held_solves());
+    let v = blend.tick(k);
+    assert_eq!(
+        blend.applied(),
+        applied,
+        "reading tick {k} swapped a table in"
+    );
+    assert_eq!(blend.held_solves(), held, "reading tick {k} held a group");
+    v
+}
+
 #[test]
 fn engine_agrees_with_a_direct_evaluation() {
     let prims = primitives(3, 15);
     let p = planner(100.0);
     let init = initial();
-    let (blend, _r) = Planner::new(
+    let (mut blend, _r) = Planner::new(
         prims.clone(),
         &T_COND,
         &Q,
@@ -88,7 +102,7 @@ fn engine_agrees_with_a_direct_evaluation() {
     let mut worst = 0.0f64;
     for tick in (0..blend.timeline().ticks()).step_by(7) {
         let want = direct(&p, &prims, &init, tick);
-        let got = blend.evaluate(tick);
+        let got = read(&mut blend, tick);
         for d in 0..D {
             worst = worst.max((got[d] - want[d]).abs());
         }
@@ -101,9 +115,9 @@ fn conditioned_actuation_is_reproduced_at_each_point() {
     let p = planner(500.0);
     let ticks = p.conditioning_ticks().to_vec();
     let init = initial();
-    let (blend, _r) = p.start(&init).unwrap();
+    let (mut blend, _r) = p.start(&init).unwrap();
     for (n, &k) in ticks.iter().enumerate() {
-        let v = blend.evaluate(k);
+        let v = read(&mut blend, k);
         for d in 0..D {
             assert!(
                 (v[d] - init[n][d]).abs() < 1e-3,
@@ -123,7 +137,7 @@ fn reconditioning_the_next_group_never_changes_the_past_or_present() {
         let next = n + 1;
         let (mut blend, mut replanner) = planner(rate).start(&initial()).unwrap();
         let tl = *blend.timeline();
-        let before: Vec<_> = (0..tl.ticks()).map(|k| blend.evaluate(k)).collect();
+        let before: Vec<_> = (0..tl.ticks()).map(|k| read(&mut blend, k)).collect();
 
         let estimate: [f64; D] = std::array::from_fn(|d| 0.6 - 0.04 * d as f64);
         replanner.recondition(next, &estimate, 2).unwrap();
@@ -134,13 +148,13 @@ fn reconditioning_the_next_group_never_changes_the_past_or_present() {
 
         let end_of_window = tl.tick_of(T_COND[n] + half_window);
         for k in 0..=end_of_window {
-            let now = blend.evaluate(k);
+            let now = read(&mut blend, k);
             for d in 0..D {
                 assert!((now[d] - before[k][d]).abs() <= 1e-12, "n = {n}, tick {k}");
             }
         }
         let k_next = tl.tick_of(T_COND[next]);
-        let now = blend.evaluate(k_next);
+        let now = read(&mut blend, k_next);
         for d in 0..D {
             assert!(
                 (now[d] - estimate[d]).abs() < 1e-3,
@@ -156,7 +170,7 @@ fn an_update_waits_while_its_group_is_active() {
     let (mut blend, mut replanner) = planner(500.0).start(&initial()).unwrap();
     let tl = *blend.timeline();
     let k2 = tl.tick_of(T_COND[2]);
-    let old = blend.evaluate(k2);
+    let old = read(&mut blend, k2);
     let estimate = [0.9; D];
     replanner.recondition(2, &estimate, 2).unwrap();
     // Inside group 2's window: held back, v unchanged.
@@ -165,19 +179,19 @@ fn an_update_waits_while_its_group_is_active() {
     // Group 2's window and hand-over are over at T_cond[3]: taken in.
     blend.tick(tl.tick_of(T_COND[3]));
     assert!(!blend.has_pending());
-    let v = blend.evaluate(k2);
+    let v = read(&mut blend, k2);
     assert!(v.iter().all(|x| (x - 0.9).abs() < 1e-3), "{v:?}");
 }
 
 /// One execution as the controller plays it: `rest` ticks of rest, then the timeline, calling
-/// `at(k)` after each tick k.
-fn play(blend: &mut Blend<D>, rest: usize, mut at: impl FnMut(&mut Blend<D>, usize)) {
+/// `at(k, v)` after each tick k with the v it played.
+fn play(blend: &mut Blend<D>, rest: usize, mut at: impl FnMut(usize, [f64; D])) {
     for _ in 0..rest {
         blend.rest();
     }
     for k in 0..blend.timeline().ticks() {
-        blend.tick(k);
-        at(blend, k);
+        let v = blend.tick(k);
+        at(k, v);
     }
 }
 
@@ -206,8 +220,8 @@ fn a_one_point_set_applies_each_estimate_in_its_next_execution() {
     // group is active, so it waits, and execution 1 plays on unchanged.
     let second = [0.6; D];
     let mut played = Vec::new();
-    play(&mut blend, rest, |e, k| {
-        played.push(e.evaluate(k));
+    play(&mut blend, rest, |k, v| {
+        played.push(v);
         if k == k0 + 3 {
             replanner.recondition(0, &second, 2).unwrap();
         }
@@ -215,7 +229,7 @@ fn a_one_point_set_applies_each_estimate_in_its_next_execution() {
     assert!(near(&played[k0], &first, 1e-3), "{:?}", played[k0]);
     assert!(blend.has_pending() && blend.applied() == 0);
     assert_eq!(
-        blend.evaluate(k0),
+        read(&mut blend, k0),
         played[k0],
         "nothing moved during execution 1"
     );
@@ -231,9 +245,9 @@ fn a_one_point_set_applies_each_estimate_in_its_next_execution() {
     // Execution 2 uses it; an estimate arriving after execution 2 ended is used in execution 3.
     let third = [0.35; D];
     let mut at_point = None;
-    play(&mut blend, rest, |e, k| {
+    play(&mut blend, rest, |k, v| {
         if k == k0 {
-            at_point = Some(e.evaluate(k));
+            at_point = Some(v);
         }
     });
     assert!(near(&at_point.unwrap(), &second, 1e-3), "{at_point:?}");
@@ -246,9 +260,9 @@ fn a_one_point_set_applies_each_estimate_in_its_next_execution() {
         }
     );
     replanner.recondition(0, &third, 3).unwrap();
-    play(&mut blend, rest, |e, k| {
+    play(&mut blend, rest, |k, v| {
         if k == k0 {
-            at_point = Some(e.evaluate(k));
+            at_point = Some(v);
         }
     });
     assert!(near(&at_point.unwrap(), &third, 1e-3), "{at_point:?}");
@@ -258,7 +272,7 @@ fn a_one_point_set_applies_each_estimate_in_its_next_execution() {
     // Without a rest (controller.rest_s = 0), the execution's first tick takes it in.
     replanner.recondition(0, &first, 4).unwrap();
     play(&mut blend, 0, |_, _| {});
-    assert!(near(&blend.evaluate(k0), &first, 1e-3));
+    assert!(near(&read(&mut blend, k0), &first, 1e-3));
     assert_eq!(blend.applied(), 3);
 }
 
@@ -272,9 +286,9 @@ fn an_estimate_for_group_0_arriving_after_the_execution_is_used_in_the_next() {
     let estimate = [0.7; D];
     replanner.recondition(0, &estimate, 2).unwrap();
     let mut at_point = None;
-    play(&mut blend, 20, |e, k| {
+    play(&mut blend, 20, |k, v| {
         if k == k0 {
-            at_point = Some(e.evaluate(k));
+            at_point = Some(v);
         }
     });
     assert!(near(&at_point.unwrap(), &estimate, 1e-3), "{at_point:?}");
@@ -285,7 +299,7 @@ fn an_estimate_for_group_0_arriving_after_the_execution_is_used_in_the_next() {
 fn bad_estimates_are_refused_and_change_nothing() {
     let (mut blend, mut replanner) = planner(100.0).start(&initial()).unwrap();
     let before: Vec<_> = (0..blend.timeline().ticks())
-        .map(|k| blend.evaluate(k))
+        .map(|k| read(&mut blend, k))
         .collect();
     let mut bad = [0.5; D];
     bad[3] = f64::NAN;

@@ -61,7 +61,7 @@ pub enum PipelineError {
     Learner(String),
 }
 
-/// How the pipeline trains; `softarm_clients::train::training` gives `softarm train`'s settings
+/// How the pipeline trains; `softarm_train::training` gives `softarm train`'s settings
 /// from a config.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Training {

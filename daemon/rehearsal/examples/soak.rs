@@ -1,4 +1,4 @@
-//! Diagnostic: `softarm soak`'s pattern in one process, faster than real time: sets one after
+//! Diagnostic: `softarm soak`'s pattern (`softarm_stack::soak::sets::nth`) in one process, faster than real time: sets one after
 //! another (the demo set every third, else a variation of it, each point moved up to 25 mm and
 //! sometimes one left out), 3 to 6 executions each, the arm changed to the next scenario of a
 //! rotation every CHANGE_EVERY_S of simulated time; per set its executions' mean errors.
@@ -81,7 +81,7 @@ fn main() -> anyhow::Result<()> {
     let mut rng = StdRng::seed_from_u64(seed);
     let scenarios: Vec<&str> = rotation.split(',').collect();
     let (mut t_s, mut next_change_s, mut next) = (0.0, every_s, 0);
-    let (mut sets, mut over, mut worse, mut from_third) = (0, 0, 0, 0);
+    let (mut sets, mut over, mut worse, mut from_third) = (0u64, 0, 0, 0);
     let mut name = "nominal".to_string();
     while t_s < minutes * 60.0 {
         let changes = r.learner().arm_changes();
@@ -93,12 +93,7 @@ fn main() -> anyhow::Result<()> {
             next += 1;
             next_change_s += every_s;
         }
-        let set = if sets % 3 == 0 {
-            demo.clone()
-        } else {
-            demo.variation(&mut rng)
-        };
-        let executions = rng.random_range(3..=6);
+        let (set, executions) = softarm_stack::soak::sets::nth(sets, &demo, &mut rng);
         // A fresh learner beside the same controller: the lag it had measured.
         let lag = r.lag().clone();
         let stats = r.rehearse(&set, executions)?;

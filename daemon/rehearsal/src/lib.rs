@@ -3,9 +3,9 @@
 //! (`cargo run --release -p softarm-rehearsal --example online`).
 //!
 //! It is the running stack's own code with the processes and the wall clock taken out: the
-//! controller's admission ([`admit`], [`Admitted::start`]), its [`Execution`] and [`Limiter`]
+//! controller's admission ([`admit`], [`Admitted::start`]) and its tick's steps ([`Control`])
 //! on a simulated tick clock, the learner's [`Learner`] answering each request and visit, and
-//! a [`Plant`] stepped as the sim driver steps it (hal-drivers/sim). Only the transport and the
+//! the sim driver's [`SimArm`] stepped on the sim's own deadlines. Only the transport and the
 //! clock are simulated ([`Rehearsal`] says where they differ from the stack); what is tuned
 //! here is what runs.
 //!
@@ -14,13 +14,17 @@
 use anyhow::{Context, bail};
 use softarm_config::Config;
 use softarm_config::waypoints::WaypointFile;
-use softarm_controller::{ActuatorLag, Execution, Limiter, Track, admit, rest_ticks};
-use softarm_ipc::{ACTUATORS, Actuation, ActuationEstimate, ExecutionStats, WaypointSet};
+use softarm_controller::{ActuatorLag, Control, Latest, Outputs, Plan, Retired, admit, rest_ticks};
+use softarm_ipc::{
+    ACTUATORS, Actuation, ActuationEstimate, ConditioningSample, ControllerState, ExecutionStats,
+    Setpoint, WaypointSet,
+};
 use softarm_learner::Learner;
 use softarm_method::blend::Replanner;
 use softarm_method::pcc::ArmGeometry;
-use softarm_method::plant::{Measurement, Plant, SimConfig};
+use softarm_method::plant::{Measurement, SimConfig};
 use softarm_model::bundle::Model;
+use softarm_sim::SimArm;
 
 const NS_PER_S: f64 = 1e9;
 
@@ -103,43 +107,35 @@ impl StallClock {
 }
 
 /// The sim driver in simulated time: on its own deadlines (`sim.rate_hz`) it takes the newest
-/// setpoint, steps the plant by one period and publishes the measurement, which is the newest
-/// tracker and motor sample the controller's tick reads until the next.
-struct SimArm {
-    plant: Plant,
+/// setpoint, steps its [`SimArm`] and publishes the measurement, which is the newest tracker
+/// and motor sample the controller's tick reads until the next.
+struct SimDriver {
+    arm: SimArm,
     period_ns: u64,
-    dt: f64,
     /// Its next deadline (ns of simulated time).
     due_ns: u64,
-    /// The newest setpoint (before the first, where the arm starts, as the sim holds it).
-    command: Actuation,
+    /// The newest setpoint the controller published for it to follow, not yet taken.
+    setpoint: Option<Actuation>,
     newest: Measurement,
-    /// When `newest` was published (ns).
-    newest_ns: u64,
     /// Its own stalls, if the machine has them.
     stalls: Option<StallClock>,
     /// Periods slept through in the stall under way, stepped at its next deadline.
     missed: u64,
 }
 
-impl SimArm {
-    /// The sim driver's plant, as it starts when no controller runs: at
-    /// `sim.initial_actuation`, its first measurement published at time 0.
+impl SimDriver {
+    /// The sim driver's arm, as it starts when no controller runs: at `sim.initial_actuation`,
+    /// its first measurement published at time 0.
     fn new(arm: ArmGeometry, sim: &SimConfig) -> anyhow::Result<Self> {
-        let mut plant = Plant::of_sim(arm, sim, sim.initial_actuation)
-            .map_err(anyhow::Error::msg)
-            .context("the simulated plant")?;
-        let dt = 1.0 / sim.rate_hz;
-        let command = sim.initial_actuation;
-        let newest = plant.step(&command, dt);
+        let mut arm = SimArm::new(arm, sim, sim.initial_actuation)?;
+        let newest = arm.step(None, false, 1);
+        let period_ns = (arm.dt() * NS_PER_S).round() as u64;
         Ok(Self {
-            plant,
-            period_ns: (dt * NS_PER_S).round() as u64,
-            dt,
-            due_ns: (dt * NS_PER_S).round() as u64,
-            command,
+            arm,
+            period_ns,
+            due_ns: period_ns,
+            setpoint: None,
             newest,
-            newest_ns: 0,
             stalls: None,
             missed: 0,
         })
@@ -165,13 +161,43 @@ impl SimArm {
                 self.due_ns += self.missed * self.period_ns;
                 continue;
             }
-            let dt = self.dt * (std::mem::take(&mut self.missed) + 1) as f64;
-            self.newest = self.plant.step(&self.command, dt);
-            self.newest_ns = self.due_ns;
+            let periods = std::mem::take(&mut self.missed) + 1;
+            self.newest = self.arm.step(self.setpoint.take(), false, periods);
             published(self.due_ns, &self.newest);
             self.due_ns += self.period_ns;
         }
     }
+}
+
+/// What one tick of the [`Control`] published.
+#[derive(Default)]
+struct Published {
+    setpoint: Option<Setpoint>,
+    sample: Option<ConditioningSample>,
+    stats: Option<ExecutionStats>,
+}
+
+impl Outputs for Published {
+    fn setpoint(&mut self, s: Setpoint) {
+        self.setpoint = Some(s);
+    }
+
+    fn sample(&mut self, s: ConditioningSample) {
+        self.sample = Some(s);
+    }
+
+    fn stats(&mut self, s: ExecutionStats) {
+        self.stats = Some(s);
+    }
+
+    /// Freed here: the rehearsal has no tick thread to keep from freeing.
+    fn retire(&mut self, _: Retired) {}
+}
+
+/// The running set's side on the service thread: its id and its replanner.
+struct Running {
+    set_id: u64,
+    replanner: Replanner<ACTUATORS>,
 }
 
 /// The controller's tick, the learner and the sim on one simulated clock: way-point sets run
@@ -191,17 +217,18 @@ pub struct Rehearsal<'a> {
     model: &'a Model,
     config: &'a Config,
     learner: Learner,
-    arm: SimArm,
-    /// Started, as the tick starts it, from the first measured state.
-    limiter: Limiter,
-    /// The actuators' lag, as the tick measures it and leads by.
-    lag: ActuatorLag,
+    sim_driver: SimDriver,
+    /// The controller's tick, as the tick thread runs it.
+    control: Control,
+    /// What the tick has read of the sim, as the controller's inputs keep it.
+    latest: Latest,
+    /// A set admitted and not yet handed to the tick.
+    plan: Option<Plan>,
+    running: Option<Running>,
     rest_ticks: i64,
     period_ns: u64,
     /// The simulated clock: the time of the next tick (ns).
     now_ns: u64,
-    /// The tracker samples the tick has read, as the controller's inputs keep them.
-    track: Track,
     next_set_id: u64,
     /// The sim's config, for a sim restarted as another arm.
     sim: SimConfig,
@@ -225,25 +252,24 @@ impl<'a> Rehearsal<'a> {
         sim: &SimConfig,
     ) -> anyhow::Result<Self> {
         let c = &config.controller;
-        let arm = SimArm::new(arm, sim)?;
-        let limiter = Limiter::new(
-            c.actuator_min,
-            c.actuator_max,
-            c.slew_per_s,
-            c.rate_hz,
-            arm.newest.actuation,
-        );
+        let sim_driver = SimDriver::new(arm, sim)?;
+        // The sim's first measurement, published at time 0, is what the first tick reads.
+        let mut latest = Latest::new(false);
+        latest.position = Some((sim_driver.newest.position, 0));
+        latest.track.push(0, sim_driver.newest.position);
+        latest.measured = Some((sim_driver.newest.actuation, 0));
         Ok(Self {
             model,
             config,
             learner,
-            arm,
-            limiter,
-            lag: ActuatorLag::new(c.rate_hz, c.max_lead_s),
+            sim_driver,
+            control: Control::new(c),
+            latest,
+            plan: None,
+            running: None,
             rest_ticks: rest_ticks(c),
             period_ns: (NS_PER_S / c.rate_hz).round() as u64,
             now_ns: 0,
-            track: Track::default(),
             next_set_id: 0,
             gap_due: false,
             sim: *sim,
@@ -258,7 +284,7 @@ impl<'a> Rehearsal<'a> {
     pub fn with_stalls(mut self, stalls: Stalls) -> Self {
         match stalls.of {
             Stalled::Controller => self.tick_stalls = Some(StallClock::new(stalls)),
-            Stalled::Sim => self.arm.stalls = Some(StallClock::new(stalls)),
+            Stalled::Sim => self.sim_driver.stalls = Some(StallClock::new(stalls)),
             Stalled::Learner => self.learner_stalls = Some(StallClock::new(stalls)),
         }
         self
@@ -270,14 +296,14 @@ impl<'a> Rehearsal<'a> {
 
     /// The actuators' lag as its controller has measured it.
     pub fn lag(&self) -> &ActuatorLag {
-        &self.lag
+        self.control.lag()
     }
 
     /// Its controller has measured `lag` already: a freshly started learner beside a
     /// controller that has been running, which is what "a fresh learner" is compared as (a
     /// fresh controller would lead by nothing in its first set).
     pub fn with_lag(mut self, lag: &ActuatorLag) -> Self {
-        self.lag = lag.clone();
+        self.control.set_lag(lag.clone());
         self
     }
 
@@ -289,12 +315,10 @@ impl<'a> Rehearsal<'a> {
     /// The sim's arm changes between sets, as when `softarm soak` restarts the sim with another
     /// scenario: the arm held for [`END_HOLD_NS`] after the last set, no sample for
     /// [`SIM_AWAY_NS`], then the arm held where it was for [`CHANGE_HOLD_NS`] before the next
-    /// set, as the stack's; the learner watches it (no set runs, so what it would send goes
-    /// nowhere).
+    /// set, as the stack's; the learner watches it, and the controller ticks on, holding.
     pub fn change_arm(&mut self, arm: ArmGeometry) -> anyhow::Result<()> {
         if self.gap_due {
-            self.now_ns += END_HOLD_NS;
-            self.hold();
+            self.hold_for(END_HOLD_NS);
             self.gap_due = false;
         }
         // As the sim driver restarts: a new plant, its realism from its seed, started at the
@@ -304,13 +328,13 @@ impl<'a> Rehearsal<'a> {
             changes: Default::default(),
             ..self.sim
         };
-        self.arm.plant = Plant::of_sim(arm, &sim, self.arm.command)
-            .map_err(anyhow::Error::msg)
-            .context("the restarted sim's plant")?;
-        self.now_ns += SIM_AWAY_NS;
-        self.arm.away_until(self.now_ns);
-        self.now_ns += CHANGE_HOLD_NS;
-        self.hold();
+        let held = self
+            .sim_driver
+            .setpoint
+            .unwrap_or(self.sim_driver.arm.command());
+        self.sim_driver.arm = SimArm::new(arm, &sim, held).context("the restarted sim's plant")?;
+        self.sim_driver.away_until(self.now_ns + SIM_AWAY_NS);
+        self.hold_for(SIM_AWAY_NS + CHANGE_HOLD_NS);
         Ok(())
     }
 
@@ -324,42 +348,56 @@ impl<'a> Rehearsal<'a> {
         let set = set.to_set(executions).map_err(anyhow::Error::msg)?;
         if self.gap_due {
             // The arm holds where the last set left it until this one is admitted.
-            self.now_ns += SET_GAP_NS;
-            self.hold();
+            self.hold_for(SET_GAP_NS);
             self.gap_due = false;
         }
-        let (mut execution, mut replanner) = self.start(&set)?;
+        self.start(&set)?;
+        // Far more than the set takes at the arm's pace, held now and then: a set that never
+        // ends (the arm held for good) fails rather than hangs.
+        let limit_ns = self.now_ns + 10 * set_length_ns(&set, self.rest_ticks, self.period_ns);
         let mut stats = Vec::with_capacity(executions as usize);
-        // The tick ends a set between executions once every one has run.
-        while !(execution.at_boundary(self.rest_ticks) && execution.through()) {
-            stats.extend(self.tick(&mut execution, &mut replanner));
+        // The tick retires a set between executions once every one has run.
+        while self.plan.is_some() || !self.control.is_idle() {
+            if self.now_ns > limit_ns {
+                bail!(
+                    "the set did not end: {} of {executions} executions in {:.1} s",
+                    stats.len(),
+                    self.now_ns as f64 / NS_PER_S
+                );
+            }
+            stats.extend(self.tick());
         }
+        self.running = None;
         self.gap_due = true;
         Ok(stats)
     }
 
-    /// The sim up to the clock, the tick's track and the learner reading each measurement (as
+    /// The controller ticks on for `ns` with no set running.
+    fn hold_for(&mut self, ns: u64) {
+        let until = self.now_ns + ns;
+        while self.now_ns < until {
+            self.tick();
+        }
+    }
+
+    /// The sim up to the clock, the tick's inputs and the learner reading each measurement (as
     /// the controller and the learner process read `tracker` and `motor_state`): the estimates
     /// the learner sends back (on a change of the arm).
     fn sim_until_now(&mut self) -> Vec<ActuationEstimate> {
-        let (learner, track) = (&mut self.learner, &mut self.track);
+        let (learner, latest) = (&mut self.learner, &mut self.latest);
         let mut estimates = Vec::new();
-        self.arm.run_until(self.now_ns, |t, m| {
-            track.push(t, m.position);
+        self.sim_driver.run_until(self.now_ns, |t, m| {
+            latest.position = Some((m.position, t));
+            latest.track.push(t, m.position);
+            latest.measured = Some((m.actuation, t));
             estimates.extend(learner.observe_arm(t, &m.actuation, &m.position));
         });
         estimates
     }
 
-    /// The arm held up to the clock with no set running: what the learner would send goes
-    /// nowhere.
-    fn hold(&mut self) {
-        self.sim_until_now();
-    }
-
     /// As the service thread starts a set: admission, the learner's first estimates, the
     /// blend handed to the tick and the replanner kept.
-    fn start(&mut self, set: &WaypointSet) -> anyhow::Result<(Execution, Replanner<ACTUATORS>)> {
+    fn start(&mut self, set: &WaypointSet) -> anyhow::Result<()> {
         let admitted = admit(self.config, Some(self.model), set).context("set rejected")?;
         self.next_set_id += 1;
         let set_id = self.next_set_id;
@@ -374,21 +412,15 @@ impl<'a> Rehearsal<'a> {
             bail!("the learner refused the set");
         }
         let (ready, replanner) = admitted.start(set_id, &estimates)?;
-        let max_lead = self.lag.max_lead_ticks();
-        Ok((
-            Execution::new(Box::new(ready), self.rest_ticks, max_lead),
-            replanner,
-        ))
+        self.plan = Some(Plan::Execute(Box::new(ready)));
+        self.running = Some(Running { set_id, replanner });
+        Ok(())
     }
 
-    /// One tick, as the controller's: read the newest tracker and motor samples, step the
-    /// execution, limit, publish the setpoint; a conditioning sample goes to the learner and
-    /// its estimate re-conditions the set. The execution's stats when one ends.
-    fn tick(
-        &mut self,
-        execution: &mut Execution,
-        replanner: &mut Replanner<ACTUATORS>,
-    ) -> Option<ExecutionStats> {
+    /// One tick, as the controller's: the sim's newest samples read, the [`Control`]'s steps,
+    /// the setpoint to the sim; a conditioning sample goes to the learner and its estimate
+    /// re-conditions the set. The execution's stats when one ends.
+    fn tick(&mut self) -> Option<ExecutionStats> {
         // A stalled tick publishes nothing meanwhile and then plays with what it missed.
         let skipped = self
             .tick_stalls
@@ -397,62 +429,77 @@ impl<'a> Rehearsal<'a> {
             .map_or(0, |for_ns| for_ns / self.period_ns);
         self.now_ns += skipped * self.period_ns;
         for e in self.sim_until_now() {
-            self.answer(replanner, e);
+            self.answer(e);
         }
-        self.deliver_late(replanner);
-        let lead = self.lag.lead_ticks();
-        let t = execution.step(&self.track, self.rest_ticks, lead, self.now_ns, skipped);
-        let setpoint = self.limiter.apply(&t.target);
-        let measured = (self.arm.newest_ns, &self.arm.newest.actuation);
-        self.lag.published(self.now_ns, &setpoint, Some(measured));
-        let followed = self.lag.followed(self.now_ns, execution.lead());
-        execution.published(
-            &followed.unwrap_or(setpoint),
-            Some(&self.arm.newest.actuation),
+        self.deliver_late();
+        let mut out = Published::default();
+        self.control.tick(
+            self.now_ns,
+            skipped,
+            &self.latest,
+            self.plan.take(),
+            &mut out,
         );
-        self.arm.command = setpoint;
-        if let Some(sample) = t.point
+        // The sim follows a fresh setpoint, not a stopped controller's (hal-drivers/driver).
+        if let Some(s) = out.setpoint
+            && s.state != ControllerState::Stopped as u32
+        {
+            self.sim_driver.setpoint = Some(s.actuation);
+        }
+        if let Some(sample) = out.sample
             && let Some(e) = self.learner.visit(&sample)
         {
-            self.answer(replanner, e);
+            self.answer(e);
         }
         self.now_ns += self.period_ns;
-        t.finished
+        out.stats
     }
 
     /// The learner's answer re-conditions the set now, or when the learner's stall under way
     /// ends.
-    fn answer(&mut self, replanner: &mut Replanner<ACTUATORS>, e: ActuationEstimate) {
+    fn answer(&mut self, e: ActuationEstimate) {
         let now = self.now_ns;
         match self.learner_stalls.as_mut().and_then(|s| s.busy_until(now)) {
             Some(at) => self.late.push((at, e)),
-            None => recondition(replanner, &e),
+            None => self.recondition(&e),
         }
     }
 
     /// The answers held back by a learner's stall that has ended, in the order sent.
-    fn deliver_late(&mut self, replanner: &mut Replanner<ACTUATORS>) {
+    fn deliver_late(&mut self) {
         let now = self.now_ns;
-        self.late.retain(|(at, e)| {
-            let due = *at <= now;
-            if due {
-                recondition(replanner, e);
-            }
-            !due
-        });
+        let (due, waiting): (Vec<_>, Vec<_>) = std::mem::take(&mut self.late)
+            .into_iter()
+            .partition(|(at, _)| *at <= now);
+        self.late = waiting;
+        for (_, e) in due {
+            self.recondition(&e);
+        }
+    }
+
+    /// An estimate re-conditions its point of the running set, as the service thread does; one
+    /// for a set that is gone goes nowhere, and one that does not fit is not used.
+    fn recondition(&mut self, e: &ActuationEstimate) {
+        let Some(r) = self.running.as_mut().filter(|r| r.set_id == e.set_id) else {
+            return;
+        };
+        if let Err(err) = r
+            .replanner
+            .recondition(e.point as usize, &e.actuation, e.execution)
+        {
+            tracing::warn!(
+                set_id = e.set_id,
+                point = e.point,
+                "estimate not used: {err}"
+            );
+        }
     }
 }
 
-/// An estimate re-conditions its point, as the service thread does; one that does not fit is
-/// not used, and the set runs on.
-fn recondition(replanner: &mut Replanner<ACTUATORS>, e: &ActuationEstimate) {
-    if let Err(err) = replanner.recondition(e.point as usize, &e.actuation, e.execution) {
-        tracing::warn!(
-            set_id = e.set_id,
-            point = e.point,
-            "estimate not used: {err}"
-        );
-    }
+/// A set's executions with their rests, at the arm's pace (ns).
+fn set_length_ns(set: &WaypointSet, rest_ticks: i64, period_ns: u64) -> u64 {
+    let execution_ns = (set.duration_s * NS_PER_S) as u64 + rest_ticks.max(0) as u64 * period_ns;
+    (u64::from(set.executions) + 1) * execution_ns
 }
 
 #[cfg(test)]

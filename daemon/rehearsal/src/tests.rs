@@ -157,27 +157,27 @@ fn what_the_demo_set_taught_carries_over_to_a_second_set() {
 #[test]
 fn the_sim_steps_at_its_own_rate_on_the_newest_setpoint() {
     let sim = SimConfig::default();
-    let mut arm = SimArm::new(ArmGeometry::default(), &sim).unwrap();
-    let period = arm.period_ns;
+    let mut driver = SimDriver::new(ArmGeometry::default(), &sim).unwrap();
+    let period = driver.period_ns;
     assert_eq!(period, 5_000_000, "sim.rate_hz 200 Hz");
-    let steps = |arm: &SimArm| (arm.plant.time() / arm.dt).round() as u64;
-    assert_eq!(steps(&arm), 1);
-    arm.run_until(period - 1, |_, _| ());
-    assert_eq!(steps(&arm), 1);
-    arm.run_until(period, |_, _| ());
+    let steps = |d: &SimDriver| (d.arm.plant().time() / d.arm.dt()).round() as u64;
+    assert_eq!(steps(&driver), 1);
+    driver.run_until(period - 1, |_, _| ());
+    assert_eq!(steps(&driver), 1);
+    driver.run_until(period, |_, _| ());
     assert_eq!(
-        steps(&arm),
+        steps(&driver),
         2,
         "a sample published at a tick's instant is read by it"
     );
-    let before = arm.newest;
-    arm.command = [1.0; ACTUATORS];
-    arm.run_until(period + 1, |_, _| ());
-    assert_eq!(arm.newest, before, "nothing new between deadlines");
-    arm.run_until(3 * period, |_, _| ());
-    assert_eq!(steps(&arm), 4);
+    let before = driver.newest;
+    driver.setpoint = Some([1.0; ACTUATORS]);
+    driver.run_until(period + 1, |_, _| ());
+    assert_eq!(driver.newest, before, "nothing new between deadlines");
+    driver.run_until(3 * period, |_, _| ());
+    assert_eq!(steps(&driver), 4);
     assert!(
-        arm.plant.state()[0] > sim.initial_actuation[0],
+        driver.arm.plant().state()[0] > sim.initial_actuation[0],
         "it follows the setpoint"
     );
 }
@@ -186,18 +186,18 @@ fn the_sim_steps_at_its_own_rate_on_the_newest_setpoint() {
 /// passed, as hal-drivers/sim does under load.
 #[test]
 fn a_stalled_sim_steps_by_all_the_time_it_slept() {
-    let mut arm = SimArm::new(ArmGeometry::default(), &SimConfig::default()).unwrap();
-    let period = arm.period_ns;
-    arm.stalls = Some(StallClock::new(Stalls {
+    let mut driver = SimDriver::new(ArmGeometry::default(), &SimConfig::default()).unwrap();
+    let period = driver.period_ns;
+    driver.stalls = Some(StallClock::new(Stalls {
         of: Stalled::Sim,
         every_ns: 10 * period,
         for_ns: 4 * period,
     }));
     let mut published = Vec::new();
-    arm.run_until(20 * period, |t, _| published.push(t / period));
+    driver.run_until(20 * period, |t, _| published.push(t / period));
     // Deadlines 10 and 20 start a stall: 10–13 and 20–23 publish nothing.
     assert_eq!(published, (1..10).chain(14..20).collect::<Vec<_>>());
-    let steps = (arm.plant.time() / arm.dt).round() as u64;
+    let steps = (driver.arm.plant().time() / driver.arm.dt()).round() as u64;
     assert_eq!(steps, 20, "the step at 14 covers the periods slept through");
 }
 
@@ -429,8 +429,8 @@ fn a_running_learner_follows_an_arm_that_creeps() {
 /// soak target).
 #[test]
 fn every_set_of_a_soak_of_changing_arms_ends_within_2_5_mm() {
+    use rand::SeedableRng;
     use rand::rngs::StdRng;
-    use rand::{RngExt, SeedableRng};
     let model = quick();
     let config = Config::default_sim(".".into());
     let demo = WaypointFile::parse(DEMO).unwrap();
@@ -438,7 +438,7 @@ fn every_set_of_a_soak_of_changing_arms_ends_within_2_5_mm() {
     let mut rng = StdRng::seed_from_u64(1);
     let rotation = ["tool-change", "creep", "twist", "stiffer", "nominal"];
     let (mut t_s, mut scenario, mut over) = (0.0, 0, Vec::new());
-    for n in 0.. {
+    for n in 0u64.. {
         if t_s >= 12.0 * 60.0 {
             break;
         }
@@ -451,12 +451,7 @@ fn every_set_of_a_soak_of_changing_arms_ends_within_2_5_mm() {
             rehearsal.change_arm(arm).unwrap();
             scenario += 1;
         }
-        let set = if n % 3 == 0 {
-            demo.clone()
-        } else {
-            demo.variation(&mut rng)
-        };
-        let executions = rng.random_range(3..=6);
+        let (set, executions) = softarm_stack::soak::sets::nth(n, &demo, &mut rng);
         let means: Vec<f64> = rehearsal
             .rehearse(&set, executions)
             .unwrap()

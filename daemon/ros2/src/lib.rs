@@ -37,7 +37,7 @@ use ros2_client::{
 };
 use serde::Serialize;
 use serde::de::DeserializeOwned;
-use softarm_clients::channels::{Payload, Services};
+use softarm_channels::{Payload, Services};
 use softarm_clients::estop::{CONFIRM_TIMEOUT, Estop, Pending};
 use softarm_clients::submit::{self, Outcome};
 use softarm_config::Config;

@@ -11,13 +11,14 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
-use softarm_clients::{plot, record, stats, submit};
+use softarm_clients::{stats, submit};
 use softarm_config::scenario::Scenario;
 use softarm_config::waypoints::{WaypointFile, validate};
 use softarm_config::{Config, DEFAULT};
 use softarm_ipc::{ExecutionStats, Namespace, Node, Sub, TrackerSample};
+use softarm_record::{plot, record};
 
-use crate::scratch::{self, Scratch};
+use crate::sandbox::{self, Sandbox};
 use crate::supervisor::{self, Supervisor};
 
 #[derive(clap::Args)]
@@ -100,21 +101,21 @@ fn say(json: bool, line: &str) {
 pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
     let scenario = check(args)?;
     let started = Instant::now();
-    let scratch = scratch_for(args)?;
-    let (config, ns) = (&scratch.config, &scratch.namespace);
+    let sandbox = sandbox_for(args)?;
+    let (config, ns) = (&sandbox.config, &sandbox.namespace);
     // The user's sets, read and checked as the controller will check them, before the stack.
     let (file, then) = sets(args, config)?;
 
-    let mut sup = scratch.supervisor(&["sim", "controller", "learner"], "warn")?;
+    let mut sup = sandbox.supervisor(&["sim", "controller", "learner"], "warn")?;
     say(
         args.json,
         &format!("softarm demo: stack up in namespace {}", ns.as_str()),
     );
-    scratch.ready_with_model(&mut sup, stop, args.seed, &|line| {
+    sandbox.ready_with_model(&mut sup, stop, args.seed, &|line| {
         say(args.json, &format!("softarm demo: {line}"))
     })?;
     if let Some(s) = scenario.as_ref().filter(|s| !s.is_nominal()) {
-        become_scenario(args, s, &scratch, &mut sup, stop)?;
+        become_scenario(args, s, &sandbox, &mut sup, stop)?;
     }
     // On an arm that changes while it runs, the sim's clock beside each row.
     let mut changing = scenario
@@ -128,7 +129,7 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
     let recording_stop = Arc::new(AtomicBool::new(false));
     let recording = (!args.no_record).then(|| {
         let (ns, out, stop) = (ns.clone(), args.record.clone(), recording_stop.clone());
-        let scene = softarm_clients::scene::Settings::of(config);
+        let scene = softarm_channels::scene::Settings::of(config);
         std::thread::spawn(move || record::record(&ns, &out, &scene, None, &stop))
     });
     let mut run_set = |file: &WaypointFile, executions: u32, sup: &mut Supervisor| {
@@ -194,17 +195,17 @@ fn check(args: &Args) -> anyhow::Result<Option<Scenario>> {
 fn model_dir(args: &Args) -> PathBuf {
     args.model_dir
         .clone()
-        .unwrap_or_else(|| scratch::cache_dir().join(format!("demo-model-seed{}", args.seed)))
+        .unwrap_or_else(|| sandbox::cache_dir().join(format!("demo-model-seed{}", args.seed)))
 }
 
 /// The embedded default, in this demo's own namespace, with its own state, model and seeds.
-fn scratch_for(args: &Args) -> anyhow::Result<Scratch> {
+fn sandbox_for(args: &Args) -> anyhow::Result<Sandbox> {
     let seed = i64::try_from(args.seed).context("--seed must be at most 9223372036854775807")?;
     let algorithm = match args.learner {
         Learner::GaussNewton => "gauss-newton",
         Learner::Paper => "paper",
     };
-    Scratch::new(
+    Sandbox::for_command(
         "demo",
         DEFAULT,
         &[
@@ -222,7 +223,7 @@ fn sets(args: &Args, config: &Config) -> anyhow::Result<(WaypointFile, Option<Wa
     let file = match &args.set {
         Some(path) => load_set("--set", path, config, args.executions())?,
         None => {
-            let file = WaypointFile::parse(scratch::DEMO_WAYPOINTS)
+            let file = WaypointFile::parse(sandbox::DEMO_WAYPOINTS)
                 .map_err(anyhow::Error::msg)
                 .context("the demo way-points")?;
             file.to_set(args.executions())
@@ -243,7 +244,7 @@ fn sets(args: &Args, config: &Config) -> anyhow::Result<(WaypointFile, Option<Wa
 fn become_scenario(
     args: &Args,
     s: &Scenario,
-    scratch: &Scratch,
+    sandbox: &Sandbox,
     sup: &mut Supervisor,
     stop: &AtomicBool,
 ) -> anyhow::Result<()> {
@@ -257,7 +258,7 @@ fn become_scenario(
     );
     let arg = args.scenario_arg();
     sup.restart_with("sim", supervisor::sim_args(arg), Duration::from_secs(5))?;
-    scratch.wait_for(
+    sandbox.wait_for(
         "the scenario's sim coming up",
         Duration::from_secs(20),
         sup,
@@ -274,7 +275,7 @@ fn become_scenario(
 fn plot_recording(args: &Args, samples: u64) -> anyhow::Result<()> {
     let png = args.record.with_extension("png");
     let messages = record::read(&args.record)?;
-    let data = record::plot_data(&messages, "softarm demo")?;
+    let data = plot::plot_data(&messages, "softarm demo")?;
     plot::render(&data, &png)?;
     say(
         args.json,

@@ -102,7 +102,7 @@ impl Supervisor {
                 }
             });
         }
-        if URGENT.contains(&p.role.as_str()) {
+        if URGENT.contains(&p.role.as_str()) || softarm_ipc::Driver::named(&p.role).is_some() {
             raise_priority(child.id(), &p.role);
         }
         p.child = Some(child);
@@ -237,8 +237,9 @@ pub fn rss_kib(pid: &str) -> Option<u64> {
 /// Processes whose answers have a deadline: the learner's estimate and the controller's
 /// replanning must be in force before the point's group starts, also on a busy machine; the
 /// drivers write goals and read the motors and the tracker every period (a tendon driver left
-/// waiting for a CPU on a loaded machine fell behind its bus by hundreds of cycles).
-const URGENT: [&str; 5] = ["controller", "learner", "sim", "tendon", "tracker"];
+/// waiting for a CPU on a loaded machine fell behind its bus by hundreds of cycles): every
+/// driver of [`softarm_ipc::DRIVERS`], and these.
+const URGENT: [&str; 2] = ["controller", "learner"];
 /// Their nice value (the systemd units set the same).
 const URGENT_NICE: i32 = -5;
 

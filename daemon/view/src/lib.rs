@@ -11,9 +11,9 @@
 //! What it serves, read-only (no client publishing, no services, no parameters):
 //!
 //! - every pub/sub service of the namespace as a channel, exactly as `softarm record` writes
-//!   them (`softarm_clients::channels`: the service's name, JSON, a JSON Schema named after the
+//!   them (`softarm_channels`: the service's name, JSON, a JSON Schema named after the
 //!   payload's type), `log_time` the wall clock when the view received the sample;
-//! - `scene`: the stack in 3-D (`softarm_clients::scene`, `foxglove.SceneUpdate`, protobuf) at
+//! - `scene`: the stack in 3-D (`softarm_channels::scene`, `foxglove.SceneUpdate`, protobuf) at
 //!   `view.scene_hz`: the arm drawn from the measured actuation through the configured arm
 //!   model, way-points, the tracker and its trail, the reached points, the base frame.
 //!
@@ -40,8 +40,8 @@ use anyhow::Context as _;
 use foxglove::messages::SceneUpdate;
 use foxglove::{Channel, ChannelBuilder, Context, PartialMetadata, RawChannel, Schema};
 use foxglove::{WebSocketServer, WebSocketServerHandle};
-use softarm_clients::channels::Services;
-use softarm_clients::scene::{self, Scene};
+use softarm_channels::Services;
+use softarm_channels::scene::{self, Scene};
 use softarm_config::Config;
 use softarm_ipc::{Namespace, Node};
 

@@ -7,12 +7,12 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use anyhow::Context;
 
 use softarm_driver::Commands;
-use softarm_ipc::{DriverState, MotorState, Namespace, Node, TrackerSample};
+use softarm_ipc::{Actuation, DriverState, MotorState, Namespace, Node, TrackerSample};
 use softarm_runtime::clock::Ticker;
 use softarm_runtime::{EstopLatch, now_ns};
 
 use softarm_method::pcc::ArmGeometry;
-use softarm_method::plant::{Plant, SimConfig};
+use softarm_method::plant::{Measurement, Plant, SimConfig};
 
 /// Runs the simulated arm until `stop` is set; starts stopped if `latch` says the e-stop is
 /// engaged.
@@ -50,14 +50,10 @@ pub fn run(
             std::thread::sleep(std::time::Duration::from_millis(2));
         }
     }
-    let mut plant = Plant::of_sim(*arm, config, start)
-        .map_err(anyhow::Error::msg)
-        .context("the simulated plant")?;
+    let mut sim = SimArm::new(*arm, config, start)?;
     let tracker = ipc.publisher(&ipc.tracker()?)?;
     let motors = ipc.publisher(&ipc.motor_state()?)?;
 
-    let dt = 1.0 / config.rate_hz;
-    let mut command = start;
     let mut seq = 0u64;
     let mut in_force = None;
     let mut ticker = Ticker::new(config.rate_hz);
@@ -67,23 +63,11 @@ pub fn run(
         "sim running"
     );
     while !stop.load(Ordering::Relaxed) {
-        // A sim woken late steps its plant by all the time that passed: a real arm moves on
-        // while its driver waits for a CPU, and a plant stepped by one period per late wake
-        // ran slower than the wall clock, so under load the arm fell behind its setpoints by
-        // tens of millimetres at a conditioning point (seen: 52 mm at one point of a demo).
         let wake = ticker.wait();
-        let dt = dt * (wake.missed + 1) as f64;
         // The sim follows whatever is fresh; a stale setpoint only at its start.
         let poll = commands.poll(now_ns(), 1_000_000_000);
-        if let Some(a) = poll.setpoint {
-            command = a;
-        }
-        if poll.stopped {
-            // E-stop: the motors hold where they are, whatever is commanded.
-            command = plant.state();
-        }
-        let m = plant.step(&command, dt);
-        log_step(config, &plant, &mut in_force);
+        let m = sim.step(poll.setpoint, poll.stopped, wake.missed + 1);
+        log_step(config, sim.plant(), &mut in_force);
         // The sample number counts the sim's periods, the ones it slept through too, so that
         // seq / rate_hz is the sim's own clock (its scenario's time) on a busy machine as well.
         seq += wake.missed + 1;
@@ -109,6 +93,67 @@ pub fn run(
     let refused = commands.refused();
     tracing::info!(overruns = ticker.overruns(), refused, "sim stopped");
     Ok(())
+}
+
+/// The simulated arm between two of the driver's wakes, without I/O: the plant and the command
+/// it follows. The sim driver steps it on its deadlines, `softarm-rehearsal` on a simulated
+/// clock.
+pub struct SimArm {
+    plant: Plant,
+    command: Actuation,
+    /// One period (s).
+    dt: f64,
+}
+
+impl SimArm {
+    /// The plant of `config` on `arm`, its actuators at `start`, which it follows until told
+    /// otherwise.
+    pub fn new(arm: ArmGeometry, config: &SimConfig, start: Actuation) -> anyhow::Result<Self> {
+        let plant = Plant::of_sim(arm, config, start)
+            .map_err(anyhow::Error::msg)
+            .context("the simulated plant")?;
+        Ok(Self {
+            plant,
+            command: start,
+            dt: 1.0 / config.rate_hz,
+        })
+    }
+
+    /// One wake, `periods` periods after the last (the ones slept through too): follows
+    /// `setpoint` if one came, holds where the motors are while `stopped`, and steps the plant
+    /// by all that time. A real arm moves on while its driver waits for a CPU; a plant stepped
+    /// by one period per late wake ran slower than the wall clock, so under load the arm fell
+    /// behind its setpoints by tens of millimetres at a conditioning point (seen: 52 mm at one
+    /// point of a demo).
+    pub fn step(
+        &mut self,
+        setpoint: Option<Actuation>,
+        stopped: bool,
+        periods: u64,
+    ) -> Measurement {
+        if let Some(a) = setpoint {
+            self.command = a;
+        }
+        if stopped {
+            // E-stop: the motors hold where they are, whatever is commanded.
+            self.command = self.plant.state();
+        }
+        self.plant.step(&self.command, self.dt * periods as f64)
+    }
+
+    pub fn plant(&self) -> &Plant {
+        &self.plant
+    }
+
+    /// What it follows.
+    pub fn command(&self) -> Actuation {
+        self.command
+    }
+
+    /// One period (s).
+    pub fn dt(&self) -> f64 {
+        self.dt
+    }
 }
 
 /// Logs a scenario's step once it is in force, with the arm it made.

@@ -23,6 +23,8 @@ use softarm_ipc::{ACTUATORS, Actuation, DriverState, MotorState, Namespace, Node
 use softarm_runtime::clock::{Backoff, Ticker};
 use softarm_runtime::now_ns;
 
+#[cfg(test)]
+mod fuzz;
 mod health;
 mod link;
 pub mod table;
@@ -30,103 +32,6 @@ pub mod wire;
 
 use health::{Bus, Health};
 use link::{Ask, Counts, Fault, Link, Reading};
-
-/// The driver's bus exchange on a port of the caller's choosing, for the fuzz tests
-/// (`tests/fuzz.rs`): bytes from the wire become a reading only through [`wire`] and
-/// `Link`'s replies: this is the narrowest path there is. Not an API.
-#[doc(hidden)]
-pub mod fuzz {
-    use super::*;
-
-    /// What the motors last reported, as the driver holds it.
-    #[derive(Debug, Clone, Copy, PartialEq)]
-    pub struct Snapshot {
-        pub ticks: [i32; ACTUATORS],
-        pub current_a: [f64; ACTUATORS],
-        pub hardware_error: [u8; ACTUATORS],
-    }
-
-    /// An open `Link` and the `Reading` its reads update.
-    pub struct Probe {
-        link: Link,
-        reading: Reading,
-        counts: Counts,
-    }
-
-    /// Replies a probe's read waits for before it closes the read.
-    const WAIT: Duration = Duration::from_millis(100);
-
-    impl Probe {
-        /// Opens the bus as the driver does at start; an error when some motor has not
-        /// answered the survey within 2 s.
-        pub fn open(t: &TendonConfig) -> anyhow::Result<Self> {
-            let mut counts = Counts::default();
-            let mut link = Link::open(t)?;
-            let deadline = std::time::Instant::now() + Duration::from_secs(2);
-            while !link.ready() && std::time::Instant::now() < deadline {
-                link.survey(t, &mut counts, WAIT)
-                    .map_err(|f| anyhow::anyhow!("surveying the motors: {f}"))?;
-            }
-            anyhow::ensure!(
-                link.ready(),
-                "{}: some motor did not answer the survey in 2 s",
-                t.port.display()
-            );
-            Ok(Self {
-                link,
-                reading: Reading::default(),
-                counts,
-            })
-        }
-
-        /// One data read, and the status read when `status` asks or a reply raised its
-        /// alert bit, each closed once every motor answered or after 100 ms: the number of
-        /// answers missing or refused, or the port fault.
-        pub fn read(&mut self, status: bool) -> Result<usize, String> {
-            let mut missing = self.one(Ask::Data)?;
-            if status || self.link.alert {
-                self.link.alert = false;
-                // Packets that came with the answers, after the last one asked for, go with
-                // that read, not the next.
-                std::thread::sleep(Duration::from_millis(2));
-                missing += self.one(Ask::Status)?;
-            }
-            Ok(missing)
-        }
-
-        fn one(&mut self, ask: Ask) -> Result<usize, String> {
-            // What came after the last read closed answers no read of this one.
-            self.link
-                .take_replies(&mut self.reading, &mut self.counts, Duration::ZERO)
-                .map_err(|f| f.to_string())?;
-            self.link.ask(ask, 0, None).map_err(|f| f.to_string())?;
-            let deadline = std::time::Instant::now() + WAIT;
-            loop {
-                let left = deadline.saturating_duration_since(std::time::Instant::now());
-                let done = self
-                    .link
-                    .take_replies(&mut self.reading, &mut self.counts, left.min(WAIT / 10))
-                    .map_err(|f| f.to_string())?;
-                if done || left.is_zero() {
-                    break;
-                }
-            }
-            let closed = self
-                .link
-                .close_read(&mut self.counts)
-                .expect("a read is open");
-            Ok(closed.missing + closed.refused)
-        }
-
-        pub fn reading(&self) -> Snapshot {
-            Snapshot {
-                ticks: self.reading.ticks,
-                current_a: self.reading.current_a,
-                hardware_error: self.reading.hardware_error,
-            }
-        }
-    }
-}
 
 /// Runs the tendon driver until `stop` is set.
 pub fn run(config: &Config, namespace: Namespace, stop: &AtomicBool) -> anyhow::Result<()> {

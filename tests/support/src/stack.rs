@@ -1,15 +1,17 @@
 //! The end-to-end harness: a stack of real `softarm` processes in a folder and an iceoryx2
-//! namespace of its own, so tests run in parallel without crosstalk. The binary's path comes from
+//! namespace of its own (the product's sandbox, `daemon/stack/src/sandbox.rs::Sandbox`, as
+//! `softarm demo` has), so tests run in parallel without crosstalk. The binary's path comes from
 //! the caller: `env!("CARGO_BIN_EXE_softarm")` exists only in the root package's tests.
 
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Output, Stdio};
+use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
 use softarm_config::Config;
+use softarm_stack::sandbox::Sandbox;
 
 use crate::config::{config_text, hardware_config_text, with_overrides};
-use crate::process::{Guard, eventually};
+use crate::process::{Guard, eventually, output};
 use crate::turns::{Devices, DevicesTurn, StackTurn};
 use softarm_model::pipeline::quick_model;
 
@@ -20,14 +22,16 @@ pub const DEMO_WAYPOINTS: &str = concat!(
 );
 
 /// A test's own stack: `dir` holds its config (`config`), model, state and logs; `up` is
-/// `softarm up` once started. Dropping it stops `up` and removes `dir` (kept when the test failed).
-#[derive(Debug)]
+/// `softarm up` once started. Dropping it stops `up` (and kills what is left of its process
+/// group) and removes `dir` (kept when the test failed).
 pub struct TestStack {
     pub bin: PathBuf,
     pub dir: PathBuf,
     pub config: PathBuf,
     pub namespace: String,
-    pub up: Option<Child>,
+    pub up: Option<Guard>,
+    /// The namespace and folder; before the turns, so the folder goes before they are given back.
+    sandbox: Sandbox,
     /// The stack's place on the machine, and its devices' turn if it has emulated devices
     /// ([`crate::turns`]); given back after the stack stopped.
     _turn: StackTurn,
@@ -53,21 +57,20 @@ impl TestStack {
         static STACKS: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
         let n = STACKS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         let pid = std::process::id();
-        let dir = std::env::temp_dir().join(format!("softarm-test-{name}-{pid}-{n}"));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).unwrap();
-        let namespace = format!("softarm/test-{name}-{pid}-{n}");
-        let config = dir.join("softarm.toml");
-        std::fs::write(&config, text(&dir, &namespace)).unwrap();
+        // Folder `<tmp>/softarm-test-...`, namespace `softarm/test-...`.
+        let sandbox = Sandbox::new(&format!("test-{name}-{pid}-{n}"), text, &[])
+            .unwrap_or_else(|e| panic!("the stack of {name}: {e:#}"));
+        let dir = sandbox.dir().to_path_buf();
         if with_model {
             quick_model(&dir.join("model"));
         }
         Self {
             bin: bin.as_ref().to_path_buf(),
             dir,
-            config,
-            namespace,
+            config: sandbox.config_path.clone(),
+            namespace: sandbox.namespace.as_str().to_string(),
             up: None,
+            sandbox,
             _turn: turn,
             devices: None,
         }
@@ -84,16 +87,14 @@ impl TestStack {
         });
         let emulated = s.dir.join("emulated.toml");
         let log = std::fs::File::create(s.dir.join("emulate.log")).unwrap();
-        let emulator = Guard(
+        let emulator = Guard::spawn(
             s.command()
                 .args(["emulate", "--config"])
                 .arg(&s.config)
                 .arg("--write-config")
                 .arg(&emulated)
                 .stdout(Stdio::piped())
-                .stderr(log)
-                .spawn()
-                .unwrap(),
+                .stderr(log),
         );
         eventually("the emulated config", Duration::from_secs(30), || {
             emulated.exists().then_some(())
@@ -149,31 +150,32 @@ impl TestStack {
         Command::new(&self.bin)
     }
 
-    /// `softarm <args> --config <this stack's config>`.
+    /// `softarm <args> --config <this stack's config>`, run to its end ([`output`]).
     pub fn run(&self, args: &[&str]) -> Output {
-        self.command()
-            .args(args)
-            .arg("--config")
-            .arg(&self.config)
-            .env("RUST_LOG", "warn")
-            .output()
-            .unwrap()
+        output(
+            self.command()
+                .args(args)
+                .arg("--config")
+                .arg(&self.config)
+                .env("RUST_LOG", "warn"),
+        )
     }
 
-    pub fn spawn(&self, args: &[&str]) -> Child {
+    /// `softarm <args> --config <this stack's config>` started, logging to `<args[0]>.log`.
+    pub fn spawn(&self, args: &[&str]) -> Guard {
         let log = std::fs::File::create(self.dir.join(format!("{}.log", args[0]))).unwrap();
-        self.command()
-            .args(args)
-            .arg("--config")
-            .arg(&self.config)
-            .env(
-                "RUST_LOG",
-                std::env::var("SOFTARM_TEST_LOG").unwrap_or_else(|_| "info".into()),
-            )
-            .stdout(Stdio::null())
-            .stderr(log)
-            .spawn()
-            .unwrap()
+        Guard::spawn(
+            self.command()
+                .args(args)
+                .arg("--config")
+                .arg(&self.config)
+                .env(
+                    "RUST_LOG",
+                    std::env::var("SOFTARM_TEST_LOG").unwrap_or_else(|_| "info".into()),
+                )
+                .stdout(Stdio::null())
+                .stderr(log),
+        )
     }
 
     /// Starts `softarm up` and waits until the controller is IDLE and every process is alive.
@@ -287,7 +289,7 @@ impl TestStack {
         std::fs::read_to_string(self.dir.join("up.log")).unwrap_or_default()
     }
 
-    /// SIGTERM to `up` and wait for it.
+    /// SIGTERM to `up` and wait for it; what is left of its group is killed after.
     pub fn stop(&mut self) -> Option<std::process::ExitStatus> {
         let mut up = self.up.take()?;
         let _ = nix::sys::signal::kill(
@@ -309,17 +311,16 @@ impl TestStack {
 }
 
 impl Drop for TestStack {
-    /// Stops the stack; removes its folder, but keeps it (and says where) when the test failed:
-    /// its logs and state are what tells why.
+    /// Stops the stack; its folder goes with the sandbox, but is kept (and it says where) when
+    /// the test failed: its logs and state are what tells why.
     fn drop(&mut self) {
         self.stop();
         if std::thread::panicking() {
+            self.sandbox.keep();
             eprintln!(
                 "the stack's folder is kept for inspection: {}",
                 self.dir.display()
             );
-        } else {
-            let _ = std::fs::remove_dir_all(&self.dir);
         }
     }
 }

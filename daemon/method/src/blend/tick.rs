@@ -160,9 +160,11 @@ impl<const D: usize> Blend<D> {
         mu.iter().all(|x| x.is_finite()).then_some(mu)
     }
 
-    /// v at a tick (Eq. 11). Ticks past the end hold the last value. A group whose solve fails
-    /// contributes its last good value, as on the tick.
-    pub fn evaluate(&self, tick: usize) -> [f64; D] {
+    /// v at a tick (Eq. 11) without changing the blend, for the unit tests only (the controller
+    /// and the integration tests go through `tick`). Ticks past the end hold the last value. A
+    /// group whose solve fails contributes its last good value, as on the tick.
+    #[cfg(test)]
+    pub(super) fn evaluate(&self, tick: usize) -> [f64; D] {
         let (tick, a) = self.activations(tick);
         let mut v = [0.0; D];
         for (group, b) in self.schedule.groups(self.timeline.time_of(tick)).iter() {

@@ -28,7 +28,7 @@ use softarm_runtime::clock::Ticker;
 use softarm_runtime::now_ns;
 
 use super::{Out, Stats, duration, header, json_with, row};
-use crate::scratch::Scratch;
+use crate::sandbox::Sandbox;
 use crate::supervisor::{self, Supervisor};
 
 pub(super) struct Settings<'a> {
@@ -50,13 +50,13 @@ pub(super) struct StackRun {
 const ROLES: [&str; 3] = ["sim", "controller", "learner"];
 
 pub(super) fn run(s: &Settings, out: &Out, stop: &AtomicBool) -> anyhow::Result<StackRun> {
-    let scratch = scratch_stack(s)?;
-    let config = &scratch.config;
+    let sandbox = sandbox_for(s)?;
+    let config = &sandbox.config;
     let rate = config.controller.rate_hz;
     let priority = config.controller.realtime_priority;
 
     // Subscribed before anything publishes.
-    let node = Node::open(scratch.namespace.clone(), "bench")?;
+    let node = Node::open(sandbox.namespace.clone(), "bench")?;
     let status = node.subscriber(&node.status()?)?;
 
     // The bare loop first: its wakes must cover the controller's first deadline.
@@ -65,10 +65,10 @@ pub(super) fn run(s: &Settings, out: &Out, stop: &AtomicBool) -> anyhow::Result<
 
     out.progress(&format!(
         "starting sim, controller and learner in namespace {}",
-        scratch.namespace.as_str()
+        sandbox.namespace.as_str()
     ));
     // The children's own warnings (no model yet) are expected here.
-    let mut sup = scratch.supervisor(&ROLES, "error")?;
+    let mut sup = sandbox.supervisor(&ROLES, "error")?;
     let window = Window::await_end(s, rate, out, &mut sup, &status, stop)?;
     let bare = bare.finish()?;
     let rss = rss(&sup);
@@ -96,7 +96,7 @@ pub(super) fn run(s: &Settings, out: &Out, stop: &AtomicBool) -> anyhow::Result<
 
 /// The given (or embedded) config in the bench's own namespace, with its own state and no
 /// model.
-fn scratch_stack(s: &Settings) -> anyhow::Result<Scratch> {
+fn sandbox_for(s: &Settings) -> anyhow::Result<Sandbox> {
     let text = match s.config {
         Some(p) => {
             std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?
@@ -110,7 +110,7 @@ fn scratch_stack(s: &Settings) -> anyhow::Result<Scratch> {
     if let Some(p) = s.fifo {
         overrides.push(("controller.realtime_priority", i64::from(p).into()));
     }
-    Scratch::new("bench", &text, &overrides)
+    Sandbox::for_command("bench", &text, &overrides)
 }
 
 /// The controller's timed window: from its first deadline to the deadline of the first status

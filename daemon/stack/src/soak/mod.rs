@@ -27,7 +27,6 @@ use nix::sys::signal::{Signal, kill};
 use nix::unistd::Pid;
 use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
-use softarm_clients::watch::{Limits, Watch};
 use softarm_clients::{stats, status, submit};
 use softarm_config::DEFAULT;
 use softarm_config::scenario::Scenario;
@@ -35,10 +34,12 @@ use softarm_config::waypoints::WaypointFile;
 use softarm_ipc::{ControllerStatus, Node, Sub, TrackerSample};
 use softarm_model::bundle::{Model, read_checkpoint};
 use softarm_runtime::now_ns;
+use softarm_watch::{Limits, Watch};
 
-use crate::scratch::Scratch;
+use crate::sandbox::Sandbox;
 
 mod report;
+pub mod sets;
 use crate::supervisor::{self, Supervisor};
 pub use report::{ArmChange, BACK_UNDER_MM, Learning, Report, Rss};
 use report::{count_execution, failures, learning, print_report};
@@ -140,15 +141,15 @@ fn say(json: bool, line: &str) {
 
 pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<bool> {
     let rotation = rotation(args)?;
-    let scratch = scratch(args)?;
-    let model_dir = scratch.config.model_dir();
-    let roles = roles(&scratch.config);
-    let mut sup = scratch.supervisor(&roles, "error")?;
+    let sandbox = sandbox_for(args)?;
+    let model_dir = sandbox.config.model_dir();
+    let roles = roles(&sandbox.config);
+    let mut sup = sandbox.supervisor(&roles, "error")?;
     say(
         args.json,
         &format!(
             "stack up in namespace {}: {}{}",
-            scratch.namespace.as_str(),
+            sandbox.namespace.as_str(),
             roles.join(", "),
             if roles.contains(&"sim") {
                 ""
@@ -157,11 +158,11 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<bool> {
             }
         ),
     );
-    scratch.ready_with_model(&mut sup, stop, args.seed, &|line| say(args.json, line))?;
+    sandbox.ready_with_model(&mut sup, stop, args.seed, &|line| say(args.json, line))?;
     let lattice_start = Model::read(&model_dir)
         .map(|m| (m.learner.actor.len(), m.learner.critic.len()))
         .unwrap_or_default();
-    let mut soak = Soak::start(args, stop, &scratch, sup, roles, lattice_start, rotation)?;
+    let mut soak = Soak::start(args, stop, &sandbox, sup, roles, lattice_start, rotation)?;
     let minutes = Duration::from_secs_f64(args.minutes * 60.0);
     let end = soak.started + minutes;
     while Instant::now() < end {
@@ -204,7 +205,7 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<bool> {
 
 /// The soak's own stack: the simulated arm of the shipped config, or the stack `--config`
 /// describes; the soak's seed for the learner (and the sim's realism).
-fn scratch(args: &Args) -> anyhow::Result<Scratch> {
+fn sandbox_for(args: &Args) -> anyhow::Result<Sandbox> {
     let seed = i64::try_from(args.seed).context("--seed must be at most 9223372036854775807")?;
     let (text, own) = match &args.config {
         Some(path) => (
@@ -218,7 +219,7 @@ fn scratch(args: &Args) -> anyhow::Result<Scratch> {
     let model_dir = match (&args.model_dir, &own) {
         (Some(dir), _) => dir.clone(),
         (None, Some(c)) => c.model_dir(),
-        (None, None) => crate::scratch::cache_dir().join(format!("demo-model-seed{}", args.seed)),
+        (None, None) => crate::sandbox::cache_dir().join(format!("demo-model-seed{}", args.seed)),
     };
     let mut overrides = vec![
         ("learner.seed", seed.into()),
@@ -227,7 +228,7 @@ fn scratch(args: &Args) -> anyhow::Result<Scratch> {
     if own.is_none_or(|c| c.robot.drivers.iter().any(|d| d == "sim")) {
         overrides.push(("sim.realism.seed", seed.into()));
     }
-    Scratch::new("soak", &text, &overrides)
+    Sandbox::for_command("soak", &text, &overrides)
 }
 
 /// The scenarios the sim goes through (what the sim is given, resolved), refused before
@@ -249,8 +250,9 @@ fn rotation(args: &Args) -> anyhow::Result<Vec<(String, Scenario)>> {
 
 /// The processes the soak runs and kills: the config's drivers, the controller, the learner.
 fn roles(config: &softarm_config::Config) -> Vec<&'static str> {
-    softarm_config::DRIVERS
-        .into_iter()
+    softarm_ipc::DRIVERS
+        .iter()
+        .map(|d| d.name)
         .filter(|d| config.robot.drivers.iter().any(|c| c == d))
         .chain(PROCESSES)
         .collect()
@@ -260,7 +262,7 @@ fn roles(config: &softarm_config::Config) -> Vec<&'static str> {
 struct Soak<'a> {
     args: &'a Args,
     stop: &'a AtomicBool,
-    scratch: &'a Scratch,
+    sandbox: &'a Sandbox,
     sup: Supervisor,
     /// What runs and may be killed: the drivers first, then controller and learner.
     roles: Vec<&'static str>,
@@ -296,24 +298,24 @@ impl<'a> Soak<'a> {
     fn start(
         args: &'a Args,
         stop: &'a AtomicBool,
-        scratch: &'a Scratch,
+        sandbox: &'a Sandbox,
         sup: Supervisor,
         roles: Vec<&'static str>,
         lattice_start: (usize, usize),
         rotation: Vec<(String, Scenario)>,
     ) -> anyhow::Result<Self> {
-        let ns = &scratch.namespace;
-        let demo_set = WaypointFile::parse(crate::scratch::DEMO_WAYPOINTS)
+        let ns = &sandbox.namespace;
+        let demo_set = WaypointFile::parse(crate::sandbox::DEMO_WAYPOINTS)
             .map_err(anyhow::Error::msg)
             .context("the demo way-points")?;
         // Subscribed before the first set: nothing is missed.
-        let watch = Watch::start(ns, Limits::from_config(&scratch.config))?;
+        let watch = Watch::start(ns, Limits::from_config(&sandbox.config))?;
         let follower = stats::Stats::open(ns)?;
         let node = Node::open(ns.clone(), "soak")?;
         let statuses = node.subscriber(&node.status()?)?;
         let sim_clock = SimClock {
             tracker: node.subscriber(&node.tracker()?)?,
-            rate_hz: scratch.config.sim.rate_hz,
+            rate_hz: sandbox.config.sim.rate_hz,
             seq: 0,
             changing: None,
             steps_seen: 0,
@@ -323,7 +325,7 @@ impl<'a> Soak<'a> {
         Ok(Self {
             args,
             stop,
-            scratch,
+            sandbox,
             sup,
             demo_set,
             watch,
@@ -442,7 +444,7 @@ impl<'a> Soak<'a> {
         let (role, old, at, back) = (p.role, p.old, p.at, p.back);
         if !back
             && self.pid_of(role).is_some_and(|n| n != old)
-            && status::status(&self.scratch.namespace, Duration::from_millis(200)).is_ok_and(|r| {
+            && status::status(&self.sandbox.namespace, Duration::from_millis(200)).is_ok_and(|r| {
                 r.running()
                     && self
                         .roles
@@ -515,7 +517,7 @@ impl<'a> Soak<'a> {
             supervisor::sim_args(Some(&arg)),
             Duration::from_secs(5),
         )?;
-        self.scratch.wait_for(
+        self.sandbox.wait_for(
             "the scenario's sim coming up",
             Duration::from_secs(60),
             &mut self.sup,
@@ -553,14 +555,10 @@ impl<'a> Soak<'a> {
         if self.running.is_some() || !self.pending.as_ref().is_none_or(|p| p.back) {
             return Ok(());
         }
-        let file = if self.report.sets_submitted.is_multiple_of(3) {
-            self.demo_set.clone()
-        } else {
-            self.demo_set.variation(&mut self.rng)
-        };
-        let executions = self.rng.random_range(3..=6);
+        let (file, executions) =
+            sets::nth(self.report.sets_submitted, &self.demo_set, &mut self.rng);
         let set = file.to_set(executions).map_err(anyhow::Error::msg)?;
-        match submit::submit(&self.scratch.namespace, set, Duration::from_secs(5)) {
+        match submit::submit(&self.sandbox.namespace, set, Duration::from_secs(5)) {
             submit::Outcome::Accepted { set_id } => {
                 self.report.sets_submitted += 1;
                 self.running = Some(Running {
@@ -590,7 +588,7 @@ impl<'a> Soak<'a> {
         }
         let role = self.roles[self.rng.random_range(0..self.roles.len())];
         if let Some(old) = self.pid_of(role) {
-            if softarm_config::DRIVERS.contains(&role) {
+            if softarm_ipc::Driver::named(role).is_some() {
                 // The arm's data stops: HOLD is right. The supervisor restarts the driver after
                 // a second at the earliest.
                 let t = now_ns();
@@ -663,7 +661,7 @@ impl<'a> Soak<'a> {
         }
         let mut report = self.report;
         report.invariants = self.watch.finish();
-        report.lattice_end = read_checkpoint(&self.scratch.config.state_dir())
+        report.lattice_end = read_checkpoint(&self.sandbox.config.state_dir())
             .map(|c| (c.state.actor.len(), c.state.critic.len()))
             .unwrap_or(report.lattice_start);
         if let Some(s) = self.last_status {

@@ -1,8 +1,8 @@
 //! The soak's report: what it measured, what failed it, and the lines the user reads.
 
 use serde::Serialize;
-use softarm_clients::watch;
 use softarm_ipc::Latency;
+use softarm_watch as watch;
 
 use super::{RSS_BOUND_KIB, SetSeen};
 

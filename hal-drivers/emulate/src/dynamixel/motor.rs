@@ -1,13 +1,17 @@
 //! One emulated motor: its physics (a first-order lag towards the goal), torque, goal and present
-//! values, hardware errors, REBOOT and FACTORY RESET. Its table bytes and the READ and WRITE rules
-//! are in `table.rs`.
+//! values, hardware errors, REBOOT and FACTORY RESET, its table bytes and the device's READ and
+//! WRITE rules over them. The table's addresses and items are in `table.rs`.
 
 use super::table::{
-    BAUD_RATE, FIRMWARE_VERSION, GOAL_CURRENT, GOAL_POSITION, GOAL_VELOCITY, HARDWARE_ERROR_STATUS,
-    HOMING_OFFSET, ID, ITEMS, MODEL_NUMBER, MOVING, MOVING_THRESHOLD, OPERATING_MODE,
+    BAUD_RATE, BUS_WATCHDOG, CURRENT_LIMIT, DRIVE_MODE, FEEDFORWARD_1ST_GAIN, FEEDFORWARD_2ND_GAIN,
+    FIRMWARE_VERSION, GOAL_CURRENT, GOAL_POSITION, GOAL_PWM, GOAL_VELOCITY, HARDWARE_ERROR_STATUS,
+    HOMING_OFFSET, ID, ITEMS, Item, LED, MAX_POSITION_LIMIT, MIN_POSITION_LIMIT, MODEL_NUMBER,
+    MOVING, MOVING_THRESHOLD, OPERATING_MODE, POSITION_D_GAIN, POSITION_I_GAIN, POSITION_P_GAIN,
     POSITION_TRAJECTORY, PRESENT_CURRENT, PRESENT_POSITION, PRESENT_PWM, PRESENT_VELOCITY,
-    PROFILE_VELOCITY, RAM_START, REALTIME_TICK, STATUS_RETURN_LEVEL, TABLE_LEN, TORQUE_ENABLE,
-    VELOCITY_LIMIT, VELOCITY_TRAJECTORY, error,
+    PROFILE_ACCELERATION, PROFILE_VELOCITY, PROTOCOL_TYPE, PWM_LIMIT, RAM_START, REALTIME_TICK,
+    RETURN_DELAY_TIME, SECONDARY_ID, STATUS_RETURN_LEVEL, TABLE_LEN, TEMPERATURE_LIMIT,
+    TORQUE_ENABLE, VELOCITY_I_GAIN, VELOCITY_LIMIT, VELOCITY_P_GAIN, VELOCITY_TRAJECTORY, error,
+    item_containing,
 };
 
 // Physics.
@@ -243,6 +247,174 @@ impl Motor {
     }
 }
 
+// ---------------------------------------------------------------------------------------------
+// A motor's table bytes: raw access, and READ and WRITE as the device checks them.
+
+impl Motor {
+    /// Raw table bytes `address .. address + len`, or `None` outside the table.
+    pub fn read(&self, address: u16, len: usize) -> Option<&[u8]> {
+        let start = usize::from(address);
+        self.table.get(start..start.checked_add(len)?)
+    }
+
+    pub(super) fn bytes<const N: usize>(&self, address: u16) -> [u8; N] {
+        let start = usize::from(address);
+        match self.table.get(start..start + N) {
+            Some(b) => b.try_into().unwrap_or([0; N]),
+            None => panic!("address {address} + {N} bytes is outside the control table"),
+        }
+    }
+
+    /// The byte at `address`. Panics outside the table.
+    pub fn u8_at(&self, address: u16) -> u8 {
+        self.bytes::<1>(address)[0]
+    }
+
+    /// The little-endian `u16` at `address`. Panics outside the table.
+    pub fn u16_at(&self, address: u16) -> u16 {
+        u16::from_le_bytes(self.bytes(address))
+    }
+
+    /// The little-endian `i16` at `address`. Panics outside the table.
+    pub fn i16_at(&self, address: u16) -> i16 {
+        i16::from_le_bytes(self.bytes(address))
+    }
+
+    /// The little-endian `u32` at `address`. Panics outside the table.
+    pub fn u32_at(&self, address: u16) -> u32 {
+        u32::from_le_bytes(self.bytes(address))
+    }
+
+    /// The little-endian `i32` at `address`. Panics outside the table.
+    pub fn i32_at(&self, address: u16) -> i32 {
+        i32::from_le_bytes(self.bytes(address))
+    }
+
+    pub(super) fn set(&mut self, item: &Item, value: i64) {
+        let start = usize::from(item.address);
+        let bytes = value.to_le_bytes();
+        self.table[start..item.end()].copy_from_slice(&bytes[..usize::from(item.size)]);
+    }
+
+    pub(super) fn set_i32(&mut self, address: u16, value: i32) {
+        let start = usize::from(address);
+        self.table[start..start + 4].copy_from_slice(&value.to_le_bytes());
+    }
+
+    pub(super) fn set_i16(&mut self, address: u16, value: i16) {
+        let start = usize::from(address);
+        self.table[start..start + 2].copy_from_slice(&value.to_le_bytes());
+    }
+
+    /// READ as the device does it: whole table range, gaps read as 0.
+    pub(super) fn read_checked(&self, address: u16, len: u16) -> Result<Vec<u8>, u8> {
+        if len == 0 {
+            return Err(error::DATA_LENGTH);
+        }
+        self.read(address, usize::from(len))
+            .map(<[u8]>::to_vec)
+            .ok_or(error::ACCESS)
+    }
+
+    /// WRITE as the device does it: every byte must belong to a writable item covered whole,
+    /// EEPROM only with the torque off, every value in range; then all is applied, or nothing.
+    pub(super) fn write_checked(&mut self, address: u16, data: &[u8]) -> Result<(), u8> {
+        if data.is_empty() {
+            return Err(error::DATA_LENGTH);
+        }
+        let start = usize::from(address);
+        let end = start + data.len();
+        if end > TABLE_LEN {
+            return Err(error::ACCESS);
+        }
+        let mut items = Vec::new();
+        let mut a = start;
+        while a < end {
+            let Some(item) = item_containing(a) else {
+                return Err(error::ACCESS);
+            };
+            if usize::from(item.address) != a || item.end() > end {
+                return Err(error::DATA_LENGTH);
+            }
+            if !item.writable || (item.address < RAM_START && self.torque_enabled()) {
+                return Err(error::ACCESS);
+            }
+            items.push(item);
+            a = item.end();
+        }
+        for item in &items {
+            let offset = usize::from(item.address) - start;
+            let value = item.decode(&data[offset..offset + usize::from(item.size)]);
+            self.check_value(item.address, value)?;
+        }
+        let old_offset = self.i32_at(HOMING_OFFSET);
+        self.table[start..end].copy_from_slice(data);
+        self.position += f64::from(self.i32_at(HOMING_OFFSET)) - f64::from(old_offset);
+        if !self.torque_enabled() {
+            self.velocity = 0.0;
+            self.current_ma = 0.0;
+        }
+        self.refresh();
+        Ok(())
+    }
+
+    fn check_value(&self, address: u16, v: i64) -> Result<(), u8> {
+        let range = |lo: i64, hi: i64| {
+            if (lo..=hi).contains(&v) {
+                Ok(())
+            } else {
+                Err(error::DATA_RANGE)
+            }
+        };
+        let limit = |lim: i64| {
+            if (-lim..=lim).contains(&v) {
+                Ok(())
+            } else {
+                Err(error::DATA_LIMIT)
+            }
+        };
+        match address {
+            ID => range(0, 252),
+            BAUD_RATE => range(0, 7),
+            RETURN_DELAY_TIME => range(0, 254),
+            DRIVE_MODE if v & !0x0D != 0 => Err(error::DATA_RANGE),
+            OPERATING_MODE if ![0, 1, 3, 4, 5, 16].contains(&v) => Err(error::DATA_RANGE),
+            SECONDARY_ID if v != 255 => range(0, 252),
+            PROTOCOL_TYPE => range(1, 2),
+            HOMING_OFFSET => range(-1_044_479, 1_044_479),
+            MOVING_THRESHOLD | VELOCITY_LIMIT => range(0, 1023),
+            TEMPERATURE_LIMIT => range(0, 100),
+            PWM_LIMIT => range(0, 885),
+            CURRENT_LIMIT => range(0, 1193),
+            MAX_POSITION_LIMIT | MIN_POSITION_LIMIT => range(0, 4095),
+            TORQUE_ENABLE if v == 1 && self.hardware_error_status() != 0 => {
+                // Only REBOOT turns the torque on again after a shutdown (e-Manual, Shutdown).
+                Err(error::RESULT_FAIL)
+            }
+            TORQUE_ENABLE | LED => range(0, 1),
+            STATUS_RETURN_LEVEL => range(0, 2),
+            VELOCITY_I_GAIN | VELOCITY_P_GAIN | POSITION_D_GAIN | POSITION_I_GAIN
+            | POSITION_P_GAIN | FEEDFORWARD_2ND_GAIN | FEEDFORWARD_1ST_GAIN => range(0, 16383),
+            BUS_WATCHDOG => range(0, 127),
+            PROFILE_ACCELERATION | PROFILE_VELOCITY => range(0, 32767),
+            GOAL_PWM => limit(i64::from(self.u16_at(PWM_LIMIT))),
+            GOAL_CURRENT => limit(i64::from(self.u16_at(CURRENT_LIMIT))),
+            GOAL_VELOCITY => limit(i64::from(self.u32_at(VELOCITY_LIMIT))),
+            GOAL_POSITION if self.operating_mode() == 3 => {
+                let min = i64::from(self.u32_at(MIN_POSITION_LIMIT));
+                let max = i64::from(self.u32_at(MAX_POSITION_LIMIT));
+                if (min..=max).contains(&v) {
+                    Ok(())
+                } else {
+                    Err(error::DATA_LIMIT)
+                }
+            }
+            GOAL_POSITION => limit(1_048_575),
+            _ => Ok(()),
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -355,5 +527,126 @@ mod tests {
         let per_s = rpm_to_ticks_per_s(100.0 * 0.229);
         let travelled = f64::from(100 - m.present_position());
         assert!(travelled > per_s * 0.9 && travelled < per_s, "{travelled}");
+    }
+}
+
+/// The table's defaults and the device's READ and WRITE rules, as a motor keeps them.
+#[cfg(test)]
+mod table_tests {
+    use super::*;
+    use crate::dynamixel::table::*;
+    use crate::dynamixel::testing::{answer, parse_status, read, write};
+    use crate::dynamixel::{Bus, instruction_packet};
+
+    #[test]
+    fn defaults_are_the_xm430_w350s() {
+        let m = Motor::new(7, 2048);
+        assert_eq!(m.id(), 7);
+        assert_eq!(m.u16_at(MODEL_NUMBER), 1020);
+        assert_eq!(m.u8_at(OPERATING_MODE), 3);
+        assert_eq!(m.u32_at(MAX_POSITION_LIMIT), 4095);
+        assert_eq!(m.u32_at(MIN_POSITION_LIMIT), 0);
+        assert_eq!(m.u32_at(VELOCITY_LIMIT), 200);
+        assert_eq!(m.u16_at(CURRENT_LIMIT), 1193);
+        assert_eq!(m.u8_at(STATUS_RETURN_LEVEL), 2);
+        assert_eq!(m.u8_at(RETURN_DELAY_TIME), 250);
+        assert_eq!(m.u8_at(SHUTDOWN), 52);
+        assert!(!m.torque_enabled());
+        assert_eq!((m.present_position(), m.goal_position()), (2048, 2048));
+        assert_eq!(m.u16_at(PRESENT_INPUT_VOLTAGE), 120);
+        assert_eq!(m.read(140, 7).map(<[u8]>::len), Some(7));
+        assert_eq!(m.read(141, 7), None);
+    }
+
+    #[test]
+    fn eeprom_is_locked_while_the_torque_is_on() {
+        let mut bus = Bus::new(&[1], 2048);
+        assert_eq!(write(&mut bus, 1, OPERATING_MODE, &[4]), 0);
+        assert_eq!(write(&mut bus, 1, TORQUE_ENABLE, &[1]), 0);
+        assert_eq!(write(&mut bus, 1, OPERATING_MODE, &[3]), error::ACCESS);
+        assert_eq!(write(&mut bus, 1, ID, &[5]), error::ACCESS);
+        assert_eq!(bus.motor(1).unwrap().operating_mode(), 4);
+        assert_eq!(write(&mut bus, 1, TORQUE_ENABLE, &[0]), 0);
+        assert_eq!(write(&mut bus, 1, OPERATING_MODE, &[3]), 0);
+    }
+
+    #[test]
+    fn access_length_range_and_limit_errors() {
+        let mut bus = Bus::new(&[1], 2048);
+        // Read-only items, gaps and the end of the table.
+        assert_eq!(write(&mut bus, 1, PRESENT_POSITION, &[0; 4]), error::ACCESS);
+        assert_eq!(write(&mut bus, 1, MODEL_NUMBER, &[0; 2]), error::ACCESS);
+        assert_eq!(write(&mut bus, 1, 14, &[0]), error::ACCESS);
+        assert_eq!(write(&mut bus, 1, 146, &[0, 0]), error::ACCESS);
+        assert_eq!(write(&mut bus, 1, 2000, &[0]), error::ACCESS);
+        assert_eq!(read(&mut bus, 1, 140, 8).0, error::ACCESS);
+        assert_eq!(read(&mut bus, 1, 0xFFFF, 0xFFFF).0, error::ACCESS);
+        // Part of an item.
+        assert_eq!(
+            write(&mut bus, 1, GOAL_POSITION, &[0, 0]),
+            error::DATA_LENGTH
+        );
+        assert_eq!(
+            write(&mut bus, 1, GOAL_POSITION + 1, &[0]),
+            error::DATA_LENGTH
+        );
+        assert_eq!(read(&mut bus, 1, GOAL_POSITION, 0).0, error::DATA_LENGTH);
+        let bad_read = instruction_packet(1, instruction::READ, &[0x74, 0, 4]);
+        assert_eq!(
+            parse_status(&answer(&mut bus, &bad_read))[0].1,
+            error::DATA_LENGTH
+        );
+        // Ranges and limits.
+        assert_eq!(write(&mut bus, 1, TORQUE_ENABLE, &[2]), error::DATA_RANGE);
+        assert_eq!(write(&mut bus, 1, OPERATING_MODE, &[2]), error::DATA_RANGE);
+        assert_eq!(
+            write(&mut bus, 1, GOAL_POSITION, &4096i32.to_le_bytes()),
+            error::DATA_LIMIT
+        );
+        assert_eq!(
+            write(&mut bus, 1, GOAL_POSITION, &(-1i32).to_le_bytes()),
+            error::DATA_LIMIT
+        );
+        assert_eq!(
+            write(&mut bus, 1, GOAL_VELOCITY, &201i32.to_le_bytes()),
+            error::DATA_LIMIT
+        );
+        assert_eq!(
+            bus.motor(1).unwrap().goal_position(),
+            2048,
+            "refused: not applied"
+        );
+        // Several items at once, all or nothing.
+        let mut two = 4000i32.to_le_bytes().to_vec();
+        two.extend(3000i32.to_le_bytes());
+        assert_eq!(write(&mut bus, 1, MAX_POSITION_LIMIT, &two), 0);
+        assert_eq!(write(&mut bus, 1, GOAL_POSITION, &3500i32.to_le_bytes()), 0);
+        assert_eq!(
+            write(&mut bus, 1, GOAL_POSITION, &2999i32.to_le_bytes()),
+            error::DATA_LIMIT
+        );
+        assert_eq!(
+            write(&mut bus, 1, 63, &[0, 1]),
+            0,
+            "Shutdown and Torque Enable together"
+        );
+        assert!(bus.motor(1).unwrap().torque_enabled());
+        assert_eq!(
+            write(&mut bus, 1, 64, &[0, 1, 0]),
+            error::ACCESS,
+            "66 is a gap"
+        );
+        assert!(bus.motor(1).unwrap().torque_enabled());
+        // Extended position mode: ±1,048,575.
+        assert_eq!(write(&mut bus, 1, TORQUE_ENABLE, &[0]), 0);
+        assert_eq!(write(&mut bus, 1, OPERATING_MODE, &[4]), 0);
+        assert_eq!(
+            write(&mut bus, 1, GOAL_POSITION, &(-100_000i32).to_le_bytes()),
+            0
+        );
+        assert_eq!(
+            write(&mut bus, 1, GOAL_POSITION, &1_048_576i32.to_le_bytes()),
+            error::DATA_LIMIT
+        );
     }
 }

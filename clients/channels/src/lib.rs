@@ -10,6 +10,10 @@
 //! The subscribers are one more reader of each service: they never publish, so the controller
 //! does not notice them; a reader that falls behind loses its own oldest samples (iceoryx2's
 //! safe overflow), never anyone else's.
+//!
+//! Beside them the stack in 3-D ([`scene`]), which both draw from the same samples.
+
+pub mod scene;
 
 use std::collections::BTreeMap;
 

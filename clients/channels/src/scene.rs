@@ -33,7 +33,7 @@ use softarm_config::Config;
 use softarm_ipc::{ConditioningSample, MAX_WAYPOINTS, MotorState, Position, TrackerSample};
 use softarm_method::pcc::ArmGeometry;
 
-use crate::channels::Payload;
+use crate::Payload;
 
 /// The scene's channel.
 pub const TOPIC: &str = "scene";

@@ -159,11 +159,11 @@ impl Recorder {
                 seed,
             })
             .map_err(|x| anyhow!("sending the request: {x:?}"))?;
-        let reply = crate::poll(Duration::from_secs(5), || {
+        let reply = softarm_clients::poll(Duration::from_secs(5), || {
             pending.receive().ok().flatten().map(|r| *r)
         })
         .ok_or_else(|| {
-            anyhow!(crate::unreachable(
+            anyhow!(softarm_clients::unreachable(
                 namespace.as_str(),
                 "the demonstration request"
             ))

@@ -2,9 +2,9 @@
 //! way-point set in three projections (x-y, x-z, y-z), and the error at each conditioning point
 //! converging over the executions.
 //!
-//! Pure: [`render`] takes the data (others fill it from recordings) and writes one image, PNG or
-//! SVG. Text is set in DejaVu Sans, shipped in `clients/assets/` and embedded in the binary, so no
-//! system font library is needed.
+//! [`render`] is pure: it takes the data ([`plot_data`] fills it from a recording's messages) and
+//! writes one image, PNG or SVG. Text is set in DejaVu Sans, shipped in `clients/record/assets/`
+//! and embedded in the binary, so no system font library is needed.
 
 use std::path::Path;
 use std::sync::OnceLock;
@@ -15,6 +15,9 @@ use plotters::coord::Shift;
 use plotters::coord::types::{RangedCoordf64, RangedCoordi64};
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
+use serde_json::Value;
+
+use crate::record::{self, Message, stats_of};
 
 /// One execution of a way-point set as the recording saw it.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -152,7 +155,7 @@ fn ensure_font() -> Result<()> {
     if ok {
         Ok(())
     } else {
-        bail!("the embedded font (clients/assets/DejaVuSans.ttf) is not a usable font")
+        bail!("the embedded font (clients/record/assets/DejaVuSans.ttf) is not a usable font")
     }
 }
 
@@ -681,12 +684,125 @@ fn draw_error_series<'a, DB: DrawingBackend + 'a>(
     Ok(())
 }
 
+/// The figure of a recording: the last way-point set it saw executed, with the end effector's
+/// path per execution (tracker samples between the execution's first and last setpoint), the
+/// reached points (`cp_sample`) and the errors (`stats`).
+pub fn plot_data(messages: &[Message], title: &str) -> anyhow::Result<PlotData> {
+    let samples: Vec<&Message> = messages.iter().filter(|m| m.topic == "cp_sample").collect();
+    let Some(set) = samples.last().and_then(|m| m.value["set_id"].as_u64()) else {
+        bail!(
+            "the recording has no conditioning samples: no way-point set was executed while it ran"
+        );
+    };
+    let of_set: Vec<&&Message> = samples
+        .iter()
+        .filter(|m| m.value["set_id"].as_u64() == Some(set))
+        .collect();
+    let position = |v: &Value| -> Option<[f64; 3]> {
+        let a = v.as_array()?;
+        Some([
+            a.first()?.as_f64()?,
+            a.get(1)?.as_f64()?,
+            a.get(2)?.as_f64()?,
+        ])
+    };
+    let points = of_set
+        .iter()
+        .filter_map(|m| m.value["points"].as_u64())
+        .max()
+        .unwrap_or(0) as usize;
+    let mut waypoints = vec![[f64::NAN; 3]; points];
+    let request = messages
+        .iter()
+        .rev()
+        .find(|m| m.topic == "estimate_request" && m.value["set_id"].as_u64() == Some(set));
+    if let Some(req) = request {
+        for (i, p) in req.value["desired"]
+            .as_array()
+            .into_iter()
+            .flatten()
+            .take(points)
+            .enumerate()
+        {
+            waypoints[i] = position(p).unwrap_or([f64::NAN; 3]);
+        }
+    }
+    for m in &of_set {
+        let i = m.value["point"].as_u64().unwrap_or(u64::MAX) as usize;
+        if i < points && waypoints[i][0].is_nan() {
+            waypoints[i] = position(&m.value["desired"]).unwrap_or([f64::NAN; 3]);
+        }
+    }
+    // The set's span: from its acceptance (the controller asks the learner for its estimates
+    // then) to its last conditioning sample's execution's end.
+    let set_start = request.map_or(0, |m| m.publish_time);
+    let mut numbers: Vec<u32> = of_set
+        .iter()
+        .filter_map(|m| m.value["execution"].as_u64().map(|e| e as u32))
+        .collect();
+    numbers.sort_unstable();
+    numbers.dedup();
+    let stats: Vec<softarm_ipc::ExecutionStats> = stats_of(messages)
+        .into_iter()
+        .filter(|s| s.set_id == set)
+        .collect();
+    let execute = softarm_ipc::ControllerState::Execute as u64;
+    let mut executions = Vec::new();
+    for &n in &numbers {
+        // The setpoints of this execution: EXECUTE, this number, since the set's start.
+        let span = messages
+            .iter()
+            .filter(|m| {
+                m.topic == "setpoint"
+                    && m.value["state"].as_u64() == Some(execute)
+                    && m.value["execution"].as_u64() == Some(u64::from(n))
+            })
+            .map(|m| m.publish_time)
+            .filter(|&t| t >= set_start)
+            .fold(None, |acc: Option<(u64, u64)>, t| {
+                Some(acc.map_or((t, t), |(a, b)| (a.min(t), b.max(t))))
+            });
+        let path = span.map_or_else(Vec::new, |(a, b)| {
+            messages
+                .iter()
+                .filter(|m| m.topic == "tracker" && (a..=b).contains(&m.publish_time))
+                .filter_map(|m| position(&m.value["position"]))
+                .collect()
+        });
+        let mut reached = vec![None; points];
+        for m in of_set
+            .iter()
+            .filter(|m| m.value["execution"].as_u64() == Some(u64::from(n)))
+        {
+            let i = m.value["point"].as_u64().unwrap_or(u64::MAX) as usize;
+            if i < points {
+                reached[i] = position(&m.value["reached"]);
+            }
+        }
+        let errors_m = stats
+            .iter()
+            .find(|s| s.execution == n)
+            .map_or_else(Vec::new, |s| s.errors().to_vec());
+        executions.push(Execution {
+            number: n,
+            path,
+            reached,
+            errors_m,
+        });
+    }
+    Ok(PlotData {
+        title: format!("{title}: set {set}, {} executions", executions.len()),
+        waypoints,
+        executions,
+    })
+}
+
 /// `softarm plot FILE -o OUT`: the recording's last set drawn into `output` (PNG or SVG).
 pub fn run(recording: &Path, output: &Path) -> anyhow::Result<()> {
     // Before the recording is read: a plot that cannot be written is refused first.
     check_output(output)?;
-    let messages = crate::record::read(recording)?;
-    let data = crate::record::plot_data(&messages, &recording.display().to_string())?;
+    let messages = record::read(recording)?;
+    let data = plot_data(&messages, &recording.display().to_string())?;
     render(&data, output)?;
     println!("wrote {}", output.display());
     Ok(())
@@ -971,7 +1087,7 @@ mod tests {
         );
     }
 
-    /// Writes /tmp/plot-sample.png for a look by eye: `cargo test -p softarm-clients --lib
+    /// Writes /tmp/plot-sample.png for a look by eye: `cargo test -p softarm-record --lib
     /// plot_sample -- --ignored`.
     #[test]
     #[ignore]

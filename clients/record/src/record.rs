@@ -1,14 +1,14 @@
 //! `softarm record` and `softarm replay`: every pub/sub service of a namespace into an MCAP file,
 //! and the file back into the per-execution statistics and a timing summary.
 //!
-//! The file: one channel per service, as [`crate::channels`] describes them (topic the
+//! The file: one channel per service, as [`softarm_channels`] describes them (topic the
 //! service's name, JSON messages, a JSON Schema named after the payload's iceoryx2 type), and
-//! the channel `scene`: the 3-D scene of [`crate::scene`] (`foxglove.SceneUpdate`, protobuf, at
-//! `view.scene_hz`), so the recording opens in Foxglove with the arm drawn. `log_time` is when
-//! the recorder received the sample (CLOCK_REALTIME, ns since the epoch, as viewers expect);
-//! `publish_time` is the sample's own `stamp_ns` (CLOCK_MONOTONIC of the machine that ran the
-//! stack; for the scene, when it was drawn). Foxglove and the `mcap` Python package read it
-//! as it is.
+//! the channel `scene`: the 3-D scene of [`softarm_channels::scene`] (`foxglove.SceneUpdate`,
+//! protobuf, at `view.scene_hz`), so the recording opens in Foxglove with the arm drawn.
+//! `log_time` is when the recorder received the sample (CLOCK_REALTIME, ns since the epoch, as
+//! viewers expect); `publish_time` is the sample's own `stamp_ns` (CLOCK_MONOTONIC of the machine
+//! that ran the stack; for the scene, when it was drawn). Foxglove and the `mcap` Python package
+//! read it as it is.
 //!
 //! The recorder is one more subscriber: it never publishes, so the controller does not notice
 //! it. It writes to `<file>.partial` and renames it once complete: a file named `run.mcap` is
@@ -28,9 +28,9 @@ use serde::Serialize;
 use serde_json::{Value, json};
 use softarm_ipc::{Namespace, Node};
 
-pub use crate::channels::TOPICS;
-use crate::channels::{Services, Spec};
-use crate::scene::{self, Scene};
+pub use softarm_channels::TOPICS;
+use softarm_channels::scene::{self, Scene};
+use softarm_channels::{Services, Spec};
 
 type Writer = mcap::Writer<BufWriter<File>>;
 
@@ -277,7 +277,7 @@ pub fn replay(messages: &[Message]) -> Replay {
     let last = messages.iter().map(|m| m.log_time).max().unwrap_or(0);
     let executions = stats_of(messages)
         .iter()
-        .filter_map(|s| serde_json::from_str(&crate::stats::json_line(s)).ok())
+        .filter_map(|s| serde_json::from_str(&softarm_clients::stats::json_line(s)).ok())
         .collect();
     let stamps: Vec<u64> = messages
         .iter()
@@ -324,7 +324,7 @@ pub fn stats_of(messages: &[Message]) -> Vec<softarm_ipc::ExecutionStats> {
     messages
         .iter()
         .filter(|m| m.topic == "stats")
-        .filter_map(|m| crate::stats::from_json(&m.value))
+        .filter_map(|m| softarm_clients::stats::from_json(&m.value))
         .collect()
 }
 
@@ -345,10 +345,10 @@ pub fn replay_text(r: &Replay, messages: &[Message]) -> String {
             out += &format!(
                 "set {}\n{}\n",
                 s.set_id,
-                crate::stats::table_header(s.errors().len())
+                softarm_clients::stats::table_header(s.errors().len())
             );
         }
-        out += &crate::stats::table_row(s);
+        out += &softarm_clients::stats::table_row(s);
         out.push('\n');
     }
     if let Some(s) = &r.setpoint_interval_us {
@@ -388,119 +388,6 @@ pub fn summary(
         writeln!(w, "  {topic:<17} {n:>8} samples")?;
     }
     Ok(())
-}
-
-/// The plot of a recording: the last way-point set it saw executed, with the end effector's
-/// path per execution (tracker samples between the execution's first and last setpoint), the
-/// reached points (`cp_sample`) and the errors (`stats`).
-pub fn plot_data(messages: &[Message], title: &str) -> anyhow::Result<crate::plot::PlotData> {
-    let samples: Vec<&Message> = messages.iter().filter(|m| m.topic == "cp_sample").collect();
-    let Some(set) = samples.last().and_then(|m| m.value["set_id"].as_u64()) else {
-        bail!(
-            "the recording has no conditioning samples: no way-point set was executed while it ran"
-        );
-    };
-    let of_set: Vec<&&Message> = samples
-        .iter()
-        .filter(|m| m.value["set_id"].as_u64() == Some(set))
-        .collect();
-    let position = |v: &Value| -> Option<[f64; 3]> {
-        let a = v.as_array()?;
-        Some([
-            a.first()?.as_f64()?,
-            a.get(1)?.as_f64()?,
-            a.get(2)?.as_f64()?,
-        ])
-    };
-    let points = of_set
-        .iter()
-        .filter_map(|m| m.value["points"].as_u64())
-        .max()
-        .unwrap_or(0) as usize;
-    let mut waypoints = vec![[f64::NAN; 3]; points];
-    let request = messages
-        .iter()
-        .rev()
-        .find(|m| m.topic == "estimate_request" && m.value["set_id"].as_u64() == Some(set));
-    if let Some(req) = request {
-        for (i, p) in req.value["desired"]
-            .as_array()
-            .into_iter()
-            .flatten()
-            .take(points)
-            .enumerate()
-        {
-            waypoints[i] = position(p).unwrap_or([f64::NAN; 3]);
-        }
-    }
-    for m in &of_set {
-        let i = m.value["point"].as_u64().unwrap_or(u64::MAX) as usize;
-        if i < points && waypoints[i][0].is_nan() {
-            waypoints[i] = position(&m.value["desired"]).unwrap_or([f64::NAN; 3]);
-        }
-    }
-    // The set's span: from its acceptance (the controller asks the learner for its estimates
-    // then) to its last conditioning sample's execution's end.
-    let set_start = request.map_or(0, |m| m.publish_time);
-    let mut numbers: Vec<u32> = of_set
-        .iter()
-        .filter_map(|m| m.value["execution"].as_u64().map(|e| e as u32))
-        .collect();
-    numbers.sort_unstable();
-    numbers.dedup();
-    let stats: Vec<softarm_ipc::ExecutionStats> = stats_of(messages)
-        .into_iter()
-        .filter(|s| s.set_id == set)
-        .collect();
-    let execute = softarm_ipc::ControllerState::Execute as u64;
-    let mut executions = Vec::new();
-    for &n in &numbers {
-        // The setpoints of this execution: EXECUTE, this number, since the set's start.
-        let span = messages
-            .iter()
-            .filter(|m| {
-                m.topic == "setpoint"
-                    && m.value["state"].as_u64() == Some(execute)
-                    && m.value["execution"].as_u64() == Some(u64::from(n))
-            })
-            .map(|m| m.publish_time)
-            .filter(|&t| t >= set_start)
-            .fold(None, |acc: Option<(u64, u64)>, t| {
-                Some(acc.map_or((t, t), |(a, b)| (a.min(t), b.max(t))))
-            });
-        let path = span.map_or_else(Vec::new, |(a, b)| {
-            messages
-                .iter()
-                .filter(|m| m.topic == "tracker" && (a..=b).contains(&m.publish_time))
-                .filter_map(|m| position(&m.value["position"]))
-                .collect()
-        });
-        let mut reached = vec![None; points];
-        for m in of_set
-            .iter()
-            .filter(|m| m.value["execution"].as_u64() == Some(u64::from(n)))
-        {
-            let i = m.value["point"].as_u64().unwrap_or(u64::MAX) as usize;
-            if i < points {
-                reached[i] = position(&m.value["reached"]);
-            }
-        }
-        let errors_m = stats
-            .iter()
-            .find(|s| s.execution == n)
-            .map_or_else(Vec::new, |s| s.errors().to_vec());
-        executions.push(crate::plot::Execution {
-            number: n,
-            path,
-            reached,
-            errors_m,
-        });
-    }
-    Ok(crate::plot::PlotData {
-        title: format!("{title}: set {set}, {} executions", executions.len()),
-        waypoints,
-        executions,
-    })
 }
 
 /// `softarm record -o FILE [--duration S]`: records until stopped or for `duration` seconds,

@@ -1,44 +1,71 @@
-//! A throwaway stack for the commands that bring one up themselves (`demo`, `soak`, `bench`): a
-//! namespace and a folder of the command's own, so it never meets a running stack, and both
-//! gone when it ends.
+//! A sandbox stack: a namespace and a folder of its own, so it never meets a running stack, its
+//! config written there, and both gone when it ends (unless kept). The commands that bring a
+//! stack up themselves (`demo`, `soak`, `bench`) run in one, and so does each end-to-end test
+//! (`tests/support/src/stack.rs::TestStack` is built on it).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
-use softarm_clients::{status, train};
+use softarm_clients::status;
 use softarm_config::{Config, Override};
 use softarm_ipc::{ControllerState, Namespace};
 use softarm_model::bundle::Model;
+use softarm_train as train;
 
 use crate::supervisor::Supervisor;
 
-pub struct Scratch {
+pub struct Sandbox {
     pub namespace: Namespace,
-    /// The config the children read, in `dir`.
+    /// The config the children read, in the folder.
     pub config_path: PathBuf,
     pub config: Config,
-    _remove: RemoveOnDrop,
+    folder: Folder,
 }
 
-impl Scratch {
-    /// Namespace `softarm/<kind>-<pid>`, folder `<tmp>/softarm-<kind>-<pid>`, and there the
-    /// config `text` with that namespace, its state in the folder, and `overrides`.
-    pub fn new(kind: &str, text: &str, overrides: &[Override]) -> anyhow::Result<Self> {
-        let pid = std::process::id();
-        let namespace = format!("softarm/{kind}-{pid}");
-        let dir = std::env::temp_dir().join(format!("softarm-{kind}-{pid}"));
+impl Sandbox {
+    /// Namespace `softarm/<name>`, a fresh folder `<tmp>/softarm-<name>`, and there the config
+    /// `text(folder, namespace)` with that namespace, its state in the folder, and `overrides`.
+    pub fn new(
+        name: &str,
+        text: impl FnOnce(&Path, &str) -> String,
+        overrides: &[Override],
+    ) -> anyhow::Result<Self> {
+        Self::create(name, &format!("the config of {name}"), text, overrides)
+    }
+
+    /// A command's own sandbox (`<kind>-<pid>`) on the config `text` with `overrides`.
+    pub fn for_command(kind: &str, text: &str, overrides: &[Override]) -> anyhow::Result<Self> {
+        let name = format!("{kind}-{}", std::process::id());
+        let what = format!("the {kind}'s config");
+        Self::create(&name, &what, |_, _| text.to_string(), overrides)
+    }
+
+    /// [`Sandbox::new`], its config called `what` in errors.
+    fn create(
+        name: &str,
+        what: &str,
+        text: impl FnOnce(&Path, &str) -> String,
+        overrides: &[Override],
+    ) -> anyhow::Result<Self> {
+        let namespace = format!("softarm/{name}");
+        let dir = std::env::temp_dir().join(format!("softarm-{name}"));
+        // A folder of this name an earlier process left (pids are reused) is not this one's.
+        let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
-        let remove = RemoveOnDrop(dir.clone());
+        let folder = Folder {
+            dir: dir.clone(),
+            keep: false,
+        };
         let mut all: Vec<Override> = vec![
             ("robot.namespace", namespace.clone().into()),
             ("state.dir", dir.join("state").display().to_string().into()),
         ];
         all.extend_from_slice(overrides);
-        let text = softarm_config::with_overrides(text, &all)
+        let text = softarm_config::with_overrides(&text(&dir, &namespace), &all)
             .map_err(anyhow::Error::msg)
-            .with_context(|| format!("the {kind}'s config"))?;
+            .context(what.to_string())?;
         let config_path = dir.join("softarm.toml");
         std::fs::write(&config_path, &text)
             .with_context(|| format!("writing {}", config_path.display()))?;
@@ -47,8 +74,18 @@ impl Scratch {
             namespace: Namespace::new(&namespace)?,
             config_path,
             config,
-            _remove: remove,
+            folder,
         })
+    }
+
+    /// The sandbox's folder.
+    pub fn dir(&self) -> &Path {
+        &self.folder.dir
+    }
+
+    /// Keeps the folder when the sandbox is dropped, to look into after.
+    pub fn keep(&mut self) {
+        self.folder.keep = true;
     }
 
     /// `roles` started as children on this config, logging at `RUST_LOG` or else `level`.
@@ -89,9 +126,7 @@ impl Scratch {
             }
         }
     }
-}
 
-impl Scratch {
     /// Waits for the controller; trains a model into the config's model folder if none there
     /// is usable (through this stack, as `softarm train` does), and waits until it is loaded.
     /// `say` tells the user what happens.
@@ -143,6 +178,20 @@ impl Scratch {
                     && r.alive.iter().any(|n| n == "learner")
             },
         )
+    }
+}
+
+/// A sandbox's folder, removed when dropped unless kept.
+struct Folder {
+    dir: PathBuf,
+    keep: bool,
+}
+
+impl Drop for Folder {
+    fn drop(&mut self) {
+        if !self.keep {
+            let _ = std::fs::remove_dir_all(&self.dir);
+        }
     }
 }
 

@@ -2,8 +2,9 @@
 //! arbitrary bytes arriving where the driver expects the motors' status packets.
 //!
 //! The bytes reach the driver's reading only through its own packet layer
-//! (`softarm_tendon::wire`, read by a thread from a serial port) and its `Link`'s replies
-//! (reached through `softarm_tendon::fuzz::Probe`). So each case runs the real thing on a
+//! ([`crate::wire`], read by a thread from a serial port) and its `Link`'s replies (reached
+//! through [`Probe`], which is why this is a module of the crate and not a test file: the
+//! link stays private). So each case runs the real thing on a
 //! pseudo-terminal: the emulated X-series bus (`softarm_emulate::dynamixel`, written
 //! independently of the driver's packet layer) answers, and a layer
 //! between it and the line changes its answers as the case says. Whatever arrives, no panic
@@ -15,8 +16,8 @@
 //!
 //! Each case takes milliseconds, or 100 ms for a read that lost an answer (the probe's wait),
 //! so the counts are smaller than for the pure codecs.
-//! `cargo test -p softarm-tendon --test fuzz` runs a bounded number of cases, CI more (see
-//! docs/FUZZING.md); `PROPTEST_CASES=20000 cargo test --release -p softarm-tendon --test fuzz`
+//! `cargo test -p softarm-tendon --lib fuzz` runs a bounded number of cases, CI more (see
+//! docs/FUZZING.md); `PROPTEST_CASES=20000 cargo test --release -p softarm-tendon --lib fuzz`
 //! runs longer.
 
 use std::io;
@@ -30,8 +31,101 @@ use softarm_config::Config;
 use softarm_config::hardware::TendonConfig;
 use softarm_emulate::dynamixel::{self as dxl, Bus};
 use softarm_emulate::pty::Pty;
-use softarm_tendon::fuzz::Probe;
-use softarm_tendon::table::CURRENT_UNIT_A;
+use softarm_ipc::ACTUATORS;
+
+use crate::link::{Ask, Counts, Link, Reading};
+use crate::table::CURRENT_UNIT_A;
+
+/// What the motors last reported, as the driver holds it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Snapshot {
+    ticks: [i32; ACTUATORS],
+    current_a: [f64; ACTUATORS],
+    hardware_error: [u8; ACTUATORS],
+}
+
+/// An open `Link` and the `Reading` its reads update: the driver's bus exchange on the rig's
+/// port, where bytes become a reading only through [`crate::wire`] and `Link`'s replies, the
+/// narrowest path there is.
+struct Probe {
+    link: Link,
+    reading: Reading,
+    counts: Counts,
+}
+
+/// Replies a probe's read waits for before it closes the read.
+const WAIT: Duration = Duration::from_millis(100);
+
+impl Probe {
+    /// Opens the bus as the driver does at start; an error when some motor has not
+    /// answered the survey within 2 s.
+    fn open(t: &TendonConfig) -> anyhow::Result<Self> {
+        let mut counts = Counts::default();
+        let mut link = Link::open(t)?;
+        let deadline = std::time::Instant::now() + Duration::from_secs(2);
+        while !link.ready() && std::time::Instant::now() < deadline {
+            link.survey(t, &mut counts, WAIT)
+                .map_err(|f| anyhow::anyhow!("surveying the motors: {f}"))?;
+        }
+        anyhow::ensure!(
+            link.ready(),
+            "{}: some motor did not answer the survey in 2 s",
+            t.port.display()
+        );
+        Ok(Self {
+            link,
+            reading: Reading::default(),
+            counts,
+        })
+    }
+
+    /// One data read, and the status read when `status` asks or a reply raised its
+    /// alert bit, each closed once every motor answered or after 100 ms: the number of
+    /// answers missing or refused, or the port fault.
+    fn read(&mut self, status: bool) -> Result<usize, String> {
+        let mut missing = self.one(Ask::Data)?;
+        if status || self.link.alert {
+            self.link.alert = false;
+            // Packets that came with the answers, after the last one asked for, go with
+            // that read, not the next.
+            std::thread::sleep(Duration::from_millis(2));
+            missing += self.one(Ask::Status)?;
+        }
+        Ok(missing)
+    }
+
+    fn one(&mut self, ask: Ask) -> Result<usize, String> {
+        // What came after the last read closed answers no read of this one.
+        self.link
+            .take_replies(&mut self.reading, &mut self.counts, Duration::ZERO)
+            .map_err(|f| f.to_string())?;
+        self.link.ask(ask, 0, None).map_err(|f| f.to_string())?;
+        let deadline = std::time::Instant::now() + WAIT;
+        loop {
+            let left = deadline.saturating_duration_since(std::time::Instant::now());
+            let done = self
+                .link
+                .take_replies(&mut self.reading, &mut self.counts, left.min(WAIT / 10))
+                .map_err(|f| f.to_string())?;
+            if done || left.is_zero() {
+                break;
+            }
+        }
+        let closed = self
+            .link
+            .close_read(&mut self.counts)
+            .expect("a read is open");
+        Ok(closed.missing + closed.refused)
+    }
+
+    fn reading(&self) -> Snapshot {
+        Snapshot {
+            ticks: self.reading.ticks,
+            current_a: self.reading.current_a,
+            hardware_error: self.reading.hardware_error,
+        }
+    }
+}
 
 /// `n` cases, or `PROPTEST_CASES` when set (longer runs by hand, more cases in CI).
 fn cases(n: u32) -> ProptestConfig {
@@ -174,7 +268,7 @@ fn acceptable(bytes: &[u8], id: u8, count: usize) -> Vec<Vec<u8>> {
             continue;
         }
         let crc = u16::from_le_bytes([bytes[end - 2], bytes[end - 1]]);
-        if crc != softarm_tendon::wire::crc16(&bytes[p..end - 2]) {
+        if crc != crate::wire::crc16(&bytes[p..end - 2]) {
             continue;
         }
         if bytes[p + 7] != 0x55 || bytes[p + 8] & 0x7f != 0 {
