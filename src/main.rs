@@ -10,13 +10,16 @@ use softarm_channels::scene;
 use softarm_clients::{estop, stats, status, submit};
 use softarm_config::scenario::Scenario;
 use softarm_config::{Config, ConfigError};
+#[cfg(feature = "rig")]
 use softarm_emulate::command as emulate;
 use softarm_ipc::Namespace;
 use softarm_record::{plot, record};
+#[cfg(feature = "rig")]
+use softarm_rig::{bench, soak};
 use softarm_runtime::identity::StackUser;
 use softarm_runtime::stop_flag;
+use softarm_stack::demo;
 use softarm_stack::supervisor as up;
-use softarm_stack::{bench, demo, soak};
 use softarm_systemd as install;
 use softarm_train as train;
 
@@ -167,6 +170,7 @@ enum Command {
     Tracker(Stack),
     /// Emulators of the motor bus and the tracker on pseudo-terminals, coupled through the
     /// arm's model: the hardware stack without hardware.
+    #[cfg(feature = "rig")]
     Emulate(emulate::Args),
     /// Demonstrations through the running stack, then ProMPs, forward model, pre-training.
     Train {
@@ -267,10 +271,12 @@ enum Command {
     },
     /// Times the stack on this machine (min / p50 / p99 / p99.9 / max): tick wake-up latency
     /// against a bare loop, messages between processes, end to end, hot-path calls, memory.
+    #[cfg(feature = "rig")]
     Bench(bench::Args),
     /// Runs the simulated stack for a long time with continuous executions, scenario changes
     /// and random kills; reports invariant violations, memory and tick latency (exit 1 if
     /// anything failed).
+    #[cfg(feature = "rig")]
     Soak(soak::Args),
     /// Installs the stack as systemd services: binary, config, state folder, units, user.
     Install(install::Args),
@@ -349,6 +355,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             let c = stack.load_with("tracker", |c| c.tracker.is_some())?;
             softarm_tracker::run(&c, c.bus()?, &*stop_flag()?)?
         }
+        #[cfg(feature = "rig")]
         Command::Emulate(args) => emulate::run(&args, &*stop_flag()?)?,
         Command::Train { stack, seed } => {
             let config = stack.load()?;
@@ -424,7 +431,9 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Ros2 { stack } => softarm_ros2::run(&stack.load()?, &*stop_flag()?)?,
         Command::Replay { recording, json } => record::replay_command(&recording, json)?,
         Command::Plot { recording, output } => plot::run(&recording, &output)?,
+        #[cfg(feature = "rig")]
         Command::Bench(args) => bench::run(&args)?,
+        #[cfg(feature = "rig")]
         Command::Soak(args) => {
             if !soak::run(&args, &*stop_flag()?)? {
                 return Ok(ExitCode::FAILURE);
@@ -436,16 +445,20 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
+/// The demo's and the soak's own output is their table.
+fn quiet(command: &Command) -> bool {
+    match command {
+        Command::Demo(_) => true,
+        #[cfg(feature = "rig")]
+        Command::Soak(_) => true,
+        _ => false,
+    }
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     // The demo's own output is its table; its processes' logs only when something is wrong.
-    init_logging(
-        if matches!(cli.command, Command::Demo(_) | Command::Soak(_)) {
-            "warn"
-        } else {
-            "info"
-        },
-    );
+    init_logging(if quiet(&cli.command) { "warn" } else { "info" });
     match run(cli) {
         Ok(code) => code,
         Err(e) => {

@@ -213,9 +213,14 @@ fn each_crate_links_only_what_its_layer_allows() {
         "the ROS 2 bridge needs the channels, submit and estop: it links no plotting, recording, \
          pipeline, learning code nor test kit",
     );
-    // The stack (demo, soak), the binary and the dev-only harness (which runs the stack's
-    // sandbox) are the only ones above these.
-    let above = ["softarm", "softarm-stack", "softarm-test-support"];
+    // The stack (demo), the binary and what runs the stack's sandbox (the rig's soak and
+    // bench, the tests' harness) are the only ones above these.
+    let above = [
+        "softarm",
+        "softarm-stack",
+        "softarm-rig",
+        "softarm-test-support",
+    ];
     for p in g
         .keys()
         .filter(|p| !above.contains(&p.as_str()) && p.as_str() != "softarm-record")
@@ -226,12 +231,28 @@ fn each_crate_links_only_what_its_layer_allows() {
             "only `softarm record`, `replay`, `plot` and demo write recordings and draw figures",
         );
     }
-    for p in g.keys().filter(|p| !above.contains(&p.as_str())) {
+    // The test kit: what checks, emulates or rehearses the product. Only the binary (through
+    // its `rig` feature, [`the_test_kit_comes_into_the_binary_through_its_rig_feature_alone`])
+    // and the kit itself link it.
+    let kit = [
+        "softarm-rig",
+        "softarm-emulate",
+        "softarm-watch",
+        "softarm-rehearsal",
+        "softarm-test-support",
+        "softarm-test-alloc",
+        "dynamixel2",
+    ];
+    for p in g
+        .keys()
+        .filter(|p| p.as_str() != "softarm" && !kit.contains(&p.as_str()))
+    {
         forbid(
             p,
-            &["softarm-watch"],
-            "the safety watch is test kit: only soak (softarm-stack, for now, so the binary) and \
-             the tests use it, no daemon, driver or client links it",
+            &kit,
+            "the test kit (emulators, the safety watch, soak and bench, the rehearsal, the \
+             harness) is apart from the product: no process, driver, client nor library of \
+             the product links it",
         );
     }
     for p in g
@@ -254,6 +275,41 @@ fn each_crate_links_only_what_its_layer_allows() {
             "only the binary starts the ROS 2 bridge: no process nor client links DDS",
         );
     }
+}
+
+/// The binary's dependencies on the test kit's commands (`softarm emulate`, `soak`, `bench`)
+/// are optional and enabled by its `rig` feature alone: `--no-default-features` builds the
+/// product without them.
+#[test]
+fn the_test_kit_comes_into_the_binary_through_its_rig_feature_alone() {
+    let root = packages()
+        .into_iter()
+        .find(|p| p["name"] == "softarm")
+        .expect("the root package");
+    let kit = ["softarm-rig", "softarm-emulate"];
+    for d in root["dependencies"].as_array().unwrap() {
+        let name = d["name"].as_str().unwrap();
+        if d["kind"].is_null() && kit.contains(&name) {
+            assert_eq!(
+                d["optional"], true,
+                "softarm links {name} whatever its features"
+            );
+        }
+    }
+    let features = &root["features"];
+    for (feature, enables) in features.as_object().unwrap() {
+        for k in kit {
+            let dep = format!("dep:{k}");
+            let on = enables.as_array().unwrap().iter().any(|e| e == &dep);
+            assert_eq!(
+                on,
+                feature == "rig",
+                "the feature {feature} {} {k}",
+                if on { "enables" } else { "does not enable" }
+            );
+        }
+    }
+    assert_eq!(features["default"], serde_json::json!(["rig"]));
 }
 
 /// `ros2-client` without its defaults: the DDS backend alone (no zenoh, no mio integration),

@@ -1,4 +1,4 @@
-//! Diagnostic: `softarm soak`'s pattern (`softarm_stack::soak::sets::nth`) in one process, faster than real time: sets one after
+//! Diagnostic: `softarm soak`'s pattern (`softarm_rig::soak::sets::nth`) in one process, faster than real time: sets one after
 //! another (the demo set every third, else a variation of it, each point moved up to 25 mm and
 //! sometimes one left out), 3 to 6 executions each, the arm changed to the next scenario of a
 //! rotation every CHANGE_EVERY_S of simulated time; per set its executions' mean errors.
@@ -93,7 +93,7 @@ fn main() -> anyhow::Result<()> {
             next += 1;
             next_change_s += every_s;
         }
-        let (set, executions) = softarm_stack::soak::sets::nth(sets, &demo, &mut rng);
+        let (set, executions) = softarm_rig::soak::sets::nth(sets, &demo, &mut rng);
         // A fresh learner beside the same controller: the lag it had measured.
         let lag = r.lag().clone();
         let stats = r.rehearse(&set, executions)?;

@@ -4,13 +4,10 @@
 //! - [`supervisor`]: children started with common arguments, a dead one restarted with
 //!   back-off, all stopped on a signal; `softarm up`.
 //! - [`sandbox`]: a stack in a namespace and folder of its own, trained on first use (the model
-//!   cached), for `demo`, `soak`, `bench` and the end-to-end tests.
+//!   cached), for `demo`, the test rig's `soak` and `bench` (`softarm-rig`) and the end-to-end
+//!   tests.
 //! - [`demo`]: `softarm demo`, the one-command showcase.
-//! - [`soak`]: `softarm soak`, a long run with scenario changes and kills, checked by a watch.
-//! - [`bench`]: `softarm bench`, what the stack costs on this machine.
 
-pub mod bench;
 pub mod demo;
 pub mod sandbox;
-pub mod soak;
 pub mod supervisor;

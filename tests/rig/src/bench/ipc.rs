@@ -24,7 +24,7 @@ use softarm_runtime::clock::Ticker;
 use softarm_runtime::now_ns;
 
 use super::{Out, Stats, header, json_with, row};
-use crate::sandbox::RemoveOnDrop;
+use softarm_stack::sandbox::RemoveOnDrop;
 
 /// Messages sent before those timed, per variant.
 const WARMUP: usize = 50;

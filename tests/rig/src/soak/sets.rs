@@ -43,7 +43,7 @@ mod tests {
 
     #[test]
     fn a_variation_keeps_the_times_and_moves_each_point_at_most_25_mm() {
-        let demo = WaypointFile::parse(crate::sandbox::DEMO_WAYPOINTS).unwrap();
+        let demo = WaypointFile::parse(softarm_stack::sandbox::DEMO_WAYPOINTS).unwrap();
         let mut rng = rand::rngs::StdRng::seed_from_u64(7);
         let mut shorter = 0;
         for _ in 0..50 {

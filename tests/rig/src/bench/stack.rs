@@ -28,8 +28,8 @@ use softarm_runtime::clock::Ticker;
 use softarm_runtime::now_ns;
 
 use super::{Out, Stats, duration, header, json_with, row};
-use crate::sandbox::Sandbox;
-use crate::supervisor::{self, Supervisor};
+use softarm_stack::sandbox::Sandbox;
+use softarm_stack::supervisor::{self, Supervisor};
 
 pub(super) struct Settings<'a> {
     pub config: Option<&'a Path>,

@@ -36,13 +36,13 @@ use softarm_model::bundle::{Model, read_checkpoint};
 use softarm_runtime::now_ns;
 use softarm_watch::{Limits, Watch};
 
-use crate::sandbox::Sandbox;
+use softarm_stack::sandbox::Sandbox;
 
 mod report;
 pub mod sets;
-use crate::supervisor::{self, Supervisor};
 pub use report::{ArmChange, BACK_UNDER_MM, Learning, Report, Rss};
 use report::{count_execution, failures, learning, print_report};
+use softarm_stack::supervisor::{self, Supervisor};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -219,7 +219,9 @@ fn sandbox_for(args: &Args) -> anyhow::Result<Sandbox> {
     let model_dir = match (&args.model_dir, &own) {
         (Some(dir), _) => dir.clone(),
         (None, Some(c)) => c.model_dir(),
-        (None, None) => crate::sandbox::cache_dir().join(format!("demo-model-seed{}", args.seed)),
+        (None, None) => {
+            softarm_stack::sandbox::cache_dir().join(format!("demo-model-seed{}", args.seed))
+        }
     };
     let mut overrides = vec![
         ("learner.seed", seed.into()),
@@ -305,7 +307,7 @@ impl<'a> Soak<'a> {
         rotation: Vec<(String, Scenario)>,
     ) -> anyhow::Result<Self> {
         let ns = &sandbox.namespace;
-        let demo_set = WaypointFile::parse(crate::sandbox::DEMO_WAYPOINTS)
+        let demo_set = WaypointFile::parse(softarm_stack::sandbox::DEMO_WAYPOINTS)
             .map_err(anyhow::Error::msg)
             .context("the demo way-points")?;
         // Subscribed before the first set: nothing is missed.
