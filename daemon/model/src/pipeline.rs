@@ -357,60 +357,8 @@ pub fn from_plant(
     )
 }
 
-/// Quick settings for tests and benches: K = 15, 80 centres, two imitation passes, 300 epochs
-/// of pre-training.
-pub fn quick_training() -> Training {
-    Training {
-        basis_functions: 15,
-        forward: NetworkConfig {
-            centres: 80,
-            ..Default::default()
-        },
-        kinematics: Default::default(),
-        learner: LearnerConfig::default(),
-        pretrain: PretrainConfig {
-            max_epochs: 300,
-            ..Default::default()
-        },
-        imitation_passes: 2,
-    }
-}
-
-/// Writes a model bundle made in about two seconds into `dir` (demonstrations straight from the
-/// kinematic model, as many per class as `softarm train` makes, seed 5, [`quick_training`]); its
-/// id. For tests and benches. Fewer demonstrations (it had six per class) give primitives so
-/// narrow that conditioning them far from their mean, as a changed arm needs, asks for paths the
-/// slew limit cannot follow, which no trained model does.
-pub fn quick_model(dir: &std::path::Path) -> String {
-    let recipe = DemoRecipe::default();
-    let (model, _) = from_plant(
-        &softarm_method::pcc::ArmGeometry::default(),
-        &recipe,
-        5,
-        &quick_training(),
-        |_| true,
-    )
-    .expect("the quick model trains");
-    model.write(dir).expect("the quick model is written")
-}
-
 #[cfg(test)]
 mod tests {
-    #[test]
-    fn the_quick_model_is_written_and_reads_back() {
-        let dir =
-            std::env::temp_dir().join(format!("softarm-pipeline-quick-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        let id = super::quick_model(&dir);
-        let m = crate::bundle::Model::read(&dir).unwrap();
-        assert_eq!(m.id, id);
-        assert_eq!((m.actuation.len(), m.task.len()), (3, 3));
-        assert_eq!(m.forward.centres(), 80);
-        // Same inputs, same bundle.
-        assert_eq!(super::quick_model(&dir), id);
-        std::fs::remove_dir_all(&dir).unwrap();
-    }
-
     use super::*;
     use softarm_learning::cacla::evaluate;
     use softarm_method::pcc::ArmGeometry;

@@ -7,7 +7,7 @@ use std::sync::OnceLock;
 
 use proptest::prelude::*;
 use softarm_model::bundle::Model;
-use softarm_model::pipeline::quick_model;
+use softarm_test_support::quick_model;
 
 /// `n` cases, or `PROPTEST_CASES` when set (longer runs by hand).
 fn cases(n: u32) -> ProptestConfig {

@@ -7,7 +7,7 @@
 //! SET (a way-point file, default config/waypoints/demo.toml), SECOND (a way-point file run
 //! once afterwards on the adapted learner, and once on a fresh one), LEARNER (TOML overrides of
 //! [learner], `;` for newlines), QUICK=1 (write the tests' quick model,
-//! `softarm_model::pipeline::quick_model`, to MODEL_DIR first), STALL=WHO:EVERY_MS:FOR_MS
+//! `softarm_test_support::quick_model`, to MODEL_DIR first), STALL=WHO:EVERY_MS:FOR_MS
 //! (a loaded machine: `controller`, `sim` or `learner` kept from its CPU for FOR_MS every
 //! EVERY_MS).
 
@@ -122,7 +122,7 @@ fn main() -> anyhow::Result<()> {
         bail!("usage: online MODEL_DIR [EXECUTIONS]");
     };
     if env("QUICK") == "1" {
-        softarm_model::pipeline::quick_model(std::path::Path::new(dir));
+        softarm_test_support::quick_model(std::path::Path::new(dir));
     }
     let model = Model::read(std::path::Path::new(dir))?;
     let executions: u32 = match args.get(2) {

@@ -70,7 +70,7 @@ fn quick() -> Model {
         std::process::id(),
         std::thread::current().id()
     ));
-    softarm_model::pipeline::quick_model(&dir);
+    softarm_test_support::quick_model(&dir);
     let model = Model::read(&dir).unwrap();
     let _ = std::fs::remove_dir_all(&dir);
     model

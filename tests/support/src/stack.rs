@@ -11,9 +11,9 @@ use softarm_config::Config;
 use softarm_stack::sandbox::Sandbox;
 
 use crate::config::{config_text, hardware_config_text, with_overrides};
+use crate::model::quick_model;
 use crate::process::{Guard, eventually, output};
 use crate::turns::{Devices, DevicesTurn, StackTurn};
-use softarm_model::pipeline::quick_model;
 
 /// The demo way-point set.
 pub const DEMO_WAYPOINTS: &str = concat!(

@@ -1,0 +1,61 @@
+//! A model bundle made in seconds, for the tests, the rehearsal and its examples: the product
+//! trains its models through the stack (`softarm train`) or `softarm demo`.
+
+use softarm_method::learner_config::{LearnerConfig, PretrainConfig};
+use softarm_method::pcc::ArmGeometry;
+use softarm_method::rbf::NetworkConfig;
+use softarm_method::skill::DemoRecipe;
+use softarm_model::pipeline::{Training, from_plant};
+
+/// Quick settings: K = 15, 80 centres, two imitation passes, 300 epochs of pre-training.
+pub fn quick_training() -> Training {
+    Training {
+        basis_functions: 15,
+        forward: NetworkConfig {
+            centres: 80,
+            ..Default::default()
+        },
+        kinematics: Default::default(),
+        learner: LearnerConfig::default(),
+        pretrain: PretrainConfig {
+            max_epochs: 300,
+            ..Default::default()
+        },
+        imitation_passes: 2,
+    }
+}
+
+/// Writes a model bundle made in about two seconds into `dir` (demonstrations straight from the
+/// kinematic model, as many per class as `softarm train` makes, seed 5, [`quick_training`]); its
+/// id. Fewer demonstrations (it had six per class) give primitives so narrow that conditioning
+/// them far from their mean, as a changed arm needs, asks for paths the slew limit cannot
+/// follow, which no trained model does.
+pub fn quick_model(dir: &std::path::Path) -> String {
+    let (model, _) = from_plant(
+        &ArmGeometry::default(),
+        &DemoRecipe::default(),
+        5,
+        &quick_training(),
+        |_| true,
+    )
+    .expect("the quick model trains");
+    model.write(dir).expect("the quick model is written")
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn the_quick_model_is_written_and_reads_back() {
+        let dir =
+            std::env::temp_dir().join(format!("softarm-support-quick-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let id = super::quick_model(&dir);
+        let m = softarm_model::bundle::Model::read(&dir).unwrap();
+        assert_eq!(m.id, id);
+        assert_eq!((m.actuation.len(), m.task.len()), (3, 3));
+        assert_eq!(m.forward.centres(), 80);
+        // Same inputs, same bundle.
+        assert_eq!(super::quick_model(&dir), id);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}
