@@ -198,7 +198,7 @@ fn a_running_stack_keeps_up_with_an_arm_that_changes() {
     let config = Config::load(&s.config).unwrap();
     let model = Model::read(&config.model_dir()).unwrap();
     let phases = [
-        ("nominal", DEMO_WAYPOINTS, 3),
+        ("nominal", DEMO_WAYPOINTS, 4),
         ("tool-change", DEMO_WAYPOINTS, 4),
         ("twist", SECOND_WAYPOINTS, 4),
         ("nominal", DEMO_WAYPOINTS, 4),
@@ -249,9 +249,14 @@ fn a_running_stack_keeps_up_with_an_arm_that_changes() {
             .into_iter()
             .filter(|e| e.is_finite())
             .collect();
+        assert!(
+            !judged.is_empty(),
+            "{scenario}: nothing to judge from the third execution {runs:?}: an execution with \
+             a late estimate puts the third off by one, and that many came late"
+        );
         let mean = judged.iter().sum::<f64>() / judged.len() as f64;
         assert!(
-            !judged.is_empty() && mean <= 0.002 && judged.iter().all(|e| *e <= 0.003),
+            mean <= 0.002 && judged.iter().all(|e| *e <= 0.003),
             "{scenario}: from the third execution {runs:?}: mean {:.2} mm, more than 2 mm (or \
              one over 3 mm)",
             mean * 1e3

@@ -95,6 +95,9 @@ pub struct Checker {
     estop_since: Option<u64>,
     /// Per set, the executions whose statistics arrived.
     executions: BTreeMap<u64, Vec<u32>>,
+    /// Time between consecutive setpoints of one controller both in EXECUTE (ns): how long an
+    /// execution has been playing, HOLD's pauses left out.
+    executing_ns: u64,
     report: Report,
 }
 
@@ -107,6 +110,7 @@ impl Checker {
             outages: Vec::new(),
             estop_since: None,
             executions: BTreeMap::new(),
+            executing_ns: 0,
             report: Report {
                 streams: 0,
                 ..Report::default()
@@ -196,9 +200,16 @@ impl Checker {
                 }
             }
         }
+        let execute = p.state == ControllerState::Execute as u32;
+        if let Some(last) = self.last
+            && !restarted
+            && execute
+            && last.state == ControllerState::Execute as u32
+        {
+            self.executing_ns += p.stamp_ns.saturating_sub(last.stamp_ns);
+        }
         self.last = Some(*p);
 
-        let execute = p.state == ControllerState::Execute as u32;
         let hold = p.state == ControllerState::Hold as u32;
         let mut closed = Vec::new();
         for (i, o) in self.outages.iter_mut().enumerate() {
@@ -266,6 +277,13 @@ impl Checker {
         self.executions.get(&set).map_or(0, Vec::len)
     }
 
+    /// How long the controller has been executing, by its setpoints' stamps: the time between
+    /// two consecutive setpoints of one controller both in EXECUTE, summed (HOLD, STOPPED and
+    /// a restart count nothing).
+    pub fn executing(&self) -> std::time::Duration {
+        std::time::Duration::from_nanos(self.executing_ns)
+    }
+
     /// The report, with the checks that need the whole run: no set's statistics lost.
     pub fn report(&self) -> Report {
         let mut checked = Checker {
@@ -275,6 +293,7 @@ impl Checker {
             outages: Vec::new(),
             estop_since: None,
             executions: BTreeMap::new(),
+            executing_ns: self.executing_ns,
             report: self.report.clone(),
         };
         for (set, seen) in &self.executions {
@@ -385,6 +404,11 @@ impl Watch {
 
     pub fn executions_of(&self, set: u64) -> usize {
         lock(&self.checker).executions_of(set)
+    }
+
+    /// [`Checker::executing`] of what the watch has seen so far.
+    pub fn executing(&self) -> std::time::Duration {
+        lock(&self.checker).executing()
     }
 
     /// The report so far.
@@ -587,5 +611,26 @@ mod tests {
             "{:?}",
             r.messages
         );
+    }
+
+    /// Executing time is what the setpoints say: HOLD pauses it, a restart adds nothing.
+    #[test]
+    fn executing_time_counts_consecutive_execute_setpoints_alone() {
+        use ControllerState::{Execute, Hold};
+        let mut c = Checker::new(limits());
+        for p in [
+            at(1, 0, 0.5, Execute),
+            at(2, 10, 0.5, Execute),
+            at(3, 20, 0.5, Hold),
+            at(4, 1_020, 0.5, Hold),
+            at(5, 1_030, 0.5, Execute),
+            at(6, 1_050, 0.5, Execute),
+            // A restarted controller: its first setpoint is not the last one's successor.
+            at(1, 1_060, 0.5, Execute),
+            at(2, 1_064, 0.5, Execute),
+        ] {
+            c.setpoint(&p);
+        }
+        assert_eq!(c.executing(), std::time::Duration::from_millis(10 + 20 + 4));
     }
 }
