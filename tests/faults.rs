@@ -325,3 +325,28 @@ fn an_estop_stays_latched_through_random_kills_and_a_reset_resumes_smoothly() {
         r.setpoints, r.streams, r.executions
     );
 }
+
+/// A controller whose io thread cannot open its publishers (here `setpoint` is held by another
+/// program with another payload type; under load it was iceoryx2's `HangsInCreation`) exits
+/// with that error, for `up` or systemd to restart it, rather than tick on, alive and
+/// publishing nothing.
+#[test]
+fn a_controller_that_cannot_publish_exits_saying_why() {
+    use softarm_ipc::iceoryx2::prelude::{NodeBuilder, ServiceName, ipc};
+    let s = TestStack::new(BIN, "cannot-publish", false);
+    let name = ServiceName::new(&format!("{}/setpoint", s.namespace)).unwrap();
+    let node = NodeBuilder::new().create::<ipc::Service>().unwrap();
+    let _other = node
+        .service_builder(&name)
+        .publish_subscribe::<u64>()
+        .create()
+        .unwrap();
+    let mut controller = s.spawn(&["controller"]);
+    let status =
+        softarm_test_support::eventually("the controller to exit", Duration::from_secs(60), || {
+            controller.try_wait().unwrap()
+        });
+    assert!(!status.success(), "{status:?}");
+    let log = std::fs::read_to_string(s.dir.join("controller.log")).unwrap();
+    assert!(log.contains("opening the controller's publishers"), "{log}");
+}

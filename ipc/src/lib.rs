@@ -498,6 +498,7 @@ impl Namespace {
     /// iceoryx2's config for a node of this stack.
     fn iceoryx2_config(&self) -> Config {
         let mut config = Config::global_config().clone();
+        config.global.creation_timeout = CREATION_TIMEOUT;
         if let Some(root) = &self.root {
             let text = root.to_str().expect("checked by Namespace::under");
             let path = IoxPath::new(text.as_bytes()).expect("checked by Namespace::under");
@@ -511,6 +512,11 @@ impl Namespace {
         ServiceName::new(&full).map_err(|e| Error(format!("service name {full:?}: {e:?}")))
     }
 }
+
+/// How long opening a service waits for another process that is creating it (iceoryx2's
+/// default: 1 s). A creator kept from its CPU for longer on a loaded machine made the opener
+/// fail with `HangsInCreation` (seen: a controller's io thread that never opened `setpoint`).
+const CREATION_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(10);
 
 /// Anything iceoryx2 refused, with what was being done.
 #[derive(Debug, Clone, PartialEq, Eq)]

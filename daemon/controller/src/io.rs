@@ -18,6 +18,8 @@ use softarm_ipc::{
 use softarm_runtime::clock::Ticker;
 use softarm_runtime::now_ns;
 
+use crate::Shared;
+
 /// What the tick publishes.
 pub(crate) enum Outgoing {
     Setpoint(Setpoint),
@@ -127,11 +129,12 @@ const BACKLOG: usize = 64;
 /// evaluation, well inside the period.
 const IO_OFFSET_NS: u64 = 250_000;
 
-/// Starts the io thread; it runs until `stop` is set.
+/// Starts the io thread; it runs until `stop` is set. If it fails, `shared` says so.
 pub(crate) fn start(
     config: &Config,
     namespace: Namespace,
     stop: Arc<AtomicBool>,
+    shared: Arc<Shared>,
 ) -> anyhow::Result<(Outbox, JoinHandle<anyhow::Result<()>>)> {
     let (tx, rx) = RingBuffer::<Outgoing>::new(OUTBOX_CAPACITY);
     let rate = config.controller.rate_hz;
@@ -139,7 +142,7 @@ pub(crate) fn start(
     let io_start = epoch_ns + IO_OFFSET_NS.min((5e8 / rate) as u64);
     let handle = std::thread::Builder::new()
         .name("controller-io".into())
-        .spawn(move || run(namespace, rx, rate, io_start, &stop))
+        .spawn(move || shared.thread_ended(run(namespace, rx, rate, io_start, &stop)))
         .context("starting the io thread")?;
     Ok((Outbox::new(tx, epoch_ns), handle))
 }

@@ -59,6 +59,21 @@ struct Shared {
     /// it: the tick takes it beside the `estop` service, so an e-stop whose sample this process
     /// missed still stops it, without file I/O in the tick (`tick::Inputs::read`).
     latched: AtomicBool,
+    /// The service or the io thread ended with an error: the tick stops too, and the process
+    /// exits with that error to be restarted. A tick without its io thread publishes nothing
+    /// and looks alive (seen: a controller ticking for minutes whose io thread could not open
+    /// `setpoint`).
+    thread_failed: AtomicBool,
+}
+
+impl Shared {
+    /// `result` of a thread beside the tick; an error stops the tick.
+    fn thread_ended(&self, result: anyhow::Result<()>) -> anyhow::Result<()> {
+        if result.is_err() {
+            self.thread_failed.store(true, Ordering::Relaxed);
+        }
+        result
+    }
 }
 
 /// Runs the controller until `stop` is set. The tick loop runs on the calling thread.
@@ -87,12 +102,20 @@ pub fn run(config: &Config, stop: &AtomicBool) -> anyhow::Result<()> {
         std::thread::Builder::new()
             .name("controller-service".into())
             .spawn(move || {
-                service::Service::open(config, namespace, shared, to_tick, retired_rx)?.run(&stop)
+                let r =
+                    service::Service::open(config, namespace, shared.clone(), to_tick, retired_rx)
+                        .and_then(|service| service.run(&stop));
+                shared.thread_ended(r)
             })
             .context("starting the service thread")?
     };
     let watchdog = rt::start_watchdog(shared.clone());
-    let (outbox, io) = io::start(config, namespace.clone(), threads_stop.clone())?;
+    let (outbox, io) = io::start(
+        config,
+        namespace.clone(),
+        threads_stop.clone(),
+        shared.clone(),
+    )?;
 
     let result = tick::run(
         config,

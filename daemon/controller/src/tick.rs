@@ -42,7 +42,7 @@ pub(crate) fn run(
     rt::setup(&config.controller);
     let mut tick = Tick::new(&config.controller, ports, shared, links);
     tracing::info!(rate_hz = tick.timing.rate_hz, "controller running");
-    while !stop.load(Ordering::Relaxed) {
+    while !stop.load(Ordering::Relaxed) && !shared.thread_failed.load(Ordering::Relaxed) {
         tick.tick();
     }
     let refused = tick.inputs.refused;
@@ -182,7 +182,11 @@ impl<'a> Tick<'a> {
     fn new(config: &Controller, inputs: Inputs, shared: &'a Shared, links: Links) -> Self {
         let timing = Timing::new(config);
         Self {
-            ticker: Ticker::starting_at(timing.rate_hz, links.outbox.epoch_ns()),
+            // On the io thread's phase, from the first deadline still ahead: opening the
+            // inputs can take seconds on a loaded machine (a killed controller's iceoryx2
+            // resources cleaned up), which is not the loop running late (seen: 5000 overruns
+            // and a 10 s "latency" in the status of a controller that never stalled).
+            ticker: Ticker::joining(timing.rate_hz, links.outbox.epoch_ns(), now_ns()),
             timing,
             inputs,
             shared,

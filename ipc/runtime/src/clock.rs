@@ -50,6 +50,17 @@ impl Ticker {
         }
     }
 
+    /// A ticker on the grid `epoch_ns + k · period` whose first deadline is the first of the
+    /// grid at or after `now_ns`: a loop that joins another's phase late (its start took a
+    /// while) begins on time rather than with every period it was not yet running counted
+    /// as an overrun.
+    pub fn joining(rate_hz: f64, epoch_ns: u64, now_ns: u64) -> Self {
+        let period_ns = (1e9 / rate_hz).round().max(1.0) as u64;
+        let behind = now_ns.saturating_sub(epoch_ns);
+        let first = epoch_ns + behind.div_ceil(period_ns) * period_ns;
+        Self::starting_at(rate_hz, first)
+    }
+
     /// Cycles skipped so far.
     pub fn overruns(&self) -> u64 {
         self.overruns
@@ -128,6 +139,28 @@ impl Backoff {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Joining late keeps the phase and counts no overrun for the time it was not running;
+    /// joining early starts at the epoch.
+    #[test]
+    fn a_ticker_joining_late_starts_on_the_grid_without_overruns() {
+        const MS: u64 = 1_000_000;
+        let epoch = 1_000 * MS;
+        let mut t = Ticker::joining(500.0, epoch, epoch + 10_001 * MS);
+        let first = t.next_deadline();
+        assert_eq!(first, epoch + 10_002 * MS);
+        let wake = t.woke_at(first + MS / 2);
+        assert_eq!((wake.missed, t.overruns()), (0, 0));
+        let mut early = Ticker::joining(500.0, epoch, epoch - 5 * MS);
+        assert_eq!(early.next_deadline(), epoch);
+        let mut exact = Ticker::joining(500.0, epoch, epoch + 4 * MS);
+        assert_eq!(exact.next_deadline(), epoch + 4 * MS);
+        // Started at the epoch instead, the same late start is 5000 overruns.
+        let mut at_epoch = Ticker::starting_at(500.0, epoch);
+        at_epoch.next_deadline();
+        at_epoch.woke_at(first + MS / 2);
+        assert_eq!(at_epoch.overruns(), 5001);
+    }
 
     #[test]
     fn a_backoff_doubles_up_to_its_cap_and_starts_over_on_success() {
