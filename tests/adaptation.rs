@@ -197,11 +197,13 @@ fn a_running_stack_keeps_up_with_an_arm_that_changes() {
     s.up();
     let config = Config::load(&s.config).unwrap();
     let model = Model::read(&config.model_dir()).unwrap();
+    // Three executions to learn, and room for late estimates: each puts "from the third" off
+    // by one, and two in four executions (seen on a busy machine) left nothing to judge.
     let phases = [
-        ("nominal", DEMO_WAYPOINTS, 4),
-        ("tool-change", DEMO_WAYPOINTS, 4),
-        ("twist", SECOND_WAYPOINTS, 4),
-        ("nominal", DEMO_WAYPOINTS, 4),
+        ("nominal", DEMO_WAYPOINTS, 6),
+        ("tool-change", DEMO_WAYPOINTS, 6),
+        ("twist", SECOND_WAYPOINTS, 6),
+        ("nominal", DEMO_WAYPOINTS, 6),
     ];
     for (n, (scenario, set, executions)) in phases.into_iter().enumerate() {
         if n > 0 {
