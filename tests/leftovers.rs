@@ -8,7 +8,7 @@ use std::io::{BufRead, BufReader};
 use std::path::Path;
 use std::process::Stdio;
 use std::sync::mpsc;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use nix::sys::signal::{Signal, kill};
 use nix::unistd::Pid;
@@ -64,11 +64,44 @@ fn start(s: &TestStack, dir: &Path, role: &str, ready: &str) -> Guard {
         }
         let _ = tx.send(Err(log));
     });
-    match rx.recv_timeout(Duration::from_secs(30)) {
-        Ok(Ok(())) => child,
-        Ok(Err(log)) => panic!("{role} ended before it was ready:\n{log}"),
-        Err(_) => panic!("{role} not ready in 30 s"),
+    // Bounded by the work it does, not the wall clock: on a loaded machine a start that cleans
+    // up after fifty dead predecessors took over 30 s of wall clock. 20 s of its own CPU time
+    // without being ready is a process that is stuck; the wall-clock bound only catches one
+    // that waits for ever.
+    let started = Instant::now();
+    loop {
+        match rx.recv_timeout(Duration::from_millis(200)) {
+            Ok(Ok(())) => return child,
+            Ok(Err(log)) => panic!("{role} ended before it was ready:\n{log}"),
+            Err(_) => {
+                let cpu = cpu_s(child.id());
+                assert!(
+                    cpu < 20.0 && started.elapsed() < Duration::from_secs(300),
+                    "{role} not ready after {cpu:.1} s of its CPU time, {:?} in all",
+                    started.elapsed()
+                );
+            }
+        }
     }
+}
+
+/// The CPU time process `pid` has used (user and system, s), from `/proc/<pid>/stat`.
+fn cpu_s(pid: u32) -> f64 {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
+    // Fields after the command name, which is in parentheses and may hold spaces: utime and
+    // stime are the 14th and 15th fields of the line, the 12th and 13th after it.
+    let after = stat.rsplit_once(')').map_or("", |(_, rest)| rest);
+    let ticks: f64 = after
+        .split_whitespace()
+        .skip(11)
+        .take(2)
+        .filter_map(|v| v.parse::<f64>().ok())
+        .sum();
+    ticks
+        / nix::unistd::sysconf(nix::unistd::SysconfVar::CLK_TCK)
+            .ok()
+            .flatten()
+            .unwrap_or(100) as f64
 }
 
 fn kill9(mut child: Guard) {
@@ -126,5 +159,23 @@ fn fifty_kills_leave_nothing_behind() {
         if e.file_name().to_string_lossy().starts_with(&prefix) {
             let _ = std::fs::remove_file(e.path());
         }
+    }
+}
+
+/// What bounds a start above: the CPU time a process used, read back for this one as it
+/// spins (however busy the machine: the spin goes on until the count has moved).
+#[test]
+fn a_process_cpu_time_is_read_from_proc() {
+    let (pid, start) = (std::process::id(), Instant::now());
+    let before = cpu_s(pid);
+    let mut x = 0u64;
+    while cpu_s(pid) < before + 0.2 {
+        for _ in 0..1_000_000 {
+            x = std::hint::black_box(x.wrapping_add(1));
+        }
+        assert!(
+            start.elapsed() < Duration::from_secs(120),
+            "the CPU time read stays at {before} s ({x})"
+        );
     }
 }
