@@ -61,6 +61,17 @@ impl Latest {
             driver_fault: false,
         }
     }
+
+    /// A tracker sample stamped `stamp_ns`, already checked to be numbers.
+    pub fn take_tracker(&mut self, stamp_ns: u64, position: Position) {
+        self.position = Some((position, stamp_ns));
+        self.track.push(stamp_ns, position);
+    }
+
+    /// A measured actuation stamped `stamp_ns`, already checked to be numbers.
+    pub fn take_motors(&mut self, stamp_ns: u64, actuation: Actuation) {
+        self.measured = Some((actuation, stamp_ns));
+    }
 }
 
 /// How fresh the data is at this tick, and so whether the arm may move.
@@ -523,9 +534,8 @@ mod tests {
     fn tick(c: &mut Control, latest: &mut Latest, now: &mut u64, fresh: bool, out: &mut Sent) {
         *now += PERIOD_NS;
         if fresh {
-            latest.measured = Some(([0.5; ACTUATORS], *now));
-            latest.position = Some(([0.0, 0.0, -0.3], *now));
-            latest.track.push(*now, [0.0, 0.0, -0.3]);
+            latest.take_motors(*now, [0.5; ACTUATORS]);
+            latest.take_tracker(*now, [0.0, 0.0, -0.3]);
         }
         let d = c.tick(*now, 0, latest, None, out);
         assert_eq!(

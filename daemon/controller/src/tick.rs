@@ -1,7 +1,7 @@
 //! The tick loop: on every absolute deadline, read the inputs, take the [`Control`]'s steps
-//! (decide the state, step the mode, limit, publish), and now and then the status. It allocates nothing, locks nothing and frees
-//! nothing once running: sets and demonstrations come and go as boxes over lock-free rings, and
-//! what it publishes goes to the io thread.
+//! (decide the state, step the mode, limit, publish), and now and then the status. It
+//! allocates nothing, locks nothing and frees nothing once running: sets and demonstrations
+//! come and go as boxes over lock-free rings, and what it publishes goes to the io thread.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 
@@ -121,15 +121,14 @@ impl Inputs {
         self.latched = latched;
         while let Ok(Some(s)) = self.tracker.receive() {
             if s.position.iter().all(|v| v.is_finite()) {
-                latest.position = Some((s.position, s.stamp_ns));
-                latest.track.push(s.stamp_ns, s.position);
+                latest.take_tracker(s.stamp_ns, s.position);
             } else {
                 self.refused += 1;
             }
         }
         while let Ok(Some(s)) = self.motors.receive() {
             if s.actuation.iter().all(|v| v.is_finite()) {
-                latest.measured = Some((s.actuation, s.stamp_ns));
+                latest.take_motors(s.stamp_ns, s.actuation);
             } else {
                 self.refused += 1;
             }

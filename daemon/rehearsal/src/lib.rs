@@ -255,9 +255,8 @@ impl<'a> Rehearsal<'a> {
         let sim_driver = SimDriver::new(arm, sim)?;
         // The sim's first measurement, published at time 0, is what the first tick reads.
         let mut latest = Latest::new(false);
-        latest.position = Some((sim_driver.newest.position, 0));
-        latest.track.push(0, sim_driver.newest.position);
-        latest.measured = Some((sim_driver.newest.actuation, 0));
+        latest.take_tracker(0, sim_driver.newest.position);
+        latest.take_motors(0, sim_driver.newest.actuation);
         Ok(Self {
             model,
             config,
@@ -387,9 +386,8 @@ impl<'a> Rehearsal<'a> {
         let (learner, latest) = (&mut self.learner, &mut self.latest);
         let mut estimates = Vec::new();
         self.sim_driver.run_until(self.now_ns, |t, m| {
-            latest.position = Some((m.position, t));
-            latest.track.push(t, m.position);
-            latest.measured = Some((m.actuation, t));
+            latest.take_tracker(t, m.position);
+            latest.take_motors(t, m.actuation);
             estimates.extend(learner.observe_arm(t, &m.actuation, &m.position));
         });
         estimates
