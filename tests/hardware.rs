@@ -394,6 +394,31 @@ fn tendon_survives_a_noisy_and_a_silent_bus_and_stops_commanding_a_faulted_motor
         5,
         "the others hold: {on:?}"
     );
+    // The faulted motor raises the alert bit on every reply: once its status is read, the
+    // positions are read again (a driver reading the status on every alert read nothing else,
+    // and every motor's state went stale). Counted on the bus, so it holds on a slow machine:
+    // about one status read in twenty cycles.
+    let reads = || {
+        let c = rig.bus.lock().unwrap().counters();
+        (c.position_reads, c.hardware_error_reads)
+    };
+    let start = reads();
+    let (positions, statuses) = eventually("fifty reads after the fault", || {
+        follow(&setpoints, 0.6, Duration::from_millis(100));
+        let (p, s) = reads();
+        let (p, s) = (p - start.0, s - start.1);
+        (p + s >= 50).then_some((p, s))
+    });
+    assert!(
+        positions > 4 * statuses,
+        "{positions} position reads beside {statuses} status reads after the fault"
+    );
+    eventually("fresh motor state beside the faulted motor", || {
+        send(&setpoints, 0.6);
+        newest(&motors).filter(|m| {
+            now_ns() - m.stamp_ns < 100_000_000 && m.driver_state() == Some(DriverState::Fault)
+        })
+    });
     assert!(stop(driver).success());
 }
 

@@ -84,8 +84,8 @@ impl Probe {
     /// answers missing or refused, or the port fault.
     fn read(&mut self, status: bool) -> Result<usize, String> {
         let mut missing = self.one(Ask::Data)?;
-        if status || self.link.alert {
-            self.link.alert = false;
+        if status || self.link.alert.due {
+            self.link.alert.due = false;
             // Packets that came with the answers, after the last one asked for, go with
             // that read, not the next.
             std::thread::sleep(Duration::from_millis(2));
@@ -762,4 +762,29 @@ fn a_stuffed_position_is_read_right() {
     positions[2] = fffffffd;
     positions[4] = fffffd01;
     assert_eq!(got, positions);
+}
+
+/// A motor with a hardware error raises the alert bit on every reply until it is rebooted. Its
+/// first alert reads the status; after that the data reads go on for every motor, the faulted
+/// one included, and the error stays held. A driver that read the status on every alert read
+/// no position again, and every motor's state went stale.
+#[test]
+fn a_known_alert_does_not_stop_the_data_reads() {
+    let (sets, (ticks, errors)) = on_time(|| {
+        let mut rig = Rig::start([1000, 1100, 1200, 2800, 2900, 3000]);
+        rig.set_hardware_error(IDS[2], dxl::hardware_error::OVERHEATING);
+        let first = rig.read(vec![], false);
+        let mut late = first.late;
+        let mut sets = vec![first.log.len()];
+        for _ in 0..3 {
+            let r = rig.read(vec![], false);
+            late |= r.late;
+            sets.push(r.log.len());
+        }
+        let reading = rig.probe().reading();
+        ((sets, (reading.ticks, reading.hardware_error)), late)
+    });
+    assert_eq!(sets, [2, 1, 1, 1], "status reads after the first alert");
+    assert_eq!(ticks, [1000, 1100, 1200, 2800, 2900, 3000]);
+    assert_eq!(errors[2], dxl::hardware_error::OVERHEATING);
 }

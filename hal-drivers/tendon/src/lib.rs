@@ -364,8 +364,8 @@ impl<'a> Driver<'a> {
         if !self.read_backoff.ready(now) {
             return;
         }
-        let ask = if l.alert || self.cycle.is_multiple_of(self.status_every) {
-            l.alert = false;
+        let ask = if l.alert.due || self.cycle.is_multiple_of(self.status_every) {
+            l.alert.due = false;
             Ask::Status
         } else if self.cycle.is_multiple_of(DATA_EVERY) {
             Ask::Data

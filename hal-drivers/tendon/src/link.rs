@@ -143,6 +143,32 @@ fn name_missing(t: &TendonConfig, ids: &[u8], waited_s: u64) {
     );
 }
 
+/// The alert bit (0x80 in a status packet's error field), which a motor raises on every reply
+/// from a hardware error until it is rebooted. A motor's alert is news once: the status read
+/// it triggers reports the error, and after that the motor's replies are read as usual, so one
+/// faulted motor does not turn every read into a status read and leave the others unread.
+#[derive(Debug, Clone, Copy, Default)]
+pub(crate) struct Alert {
+    /// A motor raised the alert bit its status has not been read with: the next read is the
+    /// status.
+    pub due: bool,
+    /// Motors whose status was read while they raised the bit.
+    known: [bool; ACTUATORS],
+}
+
+impl Alert {
+    /// Motor `i` replied to read `ask` with the alert bit `raised` or not.
+    fn heard(&mut self, i: usize, raised: bool, ask: Ask) {
+        if !raised {
+            self.known[i] = false;
+        } else if ask == Ask::Status {
+            self.known[i] = true;
+        } else if !self.known[i] {
+            self.due = true;
+        }
+    }
+}
+
 /// A read that was sent and whose replies are being collected.
 #[derive(Debug, Clone, Copy)]
 struct Pending {
@@ -165,8 +191,8 @@ pub(crate) struct Link {
     pending: Option<Pending>,
     /// Reads closed in the last 3 s with replies missing, for their late replies.
     closed: std::collections::VecDeque<Pending>,
-    /// A reply carried the alert bit: the next read is the status.
-    pub alert: bool,
+    /// Which motors raise the alert bit, and whether the next read is the status.
+    pub alert: Alert,
     /// When a reply last came (ns).
     pub last_reply_ns: u64,
     /// The motors' settings while they are being asked (`None` once every motor answered and
@@ -292,7 +318,7 @@ impl Link {
             torque: true,
             pending: None,
             closed: std::collections::VecDeque::new(),
-            alert: false,
+            alert: Alert::default(),
             last_reply_ns: now,
             survey: Some(Survey::new(now)),
             configure_faults: 0,
@@ -699,7 +725,7 @@ fn take(
     s: &Status,
     reading: &mut Reading,
     torque: &mut bool,
-    alert: &mut bool,
+    alert: &mut Alert,
 ) -> bool {
     let Some(i) = ids.iter().position(|&id| id == s.id) else {
         return false;
@@ -717,7 +743,7 @@ fn take(
     if p.answered[i] || p.refused[i] || !(fits || refused) {
         return false;
     }
-    *alert |= s.error & 0x80 != 0;
+    alert.heard(i, s.error & 0x80 != 0, p.ask);
     if refused {
         p.refused[i] = true;
         return true;

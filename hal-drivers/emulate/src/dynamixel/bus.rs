@@ -12,7 +12,7 @@ use super::motor::{Motor, TICKS_PER_REV};
 use super::packet::{BROADCAST_ID, HEADER, MAX_PACKET_LENGTH, status_packet, unstuff};
 use super::table::{
     FIRMWARE_VERSION, GOAL_POSITION, HARDWARE_ERROR_STATUS, HOMING_OFFSET, MODEL_NUMBER, MOVING,
-    REGISTERED_INSTRUCTION, SHUTDOWN, TORQUE_ENABLE, error, instruction,
+    PRESENT_POSITION, REGISTERED_INSTRUCTION, SHUTDOWN, TORQUE_ENABLE, error, instruction,
 };
 use crate::pty::Pty;
 
@@ -73,6 +73,10 @@ pub struct BusCounters {
     pub garbage_sent: u64,
     /// SYNC WRITEs of Goal Position executed.
     pub goal_writes: u64,
+    /// SYNC READs executed whose range holds Present Position, and whose range holds Hardware
+    /// Error Status: what a driver keeps reading.
+    pub position_reads: u64,
+    pub hardware_error_reads: u64,
 }
 
 /// A bus of motors: feed it the bytes the master wrote, it appends the status packets the
@@ -435,6 +439,9 @@ impl Bus {
                     return;
                 }
                 let (address, len) = addr_len(params);
+                let holds = |a: u16| (address..address.saturating_add(len)).contains(&a);
+                self.counters.position_reads += u64::from(holds(PRESENT_POSITION));
+                self.counters.hardware_error_reads += u64::from(holds(HARDWARE_ERROR_STATUS));
                 for &target in &params[4..] {
                     if let Some(i) = self.first_with_id(target) {
                         let result = self.motors[i].read_checked(address, len);
