@@ -87,12 +87,45 @@ impl Payload {
 
     /// The message: the payload as JSON, NaN as `null`.
     pub fn json(&self) -> Vec<u8> {
-        let value = each_payload!(self, v => serde_json::to_value(v));
-        value
-            .expect("a payload of numbers and arrays is JSON")
-            .to_string()
-            .into_bytes()
+        let mut value = each_payload!(self, v => serde_json::to_value(v))
+            .expect("a payload of numbers and arrays is JSON");
+        // A per-point array holds the set's points alone: the rest of its fixed capacity is no
+        // point, and drawn as zeros it would look like a point reached exactly.
+        let points = match self {
+            Payload::Stats(s) => Some(s.errors().len()),
+            Payload::EstimateRequest(r) => Some(r.points().len()),
+            _ => None,
+        };
+        if let (Some(n), Some((_, field))) = (points, per_point(self.topic())) {
+            if let Some(Value::Array(items)) = value.get_mut(field) {
+                items.truncate(n);
+            }
+        }
+        value.to_string().into_bytes()
     }
+
+    /// The service the payload comes from (one of [`TOPICS`]).
+    pub fn topic(&self) -> &'static str {
+        match self {
+            Payload::Setpoint(_) => "setpoint",
+            Payload::Tracker(_) => "tracker",
+            Payload::MotorState(_) => "motor_state",
+            Payload::CpSample(_) => "cp_sample",
+            Payload::EstimateRequest(_) => "estimate_request",
+            Payload::Estimate(_) => "estimate",
+            Payload::Stats(_) => "stats",
+            Payload::Status(_) => "status",
+            Payload::Estop(_) => "estop",
+        }
+    }
+}
+
+/// The services whose messages carry an array of one element per way-point of the set, and
+/// that array: a message has as many elements as the set has points.
+const PER_POINT: [(&str, &str); 2] = [("stats", "errors_m"), ("estimate_request", "desired")];
+
+fn per_point(topic: &str) -> Option<(&'static str, &'static str)> {
+    PER_POINT.into_iter().find(|(t, _)| *t == topic)
 }
 
 /// A JSON Schema for values of `T`, from its default value: numbers that are not integers may
@@ -105,7 +138,10 @@ fn schema<T: Serialize + Default + ZeroCopySend>(topic: &str) -> (&'static str, 
         "title": name,
         "description": format!("softarm service `{topic}`: {name} (ipc/src/lib.rs)"),
     });
-    let shape = schema_of(&serde_json::to_value(T::default()).expect("a payload is JSON"));
+    let mut shape = schema_of(&serde_json::to_value(T::default()).expect("a payload is JSON"));
+    if let Some((_, field)) = per_point(topic) {
+        shape["properties"][field]["minItems"] = json!(0);
+    }
     if let (Value::Object(a), Value::Object(b)) = (&mut s, shape) {
         a.extend(b);
     }
@@ -245,6 +281,7 @@ impl Services {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use softarm_ipc::MAX_WAYPOINTS;
 
     #[test]
     fn a_schema_is_known_before_any_sample_and_matches_the_messages() {
@@ -271,5 +308,31 @@ mod tests {
             assert!(v.get(k.as_str().unwrap()).is_some(), "{k}");
         }
         assert_eq!(v["current_a"][0], Value::Null);
+    }
+
+    /// A five-point set's stats carry five errors, not five and eleven zeros a plot would
+    /// draw as points reached exactly; the schema allows it.
+    #[test]
+    fn per_point_arrays_hold_the_sets_points_alone() {
+        let mut s = ExecutionStats {
+            count: 5,
+            ..Default::default()
+        };
+        s.errors_m[..5].copy_from_slice(&[0.001, 0.002, f64::NAN, 0.004, 0.005]);
+        let v: Value = serde_json::from_slice(&Payload::Stats(s).json()).unwrap();
+        assert_eq!(v["errors_m"], json!([0.001, 0.002, null, 0.004, 0.005]));
+        let (_, text) = schema::<ExecutionStats>("stats");
+        let schema: Value = serde_json::from_str(&text).unwrap();
+        assert_eq!(schema["properties"]["errors_m"]["minItems"], 0);
+        assert_eq!(schema["properties"]["errors_m"]["maxItems"], MAX_WAYPOINTS);
+        let r = EstimateRequest {
+            count: 2,
+            ..Default::default()
+        };
+        let v: Value = serde_json::from_slice(&Payload::EstimateRequest(r).json()).unwrap();
+        assert_eq!(v["desired"].as_array().unwrap().len(), 2);
+        for (topic, _) in PER_POINT {
+            assert!(TOPICS.contains(&topic), "{topic}");
+        }
     }
 }
