@@ -17,6 +17,7 @@ use softarm_ipc::{
     DriverState, EstimateRequest, MAX_WAYPOINTS, MotorState, Namespace, Node, Position, Setpoint,
     Sub, TrackerSample, WaypointReply, WaypointSet,
 };
+use softarm_kinematics::forward::ForwardModel;
 use softarm_runtime::now_ns;
 use softarm_test_support::{DEMO_WAYPOINTS, Devices, TestStack, alive, eventually, with_overrides};
 

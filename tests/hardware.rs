@@ -15,6 +15,7 @@ use softarm_emulate::dynamixel::{BusFaults, short_status_packet};
 use softarm_emulate::rig::Rig;
 use softarm_ipc::iceoryx2::prelude::ZeroCopySend;
 use softarm_ipc::{DriverState, MotorState, Namespace, Node, Pub, Setpoint, Sub, TrackerSample};
+use softarm_kinematics::forward::ForwardModel;
 use softarm_runtime::now_ns;
 use softarm_test_support::{DEMO_WAYPOINTS, Devices, Guard, TestStack, alive, set_id};
 

@@ -111,6 +111,66 @@ fn each_crate_links_only_what_its_layer_allows() {
         &["softarm-learning", "softarm-model"],
         "every process reads the config: it links no learning code and no pipeline",
     );
+    // The math, the simulator and the learning take their settings from the config's sections
+    // (softarm-sections, plain data beneath the config), never the reverse.
+    let math = [
+        "softarm-method",
+        "softarm-kinematics",
+        "softarm-sim",
+        "softarm-learning",
+        "softarm-model",
+    ];
+    forbid(
+        "softarm-config",
+        &math,
+        "the config is plain data and its checks: every process, the drivers too, reads it \
+         without linking the method, the kinematics, the simulator, the learning or the pipeline",
+    );
+    forbid(
+        "softarm-sections",
+        &[
+            &math[..],
+            &[
+                "iceoryx2",
+                "softarm-ipc",
+                "softarm-runtime",
+                "softarm-config",
+            ],
+        ]
+        .concat(),
+        "the config's sections are plain data beneath the config and the math: they link \
+         nothing but the space types",
+    );
+    for d in ["softarm-tendon", "softarm-tracker"] {
+        forbid(
+            d,
+            &math,
+            "a hardware driver needs its config, not the method, the kinematics, the simulator, \
+             the learning or the pipeline",
+        );
+    }
+    forbid(
+        "softarm-method",
+        &["softarm-sim"],
+        "the method is the controller's real-time math: the simulated plant is the sim's",
+    );
+    forbid(
+        "softarm-kinematics",
+        &["softarm-method"],
+        "the kinematics and forward models lie beneath the method (its demonstrations play \
+         through a forward model), never the reverse",
+    );
+    forbid(
+        "softarm-kinematics",
+        &[
+            "iceoryx2",
+            "softarm-ipc",
+            "softarm-runtime",
+            "softarm-config",
+            "softarm-learning",
+        ],
+        "the kinematics are pure math",
+    );
     forbid(
         "softarm-model",
         &["iceoryx2", "softarm-config"],

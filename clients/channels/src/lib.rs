@@ -96,10 +96,10 @@ impl Payload {
             Payload::EstimateRequest(r) => Some(r.points().len()),
             _ => None,
         };
-        if let (Some(n), Some((_, field))) = (points, per_point(self.topic())) {
-            if let Some(Value::Array(items)) = value.get_mut(field) {
-                items.truncate(n);
-            }
+        if let (Some(n), Some((_, field))) = (points, per_point(self.topic()))
+            && let Some(Value::Array(items)) = value.get_mut(field)
+        {
+            items.truncate(n);
         }
         value.to_string().into_bytes()
     }

@@ -30,10 +30,11 @@ use foxglove::messages::{
     line_primitive,
 };
 use softarm_config::Config;
+use softarm_config::arm::ArmGeometry;
 use softarm_ipc::{ConditioningSample, MAX_WAYPOINTS, MotorState, Position, TrackerSample};
-use softarm_method::pcc::ArmGeometry;
 
 use crate::Payload;
+use softarm_kinematics::pcc::Kinematics;
 
 /// The scene's channel.
 pub const TOPIC: &str = "scene";
@@ -500,6 +501,7 @@ fn pair(key: &str, value: String) -> KeyValuePair {
 mod tests {
     use super::*;
     use softarm_ipc::EstimateRequest;
+    use softarm_kinematics::forward::ForwardModel;
 
     fn scene() -> Scene {
         Scene::new(Settings {

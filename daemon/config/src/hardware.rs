@@ -7,9 +7,9 @@
 use std::f64::consts::TAU;
 use std::path::PathBuf;
 
+use crate::arm::ArmGeometry;
 use serde::{Deserialize, Serialize};
-use softarm_method::pcc::ArmGeometry;
-use softarm_method::space::{ACTUATORS, Actuation, Position};
+use softarm_space::{ACTUATORS, Actuation, Position};
 
 /// Metres per inch: the Bird protocol reports inches.
 pub const METRES_PER_INCH: f64 = 0.0254;

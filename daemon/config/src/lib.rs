@@ -6,22 +6,26 @@
 //!   frame.
 //! - [`waypoints`]: way-point files and the checks a set must pass.
 //! - [`scenario`]: scenario files, the sim's arm when it is not the one the model knows.
+//! - The sections the math reads, plain data with their validation, from `softarm-sections`
+//!   (re-exported here): [`arm`], [`sim`], [`changes`], [`learner`], [`forward_model`],
+//!   [`kinematics`], [`activation`], [`demonstrations`].
 //!
-//! Every process links this crate to read its section; none of it trains or loads a model.
+//! Every process links this crate to read its section; none of it trains or loads a model, and
+//! it links none of the math (`softarm-method`, `softarm-kinematics`, `softarm-learning`, the
+//! sim's plant): the drivers read their config without them.
 
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
-use softarm_method::Workspace;
-use softarm_method::pcc::ArmGeometry;
-use softarm_method::plant::SimConfig;
-use softarm_method::space::{Actuation, Position};
+use softarm_space::{Actuation, Position, Workspace};
 
-use softarm_method::activation::ActivationConfig;
-use softarm_method::learner_config::{LearnerConfig, PretrainConfig};
-use softarm_method::poly::{MAX_DEGREE, PolynomialConfig};
-use softarm_method::rbf::NetworkConfig;
-use softarm_method::skill::DemoRecipe;
+use crate::activation::ActivationConfig;
+use crate::arm::ArmGeometry;
+use crate::demonstrations::DemoRecipe;
+use crate::forward_model::NetworkConfig;
+use crate::kinematics::{MAX_DEGREE, PolynomialConfig};
+use crate::learner::{LearnerConfig, PretrainConfig};
+use crate::sim::SimConfig;
 
 /// Exit code of a process whose config is refused (EX_CONFIG of sysexits.h): starting it again
 /// cannot help, so the systemd units list it in `RestartPreventExitStatus=` and the supervisor
@@ -35,6 +39,10 @@ pub mod ros2;
 pub mod scenario;
 pub mod view;
 pub mod waypoints;
+
+pub use softarm_sections::{
+    activation, arm, changes, demonstrations, forward_model, kinematics, learner, sim,
+};
 
 use softarm_ipc::drivers::{DRIVERS, Driver};
 
@@ -829,7 +837,7 @@ mod tests {
         let new = Config::parse(DEFAULT, "c.toml", ".".into()).unwrap();
         assert_eq!(
             new.learner.algorithm,
-            softarm_method::learner_config::Algorithm::GaussNewton
+            crate::learner::Algorithm::GaussNewton
         );
         let (old, warnings) = formerly(
             DEFAULT,

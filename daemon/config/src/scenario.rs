@@ -3,7 +3,7 @@
 //! learner and the model keep the nominal arm of the config. It may also change the arm while
 //! the sim runs: steps at given times of the sim's clock (each `[[step]]` with its own
 //! `[step.arm]` keys, on the arm before it) and a `[drift]` (actuators creeping, the actuator
-//! radius cycling), run inside the plant ([`softarm_method::changes`]).
+//! radius cycling), run inside the plant ([`crate::changes`]).
 //!
 //! ```toml
 //! # A longer tool from the start, swapped back 90 s in, two tendons creeping all along
@@ -26,11 +26,11 @@
 
 use std::path::Path;
 
+use crate::arm::ArmGeometry;
+use crate::changes::{Changes, Drift, Step};
+use crate::sim::SimConfig;
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
-use softarm_method::changes::{Changes, Drift, Step};
-use softarm_method::pcc::ArmGeometry;
-use softarm_method::plant::SimConfig;
 
 use crate::{ConfigError, key_line, line_at};
 
@@ -455,6 +455,9 @@ mod tests {
             s.changed_at(250.0)
         );
     }
+
+    use softarm_kinematics::forward::ForwardModel;
+    use softarm_kinematics::pcc::Kinematics;
 
     /// The actuation that puts the PCC arm's tip at `target`: damped Gauss-Newton from the
     /// middle, finite-difference Jacobian.

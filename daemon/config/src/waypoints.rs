@@ -5,10 +5,10 @@ use std::path::Path;
 
 use serde::Deserialize;
 use softarm_ipc::WaypointSet;
-use softarm_method::MAX_WAYPOINTS;
+use softarm_space::MAX_WAYPOINTS;
 
+use crate::activation::ActivationConfig;
 use crate::{MAX_DURATION_S, WaypointLimits, key_line, line_at};
-use softarm_method::activation::ActivationConfig;
 
 /// A way-point file: `duration_s`, and `[[point]]` tables with `t_s` and `position_m`.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
@@ -207,7 +207,7 @@ pub fn validate(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use softarm_method::Workspace;
+    use softarm_space::Workspace;
 
     fn limits() -> WaypointLimits {
         WaypointLimits {

@@ -12,6 +12,7 @@ use proptest::strategy::ValueTree;
 use softarm_config::scenario::Scenario;
 use softarm_config::waypoints::{WaypointFile, validate};
 use softarm_config::{Config, DEFAULT};
+use softarm_kinematics::forward::ForwardModel;
 
 /// Numbers as users and broken tools write them: ordinary, extreme and not numbers at all.
 fn number() -> impl Strategy<Value = String> {
@@ -218,7 +219,7 @@ proptest! {
                     for t in [0.0, 1.0, 59.5, 1e3, 1e6, 1e9] {
                         let now = sim.changes.arm_at(&arm, t);
                         prop_assert!(now.validate().is_ok(), "{now:?} at {t} s");
-                        let p = now.position(&[0.5; 6]);
+                        let p = ForwardModel::position(&now, &[0.5; 6]);
                         prop_assert!(p.iter().all(|v| v.is_finite()));
                     }
                 }

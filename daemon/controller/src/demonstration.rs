@@ -21,7 +21,7 @@ impl DemoSequences {
     pub(crate) fn new(config: &Config, seed: u64) -> Self {
         let recipe = &config.demonstrations;
         Self {
-            sequences: recipe.sequences(seed),
+            sequences: softarm_method::skill::sequences(recipe, seed),
             ticks_per_sample: (config.controller.rate_hz / recipe.sample_rate_hz)
                 .round()
                 .max(1.0) as usize,

@@ -399,7 +399,7 @@ impl Execution {
 pub(crate) mod tests {
     use super::*;
     use nalgebra::DMatrix;
-    use softarm_method::activation::ActivationConfig;
+    use softarm_config::activation::ActivationConfig;
     use softarm_method::blend::{Planner, Replanner, Timeline};
     use softarm_method::promp::{Basis, Demonstration, Primitive, TrainConfig};
 

@@ -19,15 +19,15 @@ use std::sync::{Arc, Condvar, Mutex};
 use std::time::{Duration, Instant};
 
 use softarm_config::Config;
+use softarm_config::arm::ArmGeometry;
+use softarm_config::learner::LearnerConfig;
 use softarm_ipc::{
     Actuation, ActuationEstimate, ConditioningSample, EstimateRequest, MotorState, Node, Position,
     Pub, Sub, TrackerSample,
 };
+use softarm_kinematics::poly::Polynomial;
 use softarm_learning::cacla::{CaclaMtl, LearnerState};
 use softarm_learning::online::{ArmState, OnlineLearner};
-use softarm_method::learner_config::LearnerConfig;
-use softarm_method::pcc::ArmGeometry;
-use softarm_method::poly::Polynomial;
 use softarm_model::bundle::{BundleError, BundleWatch, Model, read_checkpoint, write_checkpoint};
 use softarm_runtime::now_ns;
 

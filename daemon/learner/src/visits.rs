@@ -9,7 +9,7 @@ use softarm_ipc::{
 };
 use softarm_learning::arm::Seen;
 use softarm_learning::online::OnlineLearner;
-use softarm_method::space::Workspace;
+use softarm_space::Workspace;
 
 /// How far outside the way-point workspace an arm's position is still believed (m). Farther, a
 /// `reached` is a tracker glitch or a broken peer's: learning from it would wreck the learner
@@ -543,10 +543,12 @@ mod tests {
         //! answers is a finite actuation in [0, 1].
         use super::*;
         use proptest::prelude::*;
+        use softarm_config::arm::ArmGeometry;
+        use softarm_config::kinematics::PolynomialConfig;
+        use softarm_config::learner::LearnerConfig;
+        use softarm_kinematics::forward::ForwardModel;
+        use softarm_kinematics::poly::Polynomial;
         use softarm_learning::cacla::CaclaMtl;
-        use softarm_method::learner_config::LearnerConfig;
-        use softarm_method::pcc::ArmGeometry;
-        use softarm_method::poly::{Polynomial, PolynomialConfig};
 
         pub(super) fn learner() -> OnlineLearner {
             let arm = ArmGeometry::default();

@@ -5,10 +5,11 @@
 
 use std::process::ExitCode;
 
+use softarm_kinematics::forward::ForwardModel;
 use softarm_learning::cacla::CaclaMtl;
-use softarm_method::distance;
-use softarm_method::learner_config::LearnerConfig;
-use softarm_method::pcc::ArmGeometry;
+use softarm_sections::arm::ArmGeometry;
+use softarm_sections::learner::LearnerConfig;
+use softarm_space::distance;
 
 fn main() -> ExitCode {
     let overrides = std::env::var("LEARNER")

@@ -4,10 +4,10 @@
 //! the arm put back), so that they are forgotten before they make things worse.
 //! Pure: no I/O, no clock (times are the caller's stamps).
 
-use softarm_method::forward::ForwardModel;
-use softarm_method::learner_config::GaussNewtonConfig;
-use softarm_method::pcc::ArmGeometry;
-use softarm_method::space::{ACTUATORS, Actuation, Position, distance};
+use softarm_kinematics::forward::ForwardModel;
+use softarm_sections::arm::ArmGeometry;
+use softarm_sections::learner::GaussNewtonConfig;
+use softarm_space::{ACTUATORS, Actuation, Position, distance};
 
 /// Targets closer than this are the same point of the corrections (m).
 const SAME_TARGET_M: f64 = 1e-3;
@@ -404,7 +404,7 @@ fn actuation_distance(a: &Actuation, b: &Actuation) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use softarm_method::pcc::ArmGeometry;
+    use softarm_sections::arm::ArmGeometry;
 
     const MS: u64 = 1_000_000;
 

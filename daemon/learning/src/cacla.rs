@@ -3,7 +3,7 @@
 //! Pure math: no I/O, no clock (pre-training is given its budget as a closure).
 //!
 //! The critic V(p_desired, p_current) and the actor Ac(p_desired) → 6 actuations are linear
-//! in normalised RBF features on sparse lattices ([`softarm_method::rbf`]). Per point n the learner keeps
+//! in normalised RBF features on sparse lattices ([`softarm_kinematics::rbf`]). Per point n the learner keeps
 //! k_n, the last reached position and the last error. Three corrections to the printed paper
 //! (see docs/ARCHITECTURE.md, "Where the paper lives") are marked `Correction` below.
 
@@ -12,10 +12,10 @@ use rand::{RngExt, SeedableRng};
 use rand_distr::{Distribution, StandardNormal};
 use serde::{Deserialize, Serialize};
 
-use softarm_method::forward::ForwardModel;
-use softarm_method::learner_config::{LearnerConfig, PretrainConfig};
-use softarm_method::rbf::{Features, LinearRbf};
-use softarm_method::space::{ACTUATORS, Actuation, Position, distance};
+use softarm_kinematics::forward::ForwardModel;
+use softarm_kinematics::rbf::{Features, Lattice, LinearRbf, RbfError};
+use softarm_sections::learner::{LearnerConfig, PretrainConfig};
+use softarm_space::{ACTUATORS, Actuation, Position, distance};
 
 /// Alg. 1's memory of one conditioning point: k_n, and the state and error of its last visit,
 /// which the next visit's δ needs. Held by whoever visits the points, not by [`CaclaMtl`] (which
@@ -112,6 +112,28 @@ impl Actor {
     }
 }
 
+/// The actor's 3-D and the critic's 6-D lattice of `config` (each a valid config makes).
+pub fn lattices(config: &LearnerConfig) -> Result<(Lattice, Lattice), RbfError> {
+    let (lo, hi) = (config.workspace_min_m, config.workspace_max_m);
+    let actor = Lattice::new(
+        &lo,
+        &hi,
+        &[config.actor_spacing_m; 3],
+        config.actor_width,
+        config.actor_span,
+    )?;
+    let lo6 = [lo[0], lo[1], lo[2], lo[0], lo[1], lo[2]];
+    let hi6 = [hi[0], hi[1], hi[2], hi[0], hi[1], hi[2]];
+    let critic = Lattice::new(
+        &lo6,
+        &hi6,
+        &[config.critic_spacing_m; 6],
+        config.critic_width,
+        config.critic_span,
+    )?;
+    Ok((actor, critic))
+}
+
 /// CACLA-MTL: one actor and one critic shared by every conditioning point. Each point's own
 /// memory ([`PointMemory`]) is passed in by the caller.
 pub struct CaclaMtl {
@@ -124,7 +146,7 @@ pub struct CaclaMtl {
 impl CaclaMtl {
     pub fn new(config: LearnerConfig) -> Result<Self, String> {
         config.validate()?;
-        let (actor, critic) = config.lattices().map_err(|e| e.to_string())?;
+        let (actor, critic) = lattices(&config).map_err(|e| e.to_string())?;
         Ok(Self {
             actor: Actor::new(LinearRbf::new(
                 actor,
@@ -288,7 +310,7 @@ impl CaclaMtl {
     /// A learner from saved state. The exploration stream restarts from the config's seed.
     pub fn restore(state: &LearnerState) -> Result<Self, String> {
         let mut l = Self::new(state.config)?;
-        let (actor, critic) = state.config.lattices().map_err(|e| e.to_string())?;
+        let (actor, critic) = lattices(&state.config).map_err(|e| e.to_string())?;
         l.actor = Actor::new(
             LinearRbf::from_entries(
                 actor,
@@ -374,7 +396,27 @@ pub fn evaluate(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use softarm_method::pcc::ArmGeometry;
+    use softarm_sections::arm::ArmGeometry;
+
+    /// The config's checks (`LearnerConfig::validate`, which cannot build a lattice) accept
+    /// only what [`Lattice::new`] accepts: a valid config always makes its lattices, with the
+    /// capacities the config asks for at least.
+    #[test]
+    fn a_valid_config_makes_its_lattices() {
+        for span in [2, softarm_kinematics::rbf::MAX_SPAN] {
+            let c = LearnerConfig {
+                critic_span: span,
+                actor_span: span,
+                critic_max_centres: 100_000_000,
+                ..Default::default()
+            };
+            c.validate().unwrap();
+            let (actor, critic) = lattices(&c).unwrap();
+            assert_eq!((actor.dim(), critic.dim()), (3, 6));
+            assert!(LinearRbf::<ACTUATORS>::min_capacity(&actor) <= c.actor_max_centres);
+            assert!(LinearRbf::<1>::min_capacity(&critic) <= c.critic_max_centres);
+        }
+    }
 
     #[test]
     fn sigma_shrinks_with_the_error() {

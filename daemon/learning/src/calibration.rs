@@ -15,9 +15,10 @@
 
 use nalgebra::{DMatrix, DVector, Matrix3, SVector, Vector3};
 
-use softarm_method::forward::{ForwardModel, Jacobian};
-use softarm_method::pcc::ArmGeometry;
-use softarm_method::space::{ACTUATORS, Actuation, Position};
+use softarm_kinematics::forward::{ForwardModel, Jacobian};
+use softarm_kinematics::pcc::Kinematics;
+use softarm_sections::arm::ArmGeometry;
+use softarm_space::{ACTUATORS, Actuation, Position};
 
 /// Parameters fitted: the tool's offset in the tip frame (x, y, z; m), each actuator's length
 /// offset (m), each module's bend per length difference (a fraction: what its actuators'

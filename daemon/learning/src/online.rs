@@ -13,7 +13,7 @@
 //! What one set taught carries over to the next: a target never visited starts at the inverse
 //! of the arm as calibrated to its [`Footprint`] ([`CalibratedArm`]), from what the trained
 //! model would send (the actor's mean refined against the polynomial kinematics,
-//! [`softarm_method::poly`]), which alone it is before the arm is calibrated; a target visited
+//! [`softarm_kinematics::poly`]), which alone it is before the arm is calibrated; a target visited
 //! before starts where its visits left it ([`Corrections`]). Under gauss-newton the actor stays the trained
 //! prior and the footprint and corrections hold all that an arm taught, so when the footprint
 //! says the arm has changed they are forgotten at once, and the learner is never worse than
@@ -25,11 +25,11 @@ use nalgebra::{SVector, Vector3};
 use crate::arm::{Corrected, Corrections, Footprint, Sample, Seen};
 use crate::cacla::{CaclaMtl, PointMemory, Visit};
 use crate::calibration::{CalibratedArm, damped_pseudo_inverse};
-use softarm_method::forward::{ForwardModel, Jacobian};
-use softarm_method::learner_config::{Algorithm, GaussNewtonConfig};
-use softarm_method::pcc::ArmGeometry;
-use softarm_method::poly::Polynomial;
-use softarm_method::space::{ACTUATORS, Actuation, MAX_WAYPOINTS, Position, distance};
+use softarm_kinematics::forward::{ForwardModel, Jacobian};
+use softarm_kinematics::poly::Polynomial;
+use softarm_sections::arm::ArmGeometry;
+use softarm_sections::learner::{Algorithm, GaussNewtonConfig};
+use softarm_space::{ACTUATORS, Actuation, MAX_WAYPOINTS, Position, distance};
 
 /// A visit or estimate that does not fit the running set.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -664,9 +664,9 @@ mod tests {
     use super::*;
     use rand::rngs::StdRng;
     use rand::{RngExt, SeedableRng};
-    use softarm_method::learner_config::LearnerConfig;
-    use softarm_method::pcc::ArmGeometry;
-    use softarm_method::poly::PolynomialConfig;
+    use softarm_sections::arm::ArmGeometry;
+    use softarm_sections::kinematics::PolynomialConfig;
+    use softarm_sections::learner::LearnerConfig;
 
     /// A polynomial of the nominal arm and an actor that imitated it.
     fn learner(algorithm: Algorithm) -> OnlineLearner {

@@ -9,9 +9,9 @@ use std::hint::black_box;
 
 use common::{D, demonstrations, primitives};
 use criterion::{Criterion, criterion_group, criterion_main};
-use softarm_method::activation::ActivationConfig;
 use softarm_method::blend::{Planner, Timeline};
 use softarm_method::promp::{Basis, Primitive, TrainConfig, ViaPoint};
+use softarm_sections::activation::ActivationConfig;
 
 const T_COND: [f64; 5] = [1.0, 3.0, 5.0, 7.0, 9.0];
 const Q: [usize; 5] = [0, 1, 2, 1, 0];

@@ -5,7 +5,9 @@ use nalgebra::{DMatrix, DVector};
 
 use crate::activation::ScheduleError;
 use crate::blend::BlendError;
-use crate::promp::{Primitive, PrimitiveError, solve_spd};
+use softarm_kinematics::linalg::solve_spd;
+
+use crate::promp::{Primitive, PrimitiveError};
 use crate::space::Position;
 
 /// ClassifyToPrimitives: for each conditioning point, the primitive whose task-space ProMP is

@@ -8,6 +8,7 @@
 
 use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
+use softarm_kinematics::linalg::solve_spd;
 
 /// What can go wrong building, training or conditioning a primitive.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -524,14 +525,6 @@ fn fit_validated(
             ))
         })?;
     Ok(DVector::from_fn(k * dofs, |i, _| w[(i % k, i / k)]))
-}
-
-/// Solves A X = B for a symmetric A: Cholesky when A is positive definite, else LU.
-pub(crate) fn solve_spd(a: DMatrix<f64>, b: DMatrix<f64>) -> Option<DMatrix<f64>> {
-    if let Some(ch) = a.clone().cholesky() {
-        return Some(ch.solve(&b));
-    }
-    a.lu().solve(&b)
 }
 
 fn symmetrise(m: &mut DMatrix<f64>) {

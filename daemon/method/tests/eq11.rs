@@ -7,10 +7,11 @@ mod common;
 
 use common::{D, primitives};
 use nalgebra::{DMatrix, DVector};
-use softarm_method::activation::{ActivationConfig, MAX_PRIMITIVES};
+use softarm_method::activation::MAX_PRIMITIVES;
 use softarm_method::blend::{Blend, BlendError, ConditionedOn, Planner, Timeline};
 use softarm_method::classify::classify;
 use softarm_method::promp::{Basis, Demonstration, Primitive, TrainConfig, ViaPoint};
+use softarm_sections::activation::ActivationConfig;
 
 const FLOOR: f64 = 1e-6;
 const T_COND: [f64; 5] = [1.0, 3.0, 5.0, 7.0, 9.0];

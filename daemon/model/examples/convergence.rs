@@ -11,17 +11,17 @@ use anyhow::{Context, bail};
 use hdrhistogram::Histogram;
 use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
+use softarm_kinematics::forward::ForwardModel;
 use softarm_learning::cacla::evaluate;
-use softarm_method::forward::ForwardModel;
-use softarm_method::learner_config::LearnerConfig;
-use softarm_method::learner_config::PretrainConfig;
-use softarm_method::pcc::ArmGeometry;
-use softarm_method::rbf::NetworkConfig;
-use softarm_method::skill::DemoRecipe;
 use softarm_method::space::distance;
 use softarm_model::pipeline::{
     IMITATION_PASSES, Training, TrainingData, forward_model, imitation, learner,
 };
+use softarm_sections::arm::ArmGeometry;
+use softarm_sections::demonstrations::DemoRecipe;
+use softarm_sections::forward_model::NetworkConfig;
+use softarm_sections::learner::LearnerConfig;
+use softarm_sections::learner::PretrainConfig;
 
 /// Values on a 3-significant-digit histogram.
 fn histogram(values: impl IntoIterator<Item = u64>) -> Histogram<u64> {

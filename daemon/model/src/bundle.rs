@@ -16,13 +16,13 @@ use nalgebra::{DMatrix, DVector};
 use safetensors::{Dtype, SafeTensors, tensor::TensorView};
 use serde::{Deserialize, Serialize};
 
+use softarm_kinematics::poly::Polynomial;
+use softarm_kinematics::rbf::RbfNetwork;
 use softarm_learning::arm::{Corrected, Sample};
 use softarm_learning::cacla::LearnerState;
 use softarm_learning::online::ArmState;
-use softarm_method::learner_config::LearnerConfig;
-use softarm_method::poly::Polynomial;
 use softarm_method::promp::{Basis, Primitive};
-use softarm_method::rbf::RbfNetwork;
+use softarm_sections::learner::LearnerConfig;
 
 /// 2: the polynomial kinematics (`kinematics.weights`) joined the model.
 const FORMAT: u32 = 2;
@@ -427,8 +427,9 @@ impl Model {
             let (_, w) = t.f64s("forward.weights", &[Some(shape[0] + 7), Some(3)])?;
             let weights: Vec<[f64; 3]> = w.chunks_exact(3).map(|r| [r[0], r[1], r[2]]).collect();
             let forward = RbfNetwork::from_parts(centres, meta.forward_sigma, weights)?;
-            let terms = softarm_method::poly::exponents(
-                meta.kinematics_degree.min(softarm_method::poly::MAX_DEGREE),
+            let terms = softarm_kinematics::poly::exponents(
+                meta.kinematics_degree
+                    .min(softarm_sections::kinematics::MAX_DEGREE),
             )
             .len();
             let (_, kw) = t.f64s("kinematics.weights", &[Some(terms), Some(3)])?;
@@ -632,10 +633,10 @@ mod tests {
     use super::*;
     use crate::pipeline::{Training, from_plant};
     use softarm_learning::cacla::CaclaMtl;
-    use softarm_method::learner_config::PretrainConfig;
-    use softarm_method::pcc::ArmGeometry;
-    use softarm_method::rbf::NetworkConfig;
-    use softarm_method::skill::DemoRecipe;
+    use softarm_sections::arm::ArmGeometry;
+    use softarm_sections::demonstrations::DemoRecipe;
+    use softarm_sections::forward_model::NetworkConfig;
+    use softarm_sections::learner::PretrainConfig;
 
     /// A small model from the pipeline, with one remembered point so the memory round-trips too.
     fn model() -> Model {

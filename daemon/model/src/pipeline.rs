@@ -10,16 +10,19 @@
 //!
 //! [`cacla::pretrain`]: softarm_learning::cacla::pretrain
 
+use softarm_kinematics::forward::ForwardModel;
+use softarm_kinematics::poly::Polynomial;
+use softarm_kinematics::rbf::{RbfError, RbfNetwork};
 use softarm_learning::cacla::{self, CaclaMtl, PretrainReport};
 use softarm_method::activation::MAX_PRIMITIVES;
-use softarm_method::forward::ForwardModel;
-use softarm_method::learner_config::LearnerConfig;
-use softarm_method::learner_config::PretrainConfig;
-use softarm_method::poly::{Polynomial, PolynomialConfig};
 use softarm_method::promp::{Primitive, PrimitiveError};
-use softarm_method::rbf::{NetworkConfig, RbfError, RbfNetwork};
-use softarm_method::skill::{self, DemoRecipe, Recording};
+use softarm_method::skill::{self, Recording};
 use softarm_method::space::{Actuation, Position, distance};
+use softarm_sections::demonstrations::DemoRecipe;
+use softarm_sections::forward_model::NetworkConfig;
+use softarm_sections::kinematics::PolynomialConfig;
+use softarm_sections::learner::LearnerConfig;
+use softarm_sections::learner::PretrainConfig;
 
 use crate::bundle::Model;
 
@@ -361,7 +364,7 @@ pub fn from_plant(
 mod tests {
     use super::*;
     use softarm_learning::cacla::evaluate;
-    use softarm_method::pcc::ArmGeometry;
+    use softarm_sections::arm::ArmGeometry;
 
     fn quick() -> Training {
         Training {

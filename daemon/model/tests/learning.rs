@@ -5,12 +5,12 @@
 //! `cargo run --release -p softarm-model --example convergence`.
 
 use softarm_learning::cacla::{evaluate, pretrain};
-use softarm_method::learner_config::LearnerConfig;
-use softarm_method::learner_config::PretrainConfig;
-use softarm_method::pcc::ArmGeometry;
-use softarm_method::rbf::NetworkConfig;
-use softarm_method::skill::DemoRecipe;
 use softarm_model::pipeline::{TrainingData, forward_model, imitation};
+use softarm_sections::arm::ArmGeometry;
+use softarm_sections::demonstrations::DemoRecipe;
+use softarm_sections::forward_model::NetworkConfig;
+use softarm_sections::learner::LearnerConfig;
+use softarm_sections::learner::PretrainConfig;
 
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);

@@ -13,13 +13,13 @@
 
 use anyhow::{Context, bail};
 use softarm_config::Config;
+use softarm_config::arm::ArmGeometry;
+use softarm_config::learner::LearnerConfig;
 use softarm_config::scenario::Scenario;
+use softarm_config::sim::SimConfig;
 use softarm_config::waypoints::WaypointFile;
 use softarm_ipc::ExecutionStats;
 use softarm_learner::{Learner, online_learner};
-use softarm_method::learner_config::LearnerConfig;
-use softarm_method::pcc::ArmGeometry;
-use softarm_method::plant::SimConfig;
 use softarm_model::bundle::Model;
 use softarm_rehearsal::{Rehearsal, Stalled, Stalls};
 

@@ -1,10 +1,10 @@
 //! Diagnostic: one learner through a sequence of arm changes, beside a fresh learner per phase.
 use anyhow::Context;
 use softarm_config::Config;
+use softarm_config::arm::ArmGeometry;
+use softarm_config::learner::Algorithm;
 use softarm_config::waypoints::WaypointFile;
 use softarm_learner::{Learner, online_learner};
-use softarm_method::learner_config::Algorithm;
-use softarm_method::pcc::ArmGeometry;
 use softarm_model::bundle::Model;
 use softarm_rehearsal::Rehearsal;
 

@@ -17,8 +17,8 @@ use softarm_rehearsal::Rehearsal;
 
 /// The least error with which `arm` can reach `target` inside the actuators' range [0, 1]:
 /// projected damped Gauss-Newton from several starts.
-fn reachable(arm: &softarm_method::pcc::ArmGeometry, target: &[f64; 3], rng: &mut StdRng) -> f64 {
-    use softarm_method::forward::finite_difference;
+fn reachable(arm: &softarm_config::arm::ArmGeometry, target: &[f64; 3], rng: &mut StdRng) -> f64 {
+    use softarm_kinematics::forward::{ForwardModel, finite_difference};
     let mut best = f64::INFINITY;
     for start in 0..12 {
         let mut a: [f64; 6] = if start == 0 {

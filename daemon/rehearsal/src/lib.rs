@@ -13,6 +13,8 @@
 
 use anyhow::{Context, bail};
 use softarm_config::Config;
+use softarm_config::arm::ArmGeometry;
+use softarm_config::sim::SimConfig;
 use softarm_config::waypoints::WaypointFile;
 use softarm_controller::{ActuatorLag, Control, Latest, Outputs, Plan, Retired, admit, rest_ticks};
 use softarm_ipc::{
@@ -21,10 +23,9 @@ use softarm_ipc::{
 };
 use softarm_learner::Learner;
 use softarm_method::blend::Replanner;
-use softarm_method::pcc::ArmGeometry;
-use softarm_method::plant::{Measurement, SimConfig};
 use softarm_model::bundle::Model;
 use softarm_sim::SimArm;
+use softarm_sim::plant::Measurement;
 
 const NS_PER_S: f64 = 1e9;
 

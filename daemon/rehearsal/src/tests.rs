@@ -1,9 +1,9 @@
 //! Adaptation, rehearsed: these fail when adaptation stops working.
 
 use super::*;
+use softarm_config::learner::{Algorithm, LearnerConfig};
 use softarm_config::scenario::Scenario;
 use softarm_learner::online_learner;
-use softarm_method::learner_config::{Algorithm, LearnerConfig};
 
 const DEMO: &str = include_str!("../../../config/waypoints/demo.toml");
 const SECOND: &str = include_str!("../../../config/waypoints/second.toml");

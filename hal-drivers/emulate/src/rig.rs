@@ -10,12 +10,13 @@ use std::thread::JoinHandle;
 use anyhow::Context;
 use softarm_config::Config;
 use softarm_config::hardware::{Frame, Mapping};
-use softarm_method::space::ACTUATORS;
+use softarm_space::ACTUATORS;
 
 use crate::bird::{self, BirdCounts, BirdFaults};
 use crate::canary::Canary;
 use crate::dynamixel;
 use crate::pty::Pty;
+use softarm_kinematics::forward::ForwardModel;
 
 type Pose = Arc<dyn Fn() -> ([f64; 3], [f64; 3]) + Send + Sync>;
 

@@ -1,6 +1,12 @@
 //! The `sim` driver process: the PCC plant with its realism layer behind the same services as
 //! the hardware drivers. Consumes `setpoint` (and `estop`), publishes `tracker` and
 //! `motor_state` at its own fixed rate on absolute deadlines.
+//!
+//! - [`plant`] — the simulated plant: the PCC kinematics behind a seeded realism layer, on an
+//!   arm that changes over the plant's time as a scenario says (`[sim]` and the scenario's
+//!   changes are plain data in `softarm-sections`). Pure math; here, with the process that
+//!   runs it, so that neither the method nor the config links a simulator. The rehearsal steps
+//!   the same plant ([`SimArm`]).
 
 use std::sync::atomic::{AtomicBool, Ordering};
 
@@ -11,8 +17,12 @@ use softarm_ipc::{Actuation, DriverState, MotorState, Namespace, Node, TrackerSa
 use softarm_runtime::clock::Ticker;
 use softarm_runtime::{EstopLatch, now_ns};
 
-use softarm_method::pcc::ArmGeometry;
-use softarm_method::plant::{Measurement, Plant, SimConfig};
+use softarm_sections::arm::ArmGeometry;
+use softarm_sections::sim::SimConfig;
+
+pub mod plant;
+
+use crate::plant::{Measurement, Plant};
 
 /// Runs the simulated arm until `stop` is set; starts stopped if `latch` says the e-stop is
 /// engaged.

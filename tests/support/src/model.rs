@@ -1,10 +1,10 @@
 //! A model bundle made in seconds, for the tests, the rehearsal and its examples: the product
 //! trains its models through the stack (`softarm train`) or `softarm demo`.
 
-use softarm_method::learner_config::{LearnerConfig, PretrainConfig};
-use softarm_method::pcc::ArmGeometry;
-use softarm_method::rbf::NetworkConfig;
-use softarm_method::skill::DemoRecipe;
+use softarm_config::arm::ArmGeometry;
+use softarm_config::demonstrations::DemoRecipe;
+use softarm_config::forward_model::NetworkConfig;
+use softarm_config::learner::{LearnerConfig, PretrainConfig};
 use softarm_model::pipeline::{Training, from_plant};
 
 /// Quick settings: K = 15, 80 centres, two imitation passes, 300 epochs of pre-training.

@@ -23,8 +23,11 @@ use rtrb::{Consumer, Producer, PushError, RingBuffer};
 
 use nalgebra::{DMatrix, DVector};
 
-use crate::activation::{ActivationConfig, MAX_PRIMITIVES, Schedule, ScheduleError};
-use crate::promp::{Primitive, PrimitiveError, solve_spd};
+use crate::activation::{MAX_PRIMITIVES, Schedule, ScheduleError};
+use softarm_kinematics::linalg::solve_spd;
+use softarm_sections::activation::ActivationConfig;
+
+use crate::promp::{Primitive, PrimitiveError};
 
 pub mod condition;
 pub mod table;

@@ -6,15 +6,17 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use serde_json::{Map, Value};
-use softarm_method::activation::ActivationConfig;
+use softarm_config::activation::ActivationConfig;
+use softarm_config::arm::ArmGeometry;
+use softarm_config::demonstrations::DemoRecipe;
+use softarm_config::forward_model::NetworkConfig;
+use softarm_config::kinematics::PolynomialConfig;
+use softarm_config::learner::LearnerConfig;
+use softarm_config::learner::PretrainConfig;
+use softarm_kinematics::forward::ForwardModel;
+use softarm_kinematics::poly::Polynomial;
+use softarm_kinematics::rbf::RbfNetwork;
 use softarm_method::blend::{Planner, Timeline};
-use softarm_method::forward::ForwardModel;
-use softarm_method::learner_config::LearnerConfig;
-use softarm_method::learner_config::PretrainConfig;
-use softarm_method::pcc::ArmGeometry;
-use softarm_method::poly::{Polynomial, PolynomialConfig};
-use softarm_method::rbf::{NetworkConfig, RbfNetwork};
-use softarm_method::skill::DemoRecipe;
 use softarm_model::pipeline::{self, Training, TrainingData};
 
 use super::{Out, Stats, header, histogram, record, row};

@@ -5,13 +5,11 @@
 //! the corrections of [`crate::online`] by (docs/ARCHITECTURE.md, "Adaptation").
 
 use nalgebra::DMatrix;
-use serde::{Deserialize, Serialize};
+pub use softarm_sections::kinematics::MAX_DEGREE;
+use softarm_sections::kinematics::PolynomialConfig;
+use softarm_space::{ACTUATORS, Actuation, Position};
 
 use crate::forward::{ForwardModel, Jacobian};
-use crate::space::{ACTUATORS, Actuation, Position};
-
-/// The highest degree offered: 462 terms at degree 5 is already more than D_fwd supports well.
-pub const MAX_DEGREE: usize = 5;
 
 /// Monomials are of a − [`CENTRE`]: the middle of the actuation range keeps them well scaled.
 const CENTRE: f64 = 0.5;
@@ -24,25 +22,6 @@ pub struct Polynomial {
     exponents: Vec<[u8; ACTUATORS]>,
     /// One row per monomial, one column per axis.
     weights: Vec<Position>,
-}
-
-/// How the polynomial is fitted; part of `[forward_model]`.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
-#[serde(deny_unknown_fields, default)]
-pub struct PolynomialConfig {
-    /// Total degree of the polynomial in the actuations.
-    pub degree: usize,
-    /// Ridge λ of the fit.
-    pub ridge: f64,
-}
-
-impl Default for PolynomialConfig {
-    fn default() -> Self {
-        Self {
-            degree: 4,
-            ridge: 1e-8,
-        }
-    }
 }
 
 /// The exponents of every monomial of degree ≤ `degree` in six variables, constant first.
@@ -133,7 +112,7 @@ impl Polynomial {
             a[(i, i)] += config.ridge;
         }
         let y = DMatrix::from_fn(positions.len(), 3, |r, c| positions[r][c]);
-        let w = crate::promp::solve_spd(a, phi.tr_mul(&y))
+        let w = crate::linalg::solve_spd(a, phi.tr_mul(&y))
             .filter(|w| w.iter().all(|v| v.is_finite()))
             .ok_or("the least-squares system is singular: use a ridge > 0")?;
         model.weights = (0..terms)
@@ -223,9 +202,9 @@ impl ForwardModel for Polynomial {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::pcc::ArmGeometry;
     use rand::rngs::StdRng;
     use rand::{RngExt, SeedableRng};
+    use softarm_sections::arm::ArmGeometry;
 
     #[test]
     fn term_counts_are_binomial() {
@@ -248,7 +227,7 @@ mod tests {
         let poly = Polynomial::fit(&a, &p, &PolynomialConfig::default()).unwrap();
         for _ in 0..50 {
             let x = sample(&mut rng);
-            let err = crate::space::distance(&poly.position(&x), &arm.position(&x));
+            let err = softarm_space::distance(&poly.position(&x), &arm.position(&x));
             assert!(err < 1e-3, "fit error {err} m");
             // The analytic Jacobian of the polynomial against its own finite differences...
             let j = poly.jacobian(&x);

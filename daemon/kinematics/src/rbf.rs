@@ -13,12 +13,12 @@ use std::hash::{BuildHasherDefault, Hasher};
 use nalgebra::DMatrix;
 use serde::{Deserialize, Serialize};
 
-use crate::space::{Actuation, Position};
+use softarm_sections::forward_model::NetworkConfig;
+pub use softarm_sections::learner::MAX_SPAN;
+use softarm_space::{Actuation, Position};
 
 /// Largest lattice dimension.
 pub const MAX_DIM: usize = 8;
-/// Most centres evaluated per axis.
-pub const MAX_SPAN: usize = 9;
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum RbfError {
@@ -286,7 +286,7 @@ impl<const OUT: usize> LinearRbf<OUT> {
     /// The smallest useful capacity: eight updates' worth of centres, so an eviction never
     /// reaches the centres the update that caused it has just trained.
     pub fn min_capacity(lattice: &Lattice) -> usize {
-        8 * lattice.span().pow(lattice.dim() as u32)
+        softarm_sections::learner::min_capacity(lattice.span(), lattice.dim())
     }
 
     pub fn lattice(&self) -> &Lattice {
@@ -418,28 +418,6 @@ impl<const OUT: usize> LinearRbf<OUT> {
     }
 }
 
-/// How the forward model is fitted.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
-#[serde(deny_unknown_fields, default)]
-pub struct NetworkConfig {
-    /// Gaussian centres, picked from the data by farthest-point sampling.
-    pub centres: usize,
-    /// Gaussian standard deviation as a multiple of the mean nearest-centre distance.
-    pub width_factor: f64,
-    /// Ridge λ of the output weights.
-    pub ridge: f64,
-}
-
-impl Default for NetworkConfig {
-    fn default() -> Self {
-        Self {
-            centres: 400,
-            width_factor: 1.5,
-            ridge: 1e-8,
-        }
-    }
-}
-
 /// The forward model: y = Σ_c w_c exp(−‖a − c‖² / 2σ²) + W_lin [1, a].
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct RbfNetwork {
@@ -519,7 +497,7 @@ impl RbfNetwork {
         }
         let y = DMatrix::from_fn(n, 3, |r, c| positions[r][c]);
         let rhs = phi.tr_mul(&y);
-        let w = crate::promp::solve_spd(a, rhs)
+        let w = crate::linalg::solve_spd(a, rhs)
             .ok_or_else(|| RbfError::Network("the least-squares system is singular".into()))?;
         net.weights = (0..f).map(|i| [w[(i, 0)], w[(i, 1)], w[(i, 2)]]).collect();
         Ok(net)

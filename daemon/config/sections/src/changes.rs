@@ -1,11 +1,13 @@
 //! How the simulated arm changes while it runs: a scenario's steps (the arm becomes another at
 //! a given time, as when a tool is swapped) and drifts (actuators creeping, stiffness cycling),
-//! as a function of the plant's own time. Pure math; [`Changes::arm_at`] allocates nothing, so
-//! the plant evaluates it every step.
+//! as a function of the plant's own time. Plain data with its validation and its value at a
+//! time: the config checks that the arm stays valid at every time with the very
+//! [`Changes::arm_at`] the plant (`softarm_sim::plant`) runs. [`Changes::arm_at`] allocates
+//! nothing, so the plant evaluates it every step.
 
 use serde::{Deserialize, Serialize};
 
-use crate::pcc::{ACTUATORS, ArmGeometry};
+use crate::arm::{ACTUATORS, ArmGeometry};
 
 /// Most steps a scenario may hold (fixed, so [`Changes`] is `Copy` and allocation-free).
 pub const MAX_STEPS: usize = 16;

@@ -2,8 +2,10 @@
 //! pre-trains against one offline and steers its corrections by one's Jacobian; the PCC
 //! kinematics, the fitted RBF network and the fitted polynomial are three.
 
-use crate::pcc::ArmGeometry;
-use crate::space::{ACTUATORS, Actuation, Position};
+use softarm_sections::arm::ArmGeometry;
+use softarm_space::{ACTUATORS, Actuation, Position};
+
+use crate::pcc::Kinematics;
 
 /// ∂p/∂a: metres per unit of normalised actuation, one row per axis.
 pub type Jacobian = nalgebra::SMatrix<f64, 3, ACTUATORS>;
@@ -34,8 +36,11 @@ pub fn finite_difference<M: ForwardModel + ?Sized>(model: &M, a: &Actuation) -> 
     j
 }
 
+/// The PCC kinematics ([`Kinematics`]) as a forward model.
 impl ForwardModel for ArmGeometry {
+    /// End-effector position (m) for a normalised actuation: the forward model of the plant.
     fn position(&self, actuation: &Actuation) -> Position {
-        ArmGeometry::position(self, actuation)
+        let p = self.pose(actuation).position;
+        [p.x, p.y, p.z]
     }
 }

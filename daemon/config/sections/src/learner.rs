@@ -3,9 +3,9 @@
 //! `softarm_learning::online`: which algorithm runs, and the steps of the Gauss-Newton one) and
 //! `[pretrain]`.
 //!
-//! Here, in the method, not beside the code that reads them: the config (and so every process,
-//! the drivers too) reads these sections, and must not link the learning code for it (Cargo
-//! enforces it; `tests/layering.rs` checks it). One type for the `[learner]` section, so
+//! Here, with the config's other sections as plain data, not beside the code that reads them:
+//! the config (and so every process, the drivers too) reads these sections, and must not link
+//! the learning code nor the math for it (Cargo enforces it; `tests/layering.rs` checks it). One type for the `[learner]` section, so
 //! neither learning module imports the other's config: `cacla` reads the Alg. 1 fields,
 //! `online` the rest. Not split in two: the section's keys sit
 //! side by side in the TOML (and `deny_unknown_fields` does not work with `#[serde(flatten)]`),
@@ -14,8 +14,19 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::rbf::{Lattice, LinearRbf, RbfError};
-use crate::space::{ACTUATORS, Position};
+use softarm_space::Position;
+
+/// Most centres a lattice evaluates per axis (`learner.critic_span`, `learner.actor_span`):
+/// what `softarm_kinematics::rbf::Lattice` accepts.
+pub const MAX_SPAN: usize = 9;
+
+/// The smallest useful capacity of a linear RBF on a lattice of `dim` dimensions evaluating
+/// `span` centres per axis: eight updates' worth of centres, so an eviction never reaches the
+/// centres the update that caused it has just trained
+/// (`softarm_kinematics::rbf::LinearRbf::min_capacity`).
+pub const fn min_capacity(span: usize, dim: usize) -> usize {
+    8 * span.pow(dim as u32)
+}
 
 /// Hyper-parameters; the `[learner]` section of the config. A key left out takes the starting
 /// value the paper's method suggests (α_V 0.1, α_Ac 0.2, γ 0.5, b 30 mm, c 100 /m, lattices
@@ -110,7 +121,8 @@ impl Default for LearnerConfig {
 
 impl LearnerConfig {
     /// Checks every field; the error is `learner.KEY: message`. Spans and lattice sizes are
-    /// what [`Lattice::new`] accepts.
+    /// what `softarm_kinematics::rbf::Lattice::new` accepts (so the learner's lattices, the
+    /// actor's 3-D and the critic's 6-D over the workspace, can always be made).
     pub fn validate(&self) -> Result<(), String> {
         let bad = |key: &str, m: String| Err(format!("learner.{key}: {m}"));
         let unit = [
@@ -145,7 +157,7 @@ impl LearnerConfig {
                 return bad(k, format!("must be in [0.001, 1] m, got {v:?}"));
             }
         }
-        let max_span = crate::rbf::MAX_SPAN;
+        let max_span = MAX_SPAN;
         for (k, v) in [
             ("critic_span", self.critic_span),
             ("actor_span", self.actor_span),
@@ -158,7 +170,7 @@ impl LearnerConfig {
             }
         }
         let (lo, hi) = (self.workspace_min_m, self.workspace_max_m);
-        if let Err(e) = crate::space::Workspace::new(lo, hi) {
+        if let Err(e) = softarm_space::Workspace::new(lo, hi) {
             let key = if lo.iter().all(|v| v.is_finite()) {
                 "workspace_max_m"
             } else {
@@ -187,17 +199,16 @@ impl LearnerConfig {
             }
         }
         self.gauss_newton.validate()?;
-        let (actor, critic) = self.lattices().map_err(|e| format!("learner: {e}"))?;
         for (k, v, least) in [
             (
                 "actor_max_centres",
                 self.actor_max_centres,
-                LinearRbf::<ACTUATORS>::min_capacity(&actor),
+                min_capacity(self.actor_span, 3),
             ),
             (
                 "critic_max_centres",
                 self.critic_max_centres,
-                LinearRbf::<1>::min_capacity(&critic),
+                min_capacity(self.critic_span, 6),
             ),
         ] {
             if !(least..=100_000_000).contains(&v) {
@@ -210,28 +221,6 @@ impl LearnerConfig {
             }
         }
         Ok(())
-    }
-
-    /// The actor's 3-D and the critic's 6-D lattice.
-    pub fn lattices(&self) -> Result<(Lattice, Lattice), RbfError> {
-        let (lo, hi) = (self.workspace_min_m, self.workspace_max_m);
-        let actor = Lattice::new(
-            &lo,
-            &hi,
-            &[self.actor_spacing_m; 3],
-            self.actor_width,
-            self.actor_span,
-        )?;
-        let lo6 = [lo[0], lo[1], lo[2], lo[0], lo[1], lo[2]];
-        let hi6 = [hi[0], hi[1], hi[2], hi[0], hi[1], hi[2]];
-        let critic = Lattice::new(
-            &lo6,
-            &hi6,
-            &[self.critic_spacing_m; 6],
-            self.critic_width,
-            self.critic_span,
-        )?;
-        Ok((actor, critic))
     }
 }
 
@@ -468,7 +457,7 @@ mod tests {
             &|c| c.actor_max_centres = usize::MAX,
             "learner.actor_max_centres: must be 216 (eight updates' worth of centres) to 100000000",
         );
-        for span in [2, crate::rbf::MAX_SPAN] {
+        for span in [2, MAX_SPAN] {
             let c = LearnerConfig {
                 critic_span: span,
                 actor_span: span,
@@ -476,7 +465,6 @@ mod tests {
                 ..Default::default()
             };
             c.validate().unwrap();
-            c.lattices().unwrap();
         }
     }
 

@@ -1,0 +1,26 @@
+//! `[forward_model]`: how the RBF forward-model network is fitted (the fit itself is
+//! `softarm_kinematics::rbf`).
+
+use serde::{Deserialize, Serialize};
+
+/// How the forward model is fitted.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+#[serde(deny_unknown_fields, default)]
+pub struct NetworkConfig {
+    /// Gaussian centres, picked from the data by farthest-point sampling.
+    pub centres: usize,
+    /// Gaussian standard deviation as a multiple of the mean nearest-centre distance.
+    pub width_factor: f64,
+    /// Ridge λ of the output weights.
+    pub ridge: f64,
+}
+
+impl Default for NetworkConfig {
+    fn default() -> Self {
+        Self {
+            centres: 400,
+            width_factor: 1.5,
+            ridge: 1e-8,
+        }
+    }
+}

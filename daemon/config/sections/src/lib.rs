@@ -1,0 +1,27 @@
+//! The sections of the config that the math reads, as plain data: serde and schemars types with
+//! their defaults and their validation (`validate`), no math, no I/O. `softarm-config` reads
+//! them from the TOML file and re-exports these modules; the math crates (`softarm-kinematics`,
+//! `softarm-method`, `softarm-learning`, the sim's plant) take them as settings and put their
+//! math on them (e.g. `softarm_kinematics::pcc::Kinematics` for [`arm::ArmGeometry`]). Below
+//! the config, so the math links neither the config nor, through it, iceoryx2; and the config
+//! (so every driver) links none of the math.
+//!
+//! - [`arm`] — `[arm]`: [`arm::ArmGeometry`], [`arm::Mount`].
+//! - [`sim`] — `[sim]`: [`sim::SimConfig`], [`sim::Realism`].
+//! - [`changes`] — a scenario's steps and drifts: [`changes::Changes`], [`changes::Step`],
+//!   [`changes::Drift`], and the arm they make at a time.
+//! - [`learner`] — `[learner]`, `[pretrain]`: [`learner::LearnerConfig`],
+//!   [`learner::GaussNewtonConfig`], [`learner::Algorithm`], [`learner::PretrainConfig`].
+//! - [`forward_model`] — `[forward_model]`: [`forward_model::NetworkConfig`].
+//! - [`kinematics`] — `[kinematics]`: [`kinematics::PolynomialConfig`].
+//! - [`activation`] — `[activation]`: [`activation::ActivationConfig`], [`activation::Fade`].
+//! - [`demonstrations`] — `[demonstrations]`: [`demonstrations::DemoRecipe`].
+
+pub mod activation;
+pub mod arm;
+pub mod changes;
+pub mod demonstrations;
+pub mod forward_model;
+pub mod kinematics;
+pub mod learner;
+pub mod sim;

@@ -1,0 +1,19 @@
+//! The kinematics and forward models of softarm, pure math: no I/O, no clock, no iceoryx2
+//! (Cargo enforces it: this crate depends on neither). The settings they are made from
+//! (`[arm]`, `[kinematics]`, `[forward_model]`) are plain data in `softarm-sections`; the math
+//! on them is here.
+//!
+//! - [`arcs`] — actuator lengths to module arcs for any arm (least squares).
+//! - [`pcc`] — piecewise-constant-curvature kinematics, [`pcc::Kinematics`] on
+//!   `softarm_sections::arm::ArmGeometry`.
+//! - [`forward`] — the [`forward::ForwardModel`] trait (the PCC kinematics are one).
+//! - [`poly`] — the polynomial forward model (the learner's kinematics).
+//! - [`rbf`] — RBF lattices (the learner's actor and critic) and the RBF forward-model network.
+//! - [`linalg`] — the symmetric solve the fits share.
+
+pub mod arcs;
+pub mod forward;
+pub mod linalg;
+pub mod pcc;
+pub mod poly;
+pub mod rbf;

@@ -1,0 +1,60 @@
+//! A plant step allocates nothing, also on an arm a scenario changes. Proven with a counting
+//! global allocator that counts only the threads that ask.
+
+use softarm_test_alloc::{self as alloc, Counting};
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+/// The sim steps its plant at 200 Hz; a scenario's changes are evaluated every step, so the
+/// step must not allocate either (fixed-size steps, no strings).
+#[test]
+fn a_plant_step_on_a_changing_arm_allocates_nothing() {
+    use softarm_sections::arm::ArmGeometry;
+    use softarm_sections::changes::{Changes, Drift, Step};
+    use softarm_sections::sim::{Realism, SimConfig};
+    use softarm_sim::plant::Plant;
+    let arm = ArmGeometry::default();
+    // Field by field: `..arm` in this closure makes rustc 1.95 panic (broken MIR on the arrays
+    // whose length is a constant of softarm-sections).
+    let steps: Vec<Step> = (1..=16)
+        .map(|k| {
+            let mut longer = arm;
+            longer.tool_m = 0.03 + 0.001 * k as f64;
+            Step {
+                at_s: k as f64 * 0.1,
+                arm: longer,
+            }
+        })
+        .collect();
+    let drift = Drift {
+        creep_mm_per_min: [0.5, 0.0, 0.0, 0.0, 0.5, 0.0],
+        actuator_radius_amplitude_m: 0.002,
+        actuator_radius_period_s: 1.0,
+    };
+    let sim = SimConfig {
+        realism: Realism {
+            curvature_taper: 0.5,
+            ..Realism::default()
+        },
+        changes: Changes::new(&steps, drift).unwrap(),
+        ..SimConfig::default()
+    };
+    let mut plant = Plant::of_sim(arm, &sim, [0.5; 6]).unwrap();
+
+    let _counted = alloc::count_this_thread();
+    let before = alloc::this_thread();
+    let mut sink = 0.0;
+    // Through every step and a few radius cycles.
+    for k in 0..1000 {
+        let a = 0.5 + 0.2 * (k as f64 * 0.01).sin();
+        sink += plant.step(&[a; 6], 0.005).position[2];
+    }
+    let during = alloc::this_thread() - before;
+    assert!(sink.is_finite());
+    assert_eq!(plant.geometry().tool_m, 0.046);
+    assert_eq!(
+        during, 0,
+        "{during} allocations or frees in 1000 plant steps"
+    );
+}
