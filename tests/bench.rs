@@ -109,6 +109,7 @@ fn bench_json_has_every_section() {
         "/calls/eq11_tick",
         "/calls/recondition",
         "/calls/cacla_update",
+        "/calls/pcc_forward",
         "/calls/rbf_forward",
         "/calls/poly_forward",
     ] {

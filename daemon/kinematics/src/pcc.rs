@@ -7,6 +7,8 @@
 
 use nalgebra::{Matrix3, Vector3};
 
+use crate::arcs::Routes;
+
 pub use softarm_sections::arm::{ACTUATORS, ACTUATORS_PER_MODULE, MODULES};
 use softarm_sections::arm::{ArmGeometry, Mount};
 
@@ -105,6 +107,25 @@ pub fn module_pose(arc: &Arc) -> Pose {
     }
 }
 
+/// Base → tip of modules `arcs` from `base`, each made by `module`, a connector between
+/// consecutive ones and the tool after the last.
+fn chain(
+    base: Pose,
+    arcs: &[Arc],
+    connector_m: f64,
+    tool_m: f64,
+    module: impl Fn(&Arc) -> Pose,
+) -> Pose {
+    let mut pose = base;
+    for (m, arc) in arcs.iter().enumerate() {
+        if m > 0 {
+            pose = pose.then(&Pose::translation_z(connector_m));
+        }
+        pose = pose.then(&module(arc));
+    }
+    pose.then(&Pose::translation_z(tool_m))
+}
+
 fn psi(arm: &ArmGeometry, module: usize) -> f64 {
     arm.module_rotation_deg[module].to_radians()
 }
@@ -128,13 +149,12 @@ pub trait Kinematics {
     /// Normalised actuation of an actuator length (m).
     fn actuation_of(&self, length: f64) -> f64;
 
-    /// Lengths (m) of a module's three actuators → its arc (closed-form inverse).
-    fn arc_of(&self, module: usize, l: [f64; 3]) -> Arc;
+    /// Where the actuators run: module m's actuator k at radius d and angle ψ_m + k·120°,
+    /// ending in its module.
+    fn routes(&self) -> Routes;
 
-    /// A module's arc → its three actuator lengths (m): l_i = l − θ d cos(β_i − φ).
-    fn lengths_of(&self, module: usize, arc: &Arc) -> [f64; 3];
-
-    /// Arcs of both modules for actuator lengths in metres.
+    /// Arcs of both modules for actuator lengths in metres ([`Routes::arcs`]: least squares,
+    /// exact on three actuators a module).
     fn arcs_of_lengths(&self, lengths: &[f64; ACTUATORS]) -> [Arc; MODULES];
 
     /// End-effector pose for actuator lengths in metres:
@@ -169,54 +189,43 @@ impl Kinematics for ArmGeometry {
         (length - self.actuator_min_m) / (self.actuator_max_m - self.actuator_min_m)
     }
 
-    fn arc_of(&self, module: usize, l: [f64; 3]) -> Arc {
-        let d = self.actuator_radius_m;
-        let length = (l[0] + l[1] + l[2]) / 3.0;
-        let bx = (l[1] + l[2] - 2.0 * l[0]) / (3.0 * d);
-        let by = (l[2] - l[1]) / (3f64.sqrt() * d);
-        let theta = bx.hypot(by);
-        let phi = if theta == 0.0 {
-            0.0
-        } else {
-            by.atan2(bx) + psi(self, module)
-        };
-        Arc { length, theta, phi }
-    }
-
-    fn lengths_of(&self, module: usize, arc: &Arc) -> [f64; 3] {
-        let d = self.actuator_radius_m;
-        let psi = psi(self, module);
-        std::array::from_fn(|i| {
-            let beta = psi + i as f64 * 2.0 * std::f64::consts::PI / 3.0;
-            arc.length - arc.theta * d * (beta - arc.phi).cos()
-        })
+    fn routes(&self) -> Routes {
+        let mut r = Routes::empty(ACTUATORS, MODULES);
+        for i in 0..ACTUATORS {
+            let (m, k) = (i / ACTUATORS_PER_MODULE, i % ACTUATORS_PER_MODULE);
+            let beta = psi(self, m) + k as f64 * std::f64::consts::TAU / 3.0;
+            r.place(i, self.actuator_radius_m, beta, 1 << m);
+        }
+        r
     }
 
     fn arcs_of_lengths(&self, lengths: &[f64; ACTUATORS]) -> [Arc; MODULES] {
-        std::array::from_fn(|m| {
-            self.arc_of(m, [lengths[3 * m], lengths[3 * m + 1], lengths[3 * m + 2]])
-        })
+        let arcs = self
+            .routes()
+            .arcs(lengths)
+            .expect("three actuators at 120° on a positive radius (validated) determine a module");
+        std::array::from_fn(|m| arcs[m])
     }
 
     fn pose_of_lengths(&self, lengths: &[f64; ACTUATORS]) -> Pose {
-        let [m1, m2] = self.arcs_of_lengths(lengths);
-        base(self)
-            .then(&module_pose(&m1))
-            .then(&Pose::translation_z(self.connector_m))
-            .then(&module_pose(&m2))
-            .then(&Pose::translation_z(self.tool_m))
+        let arcs = self.arcs_of_lengths(lengths);
+        chain(
+            base(self),
+            &arcs,
+            self.connector_m,
+            self.tool_m,
+            module_pose,
+        )
     }
 
     fn pose_of_lengths_tapered(&self, lengths: &[f64; ACTUATORS], taper: f64) -> Pose {
         if taper == 0.0 {
             return self.pose_of_lengths(lengths);
         }
-        let [m1, m2] = self.arcs_of_lengths(lengths);
-        base(self)
-            .then(&tapered_module_pose(&m1, taper))
-            .then(&Pose::translation_z(self.connector_m))
-            .then(&tapered_module_pose(&m2, taper))
-            .then(&Pose::translation_z(self.tool_m))
+        let arcs = self.arcs_of_lengths(lengths);
+        chain(base(self), &arcs, self.connector_m, self.tool_m, |a| {
+            tapered_module_pose(a, taper)
+        })
     }
 
     fn lengths(&self, a: &[f64; ACTUATORS]) -> [f64; ACTUATORS] {
@@ -265,6 +274,13 @@ mod tests {
     use rand::rngs::StdRng;
     use rand::{RngExt, SeedableRng};
 
+    /// Module `module`'s arc for its three actuators' lengths `l` (the other module straight).
+    fn arc_of(arm: &ArmGeometry, module: usize, l: [f64; 3]) -> Arc {
+        let mut lengths = [0.22; ACTUATORS];
+        lengths[3 * module..3 * module + 3].copy_from_slice(&l);
+        arm.arcs_of_lengths(&lengths)[module]
+    }
+
     fn close(got: [f64; 3], want: [f64; 3], tol: f64) {
         for d in 0..3 {
             assert!((got[d] - want[d]).abs() <= tol, "{got:?} vs {want:?}");
@@ -293,7 +309,7 @@ mod tests {
         for (a, p) in table {
             close(arm.position(&a), p, 5e-7);
         }
-        let m = module_pose(&arm.arc_of(0, [0.20, 0.22, 0.22])).position;
+        let m = module_pose(&arc_of(&arm, 0, [0.20, 0.22, 0.22])).position;
         close([m.x, m.y, m.z], [0.055553, 0.0, 0.203363], 5e-7);
     }
 
@@ -367,16 +383,15 @@ mod tests {
         let arm = ArmGeometry::default();
         let mut rng = StdRng::seed_from_u64(2);
         for _ in 0..500 {
-            let l: [f64; 3] = std::array::from_fn(|_| arm.length_of(rng.random()));
-            for module in 0..2 {
-                let arc = arm.arc_of(module, l);
-                let back = arm.lengths_of(module, &arc);
-                for i in 0..3 {
-                    assert!(
-                        (back[i] - l[i]).abs() < 1e-12,
-                        "{l:?} -> {arc:?} -> {back:?}"
-                    );
-                }
+            let l: [f64; ACTUATORS] = std::array::from_fn(|_| arm.length_of(rng.random()));
+            let arcs = arm.arcs_of_lengths(&l);
+            let mut back = [0.0; ACTUATORS];
+            arm.routes().lengths(&arcs, &mut back);
+            for i in 0..ACTUATORS {
+                assert!(
+                    (back[i] - l[i]).abs() < 1e-12,
+                    "{l:?} -> {arcs:?} -> {back:?}"
+                );
             }
         }
     }
@@ -385,7 +400,7 @@ mod tests {
     fn shortening_actuator_one_bends_towards_it() {
         for (module, psi) in [(0usize, 0.0f64), (1, 60.0)] {
             let arm = ArmGeometry::default();
-            let arc = arm.arc_of(module, [0.20, 0.22, 0.22]);
+            let arc = arc_of(&arm, module, [0.20, 0.22, 0.22]);
             assert!(
                 (arc.phi - psi.to_radians()).abs() < 1e-12,
                 "bends towards actuator 1"
@@ -399,7 +414,7 @@ mod tests {
     #[test]
     fn a_tapered_module_bends_as_much_but_more_at_its_base() {
         let arm = ArmGeometry::default();
-        let arc = arm.arc_of(0, [0.20, 0.24, 0.23]);
+        let arc = arc_of(&arm, 0, [0.20, 0.24, 0.23]);
         let pcc = module_pose(&arc);
         // No taper: the same arc, piece by piece (to rounding).
         let flat = tapered_module_pose(&arc, 0.0);

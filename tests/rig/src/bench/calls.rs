@@ -39,7 +39,7 @@ pub(super) fn run(
     let demos = TrainingData::from_plant(&arm, &DemoRecipe::default(), 1)?;
     t.blend(&demos, ticks, reconditions)?;
     t.cacla_update(&arm, &demos, ticks.min(100_000))?;
-    t.forward_models(&demos, ticks.min(100_000))?;
+    t.forward_models(&arm, &demos, ticks.min(100_000))?;
     std::hint::black_box(t.sink);
     Ok(Value::Object(t.results))
 }
@@ -155,15 +155,25 @@ impl Timed<'_> {
         )
     }
 
-    /// The forward models as `softarm train` fits them (the shipped [forward_model] and
-    /// [kinematics] settings) on D_fwd of the demonstrations, evaluated at the demonstrated
-    /// actuations in turn.
-    fn forward_models(&mut self, demos: &TrainingData, evaluations: usize) -> anyhow::Result<()> {
+    /// The PCC kinematics the sim's plant runs, and the forward models as `softarm train` fits
+    /// them (the shipped [forward_model] and [kinematics] settings) on D_fwd of the
+    /// demonstrations, evaluated at the demonstrated actuations in turn.
+    fn forward_models(
+        &mut self,
+        arm: &ArmGeometry,
+        demos: &TrainingData,
+        evaluations: usize,
+    ) -> anyhow::Result<()> {
         let (inputs, positions) = (&demos.actuations, &demos.positions);
         let net = RbfNetwork::fit(inputs, positions, &NetworkConfig::default())?;
         let poly = Polynomial::fit(inputs, positions, &PolynomialConfig::default())
             .map_err(anyhow::Error::msg)?;
-        let models: [(&str, String, &dyn ForwardModel); 2] = [
+        let models: [(&str, String, &dyn ForwardModel); 3] = [
+            (
+                "pcc_forward",
+                "PCC kinematics of the sim, one call".into(),
+                arm,
+            ),
             (
                 "rbf_forward",
                 format!("RBF forward model, one call ({} centres)", net.centres()),
