@@ -11,6 +11,13 @@ use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::Path as IoxPath;
 use iceoryx2::prelude::*;
+use iceoryx2::service::attribute::{AttributeKey, AttributeValue};
+use iceoryx2::service::builder::publish_subscribe::{
+    PublishSubscribeOpenError, PublishSubscribeOpenOrCreateError,
+};
+use iceoryx2::service::builder::request_response::{
+    RequestResponseOpenError, RequestResponseOpenOrCreateError,
+};
 use std::path::{Path, PathBuf};
 
 pub use iceoryx2;
@@ -438,6 +445,8 @@ pub struct EstopState {
 pub struct Namespace {
     name: String,
     root: Option<PathBuf>,
+    /// The arm this process drives (`softarm_arm::Layout::identity`), when it knows it.
+    arm: Option<String>,
 }
 
 impl Namespace {
@@ -454,6 +463,7 @@ impl Namespace {
             Ok(Self {
                 name: name.to_string(),
                 root: None,
+                arm: None,
             })
         } else {
             Err(Error(format!(
@@ -486,6 +496,21 @@ impl Namespace {
         Ok(self)
     }
 
+    /// The same namespace for a process that drives arm `identity`
+    /// (`softarm_arm::Layout::identity`): each service it creates carries the arm, and it
+    /// opens no service of another arm's stack ([`Node`]). A process without one (a tool, a
+    /// test) opens any.
+    pub fn with_arm(mut self, identity: &str) -> Result<Self, Error> {
+        arm_value(identity)?;
+        self.arm = Some(identity.to_string());
+        Ok(self)
+    }
+
+    /// The arm this process drives, if it knows it.
+    pub fn arm(&self) -> Option<&str> {
+        self.arm.as_deref()
+    }
+
     pub fn as_str(&self) -> &str {
         &self.name
     }
@@ -511,6 +536,19 @@ impl Namespace {
         let full = format!("{}/{name}", self.name);
         ServiceName::new(&full).map_err(|e| Error(format!("service name {full:?}: {e:?}")))
     }
+}
+
+/// The attribute every service of a process that knows its arm carries.
+fn arm_key() -> AttributeKey {
+    AttributeKey::try_from("softarm.arm").expect("a short key")
+}
+
+fn arm_value(identity: &str) -> Result<AttributeValue, Error> {
+    AttributeValue::try_from(identity).map_err(|e| {
+        Error(format!(
+            "the arm's identity {identity:?} does not fit an iceoryx2 attribute: {e:?}"
+        ))
+    })
 }
 
 /// How long opening a service waits for another process that is creating it (iceoryx2's
@@ -598,19 +636,74 @@ impl Node {
         publishers: usize,
         subscribers: usize,
     ) -> Result<PubSub<T>, Error> {
-        self.node
-            .service_builder(&self.namespace.service(name)?)
-            .publish_subscribe::<T>()
-            .history_size(history)
-            .subscriber_max_buffer_size(buffer.max(history).max(1))
-            .max_publishers(publishers)
-            .max_subscribers(subscribers)
-            .max_nodes(MAX_NODES)
-            .open_or_create()
-            .map_err(err(format!(
-                "opening service {}/{name}",
-                self.namespace.as_str()
-            )))
+        let service = self.namespace.service(name)?;
+        let builder = || {
+            self.node
+                .service_builder(&service)
+                .publish_subscribe::<T>()
+                .history_size(history)
+                .subscriber_max_buffer_size(buffer.max(history).max(1))
+                .max_publishers(publishers)
+                .max_subscribers(subscribers)
+                .max_nodes(MAX_NODES)
+        };
+        let what = || format!("opening service {}/{name}", self.namespace.as_str());
+        let Some(verifier) = self.arm_verifier()? else {
+            return builder().open_or_create().map_err(err(what()));
+        };
+        match builder().open_or_create_with_attributes(&verifier) {
+            Err(PublishSubscribeOpenOrCreateError::PublishSubscribeOpenError(
+                PublishSubscribeOpenError::IncompatibleAttributes,
+            )) => {
+                self.other_arm(&service, MessagingPattern::PublishSubscribe, name)?;
+                builder().open().map_err(err(what()))
+            }
+            opened => opened.map_err(err(what())),
+        }
+    }
+
+    /// What a service must carry for this process: its arm, when it knows it.
+    fn arm_verifier(&self) -> Result<Option<AttributeVerifier>, Error> {
+        let Some(arm) = self.namespace.arm() else {
+            return Ok(None);
+        };
+        let verifier = AttributeVerifier::new()
+            .require(&arm_key(), &arm_value(arm)?)
+            .map_err(|e| Error(format!("the arm attribute: {e:?}")))?;
+        Ok(Some(verifier))
+    }
+
+    /// A service whose attributes are not this process's arm: an error naming both arms when
+    /// it carries another, `Ok` when it carries none (a tool or a test created it), so the
+    /// caller opens it as it is.
+    fn other_arm(
+        &self,
+        service: &ServiceName,
+        pattern: MessagingPattern,
+        name: &str,
+    ) -> Result<(), Error> {
+        let config = self.namespace.iceoryx2_config();
+        let details = ipc::Service::details(service, &config, pattern)
+            .map_err(err(format!("reading the attributes of service {name}")))?;
+        let mut theirs = None;
+        if let Some(d) = &details {
+            d.static_details
+                .attributes()
+                .iter_key_values(&arm_key(), |v| {
+                    theirs = Some(v.to_string());
+                    CallbackProgression::Stop
+                });
+        }
+        match theirs {
+            None => Ok(()),
+            Some(theirs) => Err(Error(format!(
+                "the stack in {} drives another arm: its service {name} is for {theirs}, and \
+                 this process's config describes {}; run every process of a stack with the \
+                 same [arm] (or give this one a namespace of its own)",
+                self.namespace.as_str(),
+                self.namespace.arm().unwrap_or("no arm")
+            ))),
+        }
     }
 
     /// `setpoint`: one per controller tick; late subscribers get the newest.
@@ -673,19 +766,30 @@ impl Node {
         &self,
         name: &str,
     ) -> Result<ReqRes<Q, R>, Error> {
-        self.node
-            .service_builder(&self.namespace.service(name)?)
-            .request_response::<Q, R>()
-            .max_clients(MAX_SUBSCRIBERS)
-            .max_servers(1)
-            .max_nodes(MAX_NODES)
-            .max_active_requests_per_client(2)
-            .max_response_buffer_size(2)
-            .open_or_create()
-            .map_err(err(format!(
-                "opening service {}/{name}",
-                self.namespace.as_str()
-            )))
+        let service = self.namespace.service(name)?;
+        let builder = || {
+            self.node
+                .service_builder(&service)
+                .request_response::<Q, R>()
+                .max_clients(MAX_SUBSCRIBERS)
+                .max_servers(1)
+                .max_nodes(MAX_NODES)
+                .max_active_requests_per_client(2)
+                .max_response_buffer_size(2)
+        };
+        let what = || format!("opening service {}/{name}", self.namespace.as_str());
+        let Some(verifier) = self.arm_verifier()? else {
+            return builder().open_or_create().map_err(err(what()));
+        };
+        match builder().open_or_create_with_attributes(&verifier) {
+            Err(RequestResponseOpenOrCreateError::RequestResponseOpenError(
+                RequestResponseOpenError::IncompatibleAttributes,
+            )) => {
+                self.other_arm(&service, MessagingPattern::RequestResponse, name)?;
+                builder().open().map_err(err(what()))
+            }
+            opened => opened.map_err(err(what())),
+        }
     }
 
     pub fn publisher<T: std::fmt::Debug + ZeroCopySend>(
@@ -800,6 +904,51 @@ mod tests {
         assert_eq!(same.alive_nodes().unwrap(), ["a", "c"]);
         drop((p, a, same, elsewhere));
         let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// Services carry the arm of the process that made them: a process of another arm
+    /// cannot open them and is told both arms; one of the same arm, or one that knows no arm,
+    /// opens them; a service made by one that knows no arm is opened by any.
+    #[test]
+    fn a_process_of_another_arm_cannot_join() {
+        let name = format!("softarm/arm-test-{}", std::process::id());
+        let six = Namespace::new(&name)
+            .unwrap()
+            .with_arm("6 actuators (a1 .. a6) in 2 modules, layout 1")
+            .unwrap();
+        let nine = Namespace::new(&name)
+            .unwrap()
+            .with_arm("9 actuators (a1 .. a9) in 3 modules, layout 2")
+            .unwrap();
+        let stack = Node::open(six.clone(), "stack").unwrap();
+        let _setpoint = stack.setpoint().unwrap();
+        let _waypoints = stack.waypoints().unwrap();
+        let other = Node::open(nine.clone(), "other").unwrap();
+        for e in [
+            other.setpoint().map(drop).unwrap_err(),
+            other.waypoints().map(drop).unwrap_err(),
+        ] {
+            let e = e.to_string();
+            assert!(e.contains("drives another arm"), "{e}");
+            assert!(
+                e.contains("6 actuators") && e.contains("9 actuators"),
+                "{e}"
+            );
+        }
+        Node::open(six, "same").unwrap().setpoint().unwrap();
+        let tool = Node::open(Namespace::new(&name).unwrap(), "tool").unwrap();
+        tool.setpoint().unwrap();
+        // A service a tool made first carries no arm: every process opens it.
+        let made_by_tool = tool.status().unwrap();
+        other.status().unwrap();
+        stack.status().unwrap();
+        drop(made_by_tool);
+        assert!(
+            Namespace::new(&name)
+                .unwrap()
+                .with_arm(&"x".repeat(300))
+                .is_err()
+        );
     }
 
     #[test]

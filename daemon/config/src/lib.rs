@@ -343,9 +343,11 @@ impl Config {
             .unwrap_or_else(|| format!("softarm/{}", self.robot.id))
     }
 
-    /// This stack on this host: its namespace under its iceoryx2 root folder.
+    /// This stack on this host: its namespace under its iceoryx2 root folder, for the arm
+    /// this config describes (a process of another arm's stack cannot join it).
     pub fn bus(&self) -> Result<softarm_ipc::Namespace, softarm_ipc::Error> {
-        let ns = softarm_ipc::Namespace::new(&self.namespace())?;
+        let ns = softarm_ipc::Namespace::new(&self.namespace())?
+            .with_arm(&self.arm.layout().identity())?;
         match &self.host.ipc_root {
             Some(root) => ns.under(root),
             None => Ok(ns),

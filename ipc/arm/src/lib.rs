@@ -284,6 +284,33 @@ impl Layout {
     pub fn names(&self) -> impl Iterator<Item = &str> {
         self.actuators.iter().map(|a| a.name.as_str())
     }
+
+    /// Who the arm is to the processes that share it: its counts, first and last names and a
+    /// hash of its whole structure (every module's actuators, kinds and names, the routing;
+    /// not the lengths and radii a calibration changes). Two processes whose identities differ
+    /// read each other's per-actuator data wrongly, so they refuse to share a stack. At most
+    /// 256 bytes (an iceoryx2 attribute).
+    pub fn identity(&self) -> String {
+        // FNV-1a: stable across builds and platforms, unlike std's hasher.
+        let mut hash: u64 = 0xcbf2_9ce4_8422_2325;
+        let mut eat = |bytes: &[u8]| {
+            for &b in bytes {
+                hash = (hash ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3);
+            }
+        };
+        eat(format!("{:?};", self.routing).as_bytes());
+        for a in &self.actuators {
+            eat(format!("{}:{:?}:{};", a.module, a.kind, a.name).as_bytes());
+        }
+        let names: Vec<&str> = self.names().collect();
+        format!(
+            "{} actuators ({} .. {}) in {} modules, layout {hash:016x}",
+            names.len(),
+            names[0],
+            names[names.len() - 1],
+            self.modules.len()
+        )
+    }
 }
 
 /// Checks `length` at `key`: finite, above `min` (or at it, when `min` is 0), at most

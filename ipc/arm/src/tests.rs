@@ -58,6 +58,44 @@ fn the_papers_arm_is_two_modules_of_three_tendons_named_a1_to_a6() {
     assert!((a.actuation_of(0.25) - 1.0).abs() < 1e-12);
 }
 
+/// The identity tells arms apart by structure and names, not by the lengths a calibration
+/// changes, and fits an iceoryx2 attribute.
+#[test]
+fn the_identity_names_the_structure_not_the_calibration() {
+    let paper = Layout::new(&parse(PAPER)).unwrap();
+    let id = paper.identity();
+    assert!(
+        id.starts_with("6 actuators (a1 .. a6) in 2 modules, layout "),
+        "{id}"
+    );
+    let recalibrated = PAPER.replace("0.025", "0.027").replace("0.19", "0.18");
+    assert_eq!(Layout::new(&parse(&recalibrated)).unwrap().identity(), id);
+    let renamed = PAPER.replacen(
+        "length_m = [0.19, 0.25] }",
+        "length_m = [0.19, 0.25], names = [\"x\", \"y\", \"z\"] }",
+        1,
+    );
+    let coupled = format!("routing = \"coupled\"\n{PAPER}");
+    let tdcr = Layout::new(&parse(TDCR)).unwrap().identity();
+    for other in [renamed, coupled] {
+        assert_ne!(
+            Layout::new(&parse(&other)).unwrap().identity(),
+            id,
+            "{other}"
+        );
+    }
+    assert!(
+        tdcr.starts_with("9 actuators (a1 .. a9) in 3 modules"),
+        "{tdcr}"
+    );
+    let long = "n".repeat(64);
+    let mut d = parse(TDCR);
+    d.modules[0].tendons.as_mut().unwrap().names = Some(vec![long.clone(), "b".into(), "c".into()]);
+    d.modules[2].tendons.as_mut().unwrap().names =
+        Some(vec!["d".into(), "e".into(), "z".repeat(64)]);
+    assert!(Layout::new(&d).unwrap().identity().len() <= 256);
+}
+
 #[test]
 fn coupled_tendons_run_through_every_module_before_their_own() {
     let l = Layout::new(&parse(TDCR)).unwrap();

@@ -3,22 +3,14 @@
 
 use serde::{Deserialize, Serialize};
 
+pub use softarm_arm::Mount;
+use softarm_arm::{Description, Group, Layout, ModuleDescription, Routing};
 pub use softarm_space::ACTUATORS;
 
 /// Actuators per module and modules per arm.
 pub const ACTUATORS_PER_MODULE: usize = 3;
 pub const MODULES: usize = 2;
 const _: () = assert!(ACTUATORS == ACTUATORS_PER_MODULE * MODULES);
-
-/// How the arm is mounted.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
-#[serde(rename_all = "snake_case")]
-pub enum Mount {
-    /// Base frame diag(1, −1, −1): the arm points down, −Z.
-    Hanging,
-    /// Base frame identity: the arm points up, +Z.
-    Standing,
-}
 
 /// The arm's geometry; the `[arm]` section of the config. Defaults: two modules,
 /// actuator radius 25 mm, actuator length 0.19–0.25 m, second module rotated 60°, hanging base.
@@ -59,6 +51,31 @@ impl Default for ArmGeometry {
 }
 
 impl ArmGeometry {
+    /// The arm as a layout: two soft modules of three tendons each, evenly spaced from the
+    /// module's rotation, ending in their module, named `a1`..`a6`.
+    pub fn layout(&self) -> Layout {
+        let module = |rotation_deg| ModuleDescription {
+            rotation_deg,
+            backbone_m: None,
+            tendons: Some(Group {
+                count: ACTUATORS_PER_MODULE,
+                radius_m: self.actuator_radius_m,
+                angles_deg: None,
+                length_m: [self.actuator_min_m, self.actuator_max_m],
+                names: None,
+            }),
+            chambers: None,
+        };
+        let d = Description {
+            mount: self.mount,
+            routing: Routing::Independent,
+            connector_m: self.connector_m,
+            tool_m: self.tool_m,
+            modules: self.module_rotation_deg.map(module).to_vec(),
+        };
+        Layout::new(&d).expect("a valid geometry is two modules that bend every way")
+    }
+
     /// Longest length of the geometry (m): actuators, connector and tool.
     pub const MAX_LENGTH_M: f64 = 10.0;
     /// Largest actuator length offset (m), either way.
@@ -119,6 +136,29 @@ impl ArmGeometry {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The geometry's layout is the paper's arm: two modules of three tendons at 120°, the
+    /// second turned by its rotation, named a1..a6.
+    #[test]
+    fn the_geometry_is_the_papers_layout() {
+        let l = ArmGeometry::default().layout();
+        assert_eq!(l.modules().len(), 2);
+        assert_eq!(
+            l.names().collect::<Vec<_>>(),
+            ["a1", "a2", "a3", "a4", "a5", "a6"]
+        );
+        let degrees: Vec<f64> = l
+            .actuators()
+            .iter()
+            .map(|a| a.angle_rad.to_degrees().round())
+            .collect();
+        assert_eq!(degrees, [0.0, 120.0, 240.0, 60.0, 180.0, 300.0]);
+        assert_eq!(l.actuators()[5].radius_m, 0.025);
+        assert_eq!(
+            (l.actuators()[0].min_m, l.actuators()[0].max_m),
+            (0.19, 0.25)
+        );
+    }
 
     #[test]
     fn bad_geometry_names_the_key() {
