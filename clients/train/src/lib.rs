@@ -338,7 +338,9 @@ pub fn train(config: &Config, namespace: &Namespace, seed: u64) -> Result<Traine
         progress.finish_and_clear();
         start.elapsed().as_secs_f64()
     });
-    let (model, report) = trained.context("training on the demonstrations; nothing was written")?;
+    let (mut model, report) =
+        trained.context("training on the demonstrations; nothing was written")?;
+    model.arm = config.arm.layout().identity();
     tracing::info!(
         "writing the model bundle to {}",
         config.model_dir().display()

@@ -94,6 +94,8 @@ const STOPPED_REASON: &str = "the e-stop is engaged (STOPPED): nothing was queue
 struct ModelSlot {
     watch: BundleWatch,
     model: Option<Model>,
+    /// The arm the config describes: a bundle made for another is not used.
+    arm: String,
 }
 
 impl ModelSlot {
@@ -102,7 +104,7 @@ impl ModelSlot {
         if !self.watch.changed() {
             return;
         }
-        match Model::read(self.watch.dir()) {
+        match Model::read_for(self.watch.dir(), &self.arm) {
             Ok(m) => {
                 tracing::info!(id = %m.id, primitives = m.actuation.len(), "model bundle loaded");
                 self.model = Some(m);
@@ -164,6 +166,7 @@ impl Service {
         let mut slot = ModelSlot {
             watch: BundleWatch::new(config.model_dir(), Duration::from_millis(200)),
             model: None,
+            arm: config.arm.layout().identity(),
         };
         slot.refresh(&shared);
         if slot.model.is_none() {

@@ -22,6 +22,7 @@ use softarm_learning::arm::{Corrected, Sample};
 use softarm_learning::cacla::LearnerState;
 use softarm_learning::online::ArmState;
 use softarm_method::promp::{Basis, Primitive};
+use softarm_sections::arm::ArmGeometry;
 use softarm_sections::learner::LearnerConfig;
 
 /// 2: the polynomial kinematics (`kinematics.weights`) joined the model.
@@ -35,6 +36,15 @@ pub enum BundleError {
     Io { path: PathBuf, why: String },
     #[error("{path} is not a valid bundle: {why}")]
     Invalid { path: PathBuf, why: String },
+    #[error(
+        "{path} was made for another arm: {bundle}; the config describes {config}. Run `softarm \
+         train` on this arm, or point model.dir at a bundle made for it"
+    )]
+    OtherArm {
+        path: PathBuf,
+        bundle: String,
+        config: String,
+    },
 }
 
 fn io(path: &Path) -> impl FnOnce(std::io::Error) -> BundleError + '_ {
@@ -288,6 +298,8 @@ pub struct Model {
     pub kinematics: Polynomial,
     pub learner: LearnerState,
     pub demo_duration_s: f64,
+    /// The arm it was made for (`softarm_arm::Layout::identity`).
+    pub arm: String,
     /// Identity of the bundle it was read from (its tensors hash); empty before writing.
     pub id: String,
 }
@@ -305,6 +317,9 @@ struct ModelMeta {
     /// Absent from format 1: defaulted, so the format check can say what is wrong.
     #[serde(default)]
     kinematics_degree: usize,
+    /// Absent from bundles written before they named their arm: all were made for the paper's.
+    #[serde(default)]
+    arm: Option<String>,
     learner: LearnerConfig,
 }
 
@@ -363,6 +378,12 @@ fn get_learner(t: &Tensors, config: LearnerConfig) -> Result<LearnerState, Strin
 impl Model {
     /// Writes the bundle into `dir` (as `model.toml` + tensors) and returns its id.
     pub fn write(&self, dir: &Path) -> Result<String, BundleError> {
+        if self.arm.is_empty() {
+            return Err(BundleError::Invalid {
+                path: dir.to_path_buf(),
+                why: "the model names no arm it was made for".into(),
+            });
+        }
         let first = &self.actuation[0];
         let (centres, sigma, weights) = self.forward.parts();
         let meta = ModelMeta {
@@ -374,6 +395,7 @@ impl Model {
             demo_duration_s: self.demo_duration_s,
             forward_sigma: sigma,
             kinematics_degree: self.kinematics.degree(),
+            arm: Some(self.arm.clone()),
             learner: self.learner.config,
         };
         let mut t = Tensors::default();
@@ -392,6 +414,21 @@ impl Model {
         t.put_f64("kinematics.weights", &[k.len(), 3], &kw);
         put_learner(&mut t, &self.learner);
         Ok(write(dir, "model", &meta, &t)?.fnv64)
+    }
+
+    /// Reads the bundle in `dir` ([`Model::read`]) for the arm `arm`
+    /// (`softarm_arm::Layout::identity`): a bundle made for another arm is refused, naming
+    /// both.
+    pub fn read_for(dir: &Path, arm: &str) -> Result<Self, BundleError> {
+        let model = Self::read(dir)?;
+        if model.arm != arm {
+            return Err(BundleError::OtherArm {
+                path: dir.to_path_buf(),
+                bundle: model.arm,
+                config: arm.to_string(),
+            });
+        }
+        Ok(model)
     }
 
     /// Reads and checks the bundle in `dir`; nothing is half-loaded.
@@ -446,6 +483,10 @@ impl Model {
                 kinematics,
                 learner,
                 demo_duration_s: meta.demo_duration_s,
+                arm: meta
+                    .arm
+                    .clone()
+                    .unwrap_or_else(|| ArmGeometry::default().layout().identity()),
                 id: reference.fnv64.clone(),
             })
         };
@@ -668,6 +709,7 @@ mod tests {
             &[0.11, 0.0, -0.46],
         );
         m.learner = l.state();
+        m.arm = ArmGeometry::default().layout().identity();
         m
     }
 
@@ -675,6 +717,38 @@ mod tests {
         let d = std::env::temp_dir().join(format!("softarm-bundle-{name}-{}", std::process::id()));
         let _ = fs::remove_dir_all(&d);
         d
+    }
+
+    /// A bundle says which arm it was made for; one for another arm is refused naming both,
+    /// one that names none is not written, and one written before bundles named their arm
+    /// reads as the paper's.
+    #[test]
+    fn a_bundle_for_another_arm_is_refused() {
+        let mut m = model();
+        let dir = tmp("arm");
+        m.write(&dir).unwrap();
+        let paper = ArmGeometry::default().layout().identity();
+        assert_eq!(Model::read_for(&dir, &paper).unwrap().arm, paper);
+        let nine = "9 actuators (a1 .. a9) in 3 modules, layout 0";
+        let e = Model::read_for(&dir, nine).unwrap_err().to_string();
+        assert!(
+            e.contains("made for another arm") && e.contains(&paper) && e.contains(nine),
+            "{e}"
+        );
+        // Written before bundles named their arm: the paper's.
+        let meta = dir.join("model.toml");
+        let text = fs::read_to_string(&meta).unwrap();
+        let line = text
+            .lines()
+            .find(|l| l.starts_with("arm = "))
+            .unwrap()
+            .to_string();
+        fs::write(&meta, text.replace(&format!("{line}\n"), "")).unwrap();
+        assert_eq!(Model::read_for(&dir, &paper).unwrap().arm, paper);
+        m.arm.clear();
+        let e = m.write(&tmp("noarm")).unwrap_err().to_string();
+        assert!(e.contains("names no arm"), "{e}");
+        fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

@@ -297,7 +297,7 @@ pub fn learner(
 }
 
 /// The whole pipeline: primitives, forward model, pre-trained learner, as a [`Model`] (its `id`
-/// empty until written).
+/// empty until written, its `arm` for the caller, who knows which arm the data came from).
 pub fn train(
     data: &TrainingData,
     training: &Training,
@@ -330,6 +330,7 @@ pub fn train(
         kinematics,
         learner: learner.state(),
         demo_duration_s: data.duration_s,
+        arm: String::new(),
         id: String::new(),
     };
     Ok((

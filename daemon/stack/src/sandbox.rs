@@ -149,7 +149,8 @@ impl Sandbox {
         )?;
         let model_dir = self.config.model_dir();
         // A cached model an older softarm wrote is not readable any more: trained again.
-        let train_because = match Model::read(&model_dir) {
+        let train_because = match Model::read_for(&model_dir, &self.config.arm.layout().identity())
+        {
             Ok(_) => None,
             Err(_) if !model_dir.join("model.toml").exists() => {
                 Some(format!("no model in {}", model_dir.display()))

@@ -31,14 +31,10 @@ pub fn quick_training() -> Training {
 /// them far from their mean, as a changed arm needs, asks for paths the slew limit cannot
 /// follow, which no trained model does.
 pub fn quick_model(dir: &std::path::Path) -> String {
-    let (model, _) = from_plant(
-        &ArmGeometry::default(),
-        &DemoRecipe::default(),
-        5,
-        &quick_training(),
-        |_| true,
-    )
-    .expect("the quick model trains");
+    let arm = ArmGeometry::default();
+    let (mut model, _) = from_plant(&arm, &DemoRecipe::default(), 5, &quick_training(), |_| true)
+        .expect("the quick model trains");
+    model.arm = arm.layout().identity();
     model.write(dir).expect("the quick model is written")
 }
 
