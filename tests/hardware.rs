@@ -861,6 +861,11 @@ fn the_hardware_stack_executes_a_set_through_softarm_emulate() {
         judged > 0,
         "the tracker saw no point of any execution: {stats:?}"
     );
+    // `status` counts them too.
+    let unseen: u64 = stats.iter().map(|e| e["unseen"].as_u64().unwrap()).sum();
+    s.wait_status("status counting the unseen points", LIMIT, |st| {
+        st["controller"]["points_unseen"] == unseen
+    });
     s.stop();
     kill(Pid::from_raw(emulate.id() as i32), Signal::SIGTERM).unwrap();
     let out = eventually("softarm emulate to stop", || emulate.try_wait().unwrap());

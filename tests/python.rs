@@ -250,7 +250,8 @@ fn rust_layouts() -> Vec<Layout> {
             samples_dropped,
             held_solves,
             lag_ns,
-            lead_ns
+            lead_ns,
+            points_unseen
         }),
         layout!(EstopState {
             seq,

@@ -344,7 +344,7 @@ class Latency(_Payload):
 class ControllerStatus(_Payload):
     """``status``: the controller's state, ~10 Hz."""
 
-    TYPE_NAME = "softarm::ControllerStatus.v3"
+    TYPE_NAME = "softarm::ControllerStatus.v4"
     _fields_ = [
         ("seq", ctypes.c_uint64),
         ("stamp_ns", ctypes.c_uint64),
@@ -366,6 +366,7 @@ class ControllerStatus(_Payload):
         ("held_solves", ctypes.c_uint64),
         ("lag_ns", ctypes.c_uint64),  # u64::MAX until measured
         ("lead_ns", ctypes.c_uint64),
+        ("points_unseen", ctypes.c_uint64),  # points the tracker did not see at their time
     ]
 
 

@@ -102,6 +102,7 @@ pub fn text(r: &Report) -> String {
                  tick wake-up latency µs: min {} p50 {} p99 {} p99.9 {} max {} ({} ticks, {} overruns)\n\
                  data age: tracker {}, motors {}\n\
                  points on their estimate in time: {} this execution, {} in the last\n\
+                 points the tracker did not see at their time: {} (their error unknown, nothing learnt)\n\
                  outbox: {} dropped ({} conditioning samples), {} waiting; group solves held: {}\n\
                  actuator lag: {}\n",
                 if s.set_id != 0 {
@@ -126,6 +127,7 @@ pub fn text(r: &Report) -> String {
                 ms(s.motor_age_ns),
                 s.reconditions_current,
                 s.reconditions_last,
+                s.points_unseen,
                 s.outbox_dropped,
                 s.samples_dropped,
                 s.outbox_backlog,
@@ -200,6 +202,7 @@ pub fn json(r: &Report) -> String {
             "reconditions": {"current": s.reconditions_current, "last": s.reconditions_last},
             "outbox": {"dropped": s.outbox_dropped, "samples_dropped": s.samples_dropped, "backlog": s.outbox_backlog},
             "held_solves": s.held_solves,
+            "points_unseen": s.points_unseen,
             "lag_ns": (s.lag_ns != u64::MAX).then_some(s.lag_ns),
             "lead_ns": s.lead_ns,
         })
@@ -245,6 +248,7 @@ mod tests {
                 held_solves: 6,
                 lag_ns: 23_400_000,
                 lead_ns: 23_400_000,
+                points_unseen: 3,
                 ..Default::default()
             }),
             motors: Some(MotorState {
@@ -281,6 +285,11 @@ mod tests {
             serde_json::json!({"dropped": 17, "samples_dropped": 5, "backlog": 2})
         );
         assert_eq!(c["held_solves"], 6);
+        assert_eq!(c["points_unseen"], 3);
+        assert!(
+            t.contains("points the tracker did not see at their time: 3"),
+            "{t}"
+        );
         assert!(
             t.contains("actuator lag: 23.4 ms, Eq. 11 evaluated 23.4 ms ahead"),
             "{t}"

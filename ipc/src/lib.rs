@@ -385,8 +385,8 @@ pub struct Latency {
 /// The controller's state, ~10 Hz.
 #[derive(Debug, Clone, Copy, Default, ZeroCopySend, serde::Serialize)]
 // The type name changed with the layout (re-conditionings, outbox drops, held solves; the
-// actuators' lag), so a peer built before cannot connect and misread it.
-#[type_name("softarm::ControllerStatus.v3")]
+// actuators' lag; unseen points), so a peer built before cannot connect and misread it.
+#[type_name("softarm::ControllerStatus.v4")]
 #[repr(C)]
 pub struct ControllerStatus {
     pub seq: u64,
@@ -423,6 +423,10 @@ pub struct ControllerStatus {
     /// How far ahead of the clock Eq. 11 is evaluated: the lag, at most
     /// `controller.max_lead_s` (ns).
     pub lead_ns: u64,
+    /// Points of finished executions the tracker did not see at their time (no sample in the
+    /// window: a loaded machine, a tracker that dropped out) since the controller started:
+    /// their error is unknown (`null` in `stats`), and nothing is learnt from them.
+    pub points_unseen: u64,
 }
 
 /// Latched e-stop state.

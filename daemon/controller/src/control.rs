@@ -98,6 +98,8 @@ pub struct Report {
     pub reconditions_current: u32,
     pub reconditions_last: u32,
     pub held_solves: u64,
+    /// Points of finished executions the tracker did not see at their time.
+    pub points_unseen: u64,
     /// The measured lag, `u64::MAX` while not measured.
     pub lag_ns: u64,
     pub lead_ns: u64,
@@ -164,6 +166,8 @@ struct Counts {
     last_reconditions: u32,
     /// Held group solves of the sets already done.
     held_solves: u64,
+    /// Points of finished executions with no tracker sample in their window.
+    points_unseen: u64,
 }
 
 /// Everything the tick keeps between ticks, bar its I/O.
@@ -268,6 +272,7 @@ impl Control {
             reconditions_current: reconditions,
             reconditions_last: self.count.last_reconditions,
             held_solves: self.count.held_solves + held,
+            points_unseen: self.count.points_unseen,
             lag_ns: self.lag.lag_s().map_or(u64::MAX, |s| (s * 1e9) as u64),
             lead_ns: self.lag.lead_ns(),
         }
@@ -467,6 +472,7 @@ impl Control {
         }
         if let Some(mut s) = step.finished {
             self.count.last_reconditions = s.reconditions;
+            self.count.points_unseen += s.errors().iter().filter(|e| e.is_nan()).count() as u64;
             self.count.stats += 1;
             s.seq = self.count.stats;
             out.stats(s);

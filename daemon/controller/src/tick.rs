@@ -252,6 +252,7 @@ impl<'a> Tick<'a> {
             outbox_dropped: drops.all,
             samples_dropped: drops.samples,
             held_solves: r.held_solves,
+            points_unseen: r.points_unseen,
             lag_ns: r.lag_ns,
             lead_ns: r.lead_ns,
         };
