@@ -228,38 +228,9 @@ mod tests {
         Layout::new(&toml::from_str::<Description>(text).unwrap()).unwrap()
     }
 
-    const PAPER: &str = r#"
-        [[modules]]
-        tendons = { count = 3, radius_m = 0.025, length_m = [0.19, 0.25] }
-        [[modules]]
-        rotation_deg = 60
-        tendons = { count = 3, radius_m = 0.025, length_m = [0.19, 0.25] }
-    "#;
-
-    const TDCR: &str = r#"
-        routing = "coupled"
-        [[modules]]
-        backbone_m = 0.06
-        tendons = { count = 3, radius_m = 0.0045, length_m = [0.05, 0.07] }
-        [[modules]]
-        backbone_m = 0.06
-        rotation_deg = 40
-        tendons = { count = 3, radius_m = 0.0045, length_m = [0.11, 0.13] }
-        [[modules]]
-        backbone_m = 0.06
-        rotation_deg = 80
-        tendons = { count = 3, radius_m = 0.0045, length_m = [0.17, 0.19] }
-    "#;
-
-    const HYBRID: &str = r#"
-        [[modules]]
-        tendons = { count = 4, radius_m = 0.025, length_m = [0.19, 0.25] }
-        chambers = { count = 1, length_m = [0.19, 0.25] }
-        [[modules]]
-        rotation_deg = 45
-        tendons = { count = 3, radius_m = 0.02, length_m = [0.19, 0.25], angles_deg = [0, 100, 230] }
-        chambers = { count = 1, length_m = [0.19, 0.25] }
-    "#;
+    const PAPER: &str = include_str!("../../../ipc/arm/testdata/paper.toml");
+    const TDCR: &str = include_str!("../../../ipc/arm/testdata/tdcr.toml");
+    const HYBRID: &str = include_str!("../../../ipc/arm/testdata/hybrid.toml");
 
     fn random_arcs(rng: &mut StdRng, routes: &Routes) -> [Arc; MAX_MODULES] {
         std::array::from_fn(|m| Arc {

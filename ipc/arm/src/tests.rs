@@ -9,31 +9,9 @@ fn refused(text: &str) -> Invalid {
     Layout::new(&parse(text)).unwrap_err()
 }
 
-const PAPER: &str = r#"
-connector_m = 0.03
-tool_m = 0.03
-[[modules]]
-tendons = { count = 3, radius_m = 0.025, length_m = [0.19, 0.25] }
-[[modules]]
-rotation_deg = 60
-tendons = { count = 3, radius_m = 0.025, length_m = [0.19, 0.25] }
-"#;
-
-const TDCR: &str = r#"
-routing = "coupled"
-mount = "standing"
-[[modules]]
-backbone_m = 0.06
-tendons = { count = 3, radius_m = 0.0045, length_m = [0.05, 0.07] }
-[[modules]]
-backbone_m = 0.06
-rotation_deg = 40
-tendons = { count = 3, radius_m = 0.0045, length_m = [0.11, 0.13] }
-[[modules]]
-backbone_m = 0.06
-rotation_deg = 80
-tendons = { count = 3, radius_m = 0.0045, length_m = [0.17, 0.19] }
-"#;
+/// The example arms the tests of this crate and of the kinematics share.
+const PAPER: &str = include_str!("../testdata/paper.toml");
+const TDCR: &str = include_str!("../testdata/tdcr.toml");
 
 #[test]
 fn the_papers_arm_is_two_modules_of_three_tendons_named_a1_to_a6() {

@@ -137,27 +137,12 @@ impl ArmGeometry {
 mod tests {
     use super::*;
 
-    /// The geometry's layout is the paper's arm: two modules of three tendons at 120°, the
-    /// second turned by its rotation, named a1..a6.
+    /// The geometry's layout is the paper's arm as its description says it.
     #[test]
     fn the_geometry_is_the_papers_layout() {
-        let l = ArmGeometry::default().layout();
-        assert_eq!(l.modules().len(), 2);
-        assert_eq!(
-            l.names().collect::<Vec<_>>(),
-            ["a1", "a2", "a3", "a4", "a5", "a6"]
-        );
-        let degrees: Vec<f64> = l
-            .actuators()
-            .iter()
-            .map(|a| a.angle_rad.to_degrees().round())
-            .collect();
-        assert_eq!(degrees, [0.0, 120.0, 240.0, 60.0, 180.0, 300.0]);
-        assert_eq!(l.actuators()[5].radius_m, 0.025);
-        assert_eq!(
-            (l.actuators()[0].min_m, l.actuators()[0].max_m),
-            (0.19, 0.25)
-        );
+        let text = include_str!("../../../../ipc/arm/testdata/paper.toml");
+        let paper = Layout::new(&toml::from_str(text).unwrap()).unwrap();
+        assert_eq!(ArmGeometry::default().layout(), paper);
     }
 
     #[test]
