@@ -98,6 +98,46 @@ impl Canary {
 
     /// The stalls that have ended, oldest first.
     pub fn ended(&self) -> Vec<Stall> {
+        self.watch().ended()
+    }
+
+    /// The stalls seen so far, the one going on included (up to now).
+    pub fn stalls(&self) -> Vec<Stall> {
+        self.watch().stalls()
+    }
+
+    /// How long the path was stalled within [from_ns, to_ns] (ns).
+    pub fn stalled_ns(&self, from_ns: u64, to_ns: u64) -> u64 {
+        self.watch().stalled_ns(from_ns, to_ns)
+    }
+
+    /// Whether the path was stalled at some time within [from_ns, to_ns].
+    pub fn stalled_within(&self, from_ns: u64, to_ns: u64) -> bool {
+        self.stalls()
+            .iter()
+            .any(|s| s.from_ns <= to_ns && s.to_ns >= from_ns)
+    }
+
+    /// What the canary measures, readable from anywhere (a test's waits) for as long as it
+    /// runs; after it stopped, what it measured until then.
+    pub fn watch(&self) -> Watch {
+        Watch {
+            seen: self.seen.clone(),
+            stop: self.stop.clone(),
+        }
+    }
+}
+
+/// A [`Canary`]'s record, shared.
+#[derive(Debug, Clone)]
+pub struct Watch {
+    seen: Arc<Seen>,
+    stop: Arc<AtomicBool>,
+}
+
+impl Watch {
+    /// The stalls that have ended, oldest first.
+    pub fn ended(&self) -> Vec<Stall> {
         self.seen
             .stalls
             .lock()
@@ -105,12 +145,13 @@ impl Canary {
             .clone()
     }
 
-    /// The stalls seen so far, the one going on included (up to now).
+    /// The stalls seen so far, the one going on included (up to now) while the canary runs.
     pub fn stalls(&self) -> Vec<Stall> {
         let mut out = self.ended();
         let since = self.seen.waiting_since_ns.load(Ordering::Acquire);
         let now = now_ns();
-        if since != 0 && now.saturating_sub(since) > STALL_NS {
+        let running = !self.stop.load(Ordering::Relaxed);
+        if running && since != 0 && now.saturating_sub(since) > STALL_NS {
             out.push(Stall {
                 from_ns: since,
                 to_ns: now,
@@ -125,13 +166,6 @@ impl Canary {
             .iter()
             .map(|s| s.to_ns.min(to_ns).saturating_sub(s.from_ns.max(from_ns)))
             .sum()
-    }
-
-    /// Whether the path was stalled at some time within [from_ns, to_ns].
-    pub fn stalled_within(&self, from_ns: u64, to_ns: u64) -> bool {
-        self.stalls()
-            .iter()
-            .any(|s| s.from_ns <= to_ns && s.to_ns >= from_ns)
     }
 }
 
