@@ -633,12 +633,38 @@ fn lost_replies_bad_crcs_and_garbage_are_counted_once_each() {
                 .map(|s| s.to_ns - s.from_ns)
                 .max()
                 .unwrap_or(0);
-            if held > HELD_TOO_LONG_NS && attempt < 3 {
+            if held > HELD_TOO_LONG_NS && attempt < ATTEMPTS {
                 eprintln!(
                     "{what}: the kernel held the pty path {} ms; again",
                     held / 1_000_000
                 );
                 continue;
+            }
+            if held > HELD_TOO_LONG_NS {
+                // Held in every attempt: a reply held past the driver's wait, or an instruction
+                // the hold split, is lost to the driver and not dropped by the emulator, so the
+                // counts can only bound each other. Each event is still counted once.
+                eprintln!(
+                    "{what}: the kernel held the pty path in all {ATTEMPTS} attempts; counts \
+                     bounded, not exact"
+                );
+                let dropped = diff(m.dropped, m0.dropped);
+                let crc_errors = diff(m.crc_errors, m0.crc_errors);
+                assert!(
+                    dropped >= diff(e.dropped_replies, e0.dropped_replies),
+                    "{what}: fewer replies dropped than the emulator dropped"
+                );
+                assert!(
+                    crc_errors <= diff(e.corrupted_crcs, e0.corrupted_crcs),
+                    "{what}: more CRC errors than the emulator made"
+                );
+                assert_eq!(m.reopens, 0, "{what}");
+                assert_eq!(
+                    diff(m.faults, m0.faults),
+                    dropped + crc_errors,
+                    "{what}: faults, each once"
+                );
+                break;
             }
             eprintln!(
                 "after {what}: driver dropped {} crc {} garbage {} time-outs {} reopens {} \
@@ -683,6 +709,10 @@ fn lost_replies_bad_crcs_and_garbage_are_counted_once_each() {
 /// How long the driver waits for a late reply (3 s, `KEEP_CLOSED_NS` in its `link.rs`), and
 /// a cycle more.
 const LATE_REPLIES: Duration = Duration::from_millis(3_100);
+
+/// Tries of a phase before its counts are only bounded: each try is about 7 s, and on a
+/// loaded machine the kernel holds the pty path in most (two and three in a row were seen).
+const ATTEMPTS: usize = 6;
 
 /// A stall this long can split an instruction (the emulated motors drop one that stops coming
 /// for 100 ms, as the real ones do).
