@@ -589,11 +589,14 @@ fn tracker_publishes_the_arm_in_the_base_frame_resyncs_and_survives_silence() {
     assert!(p.seq > 20, "{}", p.seq);
 
     // A silent device: no samples (so the controller holds), the process lives and asks again.
+    // Records the device sent before it fell silent may still be in the kernel's pty path on
+    // a loaded machine: what is checked is that the samples stop.
     rig.tracker_faults.silent.store(true, Ordering::Relaxed);
-    std::thread::sleep(Duration::from_millis(100));
-    newest(&samples);
-    std::thread::sleep(Duration::from_millis(600));
-    assert!(newest(&samples).is_none(), "samples from a silent device");
+    eventually("no samples from a silent device for 600 ms", || {
+        newest(&samples);
+        std::thread::sleep(Duration::from_millis(600));
+        newest(&samples).is_none().then_some(())
+    });
     assert!(alive(pid));
     rig.tracker_faults.silent.store(false, Ordering::Relaxed);
     eventually("samples after the silence", || {

@@ -473,7 +473,12 @@ fn a_failing_bus_is_safe_and_said_so() {
         start.elapsed() > Duration::from_secs(6)
     });
     let after = counters(&rig);
-    let text = String::from_utf8_lossy(&s.run(&["status"]).stdout).to_string();
+    // The bus still fails: `status` says so once a motor state reaches it within its window
+    // (a loaded machine can keep the driver's from it for one call).
+    let text = eventually("status saying the bus fails", LIMIT, || {
+        let text = String::from_utf8_lossy(&s.run(&["status"]).stdout).to_string();
+        text.contains("DEGRADED (bus failing").then_some(text)
+    });
     let writes = after.goal_writes - before.goal_writes;
     eprintln!(
         "10 %: {writes} goal writes in {} cycles, fresh {:.3}, states {:?}, loss up to {} \
@@ -498,7 +503,6 @@ fn a_failing_bus_is_safe_and_said_so() {
         "FOLLOWING on a failing bus: {:?}",
         seen.states
     );
-    assert!(text.contains("DEGRADED (bus failing"), "{text}");
     // Held on stale motor data; on a loaded machine the canary's stalls may explain the
     // staleness too (seen: 1744 HOLD setpoints, all after stale data the stalls covered).
     assert!(
