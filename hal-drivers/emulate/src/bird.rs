@@ -1282,12 +1282,13 @@ mod tests {
             while fresh.len() < 3 && Instant::now() < deadline {
                 reader.step(|s| fresh.push(s.position));
             }
-            assert_eq!(fresh.len(), 3, "samples at {p:?} in 30 s");
+            // One step may bring several records (a loaded machine delivers them together).
+            assert!(fresh.len() >= 3, "samples at {p:?} in 30 s: {fresh:?}");
             assert!(
                 fresh.windows(2).all(|w| w[0] == w[1]),
                 "{p:?}: a still sensor gives one position: {fresh:?}"
             );
-            seen.push(fresh[2]);
+            seen.push(fresh[fresh.len() - 1]);
         }
         stop.store(true, Ordering::Release);
         server.join().unwrap().unwrap();
