@@ -989,7 +989,7 @@ mod tests {
                 size_of::<ControllerStatus>(),
                 align_of::<ControllerStatus>()
             ),
-            (176, 8)
+            (184, 8)
         );
         assert_eq!(
             (
