@@ -15,14 +15,8 @@ pub fn late_estimates(s: &ExecutionStats) -> u32 {
     }
 }
 
-/// Points of an execution the tracker did not see (their error is NaN, `null` in JSON): the
-/// mean and the worst are of the others.
-pub fn unseen(s: &ExecutionStats) -> usize {
-    s.errors().iter().filter(|e| !e.is_finite()).count()
-}
-
 /// One JSON object per execution: `execution`, `errors_mm` (`null` for a point the tracker
-/// did not see), `mean_mm`, `max_mm` (of the points seen), `unseen` ([`unseen`]),
+/// did not see), `mean_mm`, `max_mm` (of the points seen), `unseen` ([`ExecutionStats::unseen`]),
 /// `reconditions` (estimates applied during it), `late_estimates` ([`late_estimates`]), and
 /// the set.
 pub fn json_line(s: &ExecutionStats) -> String {
@@ -33,7 +27,7 @@ pub fn json_line(s: &ExecutionStats) -> String {
         "errors_mm": s.errors().iter().map(|e| round3(e * 1e3)).collect::<Vec<_>>(),
         "mean_mm": round3(s.mean_m * 1e3),
         "max_mm": round3(s.max_m * 1e3),
-        "unseen": unseen(s),
+        "unseen": s.unseen(),
         "reconditions": s.reconditions,
         "late_estimates": late_estimates(s),
     })
@@ -95,7 +89,7 @@ pub fn table_row(s: &ExecutionStats) -> String {
     for e in s.errors() {
         r += &mm(*e, 7);
     }
-    r + &mm(s.mean_m, 8) + &mm(s.max_m, 8) + &format!(" {:>5} {:>6}", late_estimates(s), unseen(s))
+    r + &mm(s.mean_m, 8) + &mm(s.max_m, 8) + &format!(" {:>5} {:>6}", late_estimates(s), s.unseen())
 }
 
 /// A subscription to `stats` (the last 64 executions arrive first).
@@ -197,7 +191,7 @@ mod tests {
             ..Default::default()
         };
         s.errors_m[..3].copy_from_slice(&[0.001, f64::NAN, 0.002]);
-        assert_eq!(unseen(&s), 1);
+        assert_eq!(s.unseen(), 1);
         let j: serde_json::Value = serde_json::from_str(&json_line(&s)).unwrap();
         assert_eq!(j["errors_mm"], serde_json::json!([1.0, null, 2.0]));
         assert_eq!(j["unseen"], 1);

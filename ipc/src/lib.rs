@@ -367,6 +367,11 @@ impl ExecutionStats {
     pub fn errors(&self) -> &[f64] {
         &self.errors_m[..(self.count as usize).min(MAX_WAYPOINTS)]
     }
+    /// Points the tracker did not see (their error is NaN, `null` in JSON): the mean and the
+    /// worst are of the others.
+    pub fn unseen(&self) -> usize {
+        self.errors().iter().filter(|e| !e.is_finite()).count()
+    }
 }
 
 /// Min / p50 / p99 / p99.9 / max of the tick wake-up latency (ns).

@@ -92,36 +92,22 @@ impl Payload {
         // A per-point array holds the set's points alone: the rest of its fixed capacity is no
         // point, and drawn as zeros it would look like a point reached exactly.
         let points = match self {
-            Payload::Stats(s) => Some(s.errors().len()),
-            Payload::EstimateRequest(r) => Some(r.points().len()),
+            Payload::Stats(s) => Some(("errors_m", s.errors().len())),
+            Payload::EstimateRequest(r) => Some(("desired", r.points().len())),
             _ => None,
         };
-        if let (Some(n), Some((_, field))) = (points, per_point(self.topic()))
+        if let Some((field, n)) = points
             && let Some(Value::Array(items)) = value.get_mut(field)
         {
             items.truncate(n);
         }
         value.to_string().into_bytes()
     }
-
-    /// The service the payload comes from (one of [`TOPICS`]).
-    pub fn topic(&self) -> &'static str {
-        match self {
-            Payload::Setpoint(_) => "setpoint",
-            Payload::Tracker(_) => "tracker",
-            Payload::MotorState(_) => "motor_state",
-            Payload::CpSample(_) => "cp_sample",
-            Payload::EstimateRequest(_) => "estimate_request",
-            Payload::Estimate(_) => "estimate",
-            Payload::Stats(_) => "stats",
-            Payload::Status(_) => "status",
-            Payload::Estop(_) => "estop",
-        }
-    }
 }
 
 /// The services whose messages carry an array of one element per way-point of the set, and
-/// that array: a message has as many elements as the set has points.
+/// that array: a message has as many elements as the set has points ([`Payload::json`]), so
+/// its schema allows fewer than the capacity.
 const PER_POINT: [(&str, &str); 2] = [("stats", "errors_m"), ("estimate_request", "desired")];
 
 fn per_point(topic: &str) -> Option<(&'static str, &'static str)> {

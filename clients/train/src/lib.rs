@@ -340,7 +340,7 @@ pub fn train(config: &Config, namespace: &Namespace, seed: u64) -> Result<Traine
     });
     let (mut model, report) =
         trained.context("training on the demonstrations; nothing was written")?;
-    model.arm = config.arm.layout().identity();
+    model.arm = config.arm_identity();
     tracing::info!(
         "writing the model bundle to {}",
         config.model_dir().display()

@@ -343,11 +343,16 @@ impl Config {
             .unwrap_or_else(|| format!("softarm/{}", self.robot.id))
     }
 
+    /// Who the arm this config describes is to the stack's processes, its bundles and its
+    /// services (`softarm_arm::Layout::identity`).
+    pub fn arm_identity(&self) -> String {
+        self.arm.layout().identity()
+    }
+
     /// This stack on this host: its namespace under its iceoryx2 root folder, for the arm
     /// this config describes (a process of another arm's stack cannot join it).
     pub fn bus(&self) -> Result<softarm_ipc::Namespace, softarm_ipc::Error> {
-        let ns = softarm_ipc::Namespace::new(&self.namespace())?
-            .with_arm(&self.arm.layout().identity())?;
+        let ns = softarm_ipc::Namespace::new(&self.namespace())?.with_arm(&self.arm_identity())?;
         match &self.host.ipc_root {
             Some(root) => ns.under(root),
             None => Ok(ns),

@@ -472,7 +472,7 @@ impl Control {
         }
         if let Some(mut s) = step.finished {
             self.count.last_reconditions = s.reconditions;
-            self.count.points_unseen += s.errors().iter().filter(|e| e.is_nan()).count() as u64;
+            self.count.points_unseen += s.unseen() as u64;
             self.count.stats += 1;
             s.seq = self.count.stats;
             out.stats(s);

@@ -166,7 +166,7 @@ impl Service {
         let mut slot = ModelSlot {
             watch: BundleWatch::new(config.model_dir(), Duration::from_millis(200)),
             model: None,
-            arm: config.arm.layout().identity(),
+            arm: config.arm_identity(),
         };
         slot.refresh(&shared);
         if slot.model.is_none() {

@@ -54,7 +54,7 @@ pub fn online_learner(
 /// The checkpoint if it descends from the bundle in `model_dir`, else the bundle's learner.
 fn load(config: &Config) -> Result<Loaded, BundleError> {
     let model_dir = config.model_dir();
-    let model = Model::read_for(&model_dir, &config.arm.layout().identity())?;
+    let model = Model::read_for(&model_dir, &config.arm_identity())?;
     let (state, arm) = match read_checkpoint(&config.state_dir()) {
         Ok(c) if c.model == model.id => {
             tracing::info!(

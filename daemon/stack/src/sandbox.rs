@@ -149,8 +149,7 @@ impl Sandbox {
         )?;
         let model_dir = self.config.model_dir();
         // A cached model an older softarm wrote is not readable any more: trained again.
-        let train_because = match Model::read_for(&model_dir, &self.config.arm.layout().identity())
-        {
+        let train_because = match Model::read_for(&model_dir, &self.config.arm_identity()) {
             Ok(_) => None,
             Err(_) if !model_dir.join("model.toml").exists() => {
                 Some(format!("no model in {}", model_dir.display()))
