@@ -193,6 +193,14 @@ fn tendon_follows_then_holds_then_turns_the_torque_off_and_obeys_the_estop() {
         send(&setpoints, 0.3);
         newest(&motors).filter(|m| m.actuation.iter().all(|a| (a - 0.3).abs() < 2e-3))
     });
+    // A motor that browns out restarts with its torque off and says nothing: the status read
+    // finds it, and the driver turns it on again where it stands (the goal is there).
+    rig.bus.lock().unwrap().brown_out(t.ids[2]);
+    assert!(!torque(&rig, &t.ids)[2]);
+    eventually("the browned-out motor's torque on again", || {
+        send(&setpoints, 0.3);
+        (torque(&rig, &t.ids) == [true; 6]).then_some(())
+    });
 
     // Silence: hold (torque on), then torque off. Timed from before the last setpoint.
     let silent_from = now_ns();

@@ -64,6 +64,8 @@ pub fn run(config: &Config, namespace: Namespace, stop: &AtomicBool) -> anyhow::
         goal_writes = driver.goal_writes,
         clamped = driver.clamped,
         refused_engage = driver.refused_engage,
+        reengaged = driver.reengaged,
+        stranded = driver.stranded,
         refused = commands.refused(),
         overruns = ticker.overruns(),
         "tendon driver stopped"
@@ -111,6 +113,10 @@ struct Driver<'a> {
     stale_after_ns: u64,
     clamped: u64,
     refused_engage: u64,
+    /// Motors found with the torque off while following, and turned on again.
+    reengaged: u64,
+    /// Cycles with a motor found off while following that was too far from its goal to engage.
+    stranded: u64,
     write_faults: u64,
     goal_writes: u64,
     setpoint_cycles: u64,
@@ -199,6 +205,8 @@ impl<'a> Driver<'a> {
             stale_after_ns: ms(config.controller.tracker_timeout_ms),
             clamped: 0,
             refused_engage: 0,
+            reengaged: 0,
+            stranded: 0,
             write_faults: 0,
             goal_writes: 0,
             setpoint_cycles: 0,
@@ -326,18 +334,49 @@ impl<'a> Driver<'a> {
             Action::Follow(_) if surveying => Action::Hold,
             a => a,
         };
-        let (goals, engage) = match action {
+        let (goals, near) = match action {
             Action::Follow(a) => self.goals(&a),
-            _ => ([0; ACTUATORS], false),
+            _ => ([0; ACTUATORS], [false; ACTUATORS]),
         };
         let Some(l) = self.link.as_mut() else {
             return;
         };
         let torque = l.torque;
-        match l.apply(action, &goals, engage, &self.reading) {
-            Ok(()) => {
+        let engage = near.iter().all(|&n| n);
+        match l.apply(
+            action,
+            &goals,
+            &near,
+            &self.reading,
+            self.t.profile_velocity,
+        ) {
+            Ok(lost) => {
                 if matches!(action, Action::Follow(_)) && (torque || engage) {
                     self.goal_writes += 1;
+                }
+                let stranded = (0..ACTUATORS)
+                    .filter(|&i| matches!(action, Action::Follow(_)) && !near[i])
+                    .filter(|&i| l.lost_torque(i, &self.reading))
+                    .count();
+                if stranded > 0 {
+                    self.stranded += 1;
+                    if self.stranded.is_power_of_two() {
+                        tracing::error!(
+                            stranded = self.stranded,
+                            "{stranded} motor(s) found with the torque off while following, \
+                             farther than tendon.max_engage_step from their goal: they stay off \
+                             until the setpoint comes to where they stand"
+                        );
+                    }
+                }
+                if lost > 0 {
+                    self.reengaged += lost as u64;
+                    tracing::error!(
+                        reengaged = self.reengaged,
+                        "{lost} motor(s) found with the torque off while following (a \
+                         brown-out restarts a motor so, or the torque-on write was lost): \
+                         torque on again where they stand"
+                    );
                 }
             }
             Err(Fault::Port(m)) => self.close(&format!("writing: {m}")),
@@ -457,8 +496,9 @@ impl<'a> Driver<'a> {
         self.report_hardware_errors();
     }
 
-    /// The goal ticks of setpoint `a`, clamped, and whether the torque may come on for them.
-    fn goals(&mut self, a: &Actuation) -> ([i32; ACTUATORS], bool) {
+    /// The goal ticks of setpoint `a`, clamped, and per motor whether its torque may come on
+    /// for them: its position is known and within `tendon.max_engage_step` of its goal.
+    fn goals(&mut self, a: &Actuation) -> ([i32; ACTUATORS], [bool; ACTUATORS]) {
         let (t, mapping, (lo, hi)) = (self.t, &self.mapping, self.limits);
         let mut goals = [0i32; ACTUATORS];
         let mut wild = false;
@@ -476,14 +516,14 @@ impl<'a> Driver<'a> {
         }
         // Torque comes on only for a setpoint where the motors already are.
         let reading = &self.reading;
-        let known = reading.stamp_ns().is_some();
-        let engage = known
-            && (0..ACTUATORS).all(|i| {
-                (mapping.actuation(i, goals[i]) - mapping.actuation(i, reading.ticks[i])).abs()
+        let near: [bool; ACTUATORS] = std::array::from_fn(|i| {
+            reading.asked_ns[i].is_some()
+                && (mapping.actuation(i, goals[i]) - mapping.actuation(i, reading.ticks[i])).abs()
                     <= t.max_engage_step
-            });
+        });
+        let known = reading.stamp_ns().is_some();
         let off = self.link.as_ref().is_some_and(|l| !l.torque);
-        if off && known && !engage {
+        if off && known && near.contains(&false) {
             self.refused_engage += 1;
             if self.refused_engage.is_power_of_two() {
                 tracing::error!(
@@ -494,7 +534,7 @@ impl<'a> Driver<'a> {
                 );
             }
         }
-        (goals, engage)
+        (goals, near)
     }
 
     fn report_hardware_errors(&mut self) {

@@ -50,11 +50,19 @@ pub(crate) struct Reading {
     /// driver cycle.
     pub asked_ns: [Option<u64>; ACTUATORS],
     pub asked_cycle: [u64; ACTUATORS],
+    /// Per motor, when the newest status read it answered was sent (ns) and whether that read
+    /// found its torque on.
+    pub torque_seen: [Option<(u64, bool)>; ACTUATORS],
 }
 
 impl Reading {
     pub fn faulted(&self, i: usize) -> bool {
         self.hardware_error[i] != 0
+    }
+
+    /// Motor `i` was found with its torque off by a status read sent after `since_ns`.
+    pub fn found_off_since(&self, i: usize, since_ns: u64) -> bool {
+        self.torque_seen[i].is_some_and(|(sent_ns, on)| !on && sent_ns > since_ns)
     }
 
     /// The oldest motor's newest answer: the data is at least this fresh. `None` until every
@@ -188,6 +196,10 @@ pub(crate) struct Link {
     /// The torque may be on somewhere: the driver turned it on, or found it on, or could not
     /// ask a motor. While set, an `Off` writes torque-off.
     pub torque: bool,
+    /// Per motor, when Torque Enable was last written on (ns): a status read sent after it
+    /// that finds the torque off means the motor lost it (a brown-out restarts a motor with
+    /// its torque off, and a SYNC WRITE has no reply to say it was lost).
+    enabled_ns: [u64; ACTUATORS],
     pending: Option<Pending>,
     /// Reads closed in the last 3 s with replies missing, for their late replies.
     closed: std::collections::VecDeque<Pending>,
@@ -316,6 +328,7 @@ impl Link {
             wire,
             ids: t.ids,
             torque: true,
+            enabled_ns: [0; ACTUATORS],
             pending: None,
             closed: std::collections::VecDeque::new(),
             alert: Alert::default(),
@@ -549,6 +562,12 @@ impl Link {
             .map_err(write_fault)
     }
 
+    /// Motor `i` (without a hardware error) was found with its torque off after the driver
+    /// last turned it on.
+    pub fn lost_torque(&self, i: usize, reading: &Reading) -> bool {
+        self.torque && !reading.faulted(i) && reading.found_off_since(i, self.enabled_ns[i])
+    }
+
     /// Torque off for every motor (no reply: sent again each cycle while it is wanted).
     pub fn torque_off(&mut self) -> Result<(), Fault> {
         let data = self.for_motors(|_| Some([0u8]));
@@ -559,34 +578,58 @@ impl Link {
 
     /// What the safety logic decided, on the bus, at once: writes need no reply, so nothing
     /// on the read side holds them back. A motor with a hardware error gets torque-off every
-    /// cycle and nothing else (its Shutdown setting may not have turned it off).
+    /// cycle and nothing else (its Shutdown setting may not have turned it off). `near` says
+    /// which motors stand within the engage step of their goal: the torque comes on only if
+    /// all do, and comes on again only for those. Returns the motors found off while following
+    /// and turned on again.
     pub fn apply(
         &mut self,
         action: Action,
         goals: &[i32; ACTUATORS],
-        engage: bool,
+        near: &[bool; ACTUATORS],
         reading: &Reading,
-    ) -> Result<(), Fault> {
+        profile_velocity: u32,
+    ) -> Result<usize, Fault> {
         if reading.hardware_error.iter().any(|&e| e != 0) {
             let data = self.for_motors(|i| reading.faulted(i).then_some([0u8]));
             self.sync_write(table::TORQUE_ENABLE, &data)?;
         }
+        let engage = near.iter().all(|&n| n);
         match action {
-            Action::Off => self.torque_off(),
-            Action::Hold => Ok(()),
-            Action::Follow(_) if !self.torque && !engage => Ok(()),
+            Action::Off => self.torque_off().map(|()| 0),
+            Action::Hold => Ok(0),
+            Action::Follow(_) if !self.torque && !engage => Ok(0),
             Action::Follow(_) => {
                 // The goal first: the torque then holds where the controller wants, not
                 // wherever the goal register was left.
                 let data =
                     self.for_motors(|i| (!reading.faulted(i)).then_some(goals[i].to_le_bytes()));
                 self.sync_write(table::GOAL_POSITION, &data)?;
-                if !self.torque {
-                    let data = self.for_motors(|i| (!reading.faulted(i)).then_some([1u8]));
+                let on: [bool; ACTUATORS] = if self.torque {
+                    std::array::from_fn(|i| near[i] && self.lost_torque(i, reading))
+                } else {
+                    std::array::from_fn(|i| !reading.faulted(i))
+                };
+                let lost = if self.torque {
+                    on.iter().filter(|&&o| o).count()
+                } else {
+                    0
+                };
+                if lost > 0 {
+                    // Profile Velocity is RAM: a motor that restarted has lost it.
+                    let data = self.for_motors(|i| on[i].then_some(profile_velocity.to_le_bytes()));
+                    self.sync_write(table::PROFILE_VELOCITY, &data)?;
+                }
+                if on.contains(&true) {
+                    let data = self.for_motors(|i| on[i].then_some([1u8]));
                     self.sync_write(table::TORQUE_ENABLE, &data)?;
+                    let now = now_ns();
+                    for i in (0..ACTUATORS).filter(|&i| on[i]) {
+                        self.enabled_ns[i] = now;
+                    }
                     self.torque = true;
                 }
-                Ok(())
+                Ok(lost)
             }
         }
     }
@@ -765,6 +808,9 @@ fn take(
         Ask::Status => {
             // A motor found on while the driver thinks all are off: the next `Off` resends.
             *torque |= d[0] != 0;
+            if reading.torque_seen[i].is_none_or(|(sent_ns, _)| sent_ns < p.sent_ns) {
+                reading.torque_seen[i] = Some((p.sent_ns, d[0] != 0));
+            }
             // Sticky: cleared only by restarting the driver, once the cause is fixed.
             reading.hardware_error[i] |= d[6];
         }
@@ -786,6 +832,54 @@ mod tests {
             error: 0,
             params: vec![3; usize::from(SURVEY_LEN)],
         }
+    }
+
+    #[test]
+    fn only_a_status_read_sent_after_the_torque_went_on_can_find_it_lost() {
+        let mut p = Pending {
+            ask: Ask::Status,
+            asked: [true; ACTUATORS],
+            sent_ns: 50,
+            sent_cycle: 1,
+            answered: [false; ACTUATORS],
+            refused: [false; ACTUATORS],
+        };
+        let off = |id| Status {
+            id,
+            error: 0,
+            params: vec![0; 7],
+        };
+        let (mut reading, mut torque, mut alert) = (Reading::default(), false, Alert::default());
+        assert!(take(
+            &mut p,
+            &IDS,
+            &off(3),
+            &mut reading,
+            &mut torque,
+            &mut alert
+        ));
+        // Sent at 50: says nothing of a torque turned on at 60, everything of one at 40.
+        assert!(!reading.found_off_since(2, 60) && reading.found_off_since(2, 40));
+        // A late answer of an older read does not overwrite the newer one.
+        let mut older = Pending {
+            sent_ns: 10,
+            answered: [false; ACTUATORS],
+            ..p
+        };
+        let on = Status {
+            params: vec![1, 0, 0, 0, 0, 0, 0],
+            ..off(3)
+        };
+        assert!(take(
+            &mut older,
+            &IDS,
+            &on,
+            &mut reading,
+            &mut torque,
+            &mut alert
+        ));
+        assert!(reading.found_off_since(2, 40));
+        assert!(!reading.found_off_since(0, 0), "not asked: not found off");
     }
 
     #[test]

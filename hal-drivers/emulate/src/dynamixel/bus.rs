@@ -179,6 +179,15 @@ impl Bus {
         }
     }
 
+    /// A brown-out of one motor: its supply dips and it restarts as from a REBOOT (the RAM at
+    /// its defaults: torque off, Profile Velocity 0, goal where it stands), saying nothing on
+    /// the bus.
+    pub fn brown_out(&mut self, id: u8) {
+        for m in self.motors.iter_mut().filter(|m| m.id() == id) {
+            m.reboot();
+        }
+    }
+
     /// Counts of what the bus has done.
     pub fn counters(&self) -> BusCounters {
         self.counters
