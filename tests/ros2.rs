@@ -126,7 +126,9 @@ fn a_ros2_peer_sees_the_topics_and_the_setpoints_the_stack_sent() {
     s.up();
     bridging(&s);
     // A set under way, so that setpoints change every tick: each one then says which it is.
-    s.executing(Path::new(DEMO_WAYPOINTS), 2);
+    // Long enough to outlast the peer's start and discovery, however slow a loaded machine
+    // makes them: a set that ended leaves the setpoint still, and no value says which it is.
+    s.executing(Path::new(DEMO_WAYPOINTS), 50);
     let recorder = Recorder::start(&s.namespace);
     let got = peer(&py, &s, &["--seconds", "6"]);
     let recorded = recorder.finish();
