@@ -25,8 +25,11 @@ use crate::pty::Pty;
 /// A round trip longer than this is a stall: a pty echoed at a device's priority answers
 /// within a few milliseconds even beside a busy loop per core (max 12 ms in 30 s measured).
 pub const STALL_NS: u64 = 20_000_000;
-/// One round trip started this often.
-const PERIOD: Duration = Duration::from_millis(5);
+/// One round trip started this often. The pty path's stalls that matter last seconds, and any
+/// stall longer than this holds a round trip; each trip is work for the kernel's flip-buffer
+/// worker, the very thread a loaded machine leaves waiting (every emulated rig has a canary,
+/// and at 5 ms theirs were a third of the suite's pty traffic).
+const PERIOD: Duration = Duration::from_millis(50);
 
 /// A time the kernel held the pty path: from a byte's sending to its echo's arrival (ns, the
 /// `softarm_runtime::now_ns` clock).
