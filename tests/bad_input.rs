@@ -13,7 +13,7 @@ use softarm_config::waypoints::WaypointFile;
 use softarm_emulate::rig::Rig;
 use softarm_ipc::iceoryx2::prelude::ZeroCopySend;
 use softarm_ipc::{
-    Actuation, ActuationEstimate, ConditioningSample, ControllerState, ControllerStatus,
+    Actuation, ActuationEstimate, Actuators, ConditioningSample, ControllerState, ControllerStatus,
     DriverState, EstimateRequest, MAX_WAYPOINTS, MotorState, Namespace, Node, Position, Setpoint,
     Sub, TrackerSample, WaypointReply, WaypointSet,
 };
@@ -31,7 +31,7 @@ fn a_setpoint_that_is_not_a_number_is_refused_by_the_driver() {
     let node = Node::open(Namespace::new(&s.namespace).unwrap(), "test").unwrap();
     let setpoints = node.publisher(&node.setpoint().unwrap()).unwrap();
     let motors = node.subscriber(&node.motor_state().unwrap()).unwrap();
-    let send = |actuation: [f64; 6]| {
+    let send = |actuation: Actuators| {
         setpoints
             .send_copy(Setpoint {
                 seq: 1,
@@ -43,15 +43,18 @@ fn a_setpoint_that_is_not_a_number_is_refused_by_the_driver() {
     };
     // Wait for the sim, then a good setpoint, then broken ones.
     let start = Instant::now();
-    while send([0.6; 6]) == 0 {
+    while send([0.6; 6].into()) == 0 {
         assert!(start.elapsed() < Duration::from_secs(20), "no sim");
         std::thread::sleep(Duration::from_millis(20));
     }
     std::thread::sleep(Duration::from_millis(300));
+    // Not numbers, and another arm's five or nine actuators.
     for bad in [
-        [f64::NAN; 6],
-        [0.6, 0.6, f64::INFINITY, 0.6, 0.6, 0.6],
-        [0.6, f64::NEG_INFINITY, 0.6, 0.6, 0.6, f64::NAN],
+        [f64::NAN; 6].into(),
+        [0.6, 0.6, f64::INFINITY, 0.6, 0.6, 0.6].into(),
+        [0.6, f64::NEG_INFINITY, 0.6, 0.6, 0.6, f64::NAN].into(),
+        Actuators::filled(5, 0.9),
+        Actuators::filled(9, 0.9),
     ] {
         send(bad);
         std::thread::sleep(Duration::from_millis(50));
@@ -88,7 +91,7 @@ fn a_setpoint_that_is_not_a_number_is_refused_by_the_driver() {
     sim.wait().unwrap();
     let log = std::fs::read_to_string(s.dir.join("sim.log")).unwrap();
     assert!(log.contains("setpoint refused"), "{log}");
-    assert!(log.contains("refused=3"), "three refused, counted: {log}");
+    assert!(log.contains("refused=5"), "five refused, counted: {log}");
 }
 
 /// Three of the demo set's way-points: a set the quick model can plan.
@@ -140,7 +143,7 @@ fn visit(
     set_id: u64,
     execution: u32,
     point: u32,
-    actuation: Actuation,
+    actuation: Actuators,
     reached: Position,
 ) -> ConditioningSample {
     let next = (point + 1) % 3;
@@ -158,7 +161,7 @@ fn visit(
         next_point: next,
         next_execution: if next == 0 { execution + 1 } else { execution },
         next_desired: TARGETS[next as usize],
-        measured: [f64::NAN; 6],
+        measured: Actuators::filled(6, f64::NAN),
         conditioned: actuation,
     }
 }
@@ -191,7 +194,7 @@ fn estimates(
     (mine, others)
 }
 
-fn actuations(e: &[ActuationEstimate]) -> Vec<(u32, Actuation)> {
+fn actuations(e: &[ActuationEstimate]) -> Vec<(u32, Actuators)> {
     e.iter().map(|e| (e.point, e.actuation)).collect()
 }
 
@@ -294,6 +297,13 @@ fn malformed_conditioning_samples_and_requests_are_refused_by_the_learner_and_ch
         ),
         (
             ConditioningSample {
+                actuation: Actuators::filled(9, 0.5),
+                ..good
+            },
+            "sample refused: actuation has 9 actuators; the arm has 6",
+        ),
+        (
+            ConditioningSample {
                 desired: [f64::NAN, -0.1, -0.48],
                 ..good
             },
@@ -308,7 +318,7 @@ fn malformed_conditioning_samples_and_requests_are_refused_by_the_learner_and_ch
         ),
         (
             ConditioningSample {
-                actuation: [0.5, 0.5, f64::NEG_INFINITY, 0.5, 0.5, 0.5],
+                actuation: [0.5, 0.5, f64::NEG_INFINITY, 0.5, 0.5, 0.5].into(),
                 ..good
             },
             "sample refused: actuation [0.5, 0.5, -inf, 0.5, 0.5, 0.5] is not finite",
@@ -500,7 +510,7 @@ fn setpoints_with_nan_inf_or_out_of_range_values_never_reach_the_tendon_motors()
         setpoints
             .send_copy(Setpoint {
                 stamp_ns: now_ns(),
-                actuation,
+                actuation: actuation.into(),
                 ..Setpoint::default()
             })
             .unwrap();
@@ -608,7 +618,7 @@ fn tracker_samples_that_are_not_numbers_hold_the_controller() {
                 motors
                     .send_copy(MotorState {
                         stamp_ns,
-                        actuation: [0.5; 6],
+                        actuation: [0.5; 6].into(),
                         ..MotorState::default()
                     })
                     .unwrap();
@@ -789,7 +799,7 @@ fn motor_states_that_are_not_numbers_hold_the_controller_and_never_reach_its_set
                 motors
                     .send_copy(MotorState {
                         stamp_ns,
-                        actuation,
+                        actuation: actuation.into(),
                         ..MotorState::default()
                     })
                     .unwrap();

@@ -100,7 +100,7 @@ pub(crate) fn send(setpoints: &Pub<Setpoint>, a: f64) {
     setpoints
         .send_copy(Setpoint {
             stamp_ns: now_ns(),
-            actuation: [a; 6],
+            actuation: [a; 6].into(),
             ..Setpoint::default()
         })
         .unwrap();

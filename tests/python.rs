@@ -85,7 +85,9 @@ struct Layout {
 }
 
 fn type_of<T>(_: *const T) -> String {
-    std::any::type_name::<T>().replace("softarm_ipc::", "")
+    std::any::type_name::<T>()
+        .replace("softarm_ipc::actuators::", "")
+        .replace("softarm_ipc::", "")
 }
 
 /// The layout of payload `$t`, whose fields must all be listed: the destructuring below stops
@@ -116,6 +118,11 @@ macro_rules! layout {
 
 fn rust_layouts() -> Vec<Layout> {
     vec![
+        layout!(Actuators {
+            count,
+            _pad,
+            values
+        }),
         layout!(Setpoint {
             seq,
             stamp_ns,

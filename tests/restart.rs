@@ -31,7 +31,7 @@ fn a_restarted_controller_resumes_without_a_setpoint_jump() {
     let record = |seen: &mut Vec<(u64, [f64; 6])>, until: Instant| {
         while Instant::now() < until {
             while let Ok(Some(p)) = setpoints.receive() {
-                seen.push((p.stamp_ns, p.actuation));
+                seen.push((p.stamp_ns, p.actuation.fixed().expect("the arm's six")));
             }
             std::thread::sleep(Duration::from_millis(1));
         }

@@ -44,8 +44,8 @@ except ImportError:  # pragma: no cover - depends on the machine
 
 # --- constants (ipc/src/lib.rs, daemon/method/src/space.rs) -------------------------------------
 
-ACTUATORS = 6
-"""Actuators (tendon motors) of the arm: the length of an ``Actuation``."""
+MAX_ACTUATORS = 16
+"""Most actuators an arm may have: the capacity of an ``Actuators``."""
 MAX_WAYPOINTS = 16
 """Most conditioning points / way-points in one set."""
 MAX_REASON = 200
@@ -59,8 +59,6 @@ STATS_HISTORY = 64
 NO_DEMO = 0xFFFF_FFFF
 """``Setpoint.demo`` / ``demo_class`` when not demonstrating (u32::MAX)."""
 
-Actuation = ctypes.c_double * ACTUATORS
-"""``[f64; ACTUATORS]``: normalised actuation per actuator."""
 Position = ctypes.c_double * 3
 """``[f64; 3]``: a position in metres."""
 
@@ -119,7 +117,10 @@ class DriverState(enum.IntEnum):
 
 
 def _plain(value: Any) -> Any:
-    """A ctypes value as plain Python (lists for arrays, dicts for structs)."""
+    """A ctypes value as plain Python (lists for arrays, dicts for structs, an
+    ``Actuators`` as the arm's values)."""
+    if isinstance(value, Actuators):
+        return value.to_list()
     if isinstance(value, ctypes.Array):
         return [_plain(v) for v in value]
     if isinstance(value, _Payload):
@@ -146,14 +147,50 @@ class _Payload(ctypes.Structure):
         return f"{type(self).__name__}({self.to_dict()})"
 
 
+class Actuators(_Payload):
+    """``Actuators``: one value per actuator of the arm, in the arm's order (room for
+    ``MAX_ACTUATORS``; ``count`` of them are the arm's, the rest zero)."""
+
+    TYPE_NAME = "softarm::Actuators"
+    _fields_ = [
+        ("count", ctypes.c_uint32),
+        ("_pad", ctypes.c_uint32),
+        ("values", ctypes.c_double * MAX_ACTUATORS),
+    ]
+
+    @classmethod
+    def of(cls, values: "list[float]") -> "Actuators":
+        """The arm's values, at most ``MAX_ACTUATORS``."""
+        if len(values) > MAX_ACTUATORS:
+            raise ValueError(f"{len(values)} actuators; at most {MAX_ACTUATORS}")
+        a = cls()
+        a.count = len(values)
+        for i, v in enumerate(values):
+            a.values[i] = v
+        return a
+
+    def to_list(self) -> "list[float]":
+        """The arm's values (``count`` of them)."""
+        return list(self.values[: min(self.count, MAX_ACTUATORS)])
+
+    def __len__(self) -> int:
+        return min(self.count, MAX_ACTUATORS)
+
+    def __getitem__(self, i: int) -> float:
+        return self.to_list()[i]
+
+    def __iter__(self):
+        return iter(self.to_list())
+
+
 class Setpoint(_Payload):
     """``setpoint``: one per controller tick, the actuation to apply."""
 
-    TYPE_NAME = "softarm::Setpoint"
+    TYPE_NAME = "softarm::Setpoint.v2"
     _fields_ = [
         ("seq", ctypes.c_uint64),
         ("stamp_ns", ctypes.c_uint64),
-        ("actuation", Actuation),
+        ("actuation", Actuators),
         ("state", ctypes.c_uint32),  # ControllerState
         ("demo", ctypes.c_uint32),  # while demonstrating: its index, else NO_DEMO
         ("demo_class", ctypes.c_uint32),  # its class, else NO_DEMO
@@ -175,12 +212,12 @@ class TrackerSample(_Payload):
 class MotorState(_Payload):
     """``motor_state``: what the actuators reached and what the driver says about them."""
 
-    TYPE_NAME = "softarm::MotorState.v4"
+    TYPE_NAME = "softarm::MotorState.v5"
     _fields_ = [
         ("seq", ctypes.c_uint64),
         ("stamp_ns", ctypes.c_uint64),
-        ("actuation", Actuation),
-        ("current_a", Actuation),  # motor currents (A); NaN where not measured (the sim)
+        ("actuation", Actuators),
+        ("current_a", Actuators),  # motor currents (A); NaN where not measured (the sim)
         ("faults", ctypes.c_uint64),  # replies lost (dropped + crc_errors) plus reopens
         ("dropped", ctypes.c_uint64),  # replies asked for that never came whole
         ("crc_errors", ctypes.c_uint64),  # replies with a wrong checksum
@@ -191,7 +228,8 @@ class MotorState(_Payload):
         ("goal_writes", ctypes.c_uint64),  # goal writes sent
         ("state", ctypes.c_uint32),  # DriverState
         ("loss_permille", ctypes.c_uint32),  # replies lost per 1000 over the last second
-        ("hardware_error", ctypes.c_uint8 * ACTUATORS),  # Dynamixel error bits per motor
+        # Dynamixel error bits per motor, as many as ``actuation`` has
+        ("hardware_error", ctypes.c_uint8 * MAX_ACTUATORS),
         ("age_cycles", ctypes.c_uint16),  # driver cycles since the oldest data was asked for
     ]
 
@@ -199,7 +237,7 @@ class MotorState(_Payload):
 class ConditioningSample(_Payload):
     """``cp_sample``: controller -> learner at each conditioning point."""
 
-    TYPE_NAME = "softarm::ConditioningSample.v4"
+    TYPE_NAME = "softarm::ConditioningSample.v5"
     _fields_ = [
         ("seq", ctypes.c_uint64),
         ("stamp_ns", ctypes.c_uint64),
@@ -208,14 +246,14 @@ class ConditioningSample(_Payload):
         ("point", ctypes.c_uint32),
         ("points", ctypes.c_uint32),
         ("_pad", ctypes.c_uint32),
-        ("actuation", Actuation),
+        ("actuation", Actuators),
         ("desired", Position),
         ("reached", Position),
         ("next_point", ctypes.c_uint32),
         ("next_execution", ctypes.c_uint32),
         ("next_desired", Position),
-        ("measured", Actuation),  # NaN without motor state
-        ("conditioned", Actuation),  # the estimate the point's group ran on
+        ("measured", Actuators),  # NaN without motor state
+        ("conditioned", Actuators),  # the estimate the point's group ran on
     ]
 
 
@@ -236,14 +274,14 @@ class EstimateRequest(_Payload):
 class ActuationEstimate(_Payload):
     """``estimate``: the learner's actuation for a conditioning point."""
 
-    TYPE_NAME = "softarm::ActuationEstimate"
+    TYPE_NAME = "softarm::ActuationEstimate.v2"
     _fields_ = [
         ("seq", ctypes.c_uint64),
         ("stamp_ns", ctypes.c_uint64),
         ("set_id", ctypes.c_uint64),
         ("point", ctypes.c_uint32),
         ("execution", ctypes.c_uint32),  # the one it is for (1-based)
-        ("actuation", Actuation),
+        ("actuation", Actuators),
     ]
 
 
@@ -383,6 +421,7 @@ class EstopState(_Payload):
 
 
 PAYLOADS: list[Type[_Payload]] = [
+    Actuators,
     Setpoint,
     TrackerSample,
     MotorState,
@@ -667,14 +706,14 @@ def rust_type(t: Any) -> str:
 
 
 __all__ = [
-    "ACTUATORS",
+    "MAX_ACTUATORS",
     "MAX_WAYPOINTS",
     "MAX_REASON",
     "MAX_NODES",
     "MAX_SUBSCRIBERS",
     "STATS_HISTORY",
     "NO_DEMO",
-    "Actuation",
+    "Actuators",
     "Position",
     "ControllerState",
     "DriverState",

@@ -139,7 +139,7 @@ pub fn text(r: &Report) -> String {
     if let Some(m) = &r.motors {
         let state = DriverState::from_u32(m.state).map_or("?", |s| s.name());
         let errors: Vec<String> = m
-            .hardware_error
+            .hardware_errors()
             .iter()
             .enumerate()
             .filter(|(_, e)| **e != 0)
@@ -221,7 +221,7 @@ pub fn json(r: &Report) -> String {
                 "setpoint_cycles": m.setpoint_cycles,
                 "goal_writes": m.goal_writes,
             },
-            "hardware_error": m.hardware_error,
+            "hardware_error": m.hardware_errors(),
             "current_a": m.current_a.iter().map(|c| c.is_finite().then_some(*c)).collect::<Vec<_>>(),
         })
     });
@@ -259,7 +259,8 @@ mod tests {
                 garbage_bytes: 40,
                 timeouts: 6,
                 loss_permille: 123,
-                hardware_error: [0, 0, 0x20, 0, 0, 0],
+                actuation: [0.5; 6].into(),
+                hardware_error: [0, 0, 0x20, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0],
                 ..Default::default()
             }),
         };

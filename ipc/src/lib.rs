@@ -24,7 +24,10 @@ pub use iceoryx2;
 
 pub mod drivers;
 pub use drivers::{DRIVERS, Driver};
-pub use softarm_space::{ACTUATORS, Actuation, MAX_WAYPOINTS, Position};
+pub use softarm_space::{ACTUATORS, Actuation, MAX_ACTUATORS, MAX_WAYPOINTS, Position};
+
+mod actuators;
+pub use actuators::Actuators;
 /// Longest reason text in a reply.
 pub const MAX_REASON: usize = 200;
 
@@ -67,12 +70,13 @@ impl ControllerState {
 
 /// One per controller tick: the actuation to apply.
 #[derive(Debug, Clone, Copy, Default, ZeroCopySend, serde::Serialize)]
-#[type_name("softarm::Setpoint")]
+// v2: per-actuator values for any arm (`Actuators`).
+#[type_name("softarm::Setpoint.v2")]
 #[repr(C)]
 pub struct Setpoint {
     pub seq: u64,
     pub stamp_ns: u64,
-    pub actuation: Actuation,
+    pub actuation: Actuators,
     /// `ControllerState` as u32.
     pub state: u32,
     /// While demonstrating: the demonstration's index and class, else u32::MAX.
@@ -138,16 +142,17 @@ impl DriverState {
 #[derive(Debug, Clone, Copy, Default, ZeroCopySend, serde::Serialize)]
 // v4: the bus counts, each event counted once, and the loss rate (v3 had one `faults` count
 // that counted a lost reply several times); a peer built before cannot connect and misread it.
-#[type_name("softarm::MotorState.v4")]
+// v5: per-actuator values for any arm (`Actuators`).
+#[type_name("softarm::MotorState.v5")]
 #[repr(C)]
 pub struct MotorState {
     pub seq: u64,
     /// When the data was asked for: the oldest motor's newest answer (its request's send
     /// time, so data that is old looks old).
     pub stamp_ns: u64,
-    pub actuation: Actuation,
+    pub actuation: Actuators,
     /// Motor currents (A) where the driver measures them; NaN where it does not (the sim).
-    pub current_a: Actuation,
+    pub current_a: Actuators,
     /// Communication faults since the driver started: replies lost (`dropped` +
     /// `crc_errors`) plus `reopens`, each event once.
     pub faults: u64,
@@ -171,7 +176,8 @@ pub struct MotorState {
     pub loss_permille: u32,
     /// Per motor, the hardware-error status it reports (0 = none; Dynamixel bits: 0x01 input
     /// voltage, 0x04 overheating, 0x08 encoder, 0x10 electrical shock, 0x20 overload).
-    pub hardware_error: [u8; ACTUATORS],
+    /// As many as `actuation` has.
+    pub hardware_error: [u8; MAX_ACTUATORS],
     /// The driver's cycles since the oldest motor's data was asked for, at publishing (a
     /// freshness in the driver's own time: a loaded machine slows both alike).
     pub age_cycles: u16,
@@ -181,6 +187,11 @@ impl MotorState {
     pub fn driver_state(&self) -> Option<DriverState> {
         DriverState::from_u32(self.state)
     }
+
+    /// The hardware-error status of each of the arm's motors.
+    pub fn hardware_errors(&self) -> &[u8] {
+        &self.hardware_error[..self.actuation.len()]
+    }
 }
 
 /// Sent by the controller at each conditioning point: what was executed there and where the end
@@ -188,7 +199,8 @@ impl MotorState {
 #[derive(Debug, Clone, Copy, Default, ZeroCopySend, serde::Serialize)]
 // The type name changed with the layout (`conditioned` added), so a peer built before cannot
 // connect and misread it.
-#[type_name("softarm::ConditioningSample.v4")]
+// v5: per-actuator values for any arm (`Actuators`).
+#[type_name("softarm::ConditioningSample.v5")]
 #[repr(C)]
 pub struct ConditioningSample {
     pub seq: u64,
@@ -198,7 +210,7 @@ pub struct ConditioningSample {
     pub point: u32,
     pub points: u32,
     pub _pad: u32,
-    pub actuation: Actuation,
+    pub actuation: Actuators,
     pub desired: Position,
     pub reached: Position,
     /// The point whose estimate the controller wants next, and where it is.
@@ -208,11 +220,11 @@ pub struct ConditioningSample {
     pub next_desired: Position,
     /// What the actuators reported (`motor_state`) at the point; NaN without motor state. With
     /// `reached` a quasi-static pair of the arm, free of the lag between setpoint and actuator.
-    pub measured: Actuation,
+    pub measured: Actuators,
     /// The estimate the point's group ran conditioned on: the learner's for this execution,
     /// or an older one when that came too late (a loaded machine). What a learner stepping
     /// from its estimates steps from.
-    pub conditioned: Actuation,
+    pub conditioned: Actuators,
 }
 
 /// Sent by the controller when it accepts a way-point set: the learner answers with one
@@ -238,9 +250,8 @@ impl EstimateRequest {
 /// The learner's actuation for a conditioning point: the controller conditions group `point`
 /// on it.
 #[derive(Debug, Clone, Copy, Default, ZeroCopySend, serde::Serialize)]
-// `execution` took the place of padding: the layout, and so the type name, are unchanged (an
-// estimate from a peer built before says 0, which is counted as late).
-#[type_name("softarm::ActuationEstimate")]
+// v2: per-actuator values for any arm (`Actuators`).
+#[type_name("softarm::ActuationEstimate.v2")]
 #[repr(C)]
 pub struct ActuationEstimate {
     pub seq: u64,
@@ -250,7 +261,7 @@ pub struct ActuationEstimate {
     /// The execution (1-based) it is for: it is in force there if it reaches the controller
     /// before the point's group starts in that execution (`ExecutionStats::reconditions`).
     pub execution: u32,
-    pub actuation: Actuation,
+    pub actuation: Actuators,
 }
 
 /// A way-point set to execute (request of `waypoints`).
@@ -1001,8 +1012,13 @@ mod tests {
                 size_of::<ConditioningSample>(),
                 align_of::<ConditioningSample>()
             ),
-            (264, 8)
+            (528, 8)
         );
+        // A fixed capacity of 16 actuators and their count.
+        assert_eq!(size_of::<Actuators>(), 136);
+        assert_eq!(size_of::<Setpoint>(), 168);
+        assert_eq!(size_of::<MotorState>(), 384);
+        assert_eq!(size_of::<ActuationEstimate>(), 168);
     }
 
     #[test]

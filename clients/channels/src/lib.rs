@@ -23,7 +23,7 @@ use serde_json::{Value, json};
 use softarm_ipc::iceoryx2::prelude::ZeroCopySend;
 use softarm_ipc::{
     ActuationEstimate, ConditioningSample, ControllerStatus, EstimateRequest, EstopState,
-    ExecutionStats, MotorState, Node, Setpoint, Sub, TrackerSample,
+    ExecutionStats, MAX_ACTUATORS, MotorState, Node, Setpoint, Sub, TrackerSample,
 };
 
 /// The topics, in the order they are opened.
@@ -91,9 +91,11 @@ impl Payload {
             .expect("a payload of numbers and arrays is JSON");
         // A per-point array holds the set's points alone: the rest of its fixed capacity is no
         // point, and drawn as zeros it would look like a point reached exactly.
+        // So does the motors' error array, which has the arm's actuators alone.
         let points = match self {
             Payload::Stats(s) => Some(("errors_m", s.errors().len())),
             Payload::EstimateRequest(r) => Some(("desired", r.points().len())),
+            Payload::MotorState(m) => Some(("hardware_error", m.actuation.len())),
             _ => None,
         };
         if let Some((field, n)) = points
@@ -108,14 +110,19 @@ impl Payload {
 /// The services whose messages carry an array of one element per way-point of the set, and
 /// that array: a message has as many elements as the set has points ([`Payload::json`]), so
 /// its schema allows fewer than the capacity.
-const PER_POINT: [(&str, &str); 2] = [("stats", "errors_m"), ("estimate_request", "desired")];
+const PER_POINT: [(&str, &str); 3] = [
+    ("stats", "errors_m"),
+    ("estimate_request", "desired"),
+    ("motor_state", "hardware_error"),
+];
 
 fn per_point(topic: &str) -> Option<(&'static str, &'static str)> {
     PER_POINT.into_iter().find(|(t, _)| *t == topic)
 }
 
 /// A JSON Schema for values of `T`, from its default value: numbers that are not integers may
-/// be `null` (a NaN on the wire).
+/// be `null` (a NaN on the wire); an empty array there is per-actuator values
+/// (`softarm_ipc::Actuators`), as many as the arm has.
 fn schema<T: Serialize + Default + ZeroCopySend>(topic: &str) -> (&'static str, String) {
     // SAFETY: only reads the name the payload declares (`#[type_name]`).
     let name = unsafe { <T as ZeroCopySend>::type_name() };
@@ -141,6 +148,12 @@ fn schema_of(v: &Value) -> Value {
         Value::Number(_) | Value::Null => json!({"type": ["number", "null"]}),
         Value::Bool(_) => json!({"type": "boolean"}),
         Value::String(_) => json!({"type": "string"}),
+        Value::Array(items) if items.is_empty() => json!({
+            "type": "array",
+            "minItems": 1,
+            "maxItems": MAX_ACTUATORS,
+            "items": {"type": ["number", "null"]},
+        }),
         Value::Array(items) => json!({
             "type": "array",
             "minItems": items.len(),
@@ -272,18 +285,20 @@ mod tests {
     #[test]
     fn a_schema_is_known_before_any_sample_and_matches_the_messages() {
         let (name, text) = schema::<MotorState>("motor_state");
-        assert_eq!(name, "softarm::MotorState.v4");
+        assert_eq!(name, "softarm::MotorState.v5");
         let s: Value = serde_json::from_str(&text).unwrap();
         assert_eq!(s["title"], name);
         assert_eq!(s["properties"]["seq"]["type"], "integer");
-        assert_eq!(s["properties"]["actuation"]["maxItems"], 6);
+        assert_eq!(s["properties"]["actuation"]["maxItems"], MAX_ACTUATORS);
         assert_eq!(
             s["properties"]["current_a"]["items"]["type"],
             json!(["number", "null"])
         );
-        // A message has every field the schema requires, NaN as null.
+        // A message has every field the schema requires, NaN as null, and the arm's
+        // actuators alone in every per-actuator array.
         let m = MotorState {
-            current_a: [f64::NAN; 6],
+            actuation: [0.5; 9].into(),
+            current_a: [f64::NAN; 9].into(),
             stamp_ns: 7,
             ..Default::default()
         };
@@ -294,6 +309,9 @@ mod tests {
             assert!(v.get(k.as_str().unwrap()).is_some(), "{k}");
         }
         assert_eq!(v["current_a"][0], Value::Null);
+        for field in ["actuation", "current_a", "hardware_error"] {
+            assert_eq!(v[field].as_array().unwrap().len(), 9, "{field}");
+        }
     }
 
     /// A five-point set's stats carry five errors, not five and eleven zeros a plot would

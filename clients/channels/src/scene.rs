@@ -31,7 +31,9 @@ use foxglove::messages::{
 };
 use softarm_config::Config;
 use softarm_config::arm::ArmGeometry;
-use softarm_ipc::{ConditioningSample, MAX_WAYPOINTS, MotorState, Position, TrackerSample};
+use softarm_ipc::{
+    Actuation, ConditioningSample, MAX_WAYPOINTS, MotorState, Position, TrackerSample,
+};
 
 use crate::Payload;
 use softarm_kinematics::pcc::Kinematics;
@@ -207,8 +209,11 @@ impl Scene {
     pub fn update(&mut self, now: Instant, realtime_ns: u64) -> SceneUpdate {
         let stamp = timestamp(realtime_ns);
         let mut entities = Vec::new();
-        if let Some(m) = &self.motor {
-            entities.push(self.arm(m, stamp));
+        // Drawn from a reading of this arm's actuators (the stack's services carry no other).
+        if let Some(m) = &self.motor
+            && let Some(a) = m.actuation.fixed()
+        {
+            entities.push(self.arm(m, &a, stamp));
         }
         if let Some(t) = self.tracker(stamp) {
             entities.push(t);
@@ -229,8 +234,8 @@ impl Scene {
         }
     }
 
-    fn arm(&self, m: &MotorState, stamp: Timestamp) -> SceneEntity {
-        let lines = self.settings.arm.backbone(&m.actuation, ARC_POINTS);
+    fn arm(&self, m: &MotorState, a: &Actuation, stamp: Timestamp) -> SceneEntity {
+        let lines = self.settings.arm.backbone(a, ARC_POINTS);
         let style = [
             (0.018, rgba(0.20, 0.45, 0.85, 1.0)),
             (0.008, rgba(0.55, 0.55, 0.55, 1.0)),
@@ -536,7 +541,7 @@ mod tests {
         let a = [0.2, 0.8, 0.5, 0.9, 0.1, 0.4];
         s.take(&Payload::MotorState(MotorState {
             seq: 42,
-            actuation: a,
+            actuation: a.into(),
             ..Default::default()
         }));
         let u = s.update(t, 1_700_000_000_123_456_789);
@@ -556,7 +561,7 @@ mod tests {
         // A motor state that is not numbers draws nothing new.
         s.take(&Payload::MotorState(MotorState {
             seq: 43,
-            actuation: [f64::NAN; 6],
+            actuation: [f64::NAN; 6].into(),
             ..Default::default()
         }));
         let u = s.update(t, 0);

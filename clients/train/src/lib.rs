@@ -190,7 +190,9 @@ impl Recorder {
             self.setpoint = Some(*s);
         }
         while let Ok(Some(m)) = self.motors.receive() {
-            self.measured = Some(m.actuation);
+            if let Some(a) = m.actuation.fixed() {
+                self.measured = Some(a);
+            }
         }
     }
 
@@ -199,6 +201,7 @@ impl Recorder {
     fn take_tracker_samples(&mut self, demos: usize, progress: &ProgressBar) {
         while let Ok(Some(t)) = self.tracker.receive() {
             if let (Some(sp), Some(m)) = (self.setpoint, self.measured)
+                && let Some(commanded) = sp.actuation.fixed()
                 && sp.demo != u32::MAX
                 && sp.state == ControllerState::Demonstrate as u32
             {
@@ -206,7 +209,7 @@ impl Recorder {
                     demo: sp.demo,
                     class: sp.demo_class,
                     stamp_ns: t.stamp_ns,
-                    commanded: sp.actuation,
+                    commanded,
                     measured: m,
                     position: t.position,
                 });

@@ -459,7 +459,7 @@ impl Control {
         out.setpoint(Setpoint {
             seq: self.count.setpoints,
             stamp_ns: now,
-            actuation: setpoint,
+            actuation: setpoint.into(),
             state: state as u32,
             demo: step.demo.0,
             demo_class: step.demo.1,

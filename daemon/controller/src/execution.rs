@@ -352,14 +352,14 @@ impl Execution {
             point: n as u32,
             points: set.count as u32,
             _pad: 0,
-            actuation: setpoint,
+            actuation: setpoint.into(),
             desired,
             reached,
             next_point: next as u32,
             next_execution,
             next_desired: set.points[next].position,
-            measured,
-            conditioned,
+            measured: measured.into(),
+            conditioned: conditioned.into(),
         })
     }
 

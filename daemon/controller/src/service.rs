@@ -310,13 +310,22 @@ impl Service {
         while let Ok(Some(s)) = self.ports.estimates.receive() {
             let s = *s;
             let point = s.point as usize;
+            let Some(actuation) = s.actuation.fixed() else {
+                tracing::warn!(
+                    set_id = s.set_id,
+                    point,
+                    "estimate not used: {} actuators, the arm has {ACTUATORS}",
+                    s.actuation.len()
+                );
+                continue;
+            };
             if let Some(p) = self.pending.as_mut().filter(|p| p.set_id == s.set_id) {
                 if point < p.estimates.len() {
-                    p.estimates[point] = Some(s.actuation);
+                    p.estimates[point] = Some(actuation);
                 }
             } else if let Some(Err(err)) =
                 self.handed
-                    .recondition(s.set_id, point, &s.actuation, s.execution)
+                    .recondition(s.set_id, point, &actuation, s.execution)
             {
                 tracing::warn!(set_id = s.set_id, point, "estimate not used: {err}");
             }

@@ -127,10 +127,10 @@ impl Inputs {
             }
         }
         while let Ok(Some(s)) = self.motors.receive() {
-            if s.actuation.iter().all(|v| v.is_finite()) {
-                latest.take_motors(s.stamp_ns, s.actuation);
-            } else {
-                self.refused += 1;
+            // A reading of another arm's actuators is no reading of this one.
+            match s.actuation.fixed() {
+                Some(a) if a.iter().all(|v| v.is_finite()) => latest.take_motors(s.stamp_ns, a),
+                _ => self.refused += 1,
             }
             // What the driver says of itself holds whatever its readings.
             latest.driver_fault =

@@ -261,7 +261,10 @@ impl Ports {
     /// at once, a tendon bus and a tracker each when it read).
     fn arm_samples(&mut self) -> Vec<(u64, Actuation, Position)> {
         while let Ok(Some(m)) = self.motors.receive() {
-            self.motor_samples[self.next_motor] = (m.stamp_ns, m.actuation);
+            let Some(a) = m.actuation.fixed() else {
+                continue;
+            };
+            self.motor_samples[self.next_motor] = (m.stamp_ns, a);
             self.next_motor = (self.next_motor + 1) % MOTOR_SAMPLES;
         }
         let mut out = Vec::new();

@@ -5,7 +5,8 @@
 
 use softarm_config::Config;
 use softarm_ipc::{
-    Actuation, ActuationEstimate, ConditioningSample, EstimateRequest, MAX_WAYPOINTS, Position,
+    ACTUATORS, Actuation, ActuationEstimate, ConditioningSample, EstimateRequest, MAX_WAYPOINTS,
+    Position,
 };
 use softarm_learning::arm::Seen;
 use softarm_learning::online::OnlineLearner;
@@ -213,7 +214,7 @@ fn estimate(set_id: u64, point: u32, execution: u32, actuation: Actuation) -> Ac
         set_id,
         point,
         execution,
-        actuation,
+        actuation: actuation.into(),
     }
 }
 
@@ -247,6 +248,18 @@ fn check(s: &ConditioningSample) -> Result<(), String> {
             "next_execution {} is before execution {}",
             s.next_execution, s.execution
         ));
+    }
+    for (name, v) in [
+        ("actuation", &s.actuation),
+        ("measured", &s.measured),
+        ("conditioned", &s.conditioned),
+    ] {
+        if v.len() != ACTUATORS {
+            return Err(format!(
+                "{name} has {} actuators; the arm has {ACTUATORS}",
+                v.len()
+            ));
+        }
     }
     for (name, v) in [
         ("desired", &s.desired[..]),
@@ -322,14 +335,17 @@ fn observe_and_estimate(
             s.points
         ));
     }
+    // `check` counted them: this arm's actuators.
+    let arm = |a: &softarm_ipc::Actuators| a.fixed::<ACTUATORS>().expect("checked");
+    let (actuation, conditioned) = (arm(&s.actuation), arm(&s.conditioned));
     // NaN: the controller did not say (`check` refuses a half-known one).
-    let conditioned = s.conditioned[0].is_finite().then_some(&s.conditioned);
+    let conditioned = conditioned[0].is_finite().then_some(&conditioned);
     if s.reached.iter().all(|v| v.is_finite()) {
         let v = learner
             .observe(
                 s.point as usize,
                 &s.desired,
-                &s.actuation,
+                &actuation,
                 conditioned,
                 &s.reached,
             )
@@ -370,6 +386,9 @@ mod tests {
             next_point: 0,
             execution: 1,
             next_execution: 2,
+            actuation: [0.5; ACTUATORS].into(),
+            measured: [f64::NAN; ACTUATORS].into(),
+            conditioned: [0.5; ACTUATORS].into(),
             ..Default::default()
         }
     }
@@ -399,7 +418,7 @@ mod tests {
                 ..sample()
             },
             ConditioningSample {
-                actuation: [f64::INFINITY; 6],
+                actuation: [f64::INFINITY; 6].into(),
                 ..sample()
             },
             ConditioningSample {
@@ -415,14 +434,23 @@ mod tests {
                 ..sample()
             },
             ConditioningSample {
-                conditioned: [0.5, f64::NAN, 0.5, 0.5, 0.5, 0.5],
+                conditioned: [0.5, f64::NAN, 0.5, 0.5, 0.5, 0.5].into(),
+                ..sample()
+            },
+            // Another arm's actuators, or none.
+            ConditioningSample {
+                measured: [f64::NAN; 9].into(),
+                ..sample()
+            },
+            ConditioningSample {
+                actuation: Default::default(),
                 ..sample()
             },
         ];
         // Not known (all NaN) is fine.
         assert_eq!(
             check(&ConditioningSample {
-                conditioned: [f64::NAN; 6],
+                conditioned: [f64::NAN; 6].into(),
                 ..sample()
             }),
             Ok(())
@@ -592,12 +620,12 @@ mod tests {
                             next_point,
                             execution: exec,
                             next_execution: exec + 1,
-                            actuation: a,
+                            actuation: a.into(),
                             desired: d,
                             reached: r,
                             next_desired: d,
-                            measured: m,
-                            conditioned: c,
+                            measured: m.into(),
+                            conditioned: c.into(),
                             ..Default::default()
                         }
                     },

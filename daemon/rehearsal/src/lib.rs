@@ -403,7 +403,7 @@ impl<'a> Rehearsal<'a> {
         let request = admitted.estimate_request(set_id, set_id, self.now_ns);
         let mut estimates = vec![None; admitted.points()];
         for e in self.learner.request(&request) {
-            estimates[e.point as usize] = Some(e.actuation);
+            estimates[e.point as usize] = e.actuation.fixed();
         }
         if estimates.iter().any(Option::is_none) {
             // The stack would start from the primitives' means after a time-out: nothing to
@@ -443,7 +443,7 @@ impl<'a> Rehearsal<'a> {
         if let Some(s) = out.setpoint
             && s.state != ControllerState::Stopped as u32
         {
-            self.sim_driver.setpoint = Some(s.actuation);
+            self.sim_driver.setpoint = s.actuation.fixed();
         }
         if let Some(sample) = out.sample
             && let Some(e) = self.learner.visit(&sample)
@@ -482,9 +482,12 @@ impl<'a> Rehearsal<'a> {
         let Some(r) = self.running.as_mut().filter(|r| r.set_id == e.set_id) else {
             return;
         };
+        let Some(actuation) = e.actuation.fixed() else {
+            return;
+        };
         if let Err(err) = r
             .replanner
-            .recondition(e.point as usize, &e.actuation, e.execution)
+            .recondition(e.point as usize, &actuation, e.execution)
         {
             tracing::warn!(
                 set_id = e.set_id,

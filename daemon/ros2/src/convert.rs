@@ -13,8 +13,6 @@ use crate::msg::{
     MultiDofJointTrajectory, Point, PointStamped, Time,
 };
 
-/// The joints of every `JointState`: the six actuators, in the order of `Actuation`.
-pub const JOINTS: [&str; 6] = ["a1", "a2", "a3", "a4", "a5", "a6"];
 /// The frame of positions: the tracker's base frame, in metres.
 pub const FRAME: &str = "base";
 /// A set from ROS 2 lasts until this long after its last way-point (s): a trajectory has no
@@ -62,28 +60,26 @@ fn header(stamp_ns: u64, offset_ns: i128) -> Header {
     }
 }
 
-fn joints() -> Vec<String> {
-    JOINTS.iter().map(|j| j.to_string()).collect()
-}
-
-/// A setpoint: the normalised actuation (0 to 1 of each actuator's stroke) as positions.
-pub fn setpoint_state(s: &Setpoint, offset_ns: i128) -> JointState {
-    JointState {
+/// A setpoint: the normalised actuation (0 to 1 of each actuator's stroke) as positions of
+/// the arm's actuators, named `joints` (`[arm]`'s names). `None` for a setpoint of another
+/// count, which no joint list describes.
+pub fn setpoint_state(s: &Setpoint, joints: &[String], offset_ns: i128) -> Option<JointState> {
+    (s.actuation.len() == joints.len()).then(|| JointState {
         header: header(s.stamp_ns, offset_ns),
-        name: joints(),
+        name: joints.to_vec(),
         position: s.actuation.to_vec(),
         velocity: Vec::new(),
         effort: Vec::new(),
-    }
+    })
 }
 
 /// The measured actuation, and the motor currents (A) as efforts where every motor has one
-/// (the sim measures none).
-pub fn measured_state(m: &MotorState, offset_ns: i128) -> JointState {
+/// (the sim measures none); `None` as for [`setpoint_state`].
+pub fn measured_state(m: &MotorState, joints: &[String], offset_ns: i128) -> Option<JointState> {
     let currents = m.current_a.iter().all(|c| c.is_finite());
-    JointState {
+    (m.actuation.len() == joints.len()).then(|| JointState {
         header: header(m.stamp_ns, offset_ns),
-        name: joints(),
+        name: joints.to_vec(),
         position: m.actuation.to_vec(),
         velocity: Vec::new(),
         effort: if currents {
@@ -91,7 +87,7 @@ pub fn measured_state(m: &MotorState, offset_ns: i128) -> JointState {
         } else {
             Vec::new()
         },
-    }
+    })
 }
 
 /// A tracker position, in metres in the base frame.
@@ -422,27 +418,36 @@ mod tests {
     fn samples_become_joint_states_and_points_value_for_value() {
         let s = Setpoint {
             stamp_ns: 2_000_000_001,
-            actuation: [0.1, 0.2, 0.3, 0.4, 0.5, 0.6],
+            actuation: [0.1, 0.2, 0.3, 0.4, 0.5, 0.6].into(),
             ..Default::default()
         };
-        let j = setpoint_state(&s, 0);
-        assert_eq!(j.name, JOINTS);
-        assert_eq!(j.position, s.actuation);
+        let joints: Vec<String> = config().arm.layout().names().map(String::from).collect();
+        assert_eq!(
+            joints,
+            ["a1", "a2", "a3", "a4", "a5", "a6"],
+            "the paper's arm"
+        );
+        let j = setpoint_state(&s, &joints, 0).unwrap();
+        assert_eq!(j.name, joints);
+        assert_eq!(j.position, s.actuation.as_slice());
         assert_eq!(j.header.stamp, Time { sec: 2, nanosec: 1 });
         assert!(j.velocity.is_empty() && j.effort.is_empty());
 
         let mut m = MotorState {
-            actuation: [0.5; 6],
-            current_a: [f64::NAN; 6],
+            actuation: [0.5; 6].into(),
+            current_a: [f64::NAN; 6].into(),
             ..Default::default()
         };
         assert!(
-            measured_state(&m, 0).effort.is_empty(),
+            measured_state(&m, &joints, 0).unwrap().effort.is_empty(),
             "the sim measures no current"
         );
-        m.current_a = [0.25; 6];
-        let j = measured_state(&m, 0);
+        m.current_a = [0.25; 6].into();
+        let j = measured_state(&m, &joints, 0).unwrap();
         assert_eq!((j.position, j.effort), (vec![0.5; 6], vec![0.25; 6]));
+        // Another arm's count: no joint state names it.
+        m.actuation = [0.5; 9].into();
+        assert!(measured_state(&m, &joints, 0).is_none());
 
         let t = TrackerSample {
             position: [0.1, -0.2, -0.45],

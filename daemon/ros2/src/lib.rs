@@ -5,7 +5,7 @@
 //! `/softarm/<robot_id>`, [`convert::ros_namespace`]):
 //!
 //! - out: `setpoint` and `joint_states` (`sensor_msgs/JointState`, the controller's setpoints
-//!   and the driver's measured actuation, joints `a1`..`a6`), `tracker`
+//!   and the driver's measured actuation, joints named as `[arm]` names the actuators), `tracker`
 //!   (`geometry_msgs/PointStamped`, frame `base`), each the newest sample at most
 //!   `ros2.topic_hz` a second; `diagnostics` (`diagnostic_msgs/DiagnosticArray`: controller,
 //!   driver, e-stop, the last execution, the bridge) `ros2.status_hz` a second;
@@ -214,6 +214,8 @@ impl Latest {
 /// The bridge: the stack's side, the ROS 2 side, and what it did.
 struct Bridge {
     config: Config,
+    /// The joints of every `JointState`: the arm's actuators by their names (`[arm]`).
+    joints: Vec<String>,
     namespace: Namespace,
     ros_namespace: String,
     services: Services,
@@ -244,6 +246,7 @@ impl Bridge {
         let now = Instant::now();
         Ok(Self {
             config: config.clone(),
+            joints: config.arm.layout().names().map(String::from).collect(),
             namespace,
             ros_namespace,
             services,
@@ -295,19 +298,16 @@ impl Bridge {
         self.next_topics = now + self.topic_period;
         let (l, offset) = (&mut self.latest, self.offset_ns);
         let mut ok = true;
-        if let (Some(s), true) = (&l.setpoint, l.fresh[0]) {
-            ok &= self
-                .ros
-                .setpoint
-                .publish(convert::setpoint_state(s, offset))
-                .is_ok();
+        let joints = &self.joints;
+        if let (Some(s), true) = (&l.setpoint, l.fresh[0])
+            && let Some(j) = convert::setpoint_state(s, joints, offset)
+        {
+            ok &= self.ros.setpoint.publish(j).is_ok();
         }
-        if let (Some((m, _)), true) = (&l.motor, l.fresh[1]) {
-            ok &= self
-                .ros
-                .joint_states
-                .publish(convert::measured_state(m, offset))
-                .is_ok();
+        if let (Some((m, _)), true) = (&l.motor, l.fresh[1])
+            && let Some(j) = convert::measured_state(m, joints, offset)
+        {
+            ok &= self.ros.joint_states.publish(j).is_ok();
         }
         if let (Some(t), true) = (&l.tracker, l.fresh[2]) {
             ok &= self

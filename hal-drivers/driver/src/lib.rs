@@ -2,7 +2,9 @@
 //! services ([`Commands`]), and deciding, alone, what is safe to do with them ([`Supervisor`]),
 //! whatever the controller does. The sim and the tendon driver are built on these.
 
-use softarm_ipc::{Actuation, ControllerState, DriverState, EstopState, Node, Setpoint, Sub};
+use softarm_ipc::{
+    ACTUATORS, Actuation, ControllerState, DriverState, EstopState, Node, Setpoint, Sub,
+};
 use softarm_runtime::{EstopLatch, now_ns};
 
 /// The setpoint and e-stop subscriptions of a driver, and what arrived on them.
@@ -85,23 +87,28 @@ impl Commands {
         while let Ok(Some(s)) = self.setpoints.receive() {
             // From the wire: a setpoint that is not a number is refused whole (it must never
             // reach a motor); the last good one stays.
-            if !s.actuation.iter().all(|v| v.is_finite()) {
+            let Some(a) = s
+                .actuation
+                .fixed::<ACTUATORS>()
+                .filter(|a| a.iter().all(|v| v.is_finite()))
+            else {
                 self.refused += 1;
                 if self.refused.is_power_of_two() {
                     tracing::error!(
                         refused = self.refused,
                         actuation = ?s.actuation,
-                        "setpoint refused: not a number; holding the last good one"
+                        "setpoint refused: not a number, or not {ACTUATORS} actuators; holding \
+                         the last good one"
                     );
                 }
                 continue;
-            }
+            };
             // A stopped controller's setpoint is its held target from before the e-stop, and
             // one from a poll that saw the e-stop (or its reset) may be too: the first to be
             // followed after a reset is one the controller sent after it.
             let stale = now_ns.saturating_sub(s.stamp_ns) > max_age_ns;
             if !saw_stop && !stale && s.state != ControllerState::Stopped as u32 {
-                setpoint = Some(s.actuation);
+                setpoint = Some(a);
             }
         }
         Poll {
@@ -228,7 +235,7 @@ mod tests {
     fn setpoint(v: f64, state: ControllerState, stamp_ns: u64) -> Setpoint {
         Setpoint {
             stamp_ns,
-            actuation: [v; 6],
+            actuation: [v; 6].into(),
             state: state as u32,
             ..Setpoint::default()
         }

@@ -13,7 +13,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use anyhow::Context;
 
 use softarm_driver::Commands;
-use softarm_ipc::{Actuation, DriverState, MotorState, Namespace, Node, TrackerSample};
+use softarm_ipc::{Actuation, Actuators, DriverState, MotorState, Namespace, Node, TrackerSample};
 use softarm_runtime::clock::Ticker;
 use softarm_runtime::{EstopLatch, now_ns};
 
@@ -48,12 +48,15 @@ pub fn run(
         'wait: while waiting.elapsed() < std::time::Duration::from_millis(100) {
             while let Ok(Some(s)) = held.receive() {
                 let fresh = now_ns().saturating_sub(s.stamp_ns) <= 1_000_000_000;
-                if fresh && s.actuation.iter().all(|a| (0.0..=1.0).contains(a)) {
+                if let Some(held) = s.actuation.fixed()
+                    && fresh
+                    && held.iter().all(|a| (0.0..=1.0).contains(a))
+                {
                     tracing::info!(
-                        actuation = ?s.actuation,
+                        actuation = ?held,
                         "a controller is running: starting where it holds the arm"
                     );
-                    start = s.actuation;
+                    start = held;
                     break 'wait;
                 }
             }
@@ -85,8 +88,8 @@ pub fn run(
         let _ = motors.send_copy(MotorState {
             seq,
             stamp_ns,
-            actuation: m.actuation,
-            current_a: [f64::NAN; 6],
+            actuation: m.actuation.into(),
+            current_a: Actuators::filled(m.actuation.len(), f64::NAN),
             state: if poll.stopped {
                 DriverState::Stopped
             } else {

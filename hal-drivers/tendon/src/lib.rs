@@ -19,7 +19,7 @@ use anyhow::Context;
 use softarm_config::Config;
 use softarm_config::hardware::{Mapping, TendonConfig};
 use softarm_driver::{Action, Commands, Poll, Supervisor, Timeouts};
-use softarm_ipc::{ACTUATORS, Actuation, DriverState, MotorState, Namespace, Node};
+use softarm_ipc::{ACTUATORS, Actuation, Actuators, DriverState, MotorState, Namespace, Node};
 use softarm_runtime::clock::{Backoff, Ticker};
 use softarm_runtime::now_ns;
 
@@ -578,8 +578,10 @@ impl<'a> Driver<'a> {
         Some(MotorState {
             seq: self.seq,
             stamp_ns,
-            actuation: std::array::from_fn(|i| self.mapping.actuation(i, self.reading.ticks[i])),
-            current_a: self.reading.current_a,
+            actuation: Actuators::from(std::array::from_fn::<f64, ACTUATORS, _>(|i| {
+                self.mapping.actuation(i, self.reading.ticks[i])
+            })),
+            current_a: self.reading.current_a.into(),
             faults: c.dropped + c.crc_errors + c.reopens,
             dropped: c.dropped,
             crc_errors: c.crc_errors,
@@ -590,7 +592,9 @@ impl<'a> Driver<'a> {
             goal_writes: self.goal_writes,
             state: self.reported as u32,
             loss_permille: self.health.loss_permille(),
-            hardware_error: self.reading.hardware_error,
+            hardware_error: std::array::from_fn(|i| {
+                self.reading.hardware_error.get(i).copied().unwrap_or(0)
+            }),
             age_cycles: self.reading.age_cycles(self.cycle).min(u64::from(u16::MAX)) as u16,
         })
     }

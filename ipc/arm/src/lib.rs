@@ -20,8 +20,7 @@ use std::ops::Range;
 
 use serde::{Deserialize, Serialize};
 
-/// Most actuators an arm may have: the capacity of every per-actuator payload.
-pub const MAX_ACTUATORS: usize = 16;
+pub use softarm_space::MAX_ACTUATORS;
 /// Most modules an arm may have.
 pub const MAX_MODULES: usize = 8;
 /// Longest length anywhere in a description (m).

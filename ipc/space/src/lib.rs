@@ -4,6 +4,9 @@
 /// Actuators of the arm: two modules of three.
 pub const ACTUATORS: usize = 6;
 
+/// Most actuators an arm may have: the capacity of every per-actuator payload.
+pub const MAX_ACTUATORS: usize = 16;
+
 /// At most this many way-points (conditioning points) in a set.
 pub const MAX_WAYPOINTS: usize = 16;
 

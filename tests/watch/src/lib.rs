@@ -22,7 +22,8 @@ use std::time::Duration;
 
 use softarm_config::Config;
 use softarm_ipc::{
-    Actuation, ControllerState, EstopState, ExecutionStats, MotorState, Namespace, Node, Setpoint,
+    Actuation, Actuators, ControllerState, EstopState, ExecutionStats, MotorState, Namespace, Node,
+    Setpoint,
 };
 use softarm_runtime::now_ns;
 
@@ -89,7 +90,7 @@ pub struct Checker {
     limits: Limits,
     last: Option<Setpoint>,
     /// Where the motors are, as the driver last said.
-    measured: Option<Actuation>,
+    measured: Option<Actuators>,
     outages: Vec<Outage>,
     /// Since when the e-stop is engaged (its stamp), if it is.
     estop_since: Option<u64>,
@@ -154,6 +155,15 @@ impl Checker {
     pub fn setpoint(&mut self, p: &Setpoint) {
         let l = self.limits;
         self.report.setpoints += 1;
+        if p.actuation.len() != l.actuator_min.len() {
+            self.violation(format!(
+                "a setpoint of {} actuators on an arm of {} (seq {})",
+                p.actuation.len(),
+                l.actuator_min.len(),
+                p.seq
+            ));
+            return;
+        }
         for a in 0..p.actuation.len() {
             let v = p.actuation[a];
             // A hair of slack for the limits' own rounding.
@@ -462,7 +472,7 @@ mod tests {
         Setpoint {
             seq,
             stamp_ns: 1_000_000 * MS + t_ms * MS,
-            actuation: [v; 6],
+            actuation: [v; 6].into(),
             state: state as u32,
             ..Default::default()
         }
@@ -566,7 +576,7 @@ mod tests {
     fn leaving_stopped_starts_from_the_motors_not_from_the_held_setpoint() {
         use ControllerState::*;
         let motors = |v: f64| MotorState {
-            actuation: [v; 6],
+            actuation: [v; 6].into(),
             ..Default::default()
         };
         let mut c = Checker::new(limits());
