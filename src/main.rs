@@ -324,6 +324,16 @@ fn sim(c: &Config, scenario: Option<&str>) -> anyhow::Result<()> {
     softarm_sim::run(&sim, &arm, c.bus()?, &c.estop_latch(), &*stop_flag()?)
 }
 
+/// The processes that keep the arm's pace (the controller, the drivers) lock their memory
+/// when `controller.mlockall` says so.
+fn keep_pace(c: &Config) {
+    if c.controller.mlockall
+        && let Err(e) = softarm_runtime::lock_memory()
+    {
+        tracing::warn!("{e}; going on");
+    }
+}
+
 fn run(cli: Cli) -> anyhow::Result<ExitCode> {
     match cli.command {
         Command::Demo(args) => demo::run(&args, &*stop_flag()?)?,
@@ -344,15 +354,25 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 &*stop_flag()?,
             )?
         }
-        Command::Controller(stack) => softarm_controller::run(&stack.load()?, &*stop_flag()?)?,
+        Command::Controller(stack) => {
+            let c = stack.load()?;
+            keep_pace(&c);
+            softarm_controller::run(&c, &*stop_flag()?)?
+        }
         Command::Learner(stack) => softarm_learner::run(&stack.load()?, &*stop_flag()?)?,
-        Command::Sim { stack, scenario } => sim(&stack.load()?, scenario.as_deref())?,
+        Command::Sim { stack, scenario } => {
+            let c = stack.load()?;
+            keep_pace(&c);
+            sim(&c, scenario.as_deref())?
+        }
         Command::Tendon(stack) => {
             let c = stack.load_with("tendon", |c| c.tendon.is_some())?;
+            keep_pace(&c);
             softarm_tendon::run(&c, c.bus()?, &*stop_flag()?)?
         }
         Command::Tracker(stack) => {
             let c = stack.load_with("tracker", |c| c.tracker.is_some())?;
+            keep_pace(&c);
             softarm_tracker::run(&c, c.bus()?, &*stop_flag()?)?
         }
         #[cfg(feature = "rig")]

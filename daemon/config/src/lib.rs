@@ -184,9 +184,14 @@ pub struct Controller {
     /// CPU to pin the tick thread to; absent leaves it free.
     #[serde(default)]
     pub cpu: Option<usize>,
-    /// Locks the controller's memory (`mlockall`), so a page fault never stalls a tick.
-    #[serde(default)]
+    /// Locks the memory of the controller and of the drivers (`mlockall`), so a page the kernel
+    /// reclaimed never stalls a tick or a driver's cycle on a disk read.
+    #[serde(default = "locked")]
     pub mlockall: bool,
+}
+
+fn locked() -> bool {
+    true
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]

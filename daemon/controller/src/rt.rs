@@ -1,4 +1,5 @@
-//! Real-time set-up of the tick thread (locked memory, a pinned CPU, SCHED_FIFO), each refused
+//! Real-time set-up of the tick thread (a pinned CPU, SCHED_FIFO; the process's memory is
+//! locked where it starts, `src/main.rs::keep_pace`), each refused
 //! one a warning, and systemd's notifications: READY once the tick runs (sent by the service
 //! thread), WATCHDOG while it does, STATUS with its state.
 
@@ -15,12 +16,6 @@ use crate::Shared;
 
 /// Applies the configured real-time settings to the calling thread (the tick's).
 pub(crate) fn setup(c: &Controller) {
-    if c.mlockall {
-        use nix::sys::mman::{MlockAllFlags, mlockall};
-        if let Err(e) = mlockall(MlockAllFlags::MCL_CURRENT | MlockAllFlags::MCL_FUTURE) {
-            tracing::warn!("mlockall refused ({e}); going on without locked memory");
-        }
-    }
     if let Some(cpu) = c.cpu {
         let mut set = nix::sched::CpuSet::new();
         if set.set(cpu).is_err()
