@@ -48,9 +48,7 @@ impl Actuators {
 
     /// `n` actuators, each `v`.
     pub fn filled(n: usize, v: f64) -> Self {
-        let mut a = Self::new(&[0.0; MAX_ACTUATORS][..n.min(MAX_ACTUATORS)]);
-        a.as_mut_slice().fill(v);
-        a
+        Self::new(&[v; MAX_ACTUATORS][..n.min(MAX_ACTUATORS)])
     }
 
     /// The values as `N` of them, when the payload carries exactly `N` (a peer that fills

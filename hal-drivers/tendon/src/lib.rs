@@ -354,29 +354,8 @@ impl<'a> Driver<'a> {
                 if matches!(action, Action::Follow(_)) && (torque || engage) {
                     self.goal_writes += 1;
                 }
-                let stranded = (0..ACTUATORS)
-                    .filter(|&i| matches!(action, Action::Follow(_)) && !near[i])
-                    .filter(|&i| l.lost_torque(i, &self.reading))
-                    .count();
-                if stranded > 0 {
-                    self.stranded += 1;
-                    if self.stranded.is_power_of_two() {
-                        tracing::error!(
-                            stranded = self.stranded,
-                            "{stranded} motor(s) found with the torque off while following, \
-                             farther than tendon.max_engage_step from their goal: they stay off \
-                             until the setpoint comes to where they stand"
-                        );
-                    }
-                }
-                if lost > 0 {
-                    self.reengaged += lost as u64;
-                    tracing::error!(
-                        reengaged = self.reengaged,
-                        "{lost} motor(s) found with the torque off while following (a \
-                         brown-out restarts a motor so, or the torque-on write was lost): \
-                         torque on again where they stand"
-                    );
+                if matches!(action, Action::Follow(_)) {
+                    self.say_lost_torque(lost, &near);
                 }
             }
             Err(Fault::Port(m)) => self.close(&format!("writing: {m}")),
@@ -388,6 +367,37 @@ impl<'a> Driver<'a> {
                     tracing::error!(write_faults = self.write_faults, "{f}");
                 }
             }
+        }
+    }
+
+    /// Says what following found of the torque: `lost` motors turned on again, and those
+    /// found off too far from their goal to be (`near` says which are close enough).
+    fn say_lost_torque(&mut self, lost: usize, near: &[bool; ACTUATORS]) {
+        let Some(l) = self.link.as_ref() else {
+            return;
+        };
+        let stranded = (0..ACTUATORS)
+            .filter(|&i| !near[i] && l.lost_torque(i, &self.reading))
+            .count();
+        if stranded > 0 {
+            self.stranded += 1;
+            if self.stranded.is_power_of_two() {
+                tracing::error!(
+                    stranded = self.stranded,
+                    "{stranded} motor(s) found with the torque off while following, farther \
+                     than tendon.max_engage_step from their goal: they stay off until the \
+                     setpoint comes to where they stand"
+                );
+            }
+        }
+        if lost > 0 {
+            self.reengaged += lost as u64;
+            tracing::error!(
+                reengaged = self.reengaged,
+                "{lost} motor(s) found with the torque off while following (a brown-out \
+                 restarts a motor so, or the torque-on write was lost): torque on again where \
+                 they stand"
+            );
         }
     }
 
