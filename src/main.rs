@@ -313,13 +313,14 @@ fn init_logging(default: &str) {
 
 /// `softarm sim [--scenario NAME|FILE]`: the simulated arm, the config's or another.
 fn sim(c: &Config, scenario: Option<&str>) -> anyhow::Result<()> {
+    let configured = c.paper_arm()?;
     let (arm, sim) = match scenario {
         Some(s) => {
             let s = Scenario::resolve(s)?;
             tracing::info!(scenario = %s.name, "the sim runs another arm: {}", s.describe());
-            s.apply(&c.arm, &c.sim)?
+            s.apply(&configured, &c.sim)?
         }
-        None => (c.arm, c.sim),
+        None => (configured, c.sim),
     };
     softarm_sim::run(&sim, &arm, c.bus()?, &c.estop_latch(), &*stop_flag()?)
 }
@@ -356,6 +357,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         }
         Command::Controller(stack) => {
             let c = stack.load()?;
+            c.paper_arm()?;
             keep_pace(&c);
             softarm_controller::run(&c, &*stop_flag()?)?
         }
@@ -379,6 +381,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Emulate(args) => emulate::run(&args, &*stop_flag()?)?,
         Command::Train { stack, seed } => {
             let config = stack.load()?;
+            config.paper_arm()?;
             let r = train::train(&config, &stack.namespace()?, seed)?;
             println!(
                 "trained model {} in {}: {}",

@@ -164,13 +164,13 @@ fn from_the_third(runs: &[Run]) -> Vec<f64> {
 fn fresh_first(model: &Model, config: &Config, scenario: &str, set: &str) -> f64 {
     let (arm, sim) = Scenario::resolve(scenario)
         .unwrap()
-        .apply(&config.arm, &config.sim)
+        .apply(&config.paper_arm().unwrap(), &config.sim)
         .unwrap();
     let online = online_learner(
         model.learner.clone(),
         model.kinematics.clone(),
         config.learner,
-        config.arm,
+        config.paper_arm().unwrap(),
     )
     .unwrap();
     let learner = Learner::new(online, config);

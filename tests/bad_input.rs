@@ -485,9 +485,12 @@ fn setpoints_with_nan_inf_or_out_of_range_values_never_reach_the_tendon_motors()
         (rig, tendon, tracker)
     });
     let t = c.tendon.clone().unwrap();
-    let mapping = Mapping::new(&t, &c.arm);
+    let mapping = Mapping::new(&t, &c.layout());
     // What the driver writes for a setpoint: the controller's limits, then the motors'.
-    let (lo, hi) = (c.controller.actuator_min, c.controller.actuator_max);
+    let (lo, hi) = (
+        c.controller.actuator_min.fixed::<6>(),
+        c.controller.actuator_max.fixed::<6>(),
+    );
     let ticks = |a: [f64; 6]| -> Vec<i32> {
         (0..6)
             .map(|i| {
@@ -598,7 +601,7 @@ fn state_of(s: &ControllerStatus) -> ControllerState {
 #[test]
 fn tracker_samples_that_are_not_numbers_hold_the_controller() {
     let s = TestStack::new(BIN, "bad-tracker", true);
-    let arm = Config::load(&s.config).unwrap().arm;
+    let arm = Config::load(&s.config).unwrap().paper_arm().unwrap();
     let controller = s.spawn(&["controller"]);
     let n = node(&s);
     let status = n.subscriber(&n.status().unwrap()).unwrap();
@@ -778,7 +781,7 @@ fn waypoint_requests_with_nonsense_are_rejected_by_the_controller_naming_it() {
 #[test]
 fn motor_states_that_are_not_numbers_hold_the_controller_and_never_reach_its_setpoints() {
     let s = TestStack::new(BIN, "bad-motors", true);
-    let arm = Config::load(&s.config).unwrap().arm;
+    let arm = Config::load(&s.config).unwrap().paper_arm().unwrap();
     let controller = s.spawn(&["controller"]);
     let n = node(&s);
     let status = n.subscriber(&n.status().unwrap()).unwrap();

@@ -141,7 +141,7 @@ fn goals(rig: &Rig, ids: &[u8]) -> Vec<i32> {
 fn tendon_follows_then_holds_then_turns_the_torque_off_and_obeys_the_estop() {
     let (s, c, rig) = rig("hw-tendon");
     let t = c.tendon.clone().unwrap();
-    let mapping = Mapping::new(&t, &c.arm);
+    let mapping = Mapping::new(&t, &c.layout());
     let n = node(&s);
     let setpoints = n.publisher(&n.setpoint().unwrap()).unwrap();
     let motors = n.subscriber(&n.motor_state().unwrap()).unwrap();
@@ -562,7 +562,7 @@ fn tracker_publishes_the_arm_in_the_base_frame_resyncs_and_survives_silence() {
     let driver = spawn(&s, "tracker");
     let pid = driver.id() as i32;
 
-    let want = c.arm.position(&[0.5; 6]);
+    let want = c.paper_arm().unwrap().position(&[0.5; 6]);
     let close = |p: &TrackerSample| (0..3).all(|i| (p.position[i] - want[i]).abs() < 1e-4);
     let p = eventually("tracker samples", || newest(&samples));
     assert!(close(&p), "{:?} vs {want:?}", p.position);
@@ -831,7 +831,7 @@ fn tracker_polls_in_point_mode_with_angles() {
     let n = node(&s);
     let samples = n.subscriber(&n.tracker().unwrap()).unwrap();
     let driver = spawn(&s, "tracker");
-    let want = c.arm.position(&[0.5; 6]);
+    let want = c.paper_arm().unwrap().position(&[0.5; 6]);
     let p = eventually("20 polled samples", || {
         newest(&samples).filter(|p| p.seq >= 20)
     });
@@ -927,5 +927,109 @@ fn the_hardware_stack_executes_a_set_through_softarm_emulate() {
     assert!(
         text.contains("tendon motors (Dynamixel 2.0): /dev/pts/"),
         "{text}"
+    );
+}
+
+/// The hardware config on the shipped nine-tendon TDCR (`config/arms/tdcr.toml`): a motor per
+/// tendon, ids 11 to 19, each with its own direction; 20 mm of stroke on a 5 mm spool.
+fn tdcr(text: String) -> String {
+    let arm = softarm_config::arms::resolve("tdcr").unwrap();
+    let text = softarm_config::arms::with_arm(&text, &arm, "tdcr").unwrap();
+    let list = |v: Vec<toml::Value>| toml::Value::Array(v);
+    softarm_test_support::with_overrides(
+        &text,
+        &[
+            (
+                "tendon.ids",
+                list((11..20).map(toml::Value::from).collect()),
+            ),
+            ("tendon.spool_radius_m", list(vec![0.005.into(); 9])),
+            (
+                "tendon.zero_ticks",
+                list(
+                    (0..9)
+                        .map(|i| if i % 2 == 0 { 1000 } else { 3500 }.into())
+                        .collect(),
+                ),
+            ),
+            (
+                "tendon.direction",
+                list(
+                    (0..9)
+                        .map(|i| if i % 2 == 0 { 1 } else { -1 }.into())
+                        .collect(),
+                ),
+            ),
+            ("tendon.min_ticks", list(vec![800.into(); 9])),
+            ("tendon.max_ticks", list(vec![3700.into(); 9])),
+        ],
+    )
+}
+
+/// A setpoint of `values`, stamped now.
+fn send_each(setpoints: &Pub<Setpoint>, values: &[f64]) {
+    setpoints
+        .send_copy(Setpoint {
+            stamp_ns: now_ns(),
+            actuation: softarm_ipc::Actuators::new(values),
+            ..Setpoint::default()
+        })
+        .unwrap();
+}
+
+/// Any arm's tendons on the bus: the driver of a nine-tendon arm engages its nine motors where
+/// they stand, drives each to its own goal through its own mapping, reports nine actuators, and
+/// refuses a setpoint of the paper's six.
+#[test]
+fn a_nine_tendon_arm_is_driven_motor_by_motor() {
+    let (s, c, rig) = TestStack::with_devices_for(BIN, "hw-nine", Devices::Shared, tdcr, |c| {
+        let rig = Rig::start(c, 0.5).unwrap();
+        let (tendon, tracker) = (rig.tendon_path().into(), rig.tracker_path().into());
+        (rig, tendon, tracker)
+    });
+    watch(&rig);
+    let t = c.tendon.clone().unwrap();
+    assert_eq!(t.ids.len(), 9);
+    let mapping = Mapping::new(&t, &c.layout());
+    let n = node(&s);
+    let setpoints = n.publisher(&n.setpoint().unwrap()).unwrap();
+    let motors = n.subscriber(&n.motor_state().unwrap()).unwrap();
+    let _driver = spawn(&s, "tendon");
+
+    let m: MotorState = eventually("motor state", || newest(&motors));
+    assert_eq!(m.actuation.len(), 9, "{:?}", m.actuation);
+    assert!(
+        m.actuation.iter().all(|a| (a - 0.5).abs() < 1e-3),
+        "{:?}",
+        m.actuation
+    );
+    eventually("nine motors' torque on at 0.5", || {
+        send_each(&setpoints, &[0.5; 9]);
+        (torque(&rig, &t.ids) == [true; 9]).then_some(())
+    });
+    // Each motor to its own goal (every tendon a different length), within the engage step.
+    let want: Vec<f64> = (0..9).map(|i| 0.47 + 0.0075 * i as f64).collect();
+    let goals_of: Vec<i32> = (0..9).map(|i| mapping.ticks(i, want[i])).collect();
+    eventually("each motor's goal", || {
+        send_each(&setpoints, &want);
+        (goals(&rig, &t.ids) == goals_of).then_some(())
+    });
+    let m = eventually("nine actuators where they were sent, FOLLOWING", || {
+        send_each(&setpoints, &want);
+        newest(&motors).filter(|m| {
+            m.driver_state() == Some(DriverState::Following)
+                && m.actuation
+                    .iter()
+                    .zip(&want)
+                    .all(|(a, w)| (a - w).abs() < 2e-3)
+        })
+    });
+    assert_eq!(m.current_a.len(), 9);
+    // The paper's six on this arm: refused whole, the goals stay.
+    follow(&setpoints, 0.3, Duration::from_millis(300));
+    assert_eq!(
+        goals(&rig, &t.ids),
+        goals_of,
+        "a six-actuator setpoint was followed"
     );
 }

@@ -6,9 +6,10 @@
 //! Every entity is in the frame `base` (the tracker's and the way-points' frame, metres):
 //!
 //! - `base`: the frame's axes (x red, y green, z blue, 50 mm) and the mount plate.
-//! - `arm`: the backbone the configured arm model (`[arm]`, `ArmGeometry::backbone`) gives for
-//!   the newest measured actuation (`motor_state`): four line strips, module 1, connector,
-//!   module 2, tool, so the last point of the last line is the modelled end effector. Metadata
+//! - `arm`: the backbone the configured arm model (`[arm]`, `pcc::Arm::backbone`) gives for
+//!   the newest measured actuation (`motor_state`): a line strip per module and one per
+//!   connector after it (the tool after the last), so the last point of the last line is the
+//!   modelled end effector. Metadata
 //!   `motor_state.seq` and `motor_state.stamp_ns` name the sample it was drawn from.
 //! - `tracker`: the newest tracker position (a red sphere) and its path over `view.trail_s`.
 //! - `waypoints`: the running set's way-points, numbered from 1 as `softarm stats` numbers its
@@ -30,13 +31,10 @@ use foxglove::messages::{
     line_primitive,
 };
 use softarm_config::Config;
-use softarm_config::arm::ArmGeometry;
-use softarm_ipc::{
-    Actuation, ConditioningSample, MAX_WAYPOINTS, MotorState, Position, TrackerSample,
-};
+use softarm_ipc::{ConditioningSample, MAX_WAYPOINTS, MotorState, Position, TrackerSample};
 
 use crate::Payload;
-use softarm_kinematics::pcc::Kinematics;
+use softarm_kinematics::pcc::Arm;
 
 /// The scene's channel.
 pub const TOPIC: &str = "scene";
@@ -55,7 +53,7 @@ const REFRESH: Duration = Duration::from_secs(1);
 /// What the scene draws with: the arm model, its rate and the trail's length.
 #[derive(Debug, Clone, Copy)]
 pub struct Settings {
-    pub arm: ArmGeometry,
+    pub arm: Arm,
     pub rate_hz: f64,
     pub trail_s: f64,
 }
@@ -64,7 +62,10 @@ impl Settings {
     /// The config's `[arm]` and `[view]`.
     pub fn of(c: &Config) -> Self {
         Self {
-            arm: c.arm,
+            arm: Arm::new(
+                &c.layout(),
+                c.arm.actuator_offset_m.as_deref().unwrap_or_default(),
+            ),
             rate_hz: c.view.scene_hz,
             trail_s: c.view.trail_s,
         }
@@ -211,9 +212,10 @@ impl Scene {
         let mut entities = Vec::new();
         // Drawn from a reading of this arm's actuators (the stack's services carry no other).
         if let Some(m) = &self.motor
-            && let Some(a) = m.actuation.fixed()
+            && m.actuation.len() == self.settings.arm.actuators()
+            && let Some(e) = self.arm(m, stamp)
         {
-            entities.push(self.arm(m, &a, stamp));
+            entities.push(e);
         }
         if let Some(t) = self.tracker(stamp) {
             entities.push(t);
@@ -234,27 +236,37 @@ impl Scene {
         }
     }
 
-    fn arm(&self, m: &MotorState, a: &Actuation, stamp: Timestamp) -> SceneEntity {
-        let lines = self.settings.arm.backbone(a, ARC_POINTS);
-        let style = [
-            (0.018, rgba(0.20, 0.45, 0.85, 1.0)),
-            (0.008, rgba(0.55, 0.55, 0.55, 1.0)),
-            (0.018, rgba(0.15, 0.70, 0.65, 1.0)),
-            (0.006, rgba(0.95, 0.60, 0.10, 1.0)),
-        ];
+    /// The arm's entity; `None` for an actuation whose arcs the model cannot tell.
+    fn arm(&self, m: &MotorState, stamp: Timestamp) -> Option<SceneEntity> {
+        let lines = self
+            .settings
+            .arm
+            .backbone(m.actuation.as_slice(), ARC_POINTS)
+            .ok()?;
+        // Modules alternate two colours; connectors grey, the tool orange.
+        let modules = [rgba(0.20, 0.45, 0.85, 1.0), rgba(0.15, 0.70, 0.65, 1.0)];
+        let last = lines.len() - 1;
+        let style = |k: usize| match k {
+            k if k % 2 == 0 => (0.018, modules[(k / 2) % 2]),
+            k if k == last => (0.006, rgba(0.95, 0.60, 0.10, 1.0)),
+            _ => (0.008, rgba(0.55, 0.55, 0.55, 1.0)),
+        };
         let mut e = entity("arm", stamp);
         e.lines = lines
             .iter()
-            .zip(style)
-            .map(|(points, (thickness, color))| line(points, thickness, color))
+            .enumerate()
+            .map(|(k, points)| {
+                let (thickness, color) = style(k);
+                line(points, thickness, color)
+            })
             .collect();
-        let tip = *lines[3].last().expect("a tool line has two points");
+        let tip = *lines[last].last().expect("a tool line has two points");
         e.spheres = vec![sphere(tip, 0.008, rgba(0.95, 0.60, 0.10, 1.0))];
         e.metadata = vec![
             pair("motor_state.seq", m.seq.to_string()),
             pair("motor_state.stamp_ns", m.stamp_ns.to_string()),
         ];
-        e
+        Some(e)
     }
 
     fn tracker(&self, stamp: Timestamp) -> Option<SceneEntity> {
@@ -510,7 +522,7 @@ mod tests {
 
     fn scene() -> Scene {
         Scene::new(Settings {
-            arm: ArmGeometry::default(),
+            arm: Arm::new(&softarm_config::arm::ArmGeometry::default().layout(), &[]),
             rate_hz: 30.0,
             trail_s: 1.0,
         })
@@ -553,7 +565,7 @@ mod tests {
         );
         assert_eq!(arm.lines.len(), 4);
         let tip = arm.lines[3].points.last().unwrap();
-        let want = ArmGeometry::default().position(&a);
+        let want = softarm_config::arm::ArmGeometry::default().position(&a);
         assert!(
             (tip.x - want[0]).abs() + (tip.y - want[1]).abs() + (tip.z - want[2]).abs() < 1e-12
         );

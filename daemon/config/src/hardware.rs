@@ -1,4 +1,4 @@
-//! The real arm's drivers in the config: `[tendon]` (six tendon motors on a Dynamixel bus) and
+//! The real arm's drivers in the config: `[tendon]` (a tendon motor per actuator on a Dynamixel bus) and
 //! `[tracker]` (a Bird-protocol electromagnetic tracker), and the two conversions they define:
 //! normalised actuation ↔ motor ticks ([`Mapping`]) and tracker frame ↔ base frame ([`Frame`]).
 //! Pure: the drivers and their emulators share these, so both ends agree by construction and
@@ -7,9 +7,9 @@
 use std::f64::consts::TAU;
 use std::path::PathBuf;
 
-use crate::arm::ArmGeometry;
 use serde::{Deserialize, Serialize};
-use softarm_space::{ACTUATORS, Actuation, Position};
+use softarm_arm::{Kind, Layout};
+use softarm_space::{MAX_ACTUATORS, Position};
 
 /// Metres per inch: the Bird protocol reports inches.
 pub const METRES_PER_INCH: f64 = 0.0254;
@@ -26,22 +26,22 @@ pub struct TendonConfig {
     pub port: PathBuf,
     /// The bus's baud rate, as the motors are set to.
     pub baud: u32,
-    /// The motor id of actuator 1..6.
-    pub ids: [u8; ACTUATORS],
+    /// The motor id of each actuator, in the arm's order (`[arm]`): one per actuator.
+    pub ids: Vec<u8>,
     /// Goal positions written and positions and currents read per second.
     pub rate_hz: f64,
     /// Motor ticks per spool revolution (4096 on X-series).
     pub ticks_per_rev: u32,
     /// Spool radius per motor (m): tendon length per radian.
-    pub spool_radius_m: [f64; ACTUATORS],
+    pub spool_radius_m: Vec<f64>,
     /// Each motor's position (ticks) with its actuator at its shortest (normalised 0).
-    pub zero_ticks: [i32; ACTUATORS],
+    pub zero_ticks: Vec<i32>,
     /// +1 when more ticks lengthen the actuator, -1 when they shorten it.
-    pub direction: [i8; ACTUATORS],
+    pub direction: Vec<i8>,
     /// The motors' own position limits (ticks), written to them at start: a goal outside is
     /// refused by the motor itself. Every setpoint the controller may send maps inside.
-    pub min_ticks: [i32; ACTUATORS],
-    pub max_ticks: [i32; ACTUATORS],
+    pub min_ticks: Vec<i32>,
+    pub max_ticks: Vec<i32>,
     /// Profile Velocity written to the motors (units of 0.229 rev/min; 0 = as fast as they
     /// go): how fast a motor may move to a new goal, so one that gets its torque back after a
     /// pause or a reconnection moves at a bounded speed.
@@ -195,26 +195,39 @@ fn invalid<T>(key: String, message: String) -> Result<T, Invalid> {
     Err((key, message))
 }
 
-/// Normalised actuation ↔ motor ticks for the six tendon motors: the actuator length of `a`
-/// (from the arm's stroke), wound onto the motor's spool.
+/// Normalised actuation ↔ motor ticks for the tendon motors, one per actuator: the actuator
+/// length of `a` (from its stroke in `[arm]`), wound onto the motor's spool. Fixed capacity, so
+/// a driver's cycle copies it without allocating.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Mapping {
     /// Ticks per normalised unit, signed by the motor's direction.
-    ticks_per_unit: [f64; ACTUATORS],
-    zero_ticks: [i32; ACTUATORS],
+    ticks_per_unit: [f64; MAX_ACTUATORS],
+    zero_ticks: [i32; MAX_ACTUATORS],
+    motors: usize,
 }
 
 impl Mapping {
-    pub fn new(tendon: &TendonConfig, arm: &ArmGeometry) -> Self {
-        let stroke_m = arm.actuator_max_m - arm.actuator_min_m;
-        let ticks_per_unit = std::array::from_fn(|i| {
-            let radians = stroke_m / tendon.spool_radius_m[i];
-            f64::from(tendon.direction[i]) * radians / TAU * f64::from(tendon.ticks_per_rev)
-        });
+    /// The mapping of a checked section on its arm (one motor per actuator).
+    pub fn new(tendon: &TendonConfig, arm: &Layout) -> Self {
+        let motors = tendon.ids.len().min(arm.actuators().len());
+        let mut ticks_per_unit = [0.0; MAX_ACTUATORS];
+        let mut zero_ticks = [0; MAX_ACTUATORS];
+        for (i, a) in arm.actuators().iter().take(motors).enumerate() {
+            let radians = (a.max_m - a.min_m) / tendon.spool_radius_m[i];
+            ticks_per_unit[i] =
+                f64::from(tendon.direction[i]) * radians / TAU * f64::from(tendon.ticks_per_rev);
+            zero_ticks[i] = tendon.zero_ticks[i];
+        }
         Self {
             ticks_per_unit,
-            zero_ticks: tendon.zero_ticks,
+            zero_ticks,
+            motors,
         }
+    }
+
+    /// How many motors it maps.
+    pub fn motors(&self) -> usize {
+        self.motors
     }
 
     /// The goal position of motor `i` for actuation `a` (rounded to the nearest tick).
@@ -228,9 +241,13 @@ impl Mapping {
         (f64::from(ticks) - f64::from(self.zero_ticks[i])) / self.ticks_per_unit[i]
     }
 
-    /// Every motor's goal for `a`.
-    pub fn all_ticks(&self, a: &Actuation) -> [i32; ACTUATORS] {
-        std::array::from_fn(|i| self.ticks(i, a[i]))
+    /// Every motor's goal for `a` (one value per motor; the rest of the array 0).
+    pub fn all_ticks(&self, a: &[f64]) -> [i32; MAX_ACTUATORS] {
+        let mut t = [0; MAX_ACTUATORS];
+        for i in 0..self.motors.min(a.len()) {
+            t[i] = self.ticks(i, a[i]);
+        }
+        t
     }
 }
 
@@ -240,12 +257,43 @@ impl TendonConfig {
     /// `controller_rate_hz`: the time-outs must span several of the controller's periods.
     pub(crate) fn validate(
         &self,
-        arm: &ArmGeometry,
-        actuator_min: &Actuation,
-        actuator_max: &Actuation,
+        arm: &Layout,
+        actuator_min: &[f64],
+        actuator_max: &[f64],
         controller_rate_hz: f64,
     ) -> Result<(), Invalid> {
         let key = |k: &str| format!("tendon.{k}");
+        let n = arm.actuators().len();
+        if let Some(i) = arm.actuators().iter().position(|a| a.kind != Kind::Tendon) {
+            return invalid(
+                key("ids"),
+                format!(
+                    "actuator {} ({}) of [arm] is a pneumatic chamber, which the tendon driver \
+                     cannot drive: chambers run in the sim alone (robot.drivers = [\"sim\"])",
+                    i + 1,
+                    arm.actuators()[i].name
+                ),
+            );
+        }
+        let lengths = [
+            ("ids", self.ids.len()),
+            ("spool_radius_m", self.spool_radius_m.len()),
+            ("zero_ticks", self.zero_ticks.len()),
+            ("direction", self.direction.len()),
+            ("min_ticks", self.min_ticks.len()),
+            ("max_ticks", self.max_ticks.len()),
+        ];
+        for (name, len) in lengths {
+            if len != n {
+                return invalid(
+                    key(name),
+                    format!(
+                        "{len} values for an arm of {n} actuators ([arm]); give one per motor, \
+                         in the arm's order"
+                    ),
+                );
+            }
+        }
         if self.port.as_os_str().is_empty() {
             return invalid(key("port"), "must name the serial device".into());
         }
@@ -262,10 +310,14 @@ impl TendonConfig {
                     format!("motor ids are 0 to 252, got {id}"),
                 );
             }
-            if self.ids[..i].contains(&id) {
+            if let Some(first) = self.ids[..i].iter().position(|&x| x == id) {
                 return invalid(
                     format!("tendon.ids[{i}]"),
-                    format!("id {id} is given to two actuators"),
+                    format!(
+                        "id {id} is the motor of actuator {} already; each motor drives one \
+                         actuator",
+                        first + 1
+                    ),
                 );
             }
         }
@@ -282,7 +334,7 @@ impl TendonConfig {
             );
         }
         let (lowest, highest) = TICKS_RANGE;
-        for i in 0..ACTUATORS {
+        for i in 0..n {
             let r = self.spool_radius_m[i];
             if !(r.is_finite() && r > 0.0 && r <= 0.5) {
                 return invalid(
@@ -316,7 +368,7 @@ impl TendonConfig {
             }
         }
         let mapping = Mapping::new(self, arm);
-        for i in 0..ACTUATORS {
+        for i in 0..n {
             let ends = [actuator_min[i], actuator_max[i]];
             for (end, a) in ["actuator_min", "actuator_max"].into_iter().zip(ends) {
                 let t = mapping.ticks(i, a);
@@ -498,14 +550,14 @@ mod tests {
         TendonConfig {
             port: "/dev/null".into(),
             baud: 1_000_000,
-            ids: [1, 2, 3, 4, 5, 6],
+            ids: vec![1, 2, 3, 4, 5, 6],
             rate_hz: 100.0,
             ticks_per_rev: 4096,
-            spool_radius_m: [0.015; 6],
-            zero_ticks: [700, 700, 700, 3400, 3400, 3400],
-            direction: [1, 1, 1, -1, -1, -1],
-            min_ticks: [600, 600, 600, 700, 700, 700],
-            max_ticks: [3400, 3400, 3400, 3500, 3500, 3500],
+            spool_radius_m: vec![0.015; 6],
+            zero_ticks: vec![700, 700, 700, 3400, 3400, 3400],
+            direction: vec![1, 1, 1, -1, -1, -1],
+            min_ticks: vec![600, 600, 600, 700, 700, 700],
+            max_ticks: vec![3400, 3400, 3400, 3500, 3500, 3500],
             profile_velocity: 200,
             max_engage_step: 0.05,
             hold_after_ms: 100.0,
@@ -515,7 +567,7 @@ mod tests {
 
     #[test]
     fn mapping_winds_the_stroke_onto_the_spool_and_back() {
-        let arm = ArmGeometry::default();
+        let arm = crate::arm::ArmGeometry::default().layout();
         let m = Mapping::new(&tendon(), &arm);
         // 60 mm stroke on a 15 mm spool: 4 rad, 2607.9 ticks.
         assert_eq!(m.ticks(0, 0.0), 700);
@@ -531,7 +583,7 @@ mod tests {
 
     #[test]
     fn inconsistent_limits_are_refused_naming_the_motor() {
-        let arm = ArmGeometry::default();
+        let arm = crate::arm::ArmGeometry::default().layout();
         let mut t = tendon();
         t.validate(&arm, &[0.0; 6], &[1.0; 6], 500.0).unwrap();
         t.direction[1] = -1; // 700 - 2608 < 600
@@ -550,8 +602,11 @@ mod tests {
         let mut t = tendon();
         t.ids[5] = 1;
         assert_eq!(
-            t.validate(&arm, &[0.0; 6], &[1.0; 6], 500.0).unwrap_err().0,
-            "tendon.ids[5]"
+            t.validate(&arm, &[0.0; 6], &[1.0; 6], 500.0).unwrap_err(),
+            (
+                "tendon.ids[5]".into(),
+                "id 1 is the motor of actuator 1 already; each motor drives one actuator".into()
+            )
         );
         let mut t = tendon();
         t.hold_after_ms = 20.0; // two periods at 100 Hz
@@ -565,6 +620,61 @@ mod tests {
             t.validate(&arm, &[0.0; 6], &[1.0; 6], 500.0).unwrap_err().0,
             "tendon.torque_off_after_ms"
         );
+    }
+
+    fn layout(file: &str) -> Layout {
+        let d = toml::from_str(&std::fs::read_to_string(file).unwrap()).unwrap();
+        Layout::new(&d).unwrap()
+    }
+
+    /// A motor per actuator on any tendon arm, each with its own stroke; a list of another
+    /// length, or an arm with a chamber, is refused naming the key.
+    #[test]
+    fn a_motor_per_actuator_of_any_tendon_arm() {
+        let tdcr = layout(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../ipc/arm/testdata/tdcr.toml"
+        ));
+        let nine = TendonConfig {
+            ids: (11..20).collect(),
+            spool_radius_m: vec![0.005; 9],
+            zero_ticks: vec![1000; 9],
+            direction: vec![1; 9],
+            min_ticks: vec![900; 9],
+            max_ticks: vec![3700; 9],
+            ..tendon()
+        };
+        nine.validate(&tdcr, &[0.0; 9], &[1.0; 9], 500.0).unwrap();
+        let m = Mapping::new(&nine, &tdcr);
+        assert_eq!(m.motors(), 9);
+        // 20 mm of stroke on a 5 mm spool: 4 rad, as the paper's 60 mm on 15 mm.
+        assert_eq!(m.ticks(8, 1.0), 1000 + 2608);
+        let six = tendon();
+        let (key, message) = six
+            .validate(&tdcr, &[0.0; 9], &[1.0; 9], 500.0)
+            .unwrap_err();
+        assert_eq!(key, "tendon.ids");
+        assert!(
+            message.contains("6 values for an arm of 9 actuators"),
+            "{message}"
+        );
+        let short = TendonConfig {
+            direction: vec![1; 8],
+            ..nine.clone()
+        };
+        let (key, _) = short
+            .validate(&tdcr, &[0.0; 9], &[1.0; 9], 500.0)
+            .unwrap_err();
+        assert_eq!(key, "tendon.direction");
+        let hybrid = layout(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../ipc/arm/testdata/hybrid.toml"
+        ));
+        let (key, message) = nine
+            .validate(&hybrid, &[0.0; 9], &[1.0; 9], 500.0)
+            .unwrap_err();
+        assert_eq!(key, "tendon.ids");
+        assert!(message.contains("pneumatic chamber"), "{message}");
     }
 
     #[test]

@@ -17,14 +17,15 @@
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
-use softarm_space::{Actuation, Position, Workspace};
+use softarm_space::{Position, Workspace};
 
 use crate::activation::ActivationConfig;
-use crate::arm::ArmGeometry;
+use crate::arm::{ArmConfig, ArmGeometry};
 use crate::demonstrations::DemoRecipe;
 use crate::forward_model::NetworkConfig;
 use crate::kinematics::{MAX_DEGREE, PolynomialConfig};
 use crate::learner::{LearnerConfig, PretrainConfig};
+use crate::per_actuator::PerActuator;
 use crate::sim::SimConfig;
 
 /// Exit code of a process whose config is refused (EX_CONFIG of sysexits.h): starting it again
@@ -32,6 +33,7 @@ use crate::sim::SimConfig;
 /// of `softarm up` gives it up.
 pub const EXIT_CONFIG: u8 = 78;
 
+pub mod arms;
 pub mod hardware;
 pub mod host;
 pub mod reference;
@@ -41,7 +43,7 @@ pub mod view;
 pub mod waypoints;
 
 pub use softarm_sections::{
-    activation, arm, changes, demonstrations, forward_model, kinematics, learner, sim,
+    activation, arm, changes, demonstrations, forward_model, kinematics, learner, per_actuator, sim,
 };
 
 use softarm_ipc::drivers::{DRIVERS, Driver};
@@ -120,7 +122,7 @@ pub struct Config {
     pub pretrain: PretrainConfig,
     pub state: StateConfig,
     #[serde(default)]
-    pub arm: ArmGeometry,
+    pub arm: ArmConfig,
     #[serde(default)]
     pub sim: SimConfig,
     /// The tendon motor driver; required when `robot.drivers` has "tendon".
@@ -164,10 +166,11 @@ pub struct Controller {
     pub tracker_timeout_ms: f64,
     /// Fastest a setpoint may change (normalised units per s).
     pub slew_per_s: f64,
-    /// Actuator limits in normalised units; setpoints are clamped to them.
-    pub actuator_min: Actuation,
+    /// Actuator limits in normalised units, one number for all or one per actuator in the
+    /// arm's order; setpoints are clamped to them.
+    pub actuator_min: PerActuator,
     /// The upper limits, as `actuator_min`.
-    pub actuator_max: Actuation,
+    pub actuator_max: PerActuator,
     /// Time between executions to slew to the next start (s).
     pub rest_s: f64,
     /// Variance floor of the Eq. 11 marginals.
@@ -351,7 +354,32 @@ impl Config {
     /// Who the arm this config describes is to the stack's processes, its bundles and its
     /// services (`softarm_arm::Layout::identity`).
     pub fn arm_identity(&self) -> String {
-        self.arm.layout().identity()
+        self.layout().identity()
+    }
+
+    /// The arm this config describes, checked (a loaded config's arm is valid).
+    pub fn layout(&self) -> softarm_arm::Layout {
+        self.arm
+            .layout()
+            .expect("a loaded config's arm passed its check")
+    }
+
+    /// The arm as the paper's geometry, for what computes with it: the controller, the
+    /// learner, the sim, training and the rehearsal run the paper's kind of arm (two soft
+    /// modules of three evenly spaced tendons). Any other arm is refused as a config error
+    /// (exit 78, which neither `up` nor systemd restarts), naming it.
+    pub fn paper_arm(&self) -> Result<ArmGeometry, ConfigError> {
+        self.arm.geometry().ok_or_else(|| ConfigError {
+            origin: "[arm]".into(),
+            line: None,
+            message: format!(
+                "arm: {}: the controller, the learner, the sim and training compute for the \
+                 paper's kind of arm alone (two soft modules of three evenly spaced tendons of \
+                 one radius and stroke, independent routing); the tendon and tracker drivers, \
+                 the emulators, the view, the ROS 2 bridge and the recorder run any arm",
+                self.arm_identity()
+            ),
+        })
     }
 
     /// This stack on this host: its namespace under its iceoryx2 root folder, for the arm
@@ -441,20 +469,18 @@ impl Config {
             1000.0,
             " /s",
         )?;
-        for i in 0..6 {
-            let (lo, hi) = (c.actuator_min[i], c.actuator_max[i]);
-            if !(0.0..=1.0).contains(&lo) {
-                return invalid(
-                    "controller.actuator_min",
-                    format!("actuator {} is {lo:?}; each must be in [0, 1]", i + 1),
-                );
-            }
-            if !(0.0..=1.0).contains(&hi) {
-                return invalid(
-                    "controller.actuator_max",
-                    format!("actuator {} is {hi:?}; each must be in [0, 1]", i + 1),
-                );
-            }
+        let n = match self.arm.validate() {
+            Ok(()) => self.layout().actuators().len(),
+            Err(e) => return Err(keyed("arm", e)),
+        };
+        c.actuator_min
+            .check("controller.actuator_min", n, 0.0..=1.0)
+            .map_err(|e| keyed("controller.actuator_min", e))?;
+        c.actuator_max
+            .check("controller.actuator_max", n, 0.0..=1.0)
+            .map_err(|e| keyed("controller.actuator_max", e))?;
+        for i in 0..n {
+            let (lo, hi) = (c.actuator_min.get(i), c.actuator_max.get(i));
             if lo >= hi {
                 return invalid(
                     "controller.actuator_max",
@@ -588,10 +614,10 @@ impl Config {
         if self.state.dir.as_os_str().is_empty() {
             return invalid("state.dir", "must name a folder".into());
         }
-        self.arm.validate().map_err(|e| keyed("arm", e))?;
         self.sim.validate().map_err(|e| keyed("sim", e))?;
         if let Some(t) = &self.tendon {
-            t.validate(&self.arm, &c.actuator_min, &c.actuator_max, c.rate_hz)?;
+            let (lo, hi) = (c.actuator_min.values(n), c.actuator_max.values(n));
+            t.validate(&self.layout(), &lo, &hi, c.rate_hz)?;
         }
         if let Some(t) = &self.tracker {
             t.validate()?;
@@ -803,7 +829,7 @@ mod tests {
         assert_eq!(c.model_dir(), PathBuf::from("/tmp/x/model"));
         // The file spells out the structs' defaults (the learner's online rates excepted).
         assert_eq!(c.sim, SimConfig::default());
-        assert_eq!(c.arm, ArmGeometry::default());
+        assert_eq!(c.paper_arm().unwrap(), ArmGeometry::default());
         assert_eq!(c.activation, ActivationConfig::default());
         assert_eq!(c.forward_model, NetworkConfig::default());
     }

@@ -215,7 +215,7 @@ proptest! {
                 // Accepted text may still not make a valid arm with the config's: refused, not
                 // a panic; and an arm that is accepted gives finite positions.
                 // At every time of its changes too: each arm valid, positions finite.
-                if let Ok((arm, sim)) = s.apply(&c.arm, &c.sim) {
+                if let Ok((arm, sim)) = s.apply(&c.paper_arm().unwrap(), &c.sim) {
                     for t in [0.0, 1.0, 59.5, 1e3, 1e6, 1e9] {
                         let now = sim.changes.arm_at(&arm, t);
                         prop_assert!(now.validate().is_ok(), "{now:?} at {t} s");

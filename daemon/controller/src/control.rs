@@ -195,8 +195,8 @@ impl Control {
     pub fn new(c: &Controller) -> Self {
         Self {
             timing: Timing::new(c),
-            actuator_min: c.actuator_min,
-            actuator_max: c.actuator_max,
+            actuator_min: c.actuator_min.fixed(),
+            actuator_max: c.actuator_max.fixed(),
             slew_per_s: c.slew_per_s,
             limiter: None,
             lag: ActuatorLag::new(c.rate_hz, c.max_lead_s),

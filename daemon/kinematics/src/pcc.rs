@@ -7,7 +7,8 @@
 
 use nalgebra::{Matrix3, Vector3};
 
-use crate::arcs::Routes;
+use crate::arcs::{Routes, Undetermined};
+use softarm_arm::{Layout, MAX_ACTUATORS, MAX_MODULES};
 
 pub use softarm_sections::arm::{ACTUATORS, ACTUATORS_PER_MODULE, MODULES};
 use softarm_sections::arm::{ArmGeometry, Mount};
@@ -131,7 +132,11 @@ fn psi(arm: &ArmGeometry, module: usize) -> f64 {
 }
 
 fn base(arm: &ArmGeometry) -> Pose {
-    match arm.mount {
+    base_of(arm.mount)
+}
+
+fn base_of(mount: Mount) -> Pose {
+    match mount {
         Mount::Hanging => Pose {
             rotation: Matrix3::from_diagonal(&Vector3::new(1.0, -1.0, -1.0)),
             position: Vector3::zeros(),
@@ -264,6 +269,121 @@ impl Kinematics for ArmGeometry {
             arc(&start2, &m2),
             vec![point(&end2), point(&tip)],
         ]
+    }
+}
+
+/// The PCC kinematics of any arm, from its layout: each actuator's length from its own stroke
+/// (plus an offset), the arcs by least squares ([`Routes::arcs`]), the modules chained with
+/// the connector between consecutive ones and the tool after the last. `Copy` and heap-free.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Arm {
+    routes: Routes,
+    min_m: [f64; MAX_ACTUATORS],
+    max_m: [f64; MAX_ACTUATORS],
+    offset_m: [f64; MAX_ACTUATORS],
+    connector_m: f64,
+    tool_m: f64,
+    mount: Mount,
+}
+
+impl Arm {
+    /// `layout`'s arm, each actuator's length changed by `offset_m` (one per actuator, or empty
+    /// for none).
+    pub fn new(layout: &Layout, offset_m: &[f64]) -> Self {
+        let (mut min_m, mut max_m, mut off) = (
+            [0.0; MAX_ACTUATORS],
+            [0.0; MAX_ACTUATORS],
+            [0.0; MAX_ACTUATORS],
+        );
+        for (i, a) in layout.actuators().iter().enumerate() {
+            min_m[i] = a.min_m;
+            max_m[i] = a.max_m;
+            off[i] = offset_m.get(i).copied().unwrap_or(0.0);
+        }
+        Self {
+            routes: Routes::of(layout),
+            min_m,
+            max_m,
+            offset_m: off,
+            connector_m: layout.connector_m,
+            tool_m: layout.tool_m,
+            mount: layout.mount,
+        }
+    }
+
+    pub fn actuators(&self) -> usize {
+        self.routes.actuators()
+    }
+
+    pub fn modules(&self) -> usize {
+        self.routes.modules()
+    }
+
+    /// Actuator lengths (m) of normalised actuation `a` (one per actuator), offsets included.
+    pub fn lengths(&self, a: &[f64]) -> [f64; MAX_ACTUATORS] {
+        let mut l = [0.0; MAX_ACTUATORS];
+        for i in 0..self.actuators() {
+            l[i] = self.min_m[i] + a[i] * (self.max_m[i] - self.min_m[i]) + self.offset_m[i];
+        }
+        l
+    }
+
+    /// Every module's arc for normalised actuation `a`.
+    pub fn arcs(&self, a: &[f64]) -> Result<[Arc; MAX_MODULES], Undetermined> {
+        self.routes.arcs(&self.lengths(a)[..self.actuators()])
+    }
+
+    /// End-effector pose for normalised actuation `a`.
+    pub fn pose(&self, a: &[f64]) -> Result<Pose, Undetermined> {
+        let arcs = self.arcs(a)?;
+        Ok(chain(
+            base_of(self.mount),
+            &arcs[..self.modules()],
+            self.connector_m,
+            self.tool_m,
+            module_pose,
+        ))
+    }
+
+    /// The backbone for normalised actuation `a`, base to tip, as polylines in the base frame
+    /// (m): each module (`per_module` + 1 points along its arc), then the connector after it,
+    /// the tool after the last; each starts where the one before ends, and the last point is
+    /// the end effector. For drawing the arm.
+    pub fn backbone(
+        &self,
+        a: &[f64],
+        per_module: usize,
+    ) -> Result<Vec<Vec<[f64; 3]>>, Undetermined> {
+        let per_module = per_module.max(1);
+        let point = |p: &Pose| [p.position.x, p.position.y, p.position.z];
+        let arcs = self.arcs(a)?;
+        let mut lines = Vec::with_capacity(2 * self.modules());
+        let mut pose = base_of(self.mount);
+        for (m, arc) in arcs[..self.modules()].iter().enumerate() {
+            lines.push(
+                (0..=per_module)
+                    .map(|k| {
+                        let s = k as f64 / per_module as f64;
+                        let part = Arc {
+                            length: arc.length * s,
+                            theta: arc.theta * s,
+                            phi: arc.phi,
+                        };
+                        point(&pose.then(&module_pose(&part)))
+                    })
+                    .collect(),
+            );
+            pose = pose.then(&module_pose(arc));
+            let rigid = if m + 1 < self.modules() {
+                self.connector_m
+            } else {
+                self.tool_m
+            };
+            let next = pose.then(&Pose::translation_z(rigid));
+            lines.push(vec![point(&pose), point(&next)]);
+            pose = next;
+        }
+        Ok(lines)
     }
 }
 
@@ -435,5 +555,42 @@ mod tests {
             - arm.pose_of_lengths(&l).position)
             .norm();
         assert!(moved > 2e-3 && moved < 0.05, "{moved}");
+    }
+
+    /// Any arm's kinematics on the paper's layout is the paper's arm's, and the three-module
+    /// TDCR draws as three modules, connectors and a tool ending at its pose.
+    #[test]
+    fn any_arm_on_the_papers_layout_is_the_papers_arm() {
+        let paper = ArmGeometry::default();
+        let offsets = [0.001, 0.0, -0.002, 0.0, 0.003, 0.0];
+        let geometry = ArmGeometry {
+            actuator_offset_m: offsets,
+            ..paper
+        };
+        let arm = Arm::new(&paper.layout(), &offsets);
+        let mut rng = StdRng::seed_from_u64(3);
+        for _ in 0..50 {
+            let a: [f64; ACTUATORS] = std::array::from_fn(|_| rng.random());
+            let want = geometry.pose(&a).position;
+            let got = arm.pose(&a).unwrap().position;
+            assert!((want - got).norm() < 1e-12, "{want} vs {got}");
+            let lines = arm.backbone(&a, 8).unwrap();
+            let old = geometry.backbone(&a, 8);
+            assert_eq!(lines.len(), 4);
+            for (l, o) in lines.iter().zip(&old) {
+                close(*l.last().unwrap(), *o.last().unwrap(), 1e-12);
+            }
+        }
+        let tdcr: softarm_arm::Description =
+            toml::from_str(include_str!("../../../ipc/arm/testdata/tdcr.toml")).unwrap();
+        let tdcr = Arm::new(&Layout::new(&tdcr).unwrap(), &[]);
+        let a = [0.3, 0.6, 0.5, 0.5, 0.2, 0.7, 0.4, 0.5, 0.6];
+        let lines = tdcr.backbone(&a, 8).unwrap();
+        assert_eq!(lines.len(), 6);
+        let tip = tdcr.pose(&a).unwrap().position;
+        close(*lines[5].last().unwrap(), [tip.x, tip.y, tip.z], 1e-12);
+        for w in lines.windows(2) {
+            close(w[0][w[0].len() - 1], w[1][0], 1e-12);
+        }
     }
 }

@@ -52,7 +52,7 @@ pub fn online_learner(
 }
 
 /// The checkpoint if it descends from the bundle in `model_dir`, else the bundle's learner.
-fn load(config: &Config) -> Result<Loaded, BundleError> {
+fn load(config: &Config, configured: ArmGeometry) -> Result<Loaded, BundleError> {
     let model_dir = config.model_dir();
     let model = Model::read_for(&model_dir, &config.arm_identity())?;
     let (state, arm) = match read_checkpoint(&config.state_dir()) {
@@ -78,7 +78,7 @@ fn load(config: &Config) -> Result<Loaded, BundleError> {
         }
     };
     let mut online =
-        online_learner(state, model.kinematics, config.learner, config.arm).map_err(|why| {
+        online_learner(state, model.kinematics, config.learner, configured).map_err(|why| {
             BundleError::Invalid {
                 path: model_dir.clone(),
                 why,
@@ -296,6 +296,8 @@ impl Ports {
 /// Everything the learner's loop keeps between turns.
 struct Process<'a> {
     config: &'a Config,
+    /// The arm the learner's corrections are steered by (the configured `[arm]`).
+    arm: ArmGeometry,
     ports: Ports,
     watch: BundleWatch,
     loaded: Option<Loaded>,
@@ -315,6 +317,7 @@ struct Process<'a> {
 pub fn run(config: &Config, stop: &AtomicBool) -> anyhow::Result<()> {
     let mut p = Process {
         config,
+        arm: config.paper_arm()?,
         ports: Ports::open(config)?,
         watch: BundleWatch::new(config.model_dir(), Duration::from_millis(200)),
         loaded: None,
@@ -393,7 +396,7 @@ impl Process<'_> {
     /// A new bundle (after `softarm train`) replaces what the learner had.
     fn reload(&mut self) {
         if self.watch.changed() {
-            match load(self.config) {
+            match load(self.config, self.arm) {
                 Ok(l) => {
                     tracing::info!(model = %l.model_id, "learner ready");
                     let old = self.loaded.replace(l);

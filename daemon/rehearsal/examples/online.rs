@@ -64,7 +64,7 @@ fn rehearsal<'a>(
         model.learner.clone(),
         model.kinematics.clone(),
         config.learner,
-        config.arm,
+        config.paper_arm().unwrap(),
     )
     .map_err(anyhow::Error::msg)?;
     let r = Rehearsal::new(model, config, Learner::new(online, config), arm, sim)?;
@@ -134,7 +134,7 @@ fn main() -> anyhow::Result<()> {
         "" => "nominal",
         s => s,
     })?;
-    let (arm, sim) = scenario.apply(&config.arm, &config.sim)?;
+    let (arm, sim) = scenario.apply(&config.paper_arm().unwrap(), &config.sim)?;
     let set = load("SET", "config/waypoints/demo.toml")?;
     let mut adapted = rehearsal(&model, &config, arm, &sim)?;
     let stats = adapted.rehearse(&set, executions)?;

@@ -64,7 +64,7 @@ fn main() -> anyhow::Result<()> {
             model.learner.clone(),
             model.kinematics.clone(),
             config.learner,
-            config.arm,
+            config.paper_arm().unwrap(),
         )
         .map_err(anyhow::Error::msg)?;
         Ok(Learner::new(online, &config))

@@ -71,13 +71,13 @@ fn main() -> anyhow::Result<()> {
             model.learner.clone(),
             model.kinematics.clone(),
             config.learner,
-            config.arm,
+            config.paper_arm().unwrap(),
         )
         .map_err(anyhow::Error::msg)
     };
     let learner = Learner::new(online()?, &config);
-    let mut r = Rehearsal::new(&model, &config, learner, config.arm, &config.sim)?;
-    let mut arm = config.arm;
+    let mut r = Rehearsal::new(&model, &config, learner, config.paper_arm()?, &config.sim)?;
+    let mut arm = config.paper_arm().unwrap();
     let mut rng = StdRng::seed_from_u64(seed);
     let scenarios: Vec<&str> = rotation.split(',').collect();
     let (mut t_s, mut next_change_s, mut next) = (0.0, every_s, 0);
@@ -87,7 +87,7 @@ fn main() -> anyhow::Result<()> {
         let changes = r.learner().arm_changes();
         if t_s >= next_change_s {
             let s = Scenario::resolve(scenarios[next % scenarios.len()])?;
-            (arm, _) = s.apply(&config.arm, &config.sim)?;
+            (arm, _) = s.apply(&config.paper_arm().unwrap(), &config.sim)?;
             r.change_arm(arm)?;
             name = s.name.clone();
             next += 1;

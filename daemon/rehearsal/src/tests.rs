@@ -18,7 +18,7 @@ fn setup<'a>(
 ) -> Rehearsal<'a> {
     let (arm, sim) = Scenario::resolve(scenario)
         .unwrap()
-        .apply(&config.arm, &config.sim)
+        .apply(&config.paper_arm().unwrap(), &config.sim)
         .unwrap();
     setup_on(model, config, arm, &sim, algorithm)
 }
@@ -40,7 +40,7 @@ fn setup_on<'a>(
         model.learner.clone(),
         model.kinematics.clone(),
         configured,
-        config.arm,
+        config.paper_arm().unwrap(),
     )
     .unwrap();
     Rehearsal::new(model, config, Learner::new(online, config), arm, sim).unwrap()
@@ -121,7 +121,7 @@ fn what_the_demo_set_taught_carries_over_to_a_second_set() {
     let config = Config::default_sim(".".into());
     let (tool, sim) = Scenario::resolve("tool-change")
         .unwrap()
-        .apply(&config.arm, &config.sim)
+        .apply(&config.paper_arm().unwrap(), &config.sim)
         .unwrap();
     for plant in ["nominal", "not-pcc"] {
         let (arm, sim) = Scenario::resolve(plant)
@@ -257,7 +257,7 @@ fn moved(set: &str, d: [f64; 3]) -> WaypointFile {
 fn a_running_learner_keeps_up_with_an_arm_that_changes_and_is_never_worse_than_a_fresh_one() {
     let model = quick();
     let config = Config::default_sim(".".into());
-    let nominal = config.arm;
+    let nominal = config.paper_arm().unwrap();
     let mut longer = nominal;
     longer.tool_m += 0.025;
     longer.actuator_offset_m[2] = 0.003;
@@ -330,7 +330,7 @@ fn a_restarted_learner_keeps_what_it_knew_of_the_arm() {
     use softarm_model::bundle::{read_checkpoint, write_checkpoint};
     let model = quick();
     let config = Config::default_sim(".".into());
-    let nominal = config.arm;
+    let nominal = config.paper_arm().unwrap();
     let mut longer = nominal;
     longer.tool_m += 0.025;
     let demo = WaypointFile::parse(DEMO).unwrap();
@@ -356,7 +356,7 @@ fn a_restarted_learner_keeps_what_it_knew_of_the_arm() {
         back.state,
         model.kinematics.clone(),
         config.learner,
-        config.arm,
+        config.paper_arm().unwrap(),
     )
     .unwrap();
     restarted.restore_arm(&back.arm);
@@ -446,7 +446,7 @@ fn every_set_of_a_soak_of_changing_arms_ends_within_2_5_mm() {
             let name = rotation[scenario % rotation.len()];
             let (arm, _) = Scenario::resolve(name)
                 .unwrap()
-                .apply(&config.arm, &config.sim)
+                .apply(&config.paper_arm().unwrap(), &config.sim)
                 .unwrap();
             rehearsal.change_arm(arm).unwrap();
             scenario += 1;

@@ -421,7 +421,7 @@ mod tests {
             actuation: [0.1, 0.2, 0.3, 0.4, 0.5, 0.6].into(),
             ..Default::default()
         };
-        let joints: Vec<String> = config().arm.layout().names().map(String::from).collect();
+        let joints: Vec<String> = config().layout().names().map(String::from).collect();
         assert_eq!(
             joints,
             ["a1", "a2", "a3", "a4", "a5", "a6"],

@@ -246,7 +246,7 @@ impl Bridge {
         let now = Instant::now();
         Ok(Self {
             config: config.clone(),
-            joints: config.arm.layout().names().map(String::from).collect(),
+            joints: config.layout().names().map(String::from).collect(),
             namespace,
             ros_namespace,
             services,

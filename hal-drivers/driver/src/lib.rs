@@ -2,9 +2,7 @@
 //! services ([`Commands`]), and deciding, alone, what is safe to do with them ([`Supervisor`]),
 //! whatever the controller does. The sim and the tendon driver are built on these.
 
-use softarm_ipc::{
-    ACTUATORS, Actuation, ControllerState, DriverState, EstopState, Node, Setpoint, Sub,
-};
+use softarm_ipc::{Actuators, ControllerState, DriverState, EstopState, Node, Setpoint, Sub};
 use softarm_runtime::{EstopLatch, now_ns};
 
 /// The setpoint and e-stop subscriptions of a driver, and what arrived on them.
@@ -18,6 +16,8 @@ pub struct Commands {
     latched: bool,
     latch_read_ns: u64,
     refused: u64,
+    /// The arm's actuators: a setpoint with another count is refused.
+    actuators: usize,
 }
 
 /// What arrived since the last [`Commands::poll`].
@@ -25,7 +25,7 @@ pub struct Commands {
 pub struct Poll {
     /// The newest setpoint to follow, if one came: its every value a number, fresh, sent by a
     /// controller that is not stopped, and not in a poll that saw the e-stop engaged.
-    pub setpoint: Option<Actuation>,
+    pub setpoint: Option<Actuators>,
     /// The e-stop is latched.
     pub stopped: bool,
 }
@@ -35,8 +35,13 @@ pub struct Poll {
 const LATCH_EVERY_NS: u64 = 50_000_000;
 
 impl Commands {
-    /// Subscribes; starts stopped when `latch` says the e-stop is engaged (or cannot be read).
-    pub fn open(node: &Node, latch: &EstopLatch) -> Result<Self, softarm_ipc::Error> {
+    /// Subscribes, for an arm of `actuators`; starts stopped when `latch` says the e-stop is
+    /// engaged (or cannot be read).
+    pub fn open(
+        node: &Node,
+        latch: &EstopLatch,
+        actuators: usize,
+    ) -> Result<Self, softarm_ipc::Error> {
         let latched = latch.engaged_or_safe(|e| tracing::error!("{e}; holding the motors"));
         if latched {
             tracing::warn!(
@@ -52,6 +57,7 @@ impl Commands {
             latched,
             latch_read_ns: now_ns(),
             refused: 0,
+            actuators,
         })
     }
 
@@ -87,22 +93,20 @@ impl Commands {
         while let Ok(Some(s)) = self.setpoints.receive() {
             // From the wire: a setpoint that is not a number is refused whole (it must never
             // reach a motor); the last good one stays.
-            let Some(a) = s
-                .actuation
-                .fixed::<ACTUATORS>()
-                .filter(|a| a.iter().all(|v| v.is_finite()))
-            else {
+            let a = s.actuation;
+            if a.len() != self.actuators || !a.iter().all(|v| v.is_finite()) {
                 self.refused += 1;
                 if self.refused.is_power_of_two() {
                     tracing::error!(
                         refused = self.refused,
                         actuation = ?s.actuation,
-                        "setpoint refused: not a number, or not {ACTUATORS} actuators; holding \
-                         the last good one"
+                        "setpoint refused: not a number, or not the arm's {} actuators; \
+                         holding the last good one",
+                        self.actuators
                     );
                 }
                 continue;
-            };
+            }
             // A stopped controller's setpoint is its held target from before the e-stop, and
             // one from a poll that saw the e-stop (or its reset) may be too: the first to be
             // followed after a reset is one the controller sent after it.
@@ -136,7 +140,7 @@ pub struct Timeouts {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Action {
     /// Drive the motors to this actuation (torque on first, if it is off).
-    Follow(Actuation),
+    Follow(Actuators),
     /// Keep the last goal, torque on.
     Hold,
     /// Torque off.
@@ -228,7 +232,7 @@ mod tests {
         let latch = EstopLatch::new(dir.join("estop"));
         let ns = Namespace::new(&ns).unwrap();
         let driver = Node::open(ns.clone(), "driver").unwrap();
-        let c = Commands::open(&driver, &latch).unwrap();
+        let c = Commands::open(&driver, &latch, 6).unwrap();
         (c, Node::open(ns, "peer").unwrap(), latch, dir, driver)
     }
 
@@ -250,7 +254,10 @@ mod tests {
         setpoints
             .send_copy(setpoint(0.4, ControllerState::Idle, now))
             .unwrap();
-        assert_eq!(c.poll(now, max_age).setpoint, Some([0.4; 6]));
+        assert_eq!(
+            c.poll(now, max_age).setpoint,
+            Some(Actuators::filled(6, 0.4))
+        );
         setpoints
             .send_copy(setpoint(f64::NAN, ControllerState::Execute, now))
             .unwrap();
@@ -300,7 +307,7 @@ mod tests {
             .unwrap();
         let p = c.poll(now_ns(), max_age);
         assert!(!p.stopped);
-        assert_eq!(p.setpoint, Some([0.4; 6]));
+        assert_eq!(p.setpoint, Some(Actuators::filled(6, 0.4)));
         // Engaged on disk only (its sample missed): heard at the next look at the file.
         latch.set(true).unwrap();
         let later = now_ns() + LATCH_EVERY_NS;
@@ -325,7 +332,7 @@ mod tests {
 
     fn poll(setpoint: Option<f64>, stopped: bool) -> Poll {
         Poll {
-            setpoint: setpoint.map(|v| [v; 6]),
+            setpoint: setpoint.map(|v| Actuators::filled(6, v)),
             stopped,
         }
     }
@@ -344,7 +351,7 @@ mod tests {
         assert_eq!(s.state(), DriverState::Off);
         assert_eq!(
             s.update(MS, &poll(Some(0.4), false), false),
-            Action::Follow([0.4; 6])
+            Action::Follow(Actuators::filled(6, 0.4))
         );
         assert_eq!(s.state(), DriverState::Following);
         // Between setpoints the goal stands and the state stays.
@@ -365,7 +372,7 @@ mod tests {
         // A controller that comes back is followed again.
         assert_eq!(
             s.update(2500 * MS, &poll(Some(0.5), false), false),
-            Action::Follow([0.5; 6])
+            Action::Follow(Actuators::filled(6, 0.5))
         );
     }
 
@@ -381,7 +388,7 @@ mod tests {
         assert_eq!(s.state(), DriverState::Off);
         assert_eq!(
             s.update(4 * MS, &poll(Some(0.5), false), false),
-            Action::Follow([0.5; 6])
+            Action::Follow(Actuators::filled(6, 0.5))
         );
     }
 

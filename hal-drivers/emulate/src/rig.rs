@@ -10,13 +10,13 @@ use std::thread::JoinHandle;
 use anyhow::Context;
 use softarm_config::Config;
 use softarm_config::hardware::{Frame, Mapping};
-use softarm_space::ACTUATORS;
+use softarm_space::MAX_ACTUATORS;
 
 use crate::bird::{self, BirdCounts, BirdFaults};
 use crate::canary::Canary;
 use crate::dynamixel;
 use crate::pty::Pty;
-use softarm_kinematics::forward::ForwardModel;
+use softarm_kinematics::pcc;
 
 type Pose = Arc<dyn Fn() -> ([f64; 3], [f64; 3]) + Send + Sync>;
 
@@ -59,11 +59,14 @@ impl Rig {
             .tracker
             .as_ref()
             .context("the config has no [tracker] section to emulate")?;
-        let mapping = Mapping::new(tendon, &config.arm);
+        let layout = config.layout();
+        let mapping = Mapping::new(tendon, &layout);
         let frame = Frame::new(tracker);
-        let arm = config.arm;
+        let offsets = config.arm.actuator_offset_m.clone().unwrap_or_default();
+        let arm = pcc::Arm::new(&layout, &offsets);
+        let n = mapping.motors();
 
-        let motors = (0..ACTUATORS)
+        let motors = (0..n)
             .map(|i| dynamixel::Motor::new(tendon.ids[i], mapping.ticks(i, initial)))
             .collect();
         let bus = Arc::new(Mutex::new(dynamixel::Bus::with_motors(motors)));
@@ -81,14 +84,24 @@ impl Rig {
             );
         }
         let pose: Pose = {
-            let (bus, ids) = (bus.clone(), tendon.ids);
+            let (bus, ids) = (bus.clone(), tendon.ids.clone());
+            // Where the last actuation put the tip, for an actuation whose arcs the model
+            // cannot tell (the motors far outside their strokes).
+            let last = Mutex::new([0.0; 3]);
             Arc::new(move || {
-                let ticks: [i32; ACTUATORS] = {
+                let mut a = [0.0; MAX_ACTUATORS];
+                {
                     let b = bus.lock().unwrap();
-                    std::array::from_fn(|i| b.motor(ids[i]).map_or(0, |m| m.present_position()))
-                };
-                let a = std::array::from_fn(|i| mapping.actuation(i, ticks[i]));
-                (frame.to_tracker(arm.position(&a)), [0.0; 3])
+                    for i in 0..n {
+                        let ticks = b.motor(ids[i]).map_or(0, |m| m.present_position());
+                        a[i] = mapping.actuation(i, ticks);
+                    }
+                }
+                let mut last = last.lock().unwrap();
+                if let Ok(p) = arm.pose(&a[..n]) {
+                    *last = [p.position.x, p.position.y, p.position.z];
+                }
+                (frame.to_tracker(*last), [0.0; 3])
             })
         };
         let mut rig = Self {

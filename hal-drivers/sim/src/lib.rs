@@ -13,7 +13,9 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use anyhow::Context;
 
 use softarm_driver::Commands;
-use softarm_ipc::{Actuation, Actuators, DriverState, MotorState, Namespace, Node, TrackerSample};
+use softarm_ipc::{
+    ACTUATORS, Actuation, Actuators, DriverState, MotorState, Namespace, Node, TrackerSample,
+};
 use softarm_runtime::clock::Ticker;
 use softarm_runtime::{EstopLatch, now_ns};
 
@@ -34,7 +36,7 @@ pub fn run(
     stop: &AtomicBool,
 ) -> anyhow::Result<()> {
     let ipc = Node::open(namespace, "sim")?;
-    let mut commands = Commands::open(&ipc, latch)?;
+    let mut commands = Commands::open(&ipc, latch, ACTUATORS)?;
     // A real arm stays where it was while its driver restarts: a sim restarted beside a
     // running controller starts where the controller holds it, not at `initial_actuation`
     // (the controller would otherwise resume from a teleported arm). Also while the e-stop is
@@ -79,7 +81,9 @@ pub fn run(
         let wake = ticker.wait();
         // The sim follows whatever is fresh; a stale setpoint only at its start.
         let poll = commands.poll(now_ns(), 1_000_000_000);
-        let m = sim.step(poll.setpoint, poll.stopped, wake.missed + 1);
+        // Commands refused every other count.
+        let setpoint = poll.setpoint.and_then(|a| a.fixed());
+        let m = sim.step(setpoint, poll.stopped, wake.missed + 1);
         log_step(config, sim.plant(), &mut in_force);
         // The sample number counts the sim's periods, the ones it slept through too, so that
         // seq / rate_hz is the sim's own clock (its scenario's time) on a busy machine as well.

@@ -31,7 +31,6 @@ use softarm_config::Config;
 use softarm_config::hardware::TendonConfig;
 use softarm_emulate::dynamixel::{self as dxl, Bus};
 use softarm_emulate::pty::Pty;
-use softarm_ipc::ACTUATORS;
 
 use crate::link::{Ask, Counts, Link, Reading};
 use crate::table::CURRENT_UNIT_A;
@@ -39,9 +38,9 @@ use crate::table::CURRENT_UNIT_A;
 /// What the motors last reported, as the driver holds it.
 #[derive(Debug, Clone, Copy, PartialEq)]
 struct Snapshot {
-    ticks: [i32; ACTUATORS],
-    current_a: [f64; ACTUATORS],
-    hardware_error: [u8; ACTUATORS],
+    ticks: [i32; 6],
+    current_a: [f64; 6],
+    hardware_error: [u8; 6],
 }
 
 /// An open `Link` and the `Reading` its reads update: the driver's bus exchange on the rig's
@@ -74,7 +73,7 @@ impl Probe {
         );
         Ok(Self {
             link,
-            reading: Reading::default(),
+            reading: Reading::new(6),
             counts,
         })
     }
@@ -120,9 +119,9 @@ impl Probe {
 
     fn reading(&self) -> Snapshot {
         Snapshot {
-            ticks: self.reading.ticks,
-            current_a: self.reading.current_a,
-            hardware_error: self.reading.hardware_error,
+            ticks: std::array::from_fn(|i| self.reading.ticks[i]),
+            current_a: std::array::from_fn(|i| self.reading.current_a[i]),
+            hardware_error: std::array::from_fn(|i| self.reading.hardware_error[i]),
         }
     }
 }

@@ -18,8 +18,9 @@ use anyhow::Context;
 
 use softarm_config::Config;
 use softarm_config::hardware::{Mapping, TendonConfig};
+use softarm_config::per_actuator::PerActuator;
 use softarm_driver::{Action, Commands, Poll, Supervisor, Timeouts};
-use softarm_ipc::{ACTUATORS, Actuation, Actuators, DriverState, MotorState, Namespace, Node};
+use softarm_ipc::{Actuators, DriverState, MAX_ACTUATORS, MotorState, Namespace, Node};
 use softarm_runtime::clock::{Backoff, Ticker};
 use softarm_runtime::now_ns;
 
@@ -40,7 +41,7 @@ pub fn run(config: &Config, namespace: Namespace, stop: &AtomicBool) -> anyhow::
         .as_ref()
         .context("the config has no [tendon] section")?;
     let node = Node::open(namespace, "tendon")?;
-    let mut commands = Commands::open(&node, &config.estop_latch())?;
+    let mut commands = Commands::open(&node, &config.estop_latch(), t.ids.len())?;
     let publisher = node.publisher(&node.motor_state()?)?;
     let mut driver = Driver::open(config, t)?;
     let mut ticker = Ticker::new(t.rate_hz);
@@ -87,11 +88,13 @@ struct Totals {
 /// machine and the counts it reports.
 struct Driver<'a> {
     t: &'a TendonConfig,
+    /// The motors: one per actuator of the arm.
+    n: usize,
     mapping: Mapping,
     timeouts: Timeouts,
     supervisor: Supervisor,
     /// Setpoints are clamped to what the controller may send, then to the motors' limits.
-    limits: (Actuation, Actuation),
+    limits: ([f64; MAX_ACTUATORS], [f64; MAX_ACTUATORS]),
     /// `None` while the port is closed (being reopened).
     link: Option<Link>,
     reading: Reading,
@@ -123,7 +126,7 @@ struct Driver<'a> {
     seq: u64,
     cycle: u64,
     reported: DriverState,
-    reported_errors: [u8; ACTUATORS],
+    reported_errors: [u8; MAX_ACTUATORS],
     /// Torque and hardware-error status are read every this many cycles (about 5 Hz), and
     /// after a reply raises its alert bit, in place of that cycle's data read.
     status_every: u64,
@@ -136,8 +139,8 @@ struct Driver<'a> {
 /// not silent (a loaded machine delivers a pty's bytes tens of ms late): backing its reads off
 /// to 200 ms left the data older than the controller's time-out for as long as that lasted.
 /// One motor asked again whose reply was garbled again is not silence either.
-fn silent(c: &link::Closed, heard_late: bool) -> bool {
-    c.asked == ACTUATORS && c.answered + c.refused == 0 && !heard_late
+fn silent(c: &link::Closed, motors: usize, heard_late: bool) -> bool {
+    c.asked == motors && c.answered + c.refused == 0 && !heard_late
 }
 
 /// Present current (with velocity and position) is read every this many cycles; the
@@ -184,17 +187,21 @@ impl<'a> Driver<'a> {
                 t.port.display()
             ),
         }
+        let layout = config.layout();
+        let n = t.ids.len();
+        let limit = |p: &PerActuator| std::array::from_fn(|i| if i < n { p.get(i) } else { 0.0 });
         Ok(Self {
             t,
-            mapping: Mapping::new(t, &config.arm),
+            n,
+            mapping: Mapping::new(t, &layout),
             timeouts,
             supervisor: Supervisor::new(timeouts),
             limits: (
-                config.controller.actuator_min,
-                config.controller.actuator_max,
+                limit(&config.controller.actuator_min),
+                limit(&config.controller.actuator_max),
             ),
             link: Some(link),
-            reading: Reading::default(),
+            reading: Reading::new(n),
             reopen_backoff: Backoff::new(10_000_000, 1_000_000_000),
             read_backoff: Backoff::new(10_000_000, 200_000_000),
             late_heard: 0,
@@ -213,7 +220,7 @@ impl<'a> Driver<'a> {
             seq: 0,
             cycle: 0,
             reported: DriverState::Off,
-            reported_errors: [0; ACTUATORS],
+            reported_errors: [0; MAX_ACTUATORS],
             status_every: ((t.rate_hz / 5.0).round() as u64).max(1),
             device_checked_ns: now_ns(),
         })
@@ -318,7 +325,7 @@ impl<'a> Driver<'a> {
         let heard_late = self.counts.late > self.late_heard;
         self.late_heard = self.counts.late;
         match closed {
-            Some(c) if silent(&c, heard_late) => self.read_backoff.failed(now),
+            Some(c) if silent(&c, self.n, heard_late) => self.read_backoff.failed(now),
             Some(_) => self.read_backoff.succeeded(),
             None if heard_late => self.read_backoff.succeeded(),
             None => {}
@@ -336,13 +343,13 @@ impl<'a> Driver<'a> {
         };
         let (goals, near) = match action {
             Action::Follow(a) => self.goals(&a),
-            _ => ([0; ACTUATORS], [false; ACTUATORS]),
+            _ => ([0; MAX_ACTUATORS], [false; MAX_ACTUATORS]),
         };
         let Some(l) = self.link.as_mut() else {
             return;
         };
         let torque = l.torque;
-        let engage = near.iter().all(|&n| n);
+        let engage = near[..self.n].iter().all(|&n| n);
         match l.apply(
             action,
             &goals,
@@ -372,11 +379,11 @@ impl<'a> Driver<'a> {
 
     /// Says what following found of the torque: `lost` motors turned on again, and those
     /// found off too far from their goal to be (`near` says which are close enough).
-    fn say_lost_torque(&mut self, lost: usize, near: &[bool; ACTUATORS]) {
+    fn say_lost_torque(&mut self, lost: usize, near: &[bool; MAX_ACTUATORS]) {
         let Some(l) = self.link.as_ref() else {
             return;
         };
-        let stranded = (0..ACTUATORS)
+        let stranded = (0..self.n)
             .filter(|&i| !near[i] && l.lost_torque(i, &self.reading))
             .count();
         if stranded > 0 {
@@ -508,11 +515,12 @@ impl<'a> Driver<'a> {
 
     /// The goal ticks of setpoint `a`, clamped, and per motor whether its torque may come on
     /// for them: its position is known and within `tendon.max_engage_step` of its goal.
-    fn goals(&mut self, a: &Actuation) -> ([i32; ACTUATORS], [bool; ACTUATORS]) {
-        let (t, mapping, (lo, hi)) = (self.t, &self.mapping, self.limits);
-        let mut goals = [0i32; ACTUATORS];
+    /// `a` has one value per motor: [`Commands`] refused every other count.
+    fn goals(&mut self, a: &Actuators) -> ([i32; MAX_ACTUATORS], [bool; MAX_ACTUATORS]) {
+        let (t, mapping, (lo, hi), n) = (self.t, &self.mapping, self.limits, self.n);
+        let mut goals = [0i32; MAX_ACTUATORS];
         let mut wild = false;
-        for i in 0..ACTUATORS {
+        for i in 0..n {
             let v = a[i].clamp(lo[i], hi[i]);
             let g = mapping.ticks(i, v).clamp(t.min_ticks[i], t.max_ticks[i]);
             wild |= v != a[i] || mapping.ticks(i, v) != g;
@@ -526,14 +534,15 @@ impl<'a> Driver<'a> {
         }
         // Torque comes on only for a setpoint where the motors already are.
         let reading = &self.reading;
-        let near: [bool; ACTUATORS] = std::array::from_fn(|i| {
-            reading.asked_ns[i].is_some()
+        let near: [bool; MAX_ACTUATORS] = std::array::from_fn(|i| {
+            i < n
+                && reading.asked_ns[i].is_some()
                 && (mapping.actuation(i, goals[i]) - mapping.actuation(i, reading.ticks[i])).abs()
                     <= t.max_engage_step
         });
         let known = reading.stamp_ns().is_some();
         let off = self.link.as_ref().is_some_and(|l| !l.torque);
-        if off && known && near.contains(&false) {
+        if off && known && near[..n].contains(&false) {
             self.refused_engage += 1;
             if self.refused_engage.is_power_of_two() {
                 tracing::error!(
@@ -548,7 +557,7 @@ impl<'a> Driver<'a> {
     }
 
     fn report_hardware_errors(&mut self) {
-        for (i, &e) in self.reading.hardware_error.iter().enumerate() {
+        for (i, &e) in self.reading.hardware_error[..self.n].iter().enumerate() {
             if e != self.reported_errors[i] {
                 self.reported_errors[i] = e;
                 tracing::error!(
@@ -588,10 +597,8 @@ impl<'a> Driver<'a> {
         Some(MotorState {
             seq: self.seq,
             stamp_ns,
-            actuation: Actuators::from(std::array::from_fn::<f64, ACTUATORS, _>(|i| {
-                self.mapping.actuation(i, self.reading.ticks[i])
-            })),
-            current_a: self.reading.current_a.into(),
+            actuation: self.actuation(),
+            current_a: Actuators::new(&self.reading.current_a[..self.n]),
             faults: c.dropped + c.crc_errors + c.reopens,
             dropped: c.dropped,
             crc_errors: c.crc_errors,
@@ -607,6 +614,15 @@ impl<'a> Driver<'a> {
             }),
             age_cycles: self.reading.age_cycles(self.cycle).min(u64::from(u16::MAX)) as u16,
         })
+    }
+
+    /// The actuation the motors stand at, one per motor.
+    fn actuation(&self) -> Actuators {
+        let mut a = Actuators::filled(self.n, 0.0);
+        for (i, v) in a.iter_mut().enumerate() {
+            *v = self.mapping.actuation(i, self.reading.ticks[i]);
+        }
+        a
     }
 
     /// Leaving: the arm must not stay driven by a process that is gone.
@@ -635,11 +651,11 @@ mod tests {
 
     #[test]
     fn only_a_bus_that_answers_nothing_at_all_backs_the_reads_off() {
-        assert!(silent(&closed(ACTUATORS, 0), false));
+        assert!(silent(&closed(6, 0), 6, false));
         // Late replies: the bus is slow (a loaded machine), its reads must go on.
-        assert!(!silent(&closed(ACTUATORS, 0), true));
-        assert!(!silent(&closed(ACTUATORS, 1), false));
+        assert!(!silent(&closed(6, 0), 6, true));
+        assert!(!silent(&closed(6, 1), 6, false));
         // One motor asked again.
-        assert!(!silent(&closed(1, 0), false));
+        assert!(!silent(&closed(1, 0), 6, false));
     }
 }

@@ -8,7 +8,7 @@ use std::time::Duration;
 use anyhow::{Context, bail};
 use softarm_config::hardware::TendonConfig;
 use softarm_driver::Action;
-use softarm_ipc::ACTUATORS;
+use softarm_ipc::MAX_ACTUATORS;
 use softarm_runtime::now_ns;
 
 use crate::table;
@@ -40,22 +40,32 @@ fn write_fault(e: std::io::Error) -> Fault {
     }
 }
 
-/// What the motors last reported.
+/// What the motors last reported: one entry per motor, room for every arm.
 #[derive(Debug, Clone, Copy, Default)]
 pub(crate) struct Reading {
-    pub ticks: [i32; ACTUATORS],
-    pub current_a: [f64; ACTUATORS],
-    pub hardware_error: [u8; ACTUATORS],
+    /// The motors on the bus (the arm's actuators); the entries past them stay empty.
+    pub motors: usize,
+    pub ticks: [i32; MAX_ACTUATORS],
+    pub current_a: [f64; MAX_ACTUATORS],
+    pub hardware_error: [u8; MAX_ACTUATORS],
     /// Per motor, when the read its newest position answered was sent (ns), and in which
     /// driver cycle.
-    pub asked_ns: [Option<u64>; ACTUATORS],
-    pub asked_cycle: [u64; ACTUATORS],
+    pub asked_ns: [Option<u64>; MAX_ACTUATORS],
+    pub asked_cycle: [u64; MAX_ACTUATORS],
     /// Per motor, when the newest status read it answered was sent (ns) and whether that read
     /// found its torque on.
-    pub torque_seen: [Option<(u64, bool)>; ACTUATORS],
+    pub torque_seen: [Option<(u64, bool)>; MAX_ACTUATORS],
 }
 
 impl Reading {
+    /// Nothing heard yet from `motors` motors.
+    pub fn new(motors: usize) -> Self {
+        Self {
+            motors,
+            ..Self::default()
+        }
+    }
+
     pub fn faulted(&self, i: usize) -> bool {
         self.hardware_error[i] != 0
     }
@@ -68,14 +78,15 @@ impl Reading {
     /// The oldest motor's newest answer: the data is at least this fresh. `None` until every
     /// motor answered once.
     pub fn stamp_ns(&self) -> Option<u64> {
-        self.asked_ns
+        self.asked_ns[..self.motors]
             .iter()
             .try_fold(u64::MAX, |oldest, a| a.map(|a| oldest.min(a)))
     }
 
     /// Driver cycles since the oldest motor's newest data was asked for.
     pub fn age_cycles(&self, cycle: u64) -> u64 {
-        cycle.saturating_sub(self.asked_cycle.iter().copied().min().unwrap_or(0))
+        let oldest = self.asked_cycle[..self.motors].iter().copied().min();
+        cycle.saturating_sub(oldest.unwrap_or(0))
     }
 }
 
@@ -161,7 +172,7 @@ pub(crate) struct Alert {
     /// status.
     pub due: bool,
     /// Motors whose status was read while they raised the bit.
-    known: [bool; ACTUATORS],
+    known: [bool; MAX_ACTUATORS],
 }
 
 impl Alert {
@@ -182,24 +193,26 @@ impl Alert {
 struct Pending {
     ask: Ask,
     /// The motors this read asked (all, or those a first read of the cycle missed).
-    asked: [bool; ACTUATORS],
+    asked: [bool; MAX_ACTUATORS],
     sent_ns: u64,
     sent_cycle: u64,
-    answered: [bool; ACTUATORS],
-    refused: [bool; ACTUATORS],
+    answered: [bool; MAX_ACTUATORS],
+    refused: [bool; MAX_ACTUATORS],
 }
 
 /// An open bus and what the driver knows of its motors.
 pub(crate) struct Link {
     pub wire: Wire,
-    ids: [u8; ACTUATORS],
+    /// The motors' ids, in the arm's order; `n` of them.
+    ids: [u8; MAX_ACTUATORS],
+    n: usize,
     /// The torque may be on somewhere: the driver turned it on, or found it on, or could not
     /// ask a motor. While set, an `Off` writes torque-off.
     pub torque: bool,
     /// Per motor, when Torque Enable was last written on (ns): a status read sent after it
     /// that finds the torque off means the motor lost it (a brown-out restarts a motor with
     /// its torque off, and a SYNC WRITE has no reply to say it was lost).
-    enabled_ns: [u64; ACTUATORS],
+    enabled_ns: [u64; MAX_ACTUATORS],
     pending: Option<Pending>,
     /// Reads closed in the last 3 s with replies missing, for their late replies.
     closed: std::collections::VecDeque<Pending>,
@@ -245,7 +258,9 @@ enum Heard {
 /// on a motor that answers late, and none is engaged before all have answered.
 #[derive(Debug)]
 struct Survey {
-    settings: [Option<Vec<u8>>; ACTUATORS],
+    /// Per motor (`n` of them), its settings once it answered whole.
+    settings: [Option<Vec<u8>>; MAX_ACTUATORS],
+    n: usize,
     began_ns: u64,
     /// When the last sync read went out; `None` before the first.
     asked_ns: Option<u64>,
@@ -254,9 +269,10 @@ struct Survey {
 }
 
 impl Survey {
-    fn new(now: u64) -> Self {
+    fn new(now: u64, n: usize) -> Self {
         Self {
             settings: Default::default(),
+            n,
             began_ns: now,
             asked_ns: None,
             name_ns: now.saturating_add(SURVEY_BUDGET_NS),
@@ -264,12 +280,12 @@ impl Survey {
     }
 
     fn complete(&self) -> bool {
-        self.settings.iter().all(Option::is_some)
+        self.settings[..self.n].iter().all(Option::is_some)
     }
 
     /// The ids of the motors that have not answered.
-    fn missing(&self, ids: &[u8; ACTUATORS]) -> Vec<u8> {
-        (0..ACTUATORS)
+    fn missing(&self, ids: &[u8]) -> Vec<u8> {
+        (0..self.n)
             .filter(|&i| self.settings[i].is_none())
             .map(|i| ids[i])
             .collect()
@@ -283,7 +299,7 @@ impl Survey {
     }
 
     /// Takes status packet `s`.
-    fn take(&mut self, ids: &[u8; ACTUATORS], s: &Status) -> Heard {
+    fn take(&mut self, ids: &[u8], s: &Status) -> Heard {
         let Some(i) = ids.iter().position(|&id| id == s.id) else {
             return Heard::Other;
         };
@@ -324,16 +340,20 @@ impl Link {
             )
         })?;
         let now = now_ns();
+        let n = t.ids.len();
+        let mut ids = [0; MAX_ACTUATORS];
+        ids[..n].copy_from_slice(&t.ids);
         Ok(Self {
             wire,
-            ids: t.ids,
+            ids,
+            n,
             torque: true,
-            enabled_ns: [0; ACTUATORS],
+            enabled_ns: [0; MAX_ACTUATORS],
             pending: None,
             closed: std::collections::VecDeque::new(),
             alert: Alert::default(),
             last_reply_ns: now,
-            survey: Some(Survey::new(now)),
+            survey: Some(Survey::new(now, n)),
             configure_faults: 0,
         })
     }
@@ -359,7 +379,7 @@ impl Link {
         };
         let now = now_ns();
         if s.ask_due(now) {
-            let ask = s.missing(&self.ids);
+            let ask = s.missing(&self.ids[..self.n]);
             // The read before ended with some motor's answer missing.
             counts.timeouts += u64::from(s.asked_ns.is_some());
             s.asked_ns = Some(now);
@@ -378,7 +398,7 @@ impl Link {
         if !s.complete() {
             if s.name_due(now) {
                 let waited_s = now.saturating_sub(s.began_ns) / 1_000_000_000;
-                let missing = s.missing(&self.ids);
+                let missing = s.missing(&self.ids[..self.n]);
                 name_missing(t, &missing, waited_s);
             }
             return Ok(false);
@@ -398,7 +418,7 @@ impl Link {
                 Some(Arrival::PortError(e)) => return Err(Fault::Port(e)),
                 Some(Arrival::Status(st, _)) => {
                     self.last_reply_ns = now_ns();
-                    match s.take(&self.ids, &st) {
+                    match s.take(&self.ids[..self.n], &st) {
                         // A late answer to an earlier ask is an answer, not a lost reply.
                         Heard::New | Heard::Again => counts.answered += 1,
                         Heard::Other => counts.stray += 1,
@@ -418,7 +438,7 @@ impl Link {
         let settings = std::mem::take(&mut s.settings);
         let mut torque = false;
         let mut failed = false;
-        for (i, found) in settings.into_iter().enumerate() {
+        for (i, found) in settings.into_iter().enumerate().take(self.n) {
             let found = found.expect("every motor answered");
             match self.configure(t, i, &found, counts) {
                 Ok(on) => torque |= on,
@@ -537,7 +557,7 @@ impl Link {
         &self,
         value: impl Fn(usize) -> Option<[u8; N]>,
     ) -> Vec<(u8, [u8; N])> {
-        (0..ACTUATORS)
+        (0..self.n)
             .filter_map(|i| value(i).map(|v| (self.ids[i], v)))
             .collect()
     }
@@ -585,8 +605,8 @@ impl Link {
     pub fn apply(
         &mut self,
         action: Action,
-        goals: &[i32; ACTUATORS],
-        near: &[bool; ACTUATORS],
+        goals: &[i32; MAX_ACTUATORS],
+        near: &[bool; MAX_ACTUATORS],
         reading: &Reading,
         profile_velocity: u32,
     ) -> Result<usize, Fault> {
@@ -594,7 +614,7 @@ impl Link {
             let data = self.for_motors(|i| reading.faulted(i).then_some([0u8]));
             self.sync_write(table::TORQUE_ENABLE, &data)?;
         }
-        let engage = near.iter().all(|&n| n);
+        let engage = near[..self.n].iter().all(|&n| n);
         match action {
             Action::Off => self.torque_off().map(|()| 0),
             Action::Hold => Ok(0),
@@ -605,10 +625,11 @@ impl Link {
                 let data =
                     self.for_motors(|i| (!reading.faulted(i)).then_some(goals[i].to_le_bytes()));
                 self.sync_write(table::GOAL_POSITION, &data)?;
-                let on: [bool; ACTUATORS] = if self.torque {
-                    std::array::from_fn(|i| near[i] && self.lost_torque(i, reading))
+                let n = self.n;
+                let on: [bool; MAX_ACTUATORS] = if self.torque {
+                    std::array::from_fn(|i| i < n && near[i] && self.lost_torque(i, reading))
                 } else {
-                    std::array::from_fn(|i| !reading.faulted(i))
+                    std::array::from_fn(|i| i < n && !reading.faulted(i))
                 };
                 let lost = if self.torque {
                     on.iter().filter(|&&o| o).count()
@@ -624,7 +645,7 @@ impl Link {
                     let data = self.for_motors(|i| on[i].then_some([1u8]));
                     self.sync_write(table::TORQUE_ENABLE, &data)?;
                     let now = now_ns();
-                    for i in (0..ACTUATORS).filter(|&i| on[i]) {
+                    for i in (0..self.n).filter(|&i| on[i]) {
                         self.enabled_ns[i] = now;
                     }
                     self.torque = true;
@@ -640,13 +661,13 @@ impl Link {
         &mut self,
         ask: Ask,
         cycle: u64,
-        only: Option<[bool; ACTUATORS]>,
+        only: Option<[bool; MAX_ACTUATORS]>,
     ) -> Result<(), Fault> {
-        let asked = only.unwrap_or([true; ACTUATORS]);
+        let asked = only.unwrap_or(std::array::from_fn(|i| i < self.n));
         let (address, len) = ask.address_len();
         let mut params = address.to_le_bytes().to_vec();
         params.extend(len.to_le_bytes());
-        params.extend((0..ACTUATORS).filter(|&i| asked[i]).map(|i| self.ids[i]));
+        params.extend((0..self.n).filter(|&i| asked[i]).map(|i| self.ids[i]));
         self.wire
             .send(BROADCAST_ID, instruction::SYNC_READ, &params)
             .map_err(write_fault)?;
@@ -655,8 +676,8 @@ impl Link {
             asked,
             sent_ns: now_ns(),
             sent_cycle: cycle,
-            answered: [false; ACTUATORS],
-            refused: [false; ACTUATORS],
+            answered: [false; MAX_ACTUATORS],
+            refused: [false; MAX_ACTUATORS],
         });
         Ok(())
     }
@@ -681,7 +702,8 @@ impl Link {
                 Some(Arrival::PortError(e)) => return Err(Fault::Port(e)),
                 Some(Arrival::Status(s, _)) => {
                     self.last_reply_ns = now_ns();
-                    let (ids, torque, alert) = (&self.ids, &mut self.torque, &mut self.alert);
+                    let ids = &self.ids[..self.n];
+                    let (torque, alert) = (&mut self.torque, &mut self.alert);
                     if let Some(p) = self.pending.as_mut()
                         && take(p, ids, &s, reading, torque, alert)
                     {
@@ -738,8 +760,8 @@ impl Link {
 
 impl Pending {
     /// The motors asked that have not answered, if any.
-    fn missing(&self) -> Option<[bool; ACTUATORS]> {
-        let m: [bool; ACTUATORS] =
+    fn missing(&self) -> Option<[bool; MAX_ACTUATORS]> {
+        let m: [bool; MAX_ACTUATORS] =
             std::array::from_fn(|i| self.asked[i] && !self.answered[i] && !self.refused[i]);
         m.iter().any(|&m| m).then_some(m)
     }
@@ -750,7 +772,7 @@ impl Pending {
 pub(crate) struct Closed {
     pub asked: usize,
     /// The motors that did not answer, if any.
-    pub missing_motors: Option<[bool; ACTUATORS]>,
+    pub missing_motors: Option<[bool; MAX_ACTUATORS]>,
     /// Replies with data.
     pub answered: usize,
     /// Replies with an error number.
@@ -764,7 +786,7 @@ pub(crate) struct Closed {
 /// is kept only where it is newer than what the reading has.
 fn take(
     p: &mut Pending,
-    ids: &[u8; ACTUATORS],
+    ids: &[u8],
     s: &Status,
     reading: &mut Reading,
     torque: &mut bool,
@@ -824,7 +846,7 @@ mod tests {
     use super::*;
 
     const MS: u64 = 1_000_000;
-    const IDS: [u8; ACTUATORS] = [1, 2, 3, 4, 5, 6];
+    const IDS: [u8; 6] = [1, 2, 3, 4, 5, 6];
 
     fn settings(id: u8) -> Status {
         Status {
@@ -838,18 +860,18 @@ mod tests {
     fn only_a_status_read_sent_after_the_torque_went_on_can_find_it_lost() {
         let mut p = Pending {
             ask: Ask::Status,
-            asked: [true; ACTUATORS],
+            asked: std::array::from_fn(|i| i < 6),
             sent_ns: 50,
             sent_cycle: 1,
-            answered: [false; ACTUATORS],
-            refused: [false; ACTUATORS],
+            answered: [false; MAX_ACTUATORS],
+            refused: [false; MAX_ACTUATORS],
         };
         let off = |id| Status {
             id,
             error: 0,
             params: vec![0; 7],
         };
-        let (mut reading, mut torque, mut alert) = (Reading::default(), false, Alert::default());
+        let (mut reading, mut torque, mut alert) = (Reading::new(6), false, Alert::default());
         assert!(take(
             &mut p,
             &IDS,
@@ -863,7 +885,7 @@ mod tests {
         // A late answer of an older read does not overwrite the newer one.
         let mut older = Pending {
             sent_ns: 10,
-            answered: [false; ACTUATORS],
+            answered: [false; MAX_ACTUATORS],
             ..p
         };
         let on = Status {
@@ -884,7 +906,7 @@ mod tests {
 
     #[test]
     fn a_survey_asks_the_missing_motors_every_100_ms_until_each_has_answered() {
-        let mut s = Survey::new(0);
+        let mut s = Survey::new(0, 6);
         assert!(s.ask_due(0), "at once");
         s.asked_ns = Some(0);
         assert!(!s.ask_due(99 * MS) && s.ask_due(100 * MS));
@@ -917,7 +939,7 @@ mod tests {
 
     #[test]
     fn the_missing_motors_are_named_after_2_s_then_every_10_s() {
-        let mut s = Survey::new(1000 * MS);
+        let mut s = Survey::new(1000 * MS, 6);
         let named: Vec<u64> = (0..=25_000)
             .step_by(100)
             .filter(|&t| s.name_due((1000 + t) * MS))

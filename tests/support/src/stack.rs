@@ -115,17 +115,34 @@ impl TestStack {
         turn: Devices,
         devices: impl FnOnce(&Config) -> (D, PathBuf, PathBuf),
     ) -> (Self, Config, D) {
+        Self::with_devices_for(bin, name, turn, |text| text, devices)
+    }
+
+    /// [`TestStack::with_devices`] on the hardware config as `adapt` changes it (another arm
+    /// and its motors, say).
+    pub fn with_devices_for<D>(
+        bin: impl AsRef<Path>,
+        name: &str,
+        turn: Devices,
+        adapt: impl Fn(String) -> String,
+        devices: impl FnOnce(&Config) -> (D, PathBuf, PathBuf),
+    ) -> (Self, Config, D) {
         let bin = bin.as_ref();
         let turn = DevicesTurn::take(turn);
         // The devices need the config's [tendon] and [tracker]; the ports are filled in after.
         let probe = Self::with_config(bin, name, false, |dir, ns| {
-            hardware_config_text(dir, ns, Path::new("/dev/null"), Path::new("/dev/null"))
+            adapt(hardware_config_text(
+                dir,
+                ns,
+                Path::new("/dev/null"),
+                Path::new("/dev/null"),
+            ))
         });
         let c = Config::load(&probe.config).unwrap();
         let (started, tendon, tracker) = devices(&c);
         drop(probe);
         let mut s = Self::with_config(bin, name, false, |dir, ns| {
-            let text = hardware_config_text(dir, ns, &tendon, &tracker);
+            let text = adapt(hardware_config_text(dir, ns, &tendon, &tracker));
             with_overrides(
                 &text,
                 &[

@@ -22,16 +22,16 @@ use std::time::Duration;
 
 use softarm_config::Config;
 use softarm_ipc::{
-    Actuation, Actuators, ControllerState, EstopState, ExecutionStats, MotorState, Namespace, Node,
-    Setpoint,
+    Actuators, ControllerState, EstopState, ExecutionStats, MotorState, Namespace, Node, Setpoint,
 };
 use softarm_runtime::now_ns;
 
 /// The limits the invariants are checked against: the config's.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone)]
 pub struct Limits {
-    pub actuator_min: Actuation,
-    pub actuator_max: Actuation,
+    /// One per actuator of the arm.
+    pub actuator_min: Vec<f64>,
+    pub actuator_max: Vec<f64>,
     /// Normalised units per second.
     pub slew_per_s: f64,
     /// The controller's period (s): one tick of slack for the limiter's own discretisation.
@@ -47,8 +47,14 @@ pub struct Limits {
 impl Limits {
     pub fn from_config(c: &Config) -> Self {
         Self {
-            actuator_min: c.controller.actuator_min,
-            actuator_max: c.controller.actuator_max,
+            actuator_min: c
+                .controller
+                .actuator_min
+                .values(c.layout().actuators().len()),
+            actuator_max: c
+                .controller
+                .actuator_max
+                .values(c.layout().actuators().len()),
             slew_per_s: c.controller.slew_per_s,
             period_s: 1.0 / c.controller.rate_hz,
             stale_ns: (c.controller.tracker_timeout_ms * 1e6) as u64,
@@ -153,7 +159,7 @@ impl Checker {
     }
 
     pub fn setpoint(&mut self, p: &Setpoint) {
-        let l = self.limits;
+        let l = self.limits.clone();
         self.report.setpoints += 1;
         if p.actuation.len() != l.actuator_min.len() {
             self.violation(format!(
@@ -297,7 +303,7 @@ impl Checker {
     /// The report, with the checks that need the whole run: no set's statistics lost.
     pub fn report(&self) -> Report {
         let mut checked = Checker {
-            limits: self.limits,
+            limits: self.limits.clone(),
             last: None,
             measured: None,
             outages: Vec::new(),
@@ -459,8 +465,8 @@ mod tests {
 
     fn limits() -> Limits {
         Limits {
-            actuator_min: [0.0; 6],
-            actuator_max: [1.0; 6],
+            actuator_min: vec![0.0; 6],
+            actuator_max: vec![1.0; 6],
             slew_per_s: 1.5,
             period_s: 0.002,
             stale_ns: 100 * MS,

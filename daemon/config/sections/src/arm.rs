@@ -1,11 +1,222 @@
-//! `[arm]`: the arm's geometry, as plain data with its validation. The kinematics on it are
+//! `[arm]`: the arm the config describes ([`ArmConfig`]: any arm, as modules from the base, or
+//! the paper's arm by its shorthand keys) and the paper's arm's geometry ([`ArmGeometry`]), as
+//! plain data with their validation. The kinematics on them are
 //! `softarm_kinematics::pcc::Kinematics`.
 
 use serde::{Deserialize, Serialize};
 
-pub use softarm_arm::Mount;
-use softarm_arm::{Description, Group, Layout, ModuleDescription, Routing};
+use softarm_arm::{Description, Group, Kind, Layout, ModuleDescription};
+pub use softarm_arm::{Mount, Routing};
 pub use softarm_space::ACTUATORS;
+
+/// The `[arm]` section: the arm, either as `[[arm.modules]]` (any arm: modules from the base,
+/// each with its tendons and chambers) or, without `modules`, the paper's two soft modules of
+/// three tendons by the shorthand keys (`actuator_radius_m`, `actuator_min_m`,
+/// `actuator_max_m`, `module_rotation_deg`). `connector_m`, `tool_m`, `mount` and
+/// `actuator_offset_m` belong to both forms.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct ArmConfig {
+    /// The modules, from the base (absent: the paper's arm of the shorthand keys). Each has
+    /// `rotation_deg`, an optional `backbone_m` (a fixed backbone, as a TDCR's rod), and
+    /// `tendons` and/or `chambers`: `{ count, radius_m, angles_deg, length_m = [at 0, at 1],
+    /// names }` (angles evenly spaced and names `a1`..`aN` when absent).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub modules: Option<Vec<ModuleDescription>>,
+    /// Where a distal module's tendons run: "independent" (each ends in its own module) or
+    /// "coupled" (through every module before it). With `modules` only.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub routing: Option<Routing>,
+    /// Shorthand: distance of each actuator from the backbone (m); 0.025 when absent.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub actuator_radius_m: Option<f64>,
+    /// Shorthand: actuator length at normalised actuation 0 (m); 0.19 when absent.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub actuator_min_m: Option<f64>,
+    /// Shorthand: actuator length at normalised actuation 1 (m); 0.25 when absent.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub actuator_max_m: Option<f64>,
+    /// Shorthand: ψ of each module, the angle of its actuator 1 (degrees); [0, 60] when absent.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub module_rotation_deg: Option<[f64; MODULES]>,
+    /// Rigid connector between consecutive modules (m); 0.03 when absent.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub connector_m: Option<f64>,
+    /// Rigid tool after the last module, to the point the tracker sees (m); 0.03 when absent.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tool_m: Option<f64>,
+    /// "hanging" (the arm points down, −Z) or "standing" (+Z); hanging when absent.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mount: Option<Mount>,
+    /// Added to each actuator's length (m), one per actuator in the arm's order: tendon
+    /// creep, a module that is not quite the one the model was trained on. Zeros when absent.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub actuator_offset_m: Option<Vec<f64>>,
+}
+
+/// The shorthand keys, which describe the paper's arm alone.
+const SHORTHAND: [&str; 4] = [
+    "actuator_radius_m",
+    "actuator_min_m",
+    "actuator_max_m",
+    "module_rotation_deg",
+];
+
+impl ArmConfig {
+    /// The paper's arm of `geometry`, in the shorthand form.
+    pub fn of_geometry(g: &ArmGeometry) -> Self {
+        Self {
+            modules: None,
+            routing: None,
+            actuator_radius_m: Some(g.actuator_radius_m),
+            actuator_min_m: Some(g.actuator_min_m),
+            actuator_max_m: Some(g.actuator_max_m),
+            module_rotation_deg: Some(g.module_rotation_deg),
+            connector_m: Some(g.connector_m),
+            tool_m: Some(g.tool_m),
+            mount: Some(g.mount),
+            actuator_offset_m: Some(g.actuator_offset_m.to_vec()),
+        }
+    }
+
+    /// The arm as a description: `modules` as written, or the shorthand's two modules.
+    pub fn description(&self) -> Description {
+        let d = ArmGeometry::default();
+        match &self.modules {
+            Some(modules) => Description {
+                mount: self.mount.unwrap_or(d.mount),
+                routing: self.routing.unwrap_or_default(),
+                connector_m: self.connector_m.unwrap_or(d.connector_m),
+                tool_m: self.tool_m.unwrap_or(d.tool_m),
+                modules: modules.clone(),
+            },
+            None => self.shorthand_geometry().description(),
+        }
+    }
+
+    /// The shorthand keys over the paper's defaults (offsets left at zero).
+    fn shorthand_geometry(&self) -> ArmGeometry {
+        let d = ArmGeometry::default();
+        ArmGeometry {
+            actuator_radius_m: self.actuator_radius_m.unwrap_or(d.actuator_radius_m),
+            actuator_min_m: self.actuator_min_m.unwrap_or(d.actuator_min_m),
+            actuator_max_m: self.actuator_max_m.unwrap_or(d.actuator_max_m),
+            module_rotation_deg: self.module_rotation_deg.unwrap_or(d.module_rotation_deg),
+            connector_m: self.connector_m.unwrap_or(d.connector_m),
+            tool_m: self.tool_m.unwrap_or(d.tool_m),
+            mount: self.mount.unwrap_or(d.mount),
+            actuator_offset_m: [0.0; ACTUATORS],
+        }
+    }
+
+    /// The checked arm. Call after [`ArmConfig::validate`]; an arm it refused gives the error.
+    pub fn layout(&self) -> Result<Layout, String> {
+        Layout::new(&self.description()).map_err(|e| e.to_string())
+    }
+
+    /// The arm as the paper's geometry, if it is the paper's kind of arm: two soft modules
+    /// (no fixed backbone) of three evenly spaced tendons each, of one radius and one length
+    /// range, ending in their module, named by place. `None` for any other arm.
+    pub fn geometry(&self) -> Option<ArmGeometry> {
+        let offsets = self.offsets()?;
+        let mut g = match &self.modules {
+            None => self.shorthand_geometry(),
+            Some(modules) => {
+                let d = self.description();
+                let first = modules.first()?.tendons.as_ref()?;
+                let paper_kind = |m: &ModuleDescription| {
+                    m.backbone_m.is_none()
+                        && m.chambers.is_none()
+                        && m.tendons.as_ref().is_some_and(|t| {
+                            t.count == 3
+                                && t.names.is_none()
+                                && t.radius_m == first.radius_m
+                                && t.length_m == first.length_m
+                                && t.angles_deg
+                                    .as_ref()
+                                    .is_none_or(|a| a.as_slice() == [0.0, 120.0, 240.0])
+                        })
+                };
+                let independent = self.routing.unwrap_or_default() == Routing::Independent;
+                if modules.len() != MODULES || !independent || !modules.iter().all(paper_kind) {
+                    return None;
+                }
+                ArmGeometry {
+                    actuator_radius_m: first.radius_m,
+                    actuator_min_m: first.length_m[0],
+                    actuator_max_m: first.length_m[1],
+                    module_rotation_deg: [modules[0].rotation_deg, modules[1].rotation_deg],
+                    connector_m: d.connector_m,
+                    tool_m: d.tool_m,
+                    mount: d.mount,
+                    actuator_offset_m: [0.0; ACTUATORS],
+                }
+            }
+        };
+        g.actuator_offset_m = offsets;
+        Some(g)
+    }
+
+    /// `actuator_offset_m` as the paper's six, if it has six (or is absent).
+    fn offsets(&self) -> Option<[f64; ACTUATORS]> {
+        match &self.actuator_offset_m {
+            None => Some([0.0; ACTUATORS]),
+            Some(v) => v.as_slice().try_into().ok(),
+        }
+    }
+
+    /// Checks the section; the error is `arm.KEY: message`, naming what would be valid.
+    pub fn validate(&self) -> Result<(), String> {
+        if self.modules.is_some() {
+            let given = [
+                self.actuator_radius_m.is_some(),
+                self.actuator_min_m.is_some(),
+                self.actuator_max_m.is_some(),
+                self.module_rotation_deg.is_some(),
+            ];
+            if let Some(k) = given.iter().position(|g| *g) {
+                return Err(format!(
+                    "arm.{}: a shorthand key of the paper's arm, which `arm.modules` replaces:                      give each module's radius, lengths and rotation in its `tendons` and                      `rotation_deg`, or drop `modules`",
+                    SHORTHAND[k]
+                ));
+            }
+        } else if self.routing.is_some() {
+            return Err(
+                "arm.routing: with `arm.modules` only (the paper's arm of the shorthand keys                  has independent routing)"
+                    .into(),
+            );
+        }
+        if self.modules.is_none() {
+            // Named by the keys written, not by the modules they make.
+            self.shorthand_geometry().validate()?;
+        }
+        let layout = Layout::new(&self.description()).map_err(|e| e.to_string())?;
+        if let Some(v) = &self.actuator_offset_m {
+            let n = layout.actuators().len();
+            if v.len() != n {
+                return Err(format!(
+                    "arm.actuator_offset_m: {} values for an arm of {n} actuators; give one                      per actuator, in the arm's order",
+                    v.len()
+                ));
+            }
+            let o = ArmGeometry::MAX_OFFSET_M;
+            for (i, v) in v.iter().enumerate() {
+                if !(v.is_finite() && (-o..=o).contains(v)) {
+                    return Err(format!(
+                        "arm.actuator_offset_m: actuator {} is {v:?}; each must be in                          [-{o}, {o}] m",
+                        i + 1
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Whether every actuator is a tendon (what the tendon driver drives).
+    pub fn all_tendons(layout: &Layout) -> bool {
+        layout.actuators().iter().all(|a| a.kind == Kind::Tendon)
+    }
+}
 
 /// Actuators per module and modules per arm.
 pub const ACTUATORS_PER_MODULE: usize = 3;
@@ -54,6 +265,12 @@ impl ArmGeometry {
     /// The arm as a layout: two soft modules of three tendons each, evenly spaced from the
     /// module's rotation, ending in their module, named `a1`..`a6`.
     pub fn layout(&self) -> Layout {
+        Layout::new(&self.description())
+            .expect("a valid geometry is two modules that bend every way")
+    }
+
+    /// The arm as a description: two modules of three tendons, evenly spaced.
+    pub fn description(&self) -> Description {
         let module = |rotation_deg| ModuleDescription {
             rotation_deg,
             backbone_m: None,
@@ -66,14 +283,13 @@ impl ArmGeometry {
             }),
             chambers: None,
         };
-        let d = Description {
+        Description {
             mount: self.mount,
             routing: Routing::Independent,
             connector_m: self.connector_m,
             tool_m: self.tool_m,
             modules: self.module_rotation_deg.map(module).to_vec(),
-        };
-        Layout::new(&d).expect("a valid geometry is two modules that bend every way")
+        }
     }
 
     /// Longest length of the geometry (m): actuators, connector and tool.

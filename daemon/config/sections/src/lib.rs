@@ -6,7 +6,9 @@
 //! the config, so the math links neither the config nor, through it, iceoryx2; and the config
 //! (so every driver) links none of the math.
 //!
-//! - [`arm`] — `[arm]`: [`arm::ArmGeometry`], [`arm::Mount`].
+//! - [`arm`] — `[arm]`: [`arm::ArmConfig`] (any arm), [`arm::ArmGeometry`] (the paper's),
+//!   [`arm::Mount`].
+//! - [`per_actuator`] — a setting per actuator: [`per_actuator::PerActuator`].
 //! - [`sim`] — `[sim]`: [`sim::SimConfig`], [`sim::Realism`].
 //! - [`changes`] — a scenario's steps and drifts: [`changes::Changes`], [`changes::Step`],
 //!   [`changes::Drift`], and the arm they make at a time.
@@ -24,4 +26,5 @@ pub mod demonstrations;
 pub mod forward_model;
 pub mod kinematics;
 pub mod learner;
+pub mod per_actuator;
 pub mod sim;

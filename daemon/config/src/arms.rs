@@ -1,0 +1,172 @@
+//! The shipped arms (`config/arms/`), each an `[arm]` section on its own, and putting an arm
+//! file into a config: what `--arm NAME|FILE` reads.
+
+use std::path::Path;
+
+use crate::ConfigError;
+use crate::arm::ArmConfig;
+
+/// The shipped arms by name, each an `[arm]` section's text.
+pub const SHIPPED: [(&str, &str); 3] = [
+    ("paper", include_str!("../../../config/arms/paper.toml")),
+    ("hybrid", include_str!("../../../config/arms/hybrid.toml")),
+    ("tdcr", include_str!("../../../config/arms/tdcr.toml")),
+];
+
+/// An arm file's text: `name_or_path` a file, else a shipped arm's name.
+pub fn resolve(name_or_path: &str) -> Result<String, ConfigError> {
+    let path = Path::new(name_or_path);
+    if path.is_file() {
+        return std::fs::read_to_string(path).map_err(|e| ConfigError {
+            origin: name_or_path.into(),
+            line: None,
+            message: format!("cannot read the arm file: {e}"),
+        });
+    }
+    match SHIPPED.iter().find(|(name, _)| *name == name_or_path) {
+        Some((_, text)) => Ok(text.to_string()),
+        None => Err(ConfigError {
+            origin: name_or_path.into(),
+            line: None,
+            message: format!(
+                "no such arm file, nor a shipped arm; the shipped ones are {}",
+                SHIPPED.map(|(n, _)| n).join(", ")
+            ),
+        }),
+    }
+}
+
+/// Checks an arm file on its own: the error names its line and key (`arm.KEY`, as in a config).
+pub fn check(arm: &str, origin: &str) -> Result<ArmConfig, ConfigError> {
+    let a: ArmConfig = toml::from_str(arm).map_err(|e| ConfigError {
+        origin: origin.into(),
+        line: e.span().map(|s| crate::line_at(arm, s.start)),
+        message: format!("arm: {}", e.message()),
+    })?;
+    a.validate().map_err(|m| {
+        let key = m.split_once(": ").map_or("", |(k, _)| k);
+        ConfigError {
+            origin: origin.into(),
+            line: crate::key_line(arm, key.strip_prefix("arm.").unwrap_or(key)),
+            message: m.clone(),
+        }
+    })?;
+    Ok(a)
+}
+
+/// `config` (a config file's text) with its `[arm]` section replaced by `arm` (an arm file's
+/// text, checked by [`check`], `origin` naming it). Comments and layout of the rest survive.
+/// The result is checked when it is parsed: an arm that does not fit the rest (a list of
+/// another length) is refused there, naming the key.
+pub fn with_arm(config: &str, arm: &str, origin: &str) -> Result<String, ConfigError> {
+    check(arm, origin)?;
+    let table: toml_edit::DocumentMut =
+        arm.parse().map_err(|e: toml_edit::TomlError| ConfigError {
+            origin: origin.into(),
+            line: e.span().map(|s| crate::line_at(arm, s.start)),
+            message: e.message().to_string(),
+        })?;
+    let mut doc: toml_edit::DocumentMut =
+        config
+            .parse()
+            .map_err(|e: toml_edit::TomlError| ConfigError {
+                origin: "the config".into(),
+                line: e.span().map(|s| crate::line_at(config, s.start)),
+                message: e.message().to_string(),
+            })?;
+    let mut table = table.as_table().clone();
+    table.set_implicit(false);
+    doc.insert("arm", toml_edit::Item::Table(table));
+    Ok(doc.to_string())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::Config;
+
+    /// Each shipped arm in the embedded config: valid, its counts and kinds as it says, and
+    /// only the paper's computed by the method.
+    #[test]
+    fn every_shipped_arm_loads_into_the_default_config() {
+        let want = [
+            ("paper", 6, 2, true),
+            ("hybrid", 8, 2, false),
+            ("tdcr", 9, 3, false),
+        ];
+        for ((name, text), (n, actuators, modules, paper)) in SHIPPED.iter().zip(want) {
+            assert_eq!(*name, n);
+            let merged = with_arm(crate::DEFAULT, text, name).unwrap();
+            let c = Config::parse(&merged, name, ".".into()).unwrap();
+            let layout = c.layout();
+            assert_eq!(layout.actuators().len(), actuators, "{name}");
+            assert_eq!(layout.modules().len(), modules, "{name}");
+            assert_eq!(c.paper_arm().is_ok(), paper, "{name}");
+            assert_eq!(resolve(name).unwrap(), *text);
+        }
+        // The paper's arm as modules is the shorthand's arm: the same identity and geometry.
+        let d = Config::default_sim(".".into());
+        let merged = with_arm(crate::DEFAULT, SHIPPED[0].1, "paper").unwrap();
+        let p = Config::parse(&merged, "paper", ".".into()).unwrap();
+        assert_eq!(p.arm_identity(), d.arm_identity());
+        assert_eq!(p.paper_arm().unwrap(), d.paper_arm().unwrap());
+        let e = Config::parse(
+            &with_arm(crate::DEFAULT, SHIPPED[2].1, "tdcr").unwrap(),
+            "t",
+            ".".into(),
+        )
+        .unwrap()
+        .paper_arm()
+        .unwrap_err();
+        assert!(
+            e.message.contains("9 actuators (a1 .. a9) in 3 modules"),
+            "{e}"
+        );
+        assert!(
+            resolve("no-such-arm")
+                .unwrap_err()
+                .message
+                .contains("paper, hybrid, tdcr")
+        );
+    }
+
+    /// A bad arm file is refused naming its own line and key, whatever the config.
+    #[test]
+    fn a_bad_arm_names_its_line_and_key() {
+        let two = "mount = \"standing\"\n[[modules]]\ntendons = { count = 2, radius_m = 0.01, length_m = [0.1, 0.2] }\n";
+        let e = with_arm(crate::DEFAULT, two, "two.toml").unwrap_err();
+        assert_eq!(e.origin, "two.toml");
+        assert_eq!(e.line, Some(2), "{e}");
+        assert!(
+            e.message
+                .starts_with("arm.modules[0]: cannot bend in every direction"),
+            "{e}"
+        );
+        let lopsided = "[[modules]]\ntendons = { count = 3, radius_m = 0.01, length_m = [0.1, 0.2], angles_deg = [0, 30, 60] }\n";
+        let e = check(lopsided, "l.toml").unwrap_err();
+        assert!(e.message.contains("leaves a gap of 300°"), "{e}");
+        let shorthand = "actuator_radius_m = 0.02\n[[modules]]\ntendons = { count = 3, radius_m = 0.01, length_m = [0.1, 0.2] }\n";
+        let e = check(shorthand, "s.toml").unwrap_err();
+        assert_eq!(e.line, Some(1), "{e}");
+        assert!(
+            e.message
+                .starts_with("arm.actuator_radius_m: a shorthand key"),
+            "{e}"
+        );
+        let unknown = "[[modules]]\ntendon = { count = 3 }\n";
+        let e = check(unknown, "u.toml").unwrap_err();
+        assert_eq!(e.line, Some(2), "{e}");
+        // Nine actuators into a config whose lists have six: refused when the config is read.
+        let six = crate::DEFAULT.replace(
+            "actuator_min = 0.0 ",
+            "actuator_min = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0] ",
+        );
+        let merged = with_arm(&six, SHIPPED[2].1, "tdcr").unwrap();
+        let e = Config::parse(&merged, "c.toml", ".".into()).unwrap_err();
+        assert!(
+            e.message
+                .starts_with("controller.actuator_min: 6 values for an arm of 9"),
+            "{e}"
+        );
+    }
+}
