@@ -18,6 +18,7 @@ use softarm_record::{plot, record};
 use softarm_rig::{bench, soak};
 use softarm_runtime::identity::StackUser;
 use softarm_runtime::stop_flag;
+use softarm_sim::plant::Body;
 use softarm_stack::demo;
 use softarm_stack::supervisor as up;
 use softarm_systemd as install;
@@ -311,18 +312,36 @@ fn init_logging(default: &str) {
         .try_init();
 }
 
-/// `softarm sim [--scenario NAME|FILE]`: the simulated arm, the config's or another.
+/// `softarm sim [--scenario NAME|FILE]`: the simulated arm, the config's or, for the paper's
+/// arm, a scenario's.
 fn sim(c: &Config, scenario: Option<&str>) -> anyhow::Result<()> {
-    let configured = c.paper_arm()?;
+    let Ok(configured) = c.paper_arm() else {
+        if scenario.is_some() {
+            return Err(ConfigError {
+                origin: "--scenario".into(),
+                line: None,
+                message: format!(
+                    "the scenarios change the paper's arm; this config's arm ({}) runs as its \
+                     [arm] describes it",
+                    c.arm_identity()
+                ),
+            }
+            .into());
+        }
+        let offsets = c.arm.actuator_offset_m.clone().unwrap_or_default();
+        let body = Body::of_layout(&c.layout(), &offsets);
+        return softarm_sim::run(&c.sim, body, c.bus()?, &c.estop_latch(), &*stop_flag()?);
+    };
     let (arm, sim) = match scenario {
         Some(s) => {
             let s = Scenario::resolve(s)?;
             tracing::info!(scenario = %s.name, "the sim runs another arm: {}", s.describe());
             s.apply(&configured, &c.sim)?
         }
-        None => (configured, c.sim),
+        None => (configured, c.sim.clone()),
     };
-    softarm_sim::run(&sim, &arm, c.bus()?, &c.estop_latch(), &*stop_flag()?)
+    let body = Body::Paper(arm);
+    softarm_sim::run(&sim, body, c.bus()?, &c.estop_latch(), &*stop_flag()?)
 }
 
 /// The processes that keep the arm's pace (the controller, the drivers) lock their memory

@@ -10,6 +10,7 @@
 static GLOBAL: softarm_test_alloc::Counting = softarm_test_alloc::Counting;
 
 mod adaptation;
+mod any_arm;
 mod bad_input;
 mod bench;
 mod changing_arm;

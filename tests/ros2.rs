@@ -37,7 +37,7 @@ const PEER: &str = concat!(
 /// A DDS domain of the test's own, from its namespace: 1 to 100 (0 is left to a developer's
 /// ROS 2 on this machine; up to 101 keeps RTPS's ports below Linux's ephemeral range). Two
 /// tests that drew the same domain would still not mix: their topics' names differ.
-fn domain(namespace: &str) -> u16 {
+pub(crate) fn domain(namespace: &str) -> u16 {
     // FNV-1a: the same namespace gives the same domain in the bridge's config and the peer.
     let h = namespace.bytes().fold(0xcbf2_9ce4_8422_2325_u64, |h, b| {
         (h ^ b as u64).wrapping_mul(0x0100_0000_01b3)
@@ -60,7 +60,7 @@ fn stack(name: &str, bridge: bool, overrides: &[(&str, toml::Value)]) -> TestSta
 }
 
 /// `ros2_peer.py` for the stack's bridge with `args`; its JSON.
-fn peer(py: &str, s: &TestStack, args: &[&str]) -> Value {
+pub(crate) fn peer(py: &str, s: &TestStack, args: &[&str]) -> Value {
     let ns = softarm_ros2::convert::ros_namespace(&s.namespace);
     let domain = domain(&s.namespace).to_string();
     let mut all = vec![PEER, "--namespace", &ns, "--domain", &domain];

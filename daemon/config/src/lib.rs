@@ -614,7 +614,7 @@ impl Config {
         if self.state.dir.as_os_str().is_empty() {
             return invalid("state.dir", "must name a folder".into());
         }
-        self.sim.validate().map_err(|e| keyed("sim", e))?;
+        self.sim.validate(n).map_err(|e| keyed("sim", e))?;
         if let Some(t) = &self.tendon {
             let (lo, hi) = (c.actuator_min.values(n), c.actuator_max.values(n));
             t.validate(&self.layout(), &lo, &hi, c.rate_hz)?;

@@ -275,9 +275,10 @@ impl Scenario {
         let sim = SimConfig {
             realism,
             changes,
-            ..*sim
+            ..sim.clone()
         };
-        sim.validate().map_err(|m| self.error(&m))?;
+        sim.validate(softarm_space::ACTUATORS)
+            .map_err(|m| self.error(&m))?;
         Ok((arm, sim))
     }
 

@@ -311,12 +311,51 @@ impl Arm {
         }
     }
 
+    /// The paper's arm of `g` (its offsets included), without the heap: what a plant whose
+    /// scenario changes the arm builds every step.
+    pub fn of_geometry(g: &ArmGeometry) -> Self {
+        let (mut min_m, mut max_m, mut offset_m) = (
+            [0.0; MAX_ACTUATORS],
+            [0.0; MAX_ACTUATORS],
+            [0.0; MAX_ACTUATORS],
+        );
+        for i in 0..ACTUATORS {
+            min_m[i] = g.actuator_min_m;
+            max_m[i] = g.actuator_max_m;
+            offset_m[i] = g.actuator_offset_m[i];
+        }
+        Self {
+            routes: g.routes(),
+            min_m,
+            max_m,
+            offset_m,
+            connector_m: g.connector_m,
+            tool_m: g.tool_m,
+            mount: g.mount,
+        }
+    }
+
     pub fn actuators(&self) -> usize {
         self.routes.actuators()
     }
 
     pub fn modules(&self) -> usize {
         self.routes.modules()
+    }
+
+    /// End-effector pose for actuator lengths `lengths` (m, one per actuator), each module's
+    /// curvature falling from base to tip by `taper` ([`tapered_module_pose`]; 0: PCC).
+    pub fn pose_of_lengths(&self, lengths: &[f64], taper: f64) -> Result<Pose, Undetermined> {
+        let arcs = self.routes.arcs(&lengths[..self.actuators()])?;
+        let arcs = &arcs[..self.modules()];
+        let base = base_of(self.mount);
+        Ok(if taper == 0.0 {
+            chain(base, arcs, self.connector_m, self.tool_m, module_pose)
+        } else {
+            chain(base, arcs, self.connector_m, self.tool_m, |a| {
+                tapered_module_pose(a, taper)
+            })
+        })
     }
 
     /// Actuator lengths (m) of normalised actuation `a` (one per actuator), offsets included.
@@ -335,14 +374,7 @@ impl Arm {
 
     /// End-effector pose for normalised actuation `a`.
     pub fn pose(&self, a: &[f64]) -> Result<Pose, Undetermined> {
-        let arcs = self.arcs(a)?;
-        Ok(chain(
-            base_of(self.mount),
-            &arcs[..self.modules()],
-            self.connector_m,
-            self.tool_m,
-            module_pose,
-        ))
+        self.pose_of_lengths(&self.lengths(a), 0.0)
     }
 
     /// The backbone for normalised actuation `a`, base to tip, as polylines in the base frame
@@ -568,12 +600,18 @@ mod tests {
             ..paper
         };
         let arm = Arm::new(&paper.layout(), &offsets);
+        let of_geometry = Arm::of_geometry(&geometry);
         let mut rng = StdRng::seed_from_u64(3);
         for _ in 0..50 {
             let a: [f64; ACTUATORS] = std::array::from_fn(|_| rng.random());
             let want = geometry.pose(&a).position;
             let got = arm.pose(&a).unwrap().position;
             assert!((want - got).norm() < 1e-12, "{want} vs {got}");
+            let got = of_geometry.pose(&a).unwrap().position;
+            assert!((want - got).norm() < 1e-12, "{want} vs {got}");
+            let tapered = geometry.pose_of_lengths_tapered(&geometry.lengths(&a), 0.3);
+            let got = arm.pose_of_lengths(&arm.lengths(&a), 0.3).unwrap();
+            assert!((tapered.position - got.position).norm() < 1e-12);
             let lines = arm.backbone(&a, 8).unwrap();
             let old = geometry.backbone(&a, 8);
             assert_eq!(lines.len(), 4);

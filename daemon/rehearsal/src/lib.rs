@@ -128,7 +128,7 @@ impl SimDriver {
     /// The sim driver's arm, as it starts when no controller runs: at `sim.initial_actuation`,
     /// its first measurement published at time 0.
     fn new(arm: ArmGeometry, sim: &SimConfig) -> anyhow::Result<Self> {
-        let mut arm = SimArm::new(arm, sim, sim.initial_actuation)?;
+        let mut arm = SimArm::new(arm, sim, sim.initial_actuation.fixed())?;
         let newest = arm.step(None, false, 1);
         let period_ns = (arm.dt() * NS_PER_S).round() as u64;
         Ok(Self {
@@ -163,7 +163,10 @@ impl SimDriver {
                 continue;
             }
             let periods = std::mem::take(&mut self.missed) + 1;
-            self.newest = self.arm.step(self.setpoint.take(), false, periods);
+            let setpoint = self.setpoint.take();
+            self.newest = self
+                .arm
+                .step(setpoint.as_ref().map(|a| &a[..]), false, periods);
             published(self.due_ns, &self.newest);
             self.due_ns += self.period_ns;
         }
@@ -257,7 +260,7 @@ impl<'a> Rehearsal<'a> {
         // The sim's first measurement, published at time 0, is what the first tick reads.
         let mut latest = Latest::new(false);
         latest.take_tracker(0, sim_driver.newest.position);
-        latest.take_motors(0, sim_driver.newest.actuation);
+        latest.take_motors(0, sim_driver.newest.actuation_of());
         Ok(Self {
             model,
             config,
@@ -272,7 +275,7 @@ impl<'a> Rehearsal<'a> {
             now_ns: 0,
             next_set_id: 0,
             gap_due: false,
-            sim: *sim,
+            sim: sim.clone(),
             tick_stalls: None,
             learner_stalls: None,
             late: Vec::new(),
@@ -326,12 +329,12 @@ impl<'a> Rehearsal<'a> {
         // backlash and the disturbance).
         let sim = SimConfig {
             changes: Default::default(),
-            ..self.sim
+            ..self.sim.clone()
         };
         let held = self
             .sim_driver
             .setpoint
-            .unwrap_or(self.sim_driver.arm.command());
+            .unwrap_or_else(|| std::array::from_fn(|i| self.sim_driver.arm.command()[i]));
         self.sim_driver.arm = SimArm::new(arm, &sim, held).context("the restarted sim's plant")?;
         self.sim_driver.away_until(self.now_ns + SIM_AWAY_NS);
         self.hold_for(SIM_AWAY_NS + CHANGE_HOLD_NS);
@@ -388,8 +391,9 @@ impl<'a> Rehearsal<'a> {
         let mut estimates = Vec::new();
         self.sim_driver.run_until(self.now_ns, |t, m| {
             latest.take_tracker(t, m.position);
-            latest.take_motors(t, m.actuation);
-            estimates.extend(learner.observe_arm(t, &m.actuation, &m.position));
+            let actuation = m.actuation_of();
+            latest.take_motors(t, actuation);
+            estimates.extend(learner.observe_arm(t, &actuation, &m.position));
         });
         estimates
     }

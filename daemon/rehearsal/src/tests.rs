@@ -177,7 +177,7 @@ fn the_sim_steps_at_its_own_rate_on_the_newest_setpoint() {
     driver.run_until(3 * period, |_, _| ());
     assert_eq!(steps(&driver), 4);
     assert!(
-        driver.arm.plant().state()[0] > sim.initial_actuation[0],
+        driver.arm.plant().state()[0] > sim.initial_actuation.get(0),
         "it follows the setpoint"
     );
 }

@@ -14,7 +14,8 @@ use anyhow::Context;
 
 use softarm_driver::Commands;
 use softarm_ipc::{
-    ACTUATORS, Actuation, Actuators, DriverState, MotorState, Namespace, Node, TrackerSample,
+    ACTUATORS, Actuation, Actuators, DriverState, MAX_ACTUATORS, MotorState, Namespace, Node,
+    TrackerSample,
 };
 use softarm_runtime::clock::Ticker;
 use softarm_runtime::{EstopLatch, now_ns};
@@ -24,48 +25,50 @@ use softarm_sections::sim::SimConfig;
 
 pub mod plant;
 
-use crate::plant::{Measurement, Plant};
+use crate::plant::{Body, Measurement, Plant};
 
 /// Runs the simulated arm until `stop` is set; starts stopped if `latch` says the e-stop is
 /// engaged.
 pub fn run(
     config: &SimConfig,
-    arm: &ArmGeometry,
+    arm: Body,
     namespace: Namespace,
     latch: &EstopLatch,
     stop: &AtomicBool,
 ) -> anyhow::Result<()> {
     let ipc = Node::open(namespace, "sim")?;
-    let mut commands = Commands::open(&ipc, latch, ACTUATORS)?;
+    let n = match arm {
+        Body::Paper(_) => ACTUATORS,
+        Body::Any(a) => a.actuators(),
+    };
+    let mut commands = Commands::open(&ipc, latch, n)?;
     // A real arm stays where it was while its driver restarts: a sim restarted beside a
     // running controller starts where the controller holds it, not at `initial_actuation`
     // (the controller would otherwise resume from a teleported arm). Also while the e-stop is
     // latched: a STOPPED controller's setpoint is not a command, but it is where the arm was
     // held when the motors stopped, and a controller restarted or reset later starts from
     // the measured state.
-    let mut start = config.initial_actuation;
+    let mut start = config.initial_actuation.values(n);
     {
         let held = ipc.subscriber(&ipc.setpoint()?)?;
         let waiting = std::time::Instant::now();
         'wait: while waiting.elapsed() < std::time::Duration::from_millis(100) {
             while let Ok(Some(s)) = held.receive() {
                 let fresh = now_ns().saturating_sub(s.stamp_ns) <= 1_000_000_000;
-                if let Some(held) = s.actuation.fixed()
-                    && fresh
-                    && held.iter().all(|a| (0.0..=1.0).contains(a))
-                {
+                let held = s.actuation;
+                if held.len() == n && fresh && held.iter().all(|a| (0.0..=1.0).contains(a)) {
                     tracing::info!(
                         actuation = ?held,
                         "a controller is running: starting where it holds the arm"
                     );
-                    start = held;
+                    start = held.to_vec();
                     break 'wait;
                 }
             }
             std::thread::sleep(std::time::Duration::from_millis(2));
         }
     }
-    let mut sim = SimArm::new(*arm, config, start)?;
+    let mut sim = SimArm::of_body(arm, config, &start)?;
     let tracker = ipc.publisher(&ipc.tracker()?)?;
     let motors = ipc.publisher(&ipc.motor_state()?)?;
 
@@ -82,7 +85,7 @@ pub fn run(
         // The sim follows whatever is fresh; a stale setpoint only at its start.
         let poll = commands.poll(now_ns(), 1_000_000_000);
         // Commands refused every other count.
-        let setpoint = poll.setpoint.and_then(|a| a.fixed());
+        let setpoint = poll.setpoint.as_ref().map(|a| a.as_slice());
         let m = sim.step(setpoint, poll.stopped, wake.missed + 1);
         log_step(config, sim.plant(), &mut in_force);
         // The sample number counts the sim's periods, the ones it slept through too, so that
@@ -92,8 +95,8 @@ pub fn run(
         let _ = motors.send_copy(MotorState {
             seq,
             stamp_ns,
-            actuation: m.actuation.into(),
-            current_a: Actuators::filled(m.actuation.len(), f64::NAN),
+            actuation: Actuators::new(&m.actuation[..n]),
+            current_a: Actuators::filled(n, f64::NAN),
             state: if poll.stopped {
                 DriverState::Stopped
             } else {
@@ -117,45 +120,68 @@ pub fn run(
 /// clock.
 pub struct SimArm {
     plant: Plant,
-    command: Actuation,
+    /// What it follows, one per actuator.
+    command: [f64; MAX_ACTUATORS],
     /// One period (s).
     dt: f64,
 }
 
 impl SimArm {
-    /// The plant of `config` on `arm`, its actuators at `start`, which it follows until told
-    /// otherwise.
+    /// The plant of `config` on the paper's `arm`, its actuators at `start`, which it follows
+    /// until told otherwise.
     pub fn new(arm: ArmGeometry, config: &SimConfig, start: Actuation) -> anyhow::Result<Self> {
         let plant = Plant::of_sim(arm, config, start)
             .map_err(anyhow::Error::msg)
             .context("the simulated plant")?;
-        Ok(Self {
+        Ok(Self::of_plant(plant, config, &start))
+    }
+
+    /// The plant of `config` on `body` (the paper's arm, with `config`'s changes, or any arm),
+    /// its actuators at `start` (one per actuator).
+    pub fn of_body(body: Body, config: &SimConfig, start: &[f64]) -> anyhow::Result<Self> {
+        let plant = match body {
+            Body::Paper(arm) => {
+                let start: Actuation = start.try_into().context("the paper's arm has six")?;
+                Plant::of_sim(arm, config, start)
+            }
+            Body::Any(_) if !config.changes.is_empty() => Err(
+                "a scenario changes the paper's arm; this arm runs as its [arm] describes it"
+                    .into(),
+            ),
+            any => Plant::of_body(any, config.realism, start),
+        }
+        .map_err(anyhow::Error::msg)
+        .context("the simulated plant")?;
+        Ok(Self::of_plant(plant, config, start))
+    }
+
+    fn of_plant(plant: Plant, config: &SimConfig, start: &[f64]) -> Self {
+        let mut command = [0.0; MAX_ACTUATORS];
+        command[..start.len()].copy_from_slice(start);
+        Self {
             plant,
-            command: start,
+            command,
             dt: 1.0 / config.rate_hz,
-        })
+        }
     }
 
     /// One wake, `periods` periods after the last (the ones slept through too): follows
-    /// `setpoint` if one came, holds where the motors are while `stopped`, and steps the plant
-    /// by all that time. A real arm moves on while its driver waits for a CPU; a plant stepped
-    /// by one period per late wake ran slower than the wall clock, so under load the arm fell
-    /// behind its setpoints by tens of millimetres at a conditioning point (seen: 52 mm at one
-    /// point of a demo).
-    pub fn step(
-        &mut self,
-        setpoint: Option<Actuation>,
-        stopped: bool,
-        periods: u64,
-    ) -> Measurement {
+    /// `setpoint` (one per actuator) if one came, holds where the motors are while `stopped`,
+    /// and steps the plant by all that time. A real arm moves on while its driver waits for a
+    /// CPU; a plant stepped by one period per late wake ran slower than the wall clock, so
+    /// under load the arm fell behind its setpoints by tens of millimetres at a conditioning
+    /// point (seen: 52 mm at one point of a demo).
+    pub fn step(&mut self, setpoint: Option<&[f64]>, stopped: bool, periods: u64) -> Measurement {
+        let n = self.plant.actuators();
         if let Some(a) = setpoint {
-            self.command = a;
+            self.command[..n].copy_from_slice(&a[..n]);
         }
         if stopped {
             // E-stop: the motors hold where they are, whatever is commanded.
-            self.command = self.plant.state();
+            self.command[..n].copy_from_slice(self.plant.state());
         }
-        self.plant.step(&self.command, self.dt * periods as f64)
+        self.plant
+            .step(&self.command[..n], self.dt * periods as f64)
     }
 
     pub fn plant(&self) -> &Plant {
@@ -163,8 +189,8 @@ impl SimArm {
     }
 
     /// What it follows.
-    pub fn command(&self) -> Actuation {
-        self.command
+    pub fn command(&self) -> &[f64] {
+        &self.command[..self.plant.actuators()]
     }
 
     /// One period (s).

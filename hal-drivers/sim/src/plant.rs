@@ -1,55 +1,110 @@
-//! The simulated plant: PCC kinematics behind a configurable, seeded realism layer.
+//! The simulated plant: PCC kinematics behind a configurable, seeded realism layer, for any
+//! arm.
 //!
 //! Per actuator, a command passes backlash (play operator) → rate limit → first-order lag, and
-//! a coloured disturbance moves the actuator from there; the kinematics use the arm as a
-//! scenario changes it at the plant's time ([`Changes`]) with a slow drift of the actuator
-//! lengths, optionally bent not quite at constant curvature, and the tracker adds noise to the
-//! end-effector position. With every effect off it is the kinematic model exactly.
+//! a coloured disturbance moves the actuator from there; the kinematics use the arm (for the
+//! paper's arm, as a scenario changes it at the plant's time, [`Changes`]) with a slow drift of
+//! the actuator lengths, optionally bent not quite at constant curvature, and the tracker adds
+//! noise to the end-effector position. With every effect off it is the kinematic model exactly.
+//! Per-actuator state has room for every arm ([`MAX_ACTUATORS`]), so a step allocates nothing.
 
 use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
 use rand_distr::StandardNormal;
-use softarm_kinematics::pcc::Kinematics;
+use softarm_arm::{Layout, MAX_ACTUATORS};
+use softarm_kinematics::pcc;
 use softarm_sections::arm::{ACTUATORS, ArmGeometry};
 use softarm_sections::changes::Changes;
 use softarm_sections::sim::{Realism, SimConfig};
 
+/// The arm a plant simulates. Made once, where a plant is, and copied by value: the
+/// variants' sizes do not matter.
+#[allow(clippy::large_enum_variant)]
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Body {
+    /// The paper's arm, which a scenario may change while it runs.
+    Paper(ArmGeometry),
+    /// Any arm, from its layout (`pcc::Arm`); no scenario changes it.
+    Any(pcc::Arm),
+}
+
+impl Body {
+    /// Any arm of `layout`, each actuator's length changed by `offset_m` (empty: none).
+    pub fn of_layout(layout: &Layout, offset_m: &[f64]) -> Self {
+        Self::Any(pcc::Arm::new(layout, offset_m))
+    }
+
+    fn kinematics(&self) -> pcc::Arm {
+        match self {
+            Body::Paper(g) => pcc::Arm::of_geometry(g),
+            Body::Any(a) => *a,
+        }
+    }
+}
+
 /// What the plant measures after a step.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Measurement {
-    /// Normalised actuation the actuators actually reached (motor state).
-    pub actuation: [f64; ACTUATORS],
+    /// Normalised actuation the actuators actually reached (motor state), one per actuator;
+    /// the rest of the array 0.
+    pub actuation: [f64; MAX_ACTUATORS],
     /// Tracked end-effector position (m), with tracker noise.
     pub position: [f64; 3],
 }
 
+impl Measurement {
+    /// The actuation as `N` values, for an arm of `N` actuators.
+    pub fn actuation_of<const N: usize>(&self) -> [f64; N] {
+        std::array::from_fn(|i| self.actuation[i])
+    }
+}
+
 /// The simulated arm.
 pub struct Plant {
-    /// The arm at time 0, and how it changes from there.
-    arm: ArmGeometry,
+    /// The arm at time 0 (and, for the paper's arm, how it changes from there).
+    body: Body,
     changes: Changes,
-    /// The arm at `time`.
-    geometry: ArmGeometry,
+    /// The paper's arm at `time`, as its scenario makes it.
+    geometry: Option<ArmGeometry>,
+    /// The arm's kinematics at `time`.
+    kinematics: pcc::Arm,
+    /// Actuators.
+    n: usize,
     realism: Realism,
     rng: StdRng,
     /// Output of the play operator.
-    played: [f64; ACTUATORS],
+    played: [f64; MAX_ACTUATORS],
     /// Actuator state after rate limit and lag.
-    state: [f64; ACTUATORS],
+    state: [f64; MAX_ACTUATORS],
     /// The disturbance on each actuator (normalised units).
-    disturbance: [f64; ACTUATORS],
+    disturbance: [f64; MAX_ACTUATORS],
+    /// Where the tip was last: kept while an actuation the arcs cannot tell lasts.
+    position: [f64; 3],
     time: f64,
 }
 
 impl Plant {
-    /// A plant at rest at `initial` actuation.
+    /// A plant of the paper's arm at rest at `initial` actuation.
     pub fn new(
         geometry: ArmGeometry,
         realism: Realism,
         initial: [f64; ACTUATORS],
     ) -> Result<Self, String> {
         geometry.validate()?;
+        Self::of_body(Body::Paper(geometry), realism, &initial)
+    }
+
+    /// A plant of `body` at rest at `initial` actuation (one per actuator).
+    pub fn of_body(body: Body, realism: Realism, initial: &[f64]) -> Result<Self, String> {
         realism.validate()?;
+        let kinematics = body.kinematics();
+        let n = kinematics.actuators();
+        if initial.len() != n {
+            return Err(format!(
+                "sim.initial_actuation: {} values for an arm of {n} actuators",
+                initial.len()
+            ));
+        }
         if let Some(i) = initial.iter().position(|a| !(0.0..=1.0).contains(a)) {
             return Err(format!(
                 "sim.initial_actuation: actuator {} is {:?}; each must be in [0, 1]",
@@ -59,17 +114,28 @@ impl Plant {
         }
         let mut rng = StdRng::seed_from_u64(realism.seed);
         // Drawn from its stationary distribution: the disturbance is as large from the start.
-        let disturbance =
-            std::array::from_fn(|_| realism.actuation_noise * rng.sample::<f64, _>(StandardNormal));
+        let mut disturbance = [0.0; MAX_ACTUATORS];
+        for d in &mut disturbance[..n] {
+            *d = realism.actuation_noise * rng.sample::<f64, _>(StandardNormal);
+        }
+        let mut start = [0.0; MAX_ACTUATORS];
+        start[..n].copy_from_slice(initial);
+        let geometry = match body {
+            Body::Paper(g) => Some(g),
+            Body::Any(_) => None,
+        };
         Ok(Self {
-            arm: geometry,
+            body,
             changes: Changes::default(),
             geometry,
+            kinematics,
+            n,
             realism,
             rng,
-            played: initial,
-            state: initial,
+            played: start,
+            state: start,
             disturbance,
+            position: [0.0; 3],
             time: 0.0,
         })
     }
@@ -88,9 +154,15 @@ impl Plant {
         Ok(plant)
     }
 
-    /// The arm now (a scenario's steps and drifts applied at [`Plant::time`]).
-    pub fn geometry(&self) -> &ArmGeometry {
-        &self.geometry
+    /// The paper's arm now (a scenario's steps and drifts applied at [`Plant::time`]); `None`
+    /// for any other arm.
+    pub fn geometry(&self) -> Option<&ArmGeometry> {
+        self.geometry.as_ref()
+    }
+
+    /// The arm's actuators.
+    pub fn actuators(&self) -> usize {
+        self.n
     }
 
     /// Seconds since the plant started: the clock of its scenario's changes.
@@ -98,36 +170,47 @@ impl Plant {
         self.time
     }
 
-    /// Where the actuators are (before the disturbance).
-    pub fn state(&self) -> [f64; ACTUATORS] {
-        self.state
+    /// Where the actuators are (before the disturbance), one per actuator.
+    pub fn state(&self) -> &[f64] {
+        &self.state[..self.n]
     }
 
-    /// Advances by `dt` seconds with `command` applied, and measures. A command outside [0, 1]
-    /// is clamped to it; a non-finite one holds that actuator's input where it was.
-    pub fn step(&mut self, command: &[f64; ACTUATORS], dt: f64) -> Measurement {
+    /// Advances by `dt` seconds with `command` applied (one per actuator), and measures. A
+    /// command outside [0, 1] is clamped to it; a non-finite one holds that actuator's input
+    /// where it was.
+    pub fn step(&mut self, command: &[f64], dt: f64) -> Measurement {
         let r = self.realism;
         self.time += dt;
-        if !self.changes.is_empty() {
-            self.geometry = self.changes.arm_at(&self.arm, self.time);
+        if let Body::Paper(arm) = &self.body
+            && !self.changes.is_empty()
+        {
+            let now = self.changes.arm_at(arm, self.time);
+            self.geometry = Some(now);
+            self.kinematics = pcc::Arm::of_geometry(&now);
         }
         self.actuate(command, dt);
         self.disturb(dt);
-        let actuation: [f64; ACTUATORS] =
-            std::array::from_fn(|i| (self.state[i] + self.disturbance[i]).clamp(0.0, 1.0));
-        let mut lengths = self.geometry.lengths(&actuation);
+        let mut actuation = [0.0; MAX_ACTUATORS];
+        for i in 0..self.n {
+            actuation[i] = (self.state[i] + self.disturbance[i]).clamp(0.0, 1.0);
+        }
+        let mut lengths = self.kinematics.lengths(&actuation[..self.n]);
         if r.drift_m > 0.0 {
             let w = 2.0 * std::f64::consts::PI * self.time / r.drift_period_s;
-            for (i, l) in lengths.iter_mut().enumerate() {
+            for (i, l) in lengths[..self.n].iter_mut().enumerate() {
                 // Each actuator drifts with its own phase, as ageing material would.
                 *l += r.drift_m * (w + 1.1 * i as f64).sin();
             }
         }
-        let p = self
-            .geometry
-            .pose_of_lengths_tapered(&lengths, r.curvature_taper)
-            .position;
-        let mut position = [p.x, p.y, p.z];
+        // An actuation whose arcs the model cannot tell (none of a valid arm's strokes) keeps
+        // the tip where it was.
+        if let Ok(p) = self
+            .kinematics
+            .pose_of_lengths(&lengths[..self.n], r.curvature_taper)
+        {
+            self.position = [p.position.x, p.position.y, p.position.z];
+        }
+        let mut position = self.position;
         if r.tracker_noise_m > 0.0 {
             for x in &mut position {
                 *x += r.tracker_noise_m * self.rng.sample::<f64, _>(StandardNormal);
@@ -140,13 +223,12 @@ impl Plant {
     }
 
     /// Backlash, lag and rate limit: where each actuator goes under `command`.
-    fn actuate(&mut self, command: &[f64; ACTUATORS], dt: f64) {
+    fn actuate(&mut self, command: &[f64], dt: f64) {
         let r = self.realism;
-        for i in 0..ACTUATORS {
-            let c = if command[i].is_finite() {
-                command[i].clamp(0.0, 1.0)
-            } else {
-                self.played[i]
+        for i in 0..self.n {
+            let c = match command.get(i) {
+                Some(c) if c.is_finite() => c.clamp(0.0, 1.0),
+                _ => self.played[i],
             };
             // Play operator: the output follows once the input leaves the band around it.
             let half = 0.5 * r.backlash;
@@ -176,7 +258,7 @@ impl Plant {
         }
         let keep = if tau > 0.0 { (-dt / tau).exp() } else { 0.0 };
         let fresh = sd * (1.0 - keep * keep).sqrt();
-        for d in &mut self.disturbance {
+        for d in &mut self.disturbance[..self.n] {
             *d = keep * *d + fresh * self.rng.sample::<f64, _>(StandardNormal);
         }
     }
@@ -194,7 +276,7 @@ mod tests {
         for _ in 0..50 {
             p.step(&[0.6; ACTUATORS], 0.005);
         }
-        let before = p.state();
+        let before = p.state().to_vec();
         let bad = [f64::NAN, f64::INFINITY, f64::NEG_INFINITY, 0.6, 0.6, 0.6];
         let m = p.step(&bad, 0.005);
         assert!(m.position.iter().chain(&m.actuation).all(|v| v.is_finite()));
@@ -218,7 +300,7 @@ mod tests {
                 (0.5 + 0.4 * ((k + 7 * i) as f64 * 0.1).sin()).clamp(0.0, 1.0)
             });
             let m = plant.step(&c, 0.002);
-            assert_eq!(m.actuation, c);
+            assert_eq!(m.actuation_of::<6>(), c);
             assert_eq!(m.position, arm.position(&c));
         }
     }
@@ -323,7 +405,7 @@ mod tests {
         let mut plant = Plant::new(ArmGeometry::default(), realism, [0.5; 6]).unwrap();
         // 1000 s at the sim's 200 Hz: 10 000 correlation times.
         let d: Vec<[f64; 6]> = (0..200_000)
-            .map(|_| plant.step(&[0.5; 6], 0.005).actuation.map(|a| a - 0.5))
+            .map(|_| plant.step(&[0.5; 6], 0.005).actuation_of().map(|a| a - 0.5))
             .collect();
         for i in 0..6 {
             let x: Vec<f64> = d.iter().map(|a| a[i]).collect();
@@ -391,9 +473,9 @@ mod tests {
             (before.position[2] - after.position[2] - 0.03).abs() < 1e-3,
             "{before:?} {after:?}"
         );
-        assert_eq!(plant.geometry().tool_m, 0.06);
+        assert_eq!(plant.geometry().unwrap().tool_m, 0.06);
         // Creep at 6 mm/min: 0.1 mm a second.
-        assert!((plant.geometry().actuator_offset_m[1] - 1.005e-4).abs() < 1e-9);
+        assert!((plant.geometry().unwrap().actuator_offset_m[1] - 1.005e-4).abs() < 1e-9);
         // The changes are checked against the arm they start from.
         let thin = ArmGeometry {
             actuator_radius_m: 0.001,

@@ -52,7 +52,37 @@ fn a_plant_step_on_a_changing_arm_allocates_nothing() {
     }
     let during = alloc::this_thread() - before;
     assert!(sink.is_finite());
-    assert_eq!(plant.geometry().tool_m, 0.046);
+    assert_eq!(plant.geometry().unwrap().tool_m, 0.046);
+    assert_eq!(
+        during, 0,
+        "{during} allocations or frees in 1000 plant steps"
+    );
+}
+
+/// Any arm's plant, too: the nine-tendon TDCR's, with every effect of the realism on.
+#[test]
+fn a_plant_step_on_any_arm_allocates_nothing() {
+    use softarm_sections::sim::Realism;
+    use softarm_sim::plant::{Body, Plant};
+    let text = include_str!("../../../ipc/arm/testdata/tdcr.toml");
+    let layout = softarm_arm::Layout::new(&toml::from_str(text).unwrap()).unwrap();
+    let realism = Realism {
+        curvature_taper: 0.3,
+        drift_m: 0.0005,
+        ..Realism::default()
+    };
+    let mut plant = Plant::of_body(Body::of_layout(&layout, &[]), realism, &[0.5; 9]).unwrap();
+
+    let _counted = alloc::count_this_thread();
+    let before = alloc::this_thread();
+    let mut sink = 0.0;
+    for k in 0..1000 {
+        let a = 0.5 + 0.2 * (k as f64 * 0.01).sin();
+        let m = plant.step(&[a; 9], 0.005);
+        sink += m.position[2] + m.actuation[8];
+    }
+    let during = alloc::this_thread() - before;
+    assert!(sink.is_finite() && sink > 0.0);
     assert_eq!(
         during, 0,
         "{during} allocations or frees in 1000 plant steps"

@@ -3,17 +3,18 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::arm::ACTUATORS;
 use crate::changes::Changes;
+use crate::per_actuator::PerActuator;
 
 /// The `[sim]` section: the sim driver's rate and start, and the plant's realism.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct SimConfig {
     /// Rate of `tracker` and `motor_state` (Hz).
     pub rate_hz: f64,
-    /// Where the actuators rest at start.
-    pub initial_actuation: [f64; ACTUATORS],
+    /// Where the actuators rest at start: one number for every actuator, or one per actuator
+    /// in the arm's order.
+    pub initial_actuation: PerActuator,
     pub realism: Realism,
     /// How the arm changes while the sim runs: a scenario's steps and drifts (scenario files
     /// only, not a key of `[sim]`). None by default.
@@ -25,7 +26,7 @@ impl Default for SimConfig {
     fn default() -> Self {
         Self {
             rate_hz: 200.0,
-            initial_actuation: [0.5; ACTUATORS],
+            initial_actuation: PerActuator::All(0.5),
             realism: Realism::default(),
             changes: Changes::default(),
         }
@@ -33,25 +34,17 @@ impl Default for SimConfig {
 }
 
 impl SimConfig {
-    /// Checks every field; the error is `sim.KEY: message` (`sim.realism.KEY` for the realism).
-    pub fn validate(&self) -> Result<(), String> {
+    /// Checks every field for an arm of `actuators`; the error is `sim.KEY: message`
+    /// (`sim.realism.KEY` for the realism).
+    pub fn validate(&self, actuators: usize) -> Result<(), String> {
         if !(self.rate_hz.is_finite() && (1.0..=5000.0).contains(&self.rate_hz)) {
             return Err(format!(
                 "sim.rate_hz: must be in [1, 5000] Hz, got {:?}",
                 self.rate_hz
             ));
         }
-        if let Some(i) = self
-            .initial_actuation
-            .iter()
-            .position(|a| !(0.0..=1.0).contains(a))
-        {
-            return Err(format!(
-                "sim.initial_actuation: actuator {} is {:?}; each must be in [0, 1]",
-                i + 1,
-                self.initial_actuation[i]
-            ));
-        }
+        self.initial_actuation
+            .check("sim.initial_actuation", actuators, 0.0..=1.0)?;
         self.realism.validate()
     }
 }
