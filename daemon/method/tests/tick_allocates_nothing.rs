@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::{D, primitives};
+use common::primitives_of;
 use softarm_method::blend::{Planner, Timeline};
 use softarm_sections::activation::ActivationConfig;
 use softarm_test_alloc::{self as alloc, Counting};
@@ -12,11 +12,18 @@ use softarm_test_alloc::{self as alloc, Counting};
 #[global_allocator]
 static GLOBAL: Counting = Counting;
 
+/// The paper's six actuators, a three-segment TDCR's nine, the most an arm may have.
 #[test]
 fn ticks_allocate_and_free_nothing() {
+    ticks_allocate_and_free_nothing_at::<6>();
+    ticks_allocate_and_free_nothing_at::<9>();
+    ticks_allocate_and_free_nothing_at::<16>();
+}
+
+fn ticks_allocate_and_free_nothing_at<const D: usize>() {
     let t_cond = [1.0, 3.0, 5.0, 7.0, 9.0];
     let planner = Planner::<D>::new(
-        primitives(3, 15),
+        primitives_of(3, 15, D),
         &t_cond,
         &[0, 1, 2, 1, 0],
         Timeline::new(10.0, 500.0).unwrap(),
@@ -55,7 +62,7 @@ fn ticks_allocate_and_free_nothing() {
     assert_eq!(
         during,
         0,
-        "{during} allocations or frees in {} ticks",
+        "{during} allocations or frees in {} ticks at D = {D}",
         tl.ticks()
     );
     drop(replanner);

@@ -179,32 +179,36 @@ impl<const D: usize> Planner<D> {
         let (gs, xs) = (g.as_slice(), x.as_slice()); // column-major
         let rows_g = D * k;
         for (tick, entry) in into.entries.iter_mut().enumerate() {
+            // Eq. 11 reads a group's table only where the group is active (b_i(t) > 0 around
+            // its T_cond, and the hand-overs to its neighbours): the rest is never computed,
+            // which is most of a long set's ticks.
+            let t = self.timeline.time_of(tick);
+            if !self.schedule.groups(t).iter().any(|(g, _)| g == group) {
+                continue;
+            }
             let phi = &self.phi[tick * k..(tick + 1) * k];
-            // C = Ψᵀ G and E = Ψᵀ Xᵀ = C S*⁻¹.
+            // C = Ψᵀ G and E = Ψᵀ Xᵀ = C S*⁻¹, each row over the basis in memory order.
             let mut c = [[0.0; D]; D];
             let mut e = [[0.0; D]; D];
             for d in 0..D {
                 for b in 0..D {
-                    let (mut sc, mut se) = (0.0, 0.0);
-                    for (i, f) in phi.iter().enumerate() {
-                        sc += f * gs[b * rows_g + d * k + i];
-                        se += f * xs[(d * k + i) * D + b];
+                    let g_col = &gs[b * rows_g + d * k..b * rows_g + (d + 1) * k];
+                    c[d][b] = phi.iter().zip(g_col).map(|(f, g)| f * g).sum();
+                }
+                for (i, f) in phi.iter().enumerate() {
+                    let x_col = &xs[(d * k + i) * D..(d * k + i + 1) * D];
+                    for b in 0..D {
+                        e[d][b] += f * x_col[b];
                     }
-                    c[d][b] = sc;
-                    e[d][b] = se;
                 }
             }
             let mut mean = self.base_mean[j][tick];
             let mut cov = self.base_cov[j][tick];
             for d in 0..D {
                 mean[d] += (0..D).map(|b| c[d][b] * u[b]).sum::<f64>();
-                for b in 0..D {
-                    cov[d][b] -= (0..D).map(|i| e[d][i] * c[b][i]).sum::<f64>();
-                }
-            }
-            for d in 0..D {
-                for b in 0..d {
-                    let v = 0.5 * (cov[d][b] + cov[b][d]);
+                // E Cᵀ = C S*⁻¹ Cᵀ is symmetric: one triangle, mirrored.
+                for b in 0..=d {
+                    let v = cov[d][b] - (0..D).map(|i| e[d][i] * c[b][i]).sum::<f64>();
                     cov[d][b] = v;
                     cov[b][d] = v;
                 }

@@ -9,6 +9,11 @@ pub const D: usize = 6;
 
 /// `demos` demonstrations of class `class`, each with its own length and duration.
 pub fn demonstrations(class: usize, demos: usize) -> Vec<Demonstration> {
+    demonstrations_of(class, demos, D)
+}
+
+/// [`demonstrations`] of `dofs` actuators.
+pub fn demonstrations_of(class: usize, demos: usize, dofs: usize) -> Vec<Demonstration> {
     (0..demos)
         .map(|i| {
             let fi = i as f64;
@@ -17,7 +22,7 @@ pub fn demonstrations(class: usize, demos: usize) -> Vec<Demonstration> {
             let times: Vec<f64> = (0..samples)
                 .map(|s| duration * s as f64 / (samples - 1) as f64)
                 .collect();
-            let values = DMatrix::from_fn(samples, D, |r, d| {
+            let values = DMatrix::from_fn(samples, dofs, |r, d| {
                 let z = times[r] / duration;
                 let c = class as f64;
                 let df = d as f64;
@@ -36,11 +41,16 @@ pub fn demonstrations(class: usize, demos: usize) -> Vec<Demonstration> {
 
 /// M actuation-space primitives with K basis functions, trained on 20 demos each.
 pub fn primitives(m: usize, k: usize) -> Vec<Primitive> {
+    primitives_of(m, k, D)
+}
+
+/// [`primitives`] of `dofs` actuators.
+pub fn primitives_of(m: usize, k: usize, dofs: usize) -> Vec<Primitive> {
     (0..m)
         .map(|class| {
             Primitive::train(
                 Basis::new(k, None).unwrap(),
-                &demonstrations(class, 20),
+                &demonstrations_of(class, 20, dofs),
                 &TrainConfig::default(),
             )
             .unwrap()

@@ -5,6 +5,7 @@
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
+use nalgebra::DMatrix;
 use serde_json::{Map, Value};
 use softarm_config::activation::ActivationConfig;
 use softarm_config::arm::ArmGeometry;
@@ -17,6 +18,7 @@ use softarm_kinematics::forward::ForwardModel;
 use softarm_kinematics::poly::Polynomial;
 use softarm_kinematics::rbf::RbfNetwork;
 use softarm_method::blend::{Planner, Timeline};
+use softarm_method::promp::{Basis, Demonstration, Primitive, TrainConfig};
 use softarm_model::pipeline::{self, Training, TrainingData};
 
 use super::{Out, Stats, header, histogram, record, row};
@@ -38,6 +40,8 @@ pub(super) fn run(
     let arm = ArmGeometry::default();
     let demos = TrainingData::from_plant(&arm, &DemoRecipe::default(), 1)?;
     t.blend(&demos, ticks, reconditions)?;
+    t.blend_wider::<9>(&demos, ticks, reconditions)?;
+    t.blend_wider::<16>(&demos, ticks, reconditions)?;
     t.cacla_update(&arm, &demos, ticks.min(100_000))?;
     t.forward_models(&arm, &demos, ticks.min(100_000))?;
     std::hint::black_box(t.sink);
@@ -77,20 +81,68 @@ impl Timed<'_> {
         reconditions: usize,
     ) -> anyhow::Result<()> {
         let (actuation, _task) = pipeline::primitives(&demos.recordings, 15)?;
+        self.out.text(&header(
+            "Single calls (N=5 conditioning points, M=3 primitives, D=6, K=15, 10 s at 500 Hz)",
+        ));
+        self.time_blend::<6>(actuation, ticks, reconditions, "")
+    }
+
+    /// [`Timed::blend`] on an arm of `A` actuators: primitives of the paper's demonstrations
+    /// widened to `A` (actuator d follows a mix of two of the six), their timing the point.
+    fn blend_wider<const A: usize>(
+        &mut self,
+        demos: &TrainingData,
+        ticks: usize,
+        reconditions: usize,
+    ) -> anyhow::Result<()> {
+        let basis = Basis::new(15, None)?;
+        let classes = demos
+            .recordings
+            .iter()
+            .map(|r| r.class + 1)
+            .max()
+            .unwrap_or(0);
+        let primitives = (0..classes)
+            .map(|class| {
+                let mine: Vec<Demonstration> = demos
+                    .recordings
+                    .iter()
+                    .filter(|r| r.class == class)
+                    .map(|r| {
+                        let wide = DMatrix::from_fn(r.times.len(), A, |i, d| {
+                            let a = &r.actuation[i];
+                            0.5 * (a[d % 6] + a[(5 * d + 1) % 6])
+                        });
+                        Demonstration::new(r.times.clone(), wide)
+                    })
+                    .collect();
+                Primitive::train(basis.clone(), &mine, &TrainConfig::default())
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        self.out
+            .text(&format!("  the same on an arm of {A} actuators (D={A}):"));
+        self.time_blend::<A>(primitives, ticks, reconditions, &format!("_d{A}"))
+    }
+
+    /// Times the tick and re-condition + ready on `primitives`; JSON keys end in `suffix`.
+    fn time_blend<const A: usize>(
+        &mut self,
+        primitives: Vec<Primitive>,
+        ticks: usize,
+        reconditions: usize,
+        suffix: &str,
+    ) -> anyhow::Result<()> {
         let t_cond = [1.0, 3.0, 5.0, 7.0, 9.0];
-        let planner = Planner::<6>::new(
-            actuation,
+        let planner = Planner::<A>::new(
+            primitives,
             &t_cond,
             &[0, 1, 2, 1, 0],
             Timeline::new(10.0, 500.0)?,
             ActivationConfig::default(),
             1e-6,
         )?;
-        let (mut blend, mut replanner) = planner.start(&[[0.5; 6]; 5])?;
+        let (mut blend, mut replanner) = planner.start(&[[0.5; A]; 5])?;
         let engine_ticks = blend.timeline().ticks();
-        self.out.text(&header(
-            "Single calls (N=5 conditioning points, M=3 primitives, D=6, K=15, 10 s at 500 Hz)",
-        ));
         let mut ns = histogram();
         for i in 0..ticks {
             let start = Instant::now();
@@ -98,18 +150,22 @@ impl Timed<'_> {
             record(&mut ns, start);
             self.sink += v[0];
         }
-        self.report("eq11_tick", "Eq. 11 tick", &ns)?;
+        self.report(&format!("eq11_tick{suffix}"), "Eq. 11 tick", &ns)?;
 
         let k3 = blend.timeline().tick_of(t_cond[3]);
         let mut ns = histogram();
         for i in 0..reconditions {
-            let a = [0.4 + 0.002 * i as f64; 6];
+            let a = [0.4 + 0.002 * i as f64; A];
             let start = Instant::now();
             replanner.recondition(1, &a, 2)?;
             self.sink += blend.tick(k3)[0];
             record(&mut ns, start);
         }
-        self.report("recondition", "re-condition one group + ready", &ns)
+        self.report(
+            &format!("recondition{suffix}"),
+            "re-condition one group + ready",
+            &ns,
+        )
     }
 
     /// A CACLA-MTL update at a conditioning point, five points visited in turn as in an
