@@ -247,6 +247,10 @@ enum Command {
         /// loopback only with view.allow_remote = true in the config.
         #[arg(long)]
         listen: Option<String>,
+        /// Instead of serving: write the Foxglove layout for the config's arm (its actuators
+        /// by name) to this file, and exit.
+        #[arg(long, value_name = "FILE")]
+        layout: Option<PathBuf>,
         #[command(flatten)]
         stack: Stack,
     },
@@ -467,9 +471,27 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             let namespace = config.bus()?;
             record::run(&namespace, &settings, &output, duration, &*stop_flag()?)?
         }
-        Command::View { listen, stack } => {
-            softarm_view::run(&stack.load()?, listen.as_deref(), &*stop_flag()?)?
+        Command::View {
+            layout: Some(file),
+            stack,
+            ..
+        } => {
+            let config = stack.load()?;
+            let json =
+                serde_json::to_string_pretty(&softarm_view::layout::for_arm(&config.layout()))?;
+            softarm_runtime::file::write_atomic(&file, format!("{json}\n").as_bytes(), None)
+                .with_context(|| format!("writing the layout to {}", file.display()))?;
+            println!(
+                "{}: the Foxglove layout for {}",
+                file.display(),
+                config.arm_identity()
+            );
         }
+        Command::View {
+            listen,
+            layout: None,
+            stack,
+        } => softarm_view::run(&stack.load()?, listen.as_deref(), &*stop_flag()?)?,
         Command::Ros2 { stack } => softarm_ros2::run(&stack.load()?, &*stop_flag()?)?,
         Command::Replay { recording, json } => record::replay_command(&recording, json)?,
         Command::Plot { recording, output } => plot::run(&recording, &output)?,

@@ -29,6 +29,7 @@
 //! that came or went, to the log). The door runs on threads of its own.
 
 pub mod door;
+pub mod layout;
 
 use std::collections::HashMap;
 use std::net::{Ipv4Addr, SocketAddr};
