@@ -5,26 +5,31 @@
 use softarm_sections::arm::ArmGeometry;
 use softarm_space::{ACTUATORS, Actuation, Position};
 
-use crate::pcc::Kinematics;
+use crate::pcc::{self, Kinematics};
 
-/// ∂p/∂a: metres per unit of normalised actuation, one row per axis.
-pub type Jacobian = nalgebra::SMatrix<f64, 3, ACTUATORS>;
+/// ∂p/∂a: metres per unit of normalised actuation, one row per axis, one column per actuator
+/// (`N` of them: the paper's six unless said).
+pub type Jacobian<const N: usize = ACTUATORS> = nalgebra::SMatrix<f64, 3, N>;
 
-/// Something that predicts where the end effector goes for a normalised actuation.
-pub trait ForwardModel {
-    fn position(&self, actuation: &Actuation) -> Position;
+/// Something that predicts where the end effector goes for a normalised actuation of `N`
+/// actuators (the paper's six unless said).
+pub trait ForwardModel<const N: usize = ACTUATORS> {
+    fn position(&self, actuation: &[f64; N]) -> Position;
 
     /// ∂p/∂a at `actuation`; central differences unless the model knows better.
-    fn jacobian(&self, actuation: &Actuation) -> Jacobian {
+    fn jacobian(&self, actuation: &[f64; N]) -> Jacobian<N> {
         finite_difference(self, actuation)
     }
 }
 
 /// ∂p/∂a by central differences of `model`.
-pub fn finite_difference<M: ForwardModel + ?Sized>(model: &M, a: &Actuation) -> Jacobian {
+pub fn finite_difference<const N: usize, M: ForwardModel<N> + ?Sized>(
+    model: &M,
+    a: &[f64; N],
+) -> Jacobian<N> {
     const H: f64 = 1e-5;
-    let mut j = Jacobian::zeros();
-    for i in 0..ACTUATORS {
+    let mut j = Jacobian::<N>::zeros();
+    for i in 0..N {
         let (mut up, mut down) = (*a, *a);
         up[i] += H;
         down[i] -= H;
@@ -34,6 +39,18 @@ pub fn finite_difference<M: ForwardModel + ?Sized>(model: &M, a: &Actuation) -> 
         }
     }
     j
+}
+
+/// Any arm's PCC kinematics ([`pcc::Arm`] of `N` actuators) as a forward model; an actuation
+/// whose arcs the model cannot tell (outside every valid arm's strokes) gives NaN.
+impl<const N: usize> ForwardModel<N> for pcc::Arm {
+    fn position(&self, actuation: &[f64; N]) -> Position {
+        debug_assert_eq!(self.actuators(), N);
+        match self.pose(actuation) {
+            Ok(p) => [p.position.x, p.position.y, p.position.z],
+            Err(_) => [f64::NAN; 3],
+        }
+    }
 }
 
 /// The PCC kinematics ([`Kinematics`]) as a forward model.

@@ -1,4 +1,4 @@
-//! A polynomial forward model: every monomial of degree ≤ d in the six (centred) actuations,
+//! A polynomial forward model: every monomial of degree ≤ d in the `N` (centred) actuations,
 //! fitted by ridge least squares on D_fwd. The RBF network fits positions to about a millimetre
 //! but its gradients between the demonstrations are poor; the arm's kinematics are smooth, so a
 //! degree-4 polynomial (210 terms) fits them as well and its Jacobian is good enough to steer
@@ -7,7 +7,7 @@
 use nalgebra::DMatrix;
 pub use softarm_sections::kinematics::MAX_DEGREE;
 use softarm_sections::kinematics::PolynomialConfig;
-use softarm_space::{ACTUATORS, Actuation, Position};
+use softarm_space::{ACTUATORS, Position};
 
 use crate::forward::{ForwardModel, Jacobian};
 
@@ -16,26 +16,31 @@ const CENTRE: f64 = 0.5;
 
 /// p(a) = Σ_m w_m Π_i (a_i − ½)^{e_{m,i}} per axis.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Polynomial {
+pub struct Polynomial<const N: usize = ACTUATORS> {
     degree: usize,
     /// One exponent row per monomial, in the order [`exponents`] gives.
-    exponents: Vec<[u8; ACTUATORS]>,
+    exponents: Vec<[u8; N]>,
     /// One row per monomial, one column per axis.
     weights: Vec<Position>,
 }
 
-/// The exponents of every monomial of degree ≤ `degree` in six variables, constant first.
-pub fn exponents(degree: usize) -> Vec<[u8; ACTUATORS]> {
+/// The exponents of every monomial of degree ≤ `degree` in `N` variables, constant first.
+pub fn exponents<const N: usize>(degree: usize) -> Vec<[u8; N]> {
     let mut out = Vec::new();
     for total in 0..=degree {
-        let mut e = [0u8; ACTUATORS];
+        let mut e = [0u8; N];
         compositions(total, 0, &mut e, &mut out);
     }
     out
 }
 
-fn compositions(left: usize, i: usize, e: &mut [u8; ACTUATORS], out: &mut Vec<[u8; ACTUATORS]>) {
-    if i == ACTUATORS - 1 {
+/// How many monomials of degree ≤ `degree` `inputs` variables have: C(inputs + degree, degree).
+pub fn terms(inputs: usize, degree: usize) -> usize {
+    (1..=degree).fold(1, |c, k| c * (inputs + k) / k)
+}
+
+fn compositions<const N: usize>(left: usize, i: usize, e: &mut [u8; N], out: &mut Vec<[u8; N]>) {
+    if i == N - 1 {
         e[i] = left as u8;
         out.push(*e);
         return;
@@ -47,8 +52,8 @@ fn compositions(left: usize, i: usize, e: &mut [u8; ACTUATORS], out: &mut Vec<[u
 }
 
 /// (a_i − ½)^k for k = 0..=degree, per actuator.
-fn powers(a: &Actuation, degree: usize) -> [[f64; MAX_DEGREE + 1]; ACTUATORS] {
-    let mut p = [[1.0; MAX_DEGREE + 1]; ACTUATORS];
+fn powers<const N: usize>(a: &[f64; N], degree: usize) -> [[f64; MAX_DEGREE + 1]; N] {
+    let mut p = [[1.0; MAX_DEGREE + 1]; N];
     for (i, row) in p.iter_mut().enumerate() {
         let x = a[i] - CENTRE;
         for k in 1..=degree {
@@ -58,10 +63,10 @@ fn powers(a: &Actuation, degree: usize) -> [[f64; MAX_DEGREE + 1]; ACTUATORS] {
     p
 }
 
-impl Polynomial {
+impl<const N: usize> Polynomial<N> {
     /// Fits on (actuation, position) samples.
     pub fn fit(
-        actuations: &[Actuation],
+        actuations: &[[f64; N]],
         positions: &[Position],
         config: &PolynomialConfig,
     ) -> Result<Self, String> {
@@ -155,14 +160,14 @@ impl Polynomial {
         &self.weights
     }
 
-    fn term(&self, p: &[[f64; MAX_DEGREE + 1]; ACTUATORS], m: usize) -> f64 {
+    fn term(&self, p: &[[f64; MAX_DEGREE + 1]; N], m: usize) -> f64 {
         let e = &self.exponents[m];
-        (0..ACTUATORS).map(|i| p[i][e[i] as usize]).product()
+        (0..N).map(|i| p[i][e[i] as usize]).product()
     }
 }
 
-impl ForwardModel for Polynomial {
-    fn position(&self, a: &Actuation) -> Position {
+impl<const N: usize> ForwardModel<N> for Polynomial<N> {
+    fn position(&self, a: &[f64; N]) -> Position {
         let p = powers(a, self.degree);
         let mut y = [0.0; 3];
         for (m, w) in self.weights.iter().enumerate() {
@@ -174,11 +179,11 @@ impl ForwardModel for Polynomial {
         y
     }
 
-    fn jacobian(&self, a: &Actuation) -> Jacobian {
+    fn jacobian(&self, a: &[f64; N]) -> Jacobian<N> {
         let p = powers(a, self.degree);
-        let mut j = Jacobian::zeros();
+        let mut j = Jacobian::<N>::zeros();
         for (e, w) in self.exponents.iter().zip(&self.weights) {
-            for i in 0..ACTUATORS {
+            for i in 0..N {
                 let k = e[i] as usize;
                 if k == 0 {
                     continue;
@@ -210,19 +215,48 @@ mod tests {
     fn term_counts_are_binomial() {
         // C(6 + d, d)
         for (d, n) in [(1, 7), (2, 28), (3, 84), (4, 210), (5, 462)] {
-            assert_eq!(exponents(d).len(), n);
+            assert_eq!(exponents::<6>(d).len(), n);
+            assert_eq!(terms(6, d), n);
         }
-        assert_eq!(exponents(2)[0], [0; 6]);
+        assert_eq!(exponents::<6>(2)[0], [0; 6]);
+        assert_eq!(exponents::<9>(3).len(), terms(9, 3));
+        assert_eq!(terms(16, 4), 4845);
+        assert_eq!(terms(16, 2), 153);
+    }
+
+    /// On any arm: the nine-tendon TDCR's kinematics.
+    #[test]
+    fn fits_a_nine_tendon_arm() {
+        let text = include_str!("../../../ipc/arm/testdata/tdcr.toml");
+        let layout = softarm_arm::Layout::new(&toml::from_str(text).unwrap()).unwrap();
+        let arm = crate::pcc::Arm::new(&layout, &[]);
+        let mut rng = StdRng::seed_from_u64(9);
+        // A fifth of each 20 mm stroke on a 4.5 mm radius still bends each segment by up to
+        // 0.45 rad: the three together turn the tip by most of a right angle.
+        let sample =
+            |rng: &mut StdRng| -> [f64; 9] { std::array::from_fn(|_| rng.random_range(0.4..0.6)) };
+        let a: Vec<[f64; 9]> = (0..4000).map(|_| sample(&mut rng)).collect();
+        let p: Vec<Position> = a.iter().map(|a| arm.position(a)).collect();
+        let config = PolynomialConfig::default();
+        let poly = Polynomial::fit(&a, &p, &config).unwrap();
+        for _ in 0..50 {
+            let x = sample(&mut rng);
+            let err = softarm_space::distance(&poly.position(&x), &arm.position(&x));
+            assert!(err < 1e-3, "fit error {err} m");
+            let j = poly.jacobian(&x);
+            let truth = crate::forward::finite_difference(&arm, &x);
+            assert!((j - truth).abs().max() < 0.02, "{j} vs {truth}");
+        }
     }
 
     #[test]
     fn fits_the_arm_and_its_jacobian_matches_finite_differences() {
         let arm = ArmGeometry::default();
         let mut rng = StdRng::seed_from_u64(7);
-        let sample = |rng: &mut StdRng| -> Actuation {
+        let sample = |rng: &mut StdRng| -> [f64; 6] {
             std::array::from_fn(|_| rng.random_range(0.25..0.75))
         };
-        let a: Vec<Actuation> = (0..2000).map(|_| sample(&mut rng)).collect();
+        let a: Vec<[f64; 6]> = (0..2000).map(|_| sample(&mut rng)).collect();
         let p: Vec<Position> = a.iter().map(|a| arm.position(a)).collect();
         let poly = Polynomial::fit(&a, &p, &PolynomialConfig::default()).unwrap();
         for _ in 0..50 {
@@ -263,7 +297,7 @@ mod tests {
                 .unwrap_err()
                 .contains("singular")
         );
-        assert!(Polynomial::from_weights(2, vec![[0.0; 3]; 27]).is_err());
-        assert!(Polynomial::from_weights(2, vec![[f64::NAN; 3]; 28]).is_err());
+        assert!(Polynomial::<6>::from_weights(2, vec![[0.0; 3]; 27]).is_err());
+        assert!(Polynomial::<6>::from_weights(2, vec![[f64::NAN; 3]; 28]).is_err());
     }
 }

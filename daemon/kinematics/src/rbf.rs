@@ -15,7 +15,7 @@ use serde::{Deserialize, Serialize};
 
 use softarm_sections::forward_model::NetworkConfig;
 pub use softarm_sections::learner::MAX_SPAN;
-use softarm_space::{Actuation, Position};
+use softarm_space::{ACTUATORS, Position};
 
 /// Largest lattice dimension.
 pub const MAX_DIM: usize = 8;
@@ -418,19 +418,20 @@ impl<const OUT: usize> LinearRbf<OUT> {
     }
 }
 
-/// The forward model: y = Σ_c w_c exp(−‖a − c‖² / 2σ²) + W_lin [1, a].
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct RbfNetwork {
-    centres: Vec<Actuation>,
+/// The forward model: y = Σ_c w_c exp(−‖a − c‖² / 2σ²) + W_lin [1, a], on `N` actuators (the
+/// paper's six unless said). Saved by its parts ([`RbfNetwork::parts`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct RbfNetwork<const N: usize = ACTUATORS> {
+    centres: Vec<[f64; N]>,
     sigma: f64,
-    /// One row per feature (centres, then 1 and the six actuations), one column per axis.
+    /// One row per feature (centres, then 1 and the `N` actuations), one column per axis.
     weights: Vec<Position>,
 }
 
-impl RbfNetwork {
+impl<const N: usize> RbfNetwork<N> {
     /// Fits on (actuation, position) samples.
     pub fn fit(
-        actuations: &[Actuation],
+        actuations: &[[f64; N]],
         positions: &[Position],
         config: &NetworkConfig,
     ) -> Result<Self, RbfError> {
@@ -443,11 +444,12 @@ impl RbfNetwork {
             ));
         }
         let n = actuations.len();
-        if config.centres == 0 || n < config.centres + 7 {
+        let linear = N + 1;
+        if config.centres == 0 || n < config.centres + linear {
             return bad(format!(
                 "{n} samples are too few for {} centres (need at least {})",
                 config.centres,
-                config.centres + 7
+                config.centres + linear
             ));
         }
         if actuations
@@ -482,7 +484,7 @@ impl RbfNetwork {
             sigma,
             weights: Vec::new(),
         };
-        let f = net.centres.len() + 7;
+        let f = net.centres.len() + linear;
         let mut phi = DMatrix::zeros(n, f);
         let mut row = vec![0.0; f];
         for (r, a) in actuations.iter().enumerate() {
@@ -503,14 +505,14 @@ impl RbfNetwork {
         Ok(net)
     }
 
-    fn features(&self, a: &Actuation, out: &mut [f64]) {
+    fn features(&self, a: &[f64; N], out: &mut [f64]) {
         let inv = 1.0 / (2.0 * self.sigma * self.sigma);
         for (o, c) in out.iter_mut().zip(&self.centres) {
             *o = (-dist2(a, c) * inv).exp();
         }
         let m = self.centres.len();
         out[m] = 1.0;
-        out[m + 1..m + 7].copy_from_slice(a);
+        out[m + 1..m + 1 + N].copy_from_slice(a);
     }
 
     pub fn centres(&self) -> usize {
@@ -518,21 +520,21 @@ impl RbfNetwork {
     }
 
     /// (centres, σ, output weights), for saving.
-    pub fn parts(&self) -> (&[Actuation], f64, &[Position]) {
+    pub fn parts(&self) -> (&[[f64; N]], f64, &[Position]) {
         (&self.centres, self.sigma, &self.weights)
     }
 
-    /// A network from saved parts; the weights need one row per centre plus seven.
+    /// A network from saved parts; the weights need one row per centre plus `N` + 1.
     pub fn from_parts(
-        centres: Vec<Actuation>,
+        centres: Vec<[f64; N]>,
         sigma: f64,
         weights: Vec<Position>,
     ) -> Result<Self, String> {
-        if centres.is_empty() || weights.len() != centres.len() + 7 {
+        if centres.is_empty() || weights.len() != centres.len() + N + 1 {
             return Err(format!(
                 "forward model: {} centres need {} weight rows, got {}",
                 centres.len(),
-                centres.len() + 7,
+                centres.len() + N + 1,
                 weights.len()
             ));
         }
@@ -547,8 +549,8 @@ impl RbfNetwork {
     }
 }
 
-impl crate::forward::ForwardModel for RbfNetwork {
-    fn position(&self, a: &Actuation) -> Position {
+impl<const N: usize> crate::forward::ForwardModel<N> for RbfNetwork<N> {
+    fn position(&self, a: &[f64; N]) -> Position {
         let inv = 1.0 / (2.0 * self.sigma * self.sigma);
         let mut y = [0.0; 3];
         for (c, w) in self.centres.iter().zip(&self.weights) {
@@ -568,12 +570,12 @@ impl crate::forward::ForwardModel for RbfNetwork {
     }
 }
 
-fn dist2(a: &Actuation, b: &Actuation) -> f64 {
+fn dist2<const N: usize>(a: &[f64; N], b: &[f64; N]) -> f64 {
     a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum()
 }
 
 /// Greedy farthest-point sampling: spreads `m` centres over the data, deterministically.
-fn farthest_points(data: &[Actuation], m: usize) -> Vec<Actuation> {
+fn farthest_points<const N: usize>(data: &[[f64; N]], m: usize) -> Vec<[f64; N]> {
     let mut chosen = vec![data[0]];
     let mut nearest: Vec<f64> = data.iter().map(|x| dist2(x, &data[0])).collect();
     while chosen.len() < m {
@@ -738,7 +740,7 @@ mod tests {
         let mut p = Vec::new();
         let mut rng = StdRng::seed_from_u64(6);
         for _ in 0..600 {
-            let x: Actuation = std::array::from_fn(|_| rng.random());
+            let x: [f64; 6] = std::array::from_fn(|_| rng.random());
             a.push(x);
             p.push([x[0] * x[1], (x[2] - x[3]).sin(), x[4] + 0.5 * x[5] * x[5]]);
         }

@@ -464,11 +464,11 @@ impl Model {
             let (_, w) = t.f64s("forward.weights", &[Some(shape[0] + 7), Some(3)])?;
             let weights: Vec<[f64; 3]> = w.chunks_exact(3).map(|r| [r[0], r[1], r[2]]).collect();
             let forward = RbfNetwork::from_parts(centres, meta.forward_sigma, weights)?;
-            let terms = softarm_kinematics::poly::exponents(
+            let terms = softarm_kinematics::poly::terms(
+                6,
                 meta.kinematics_degree
                     .min(softarm_sections::kinematics::MAX_DEGREE),
-            )
-            .len();
+            );
             let (_, kw) = t.f64s("kinematics.weights", &[Some(terms), Some(3)])?;
             let kinematics = Polynomial::from_weights(
                 meta.kinematics_degree,
