@@ -578,7 +578,7 @@ impl Config {
         count("model.basis_functions", self.model.basis_functions, 2, 40)?;
 
         let d = &self.demonstrations;
-        d.validate().map_err(|e| keyed("demonstrations", e))?;
+        d.validate(n).map_err(|e| keyed("demonstrations", e))?;
         if d.sample_rate_hz > c.rate_hz {
             return invalid(
                 "demonstrations.sample_rate_hz",
@@ -1127,9 +1127,15 @@ mod tests {
 
     #[test]
     fn inline_table_elements_point_at_their_own_line() {
-        let class =
-            "  { start = [0.8, 0.2, 0.7, 0.7, 1.2, 0.6], end = [0.6, 0.8, 0.2, 0.5, 0.8, 0.2] },";
-        let (text, line) = edit("demonstrations", "  { start = [0.8, 0.2", class);
+        let at = DEFAULT.find("intermediate_points = 2\n").unwrap() + 24;
+        let text = format!(
+            "{}classes = [\n  {{ start = [0.2, 0.8, 0.8, 0.5, 0.5, 0.5], end = [0.8, 0.3, 0.3, 0.5, \
+             0.5, 0.5] }},\n  {{ start = [0.8, 0.2, 0.7, 0.7, 1.2, 0.6], end = [0.6, 0.8, 0.2, \
+             0.5, 0.8, 0.2] }},\n]\n{}",
+            &DEFAULT[..at],
+            &DEFAULT[at..]
+        );
+        let line = text[..at].lines().count() + 3;
         let e = refused(&text);
         assert_eq!(e.line, Some(line), "{e}");
         names_key_once(&e, "demonstrations.classes[1].start");

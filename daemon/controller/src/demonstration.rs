@@ -20,8 +20,9 @@ impl DemoSequences {
     /// The configured recipe's sequences for `seed`, at the controller's rate.
     pub(crate) fn new(config: &Config, seed: u64) -> Self {
         let recipe = &config.demonstrations;
+        let classes = softarm_method::skill::classes(recipe, &config.layout());
         Self {
-            sequences: softarm_method::skill::sequences(recipe, seed),
+            sequences: softarm_method::skill::sequences(recipe, &classes, seed),
             ticks_per_sample: (config.controller.rate_hz / recipe.sample_rate_hz)
                 .round()
                 .max(1.0) as usize,

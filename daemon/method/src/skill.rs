@@ -1,37 +1,128 @@
 //! Demonstrations by the paper's III-B recipe and what is trained from them: per primitive
 //! class, random start and end actuations around the class extremes, random intermediate
 //! points, linear interpolation; each class trains one actuation-space and one task-space ProMP,
-//! and all samples together form D_fwd for the forward model. Pure math.
+//! and all samples together form D_fwd for the forward model. For an arm of any `N` actuators:
+//! a recipe without classes takes them from the arm ([`classes`]). Pure math.
 
 use nalgebra::DMatrix;
 use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
+use softarm_arm::{Kind, Layout, Routing};
 use softarm_kinematics::forward::ForwardModel;
-use softarm_sections::demonstrations::DemoRecipe;
+use softarm_sections::activation::MAX_PRIMITIVES;
+use softarm_sections::demonstrations::{ClassExtremes, DemoRecipe};
 
 use crate::promp::{Basis, Demonstration, Primitive, PrimitiveError, TrainConfig};
-use crate::space::{Actuation, Position};
+use crate::space::Position;
 
-/// The actuation sequences to play of `recipe`, per class: (class, samples at
-/// `sample_rate_hz`).
-pub fn sequences(recipe: &DemoRecipe, seed: u64) -> Vec<(usize, Vec<Actuation>)> {
+/// How far a derived class bends a module from the middle of its strokes (normalised).
+const SWEEP: f64 = 0.3;
+
+/// The recipe's classes on `arm`: those it gives, else the paper's three on the paper's kind of
+/// arm (two soft modules of three evenly spaced tendons ending in their module), else derived:
+/// for each module a sweep from bending one way to bending the opposite way, then all modules
+/// bent the same way and, with more than one, an S (each bent opposite to the one before);
+/// at most [`MAX_PRIMITIVES`].
+pub fn classes(recipe: &DemoRecipe, arm: &Layout) -> Vec<ClassExtremes> {
+    if let Some(given) = &recipe.classes {
+        return given.clone();
+    }
+    if papers_kind(arm) {
+        return DemoRecipe::paper_classes();
+    }
+    let modules = arm.modules().len();
+    // (direction each module bends at the start: None for straight), per class.
+    let mut plans: Vec<Vec<Option<f64>>> = (0..modules)
+        .map(|m| (0..modules).map(|k| (k == m).then_some(0.0)).collect())
+        .collect();
+    plans.push(vec![Some(0.0); modules]);
+    if modules > 1 {
+        plans.push(
+            (0..modules)
+                .map(|k| Some(std::f64::consts::PI * (k % 2) as f64))
+                .collect(),
+        );
+    }
+    plans.truncate(MAX_PRIMITIVES);
+    plans
+        .into_iter()
+        .enumerate()
+        .map(|(c, plan)| {
+            // Each class in a plane of its own, so the classes cover the workspace around.
+            let phi = std::f64::consts::TAU * c as f64 / (modules + 2) as f64;
+            let at = |sign: f64| bent(arm, &plan, phi, sign);
+            ClassExtremes {
+                start: at(1.0),
+                end: at(-1.0),
+            }
+        })
+        .collect()
+}
+
+/// The normalised actuation that bends each module of `plan` towards `phi` + its own
+/// direction (away from it for `sign` = −1), the others left at the middle of their strokes: a
+/// tendon shortens on the side it bends towards, a chamber off the axis lengthens opposite it,
+/// one on the axis stays.
+fn bent(arm: &Layout, plan: &[Option<f64>], phi: f64, sign: f64) -> Vec<f64> {
+    arm.actuators()
+        .iter()
+        .map(|a| {
+            let Some(offset) = plan[a.module] else {
+                return 0.5;
+            };
+            let toward = (a.angle_rad - (phi + offset)).cos();
+            let pull = match a.kind {
+                _ if a.radius_m == 0.0 => 0.0,
+                Kind::Tendon => -toward,
+                Kind::Chamber => toward,
+            };
+            (0.5 + sign * SWEEP * pull).clamp(0.0, 1.0)
+        })
+        .collect()
+}
+
+/// Two soft modules of three tendons at 120°, ending in their module: the arm the paper's
+/// classes were written for.
+fn papers_kind(arm: &Layout) -> bool {
+    arm.modules().len() == 2
+        && arm.routing() == Routing::Independent
+        && arm.modules().iter().all(|m| {
+            let own = &arm.actuators()[m.actuators.clone()];
+            m.backbone_m.is_none()
+                && own.len() == 3
+                && own.iter().all(|a| a.kind == Kind::Tendon)
+                && (0..3).all(|k| {
+                    let step = own[k].angle_rad - own[0].angle_rad;
+                    (step - std::f64::consts::TAU * k as f64 / 3.0).abs() < 1e-9
+                })
+        })
+}
+
+/// The actuation sequences to play of `recipe` with `classes` ([`classes`]), per class:
+/// (class, samples at `sample_rate_hz`), `N` actuators each.
+pub fn sequences<const N: usize>(
+    recipe: &DemoRecipe,
+    classes: &[ClassExtremes],
+    seed: u64,
+) -> Vec<(usize, Vec<[f64; N]>)> {
     let mut rng = StdRng::seed_from_u64(seed);
     let samples = (recipe.duration_s * recipe.sample_rate_hz).round() as usize + 1;
-    let mut out = Vec::with_capacity(recipe.classes.len() * recipe.demos_per_class);
-    for (class, ex) in recipe.classes.iter().enumerate() {
+    let mut out = Vec::with_capacity(classes.len() * recipe.demos_per_class);
+    let fixed = |v: &[f64]| -> [f64; N] { std::array::from_fn(|d| v[d]) };
+    for (class, ex) in classes.iter().enumerate() {
+        let (start, end) = (fixed(&ex.start), fixed(&ex.end));
         for _ in 0..recipe.demos_per_class {
-            let mut jitter = |nominal: Actuation| -> Actuation {
+            let mut jitter = |nominal: [f64; N]| -> [f64; N] {
                 nominal
                     .map(|v| (v + rng.random_range(-recipe.spread..=recipe.spread)).clamp(0.0, 1.0))
             };
-            let mut knots = vec![(0.0, jitter(ex.start))];
+            let mut knots = vec![(0.0, jitter(start))];
             for i in 1..=recipe.intermediate_points {
                 let f = i as f64 / (recipe.intermediate_points + 1) as f64;
-                let nominal: Actuation =
-                    std::array::from_fn(|d| ex.start[d] + f * (ex.end[d] - ex.start[d]));
+                let nominal: [f64; N] = std::array::from_fn(|d| start[d] + f * (end[d] - start[d]));
                 knots.push((f, jitter(nominal)));
             }
-            knots.push((1.0, jitter(ex.end)));
+            knots.push((1.0, jitter(end)));
             let seq = (0..samples)
                 .map(|s| interpolate(&knots, s as f64 / (samples - 1) as f64))
                 .collect();
@@ -42,7 +133,7 @@ pub fn sequences(recipe: &DemoRecipe, seed: u64) -> Vec<(usize, Vec<Actuation>)>
 }
 
 /// Piecewise-linear interpolation through (phase, actuation) knots.
-fn interpolate(knots: &[(f64, Actuation)], z: f64) -> Actuation {
+fn interpolate<const N: usize>(knots: &[(f64, [f64; N])], z: f64) -> [f64; N] {
     let i = knots
         .windows(2)
         .position(|w| z <= w[1].0)
@@ -55,17 +146,23 @@ fn interpolate(knots: &[(f64, Actuation)], z: f64) -> Actuation {
 
 /// One recorded demonstration: what was commanded and where the end effector went.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Recording {
+pub struct Recording<const N: usize = { crate::space::ACTUATORS }> {
     pub class: usize,
     pub times: Vec<f64>,
-    pub actuation: Vec<Actuation>,
+    pub actuation: Vec<[f64; N]>,
     pub position: Vec<Position>,
 }
 
-/// Plays the recipe's sequences through a forward model (the kinematic plant) and records.
-pub fn demonstrations(model: &impl ForwardModel, recipe: &DemoRecipe, seed: u64) -> Vec<Recording> {
+/// Plays the recipe's sequences with `classes` through a forward model (the kinematic plant)
+/// and records.
+pub fn demonstrations<const N: usize>(
+    model: &impl ForwardModel<N>,
+    recipe: &DemoRecipe,
+    classes: &[ClassExtremes],
+    seed: u64,
+) -> Vec<Recording<N>> {
     let dt = 1.0 / recipe.sample_rate_hz;
-    sequences(recipe, seed)
+    sequences(recipe, classes, seed)
         .into_iter()
         .map(|(class, actuation)| Recording {
             class,
@@ -76,9 +173,9 @@ pub fn demonstrations(model: &impl ForwardModel, recipe: &DemoRecipe, seed: u64)
         .collect()
 }
 
-/// Trains one actuation-space (6 DoF) and one task-space (3 DoF) primitive per class.
-pub fn train_primitives(
-    recordings: &[Recording],
+/// Trains one actuation-space (`N` DoF) and one task-space (3 DoF) primitive per class.
+pub fn train_primitives<const N: usize>(
+    recordings: &[Recording<N>],
     basis_functions: usize,
 ) -> Result<(Vec<Primitive>, Vec<Primitive>), PrimitiveError> {
     let classes = recordings.iter().map(|r| r.class + 1).max().unwrap_or(0);
@@ -87,14 +184,14 @@ pub fn train_primitives(
     let mut actuation = Vec::with_capacity(classes);
     let mut task = Vec::with_capacity(classes);
     for class in 0..classes {
-        let mine: Vec<&Recording> = recordings.iter().filter(|r| r.class == class).collect();
+        let mine: Vec<&Recording<N>> = recordings.iter().filter(|r| r.class == class).collect();
         let demo =
-            |values: DMatrix<f64>, r: &Recording| Demonstration::new(r.times.clone(), values);
+            |values: DMatrix<f64>, r: &Recording<N>| Demonstration::new(r.times.clone(), values);
         let a: Vec<Demonstration> = mine
             .iter()
             .map(|r| {
                 demo(
-                    DMatrix::from_fn(r.times.len(), 6, |i, d| r.actuation[i][d]),
+                    DMatrix::from_fn(r.times.len(), N, |i, d| r.actuation[i][d]),
                     r,
                 )
             })
@@ -115,7 +212,7 @@ pub fn train_primitives(
 }
 
 /// All (actuation, position) samples: D_fwd.
-pub fn forward_data(recordings: &[Recording]) -> (Vec<Actuation>, Vec<Position>) {
+pub fn forward_data<const N: usize>(recordings: &[Recording<N>]) -> (Vec<[f64; N]>, Vec<Position>) {
     let a = recordings
         .iter()
         .flat_map(|r| r.actuation.iter().copied())
@@ -135,13 +232,15 @@ mod tests {
     #[test]
     fn recipe_makes_seeded_demos_around_the_class_extremes() {
         let recipe = DemoRecipe::default();
-        recipe.validate().unwrap();
-        let a = sequences(&recipe, 7);
-        assert_eq!(a, sequences(&recipe, 7));
-        assert_ne!(a, sequences(&recipe, 8));
+        recipe.validate(6).unwrap();
+        let classes = classes(&recipe, &ArmGeometry::default().layout());
+        assert_eq!(classes, DemoRecipe::paper_classes());
+        let a = sequences::<6>(&recipe, &classes, 7);
+        assert_eq!(a, sequences(&recipe, &classes, 7));
+        assert_ne!(a, sequences(&recipe, &classes, 8));
         assert_eq!(a.len(), 60);
         for (class, seq) in &a {
-            let ex = recipe.classes[*class];
+            let ex = &classes[*class];
             assert_eq!(seq.len(), 201);
             for d in 0..6 {
                 assert!((seq[0][d] - ex.start[d]).abs() <= 0.1 + 1e-12);
@@ -154,13 +253,14 @@ mod tests {
     #[test]
     fn trains_a_primitive_pair_per_class() {
         let arm = ArmGeometry::default();
-        let recs = demonstrations(&arm, &DemoRecipe::default(), 1);
+        let classes = DemoRecipe::paper_classes();
+        let recs = demonstrations(&arm, &DemoRecipe::default(), &classes, 1);
         let (act, task) = train_primitives(&recs, 15).unwrap();
         assert_eq!((act.len(), task.len()), (3, 3));
         assert_eq!((act[0].dofs(), task[0].dofs()), (6, 3));
         // The task-space mean at the end of class 0 is where its nominal end actuation goes.
         let end = task[0].marginal(1.0).mean;
-        let nominal = arm.position(&DemoRecipe::default().classes[0].end);
+        let nominal = arm.position(&std::array::from_fn(|d| classes[0].end[d]));
         let err = (0..3)
             .map(|d| (end[d] - nominal[d]).powi(2))
             .sum::<f64>()
@@ -170,6 +270,52 @@ mod tests {
             spread: 0.9,
             ..Default::default()
         };
-        assert!(bad.validate().unwrap_err().contains("spread"));
+        assert!(bad.validate(6).unwrap_err().contains("spread"));
+    }
+
+    fn shipped(name: &str) -> Layout {
+        let text = match name {
+            "tdcr" => include_str!("../../../config/arms/tdcr.toml"),
+            "hybrid" => include_str!("../../../config/arms/hybrid.toml"),
+            _ => unreachable!(),
+        };
+        Layout::new(&toml::from_str(text).unwrap()).unwrap()
+    }
+
+    /// A new arm needs no hand-written classes: each module swept, then all together and an S,
+    /// and the demonstrations of each class move the tip apart from the others'.
+    #[test]
+    fn an_arm_without_classes_gets_them_from_its_modules() {
+        let tdcr = shipped("tdcr");
+        let c = classes(&DemoRecipe::default(), &tdcr);
+        assert_eq!(c.len(), 5);
+        for ex in &c {
+            assert_eq!((ex.start.len(), ex.end.len()), (9, 9));
+            assert!(
+                ex.start
+                    .iter()
+                    .chain(&ex.end)
+                    .all(|v| (0.2..=0.8).contains(v))
+            );
+        }
+        // Class 0 sweeps the first segment alone.
+        assert!(c[0].start[3..].iter().all(|v| *v == 0.5));
+        assert!(c[0].start[..3].iter().any(|v| *v < 0.45));
+        let arm = softarm_kinematics::pcc::Arm::new(&tdcr, &[]);
+        let recs = demonstrations::<9>(&arm, &DemoRecipe::default(), &c, 3);
+        assert_eq!(recs.len(), 5 * 20);
+        let (act, task) = train_primitives(&recs, 15).unwrap();
+        assert_eq!((act.len(), act[0].dofs(), task[0].dofs()), (5, 9, 3));
+        assert!(
+            recs.iter()
+                .flat_map(|r| r.position.iter().flatten())
+                .all(|v| v.is_finite())
+        );
+        // The hybrid's chambers on the axis stay at the middle; its tendons sweep.
+        let hybrid = shipped("hybrid");
+        let c = classes(&DemoRecipe::default(), &hybrid);
+        assert_eq!(c.len(), 4);
+        assert_eq!((c[0].start[3], c[0].end[3]), (0.5, 0.5));
+        assert_ne!(c[0].start[0], c[0].end[0]);
     }
 }

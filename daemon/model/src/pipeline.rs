@@ -17,7 +17,8 @@ use softarm_learning::cacla::{self, CaclaMtl, PretrainReport};
 use softarm_method::activation::MAX_PRIMITIVES;
 use softarm_method::promp::{Primitive, PrimitiveError};
 use softarm_method::skill::{self, Recording};
-use softarm_method::space::{Actuation, Position, distance};
+use softarm_method::space::{ACTUATORS, Actuation, Position, distance};
+use softarm_sections::arm::ArmGeometry;
 use softarm_sections::demonstrations::DemoRecipe;
 use softarm_sections::forward_model::NetworkConfig;
 use softarm_sections::kinematics::PolynomialConfig;
@@ -97,12 +98,13 @@ impl TrainingData {
     /// The recipe's demonstrations played through `plant` (the kinematic model), D_fwd all of
     /// their samples.
     pub fn from_plant(
-        plant: &impl ForwardModel,
+        plant: &ArmGeometry,
         recipe: &DemoRecipe,
         seed: u64,
     ) -> Result<Self, PipelineError> {
-        recipe.validate().map_err(PipelineError::Recipe)?;
-        let recordings = skill::demonstrations(plant, recipe, seed);
+        recipe.validate(ACTUATORS).map_err(PipelineError::Recipe)?;
+        let classes = skill::classes(recipe, &plant.layout());
+        let recordings = skill::demonstrations(plant, recipe, &classes, seed);
         let (actuations, positions) = skill::forward_data(&recordings);
         let demo = recordings
             .iter()
@@ -348,7 +350,7 @@ pub fn train(
 /// The simulated path: the recipe's demonstrations straight from `plant` (the kinematic model),
 /// then [`train`].
 pub fn from_plant(
-    plant: &impl ForwardModel,
+    plant: &ArmGeometry,
     recipe: &DemoRecipe,
     seed: u64,
     training: &Training,

@@ -2,15 +2,32 @@
 //! recipe itself is `softarm_method::skill`.
 
 use serde::{Deserialize, Serialize};
-use softarm_space::Actuation;
 
-/// The extremes of one primitive class: where its motions start and end.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+/// The extremes of one primitive class: where its motions start and end, one normalised
+/// actuation per actuator in the arm's order.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct ClassExtremes {
-    pub start: Actuation,
-    pub end: Actuation,
+    pub start: Vec<f64>,
+    pub end: Vec<f64>,
 }
+
+/// The paper's three motion classes of its two-module arm: a sweep of module 1 across the x–z
+/// plane, a sweep that bends both modules the same way, and an S-shape (start, end).
+pub const PAPER_CLASSES: [([f64; 6], [f64; 6]); 3] = [
+    (
+        [0.2, 0.8, 0.8, 0.5, 0.5, 0.5],
+        [0.8, 0.3, 0.3, 0.5, 0.5, 0.5],
+    ),
+    (
+        [0.8, 0.2, 0.7, 0.7, 0.2, 0.6],
+        [0.6, 0.8, 0.2, 0.5, 0.8, 0.2],
+    ),
+    (
+        [0.3, 0.6, 0.8, 0.8, 0.5, 0.3],
+        [0.8, 0.5, 0.3, 0.3, 0.6, 0.8],
+    ),
+];
 
 /// How demonstrations are made.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
@@ -26,50 +43,56 @@ pub struct DemoRecipe {
     pub spread: f64,
     /// Random points between start and end.
     pub intermediate_points: usize,
-    /// One primitive each: its nominal start and end actuations.
-    pub classes: Vec<ClassExtremes>,
+    /// One primitive each: its nominal start and end actuations, one per actuator. Absent:
+    /// derived from the arm (`softarm_method::skill::classes`): the paper's three on its kind
+    /// of arm, sweeps of each module and of all of them together on any other.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub classes: Option<Vec<ClassExtremes>>,
 }
 
 impl Default for DemoRecipe {
     fn default() -> Self {
-        // Three motion classes of the two-module arm: a sweep of module 1 across the x–z
-        // plane, a sweep that bends both modules the same way, and an S-shape.
         Self {
             demos_per_class: 20,
             duration_s: 4.0,
             sample_rate_hz: 50.0,
             spread: 0.1,
             intermediate_points: 2,
-            classes: vec![
-                ClassExtremes {
-                    start: [0.2, 0.8, 0.8, 0.5, 0.5, 0.5],
-                    end: [0.8, 0.3, 0.3, 0.5, 0.5, 0.5],
-                },
-                ClassExtremes {
-                    start: [0.8, 0.2, 0.7, 0.7, 0.2, 0.6],
-                    end: [0.6, 0.8, 0.2, 0.5, 0.8, 0.2],
-                },
-                ClassExtremes {
-                    start: [0.3, 0.6, 0.8, 0.8, 0.5, 0.3],
-                    end: [0.8, 0.5, 0.3, 0.3, 0.6, 0.8],
-                },
-            ],
+            classes: None,
         }
     }
 }
 
 impl DemoRecipe {
-    /// Checks every field; the error is `demonstrations.KEY: message`. The bounds keep the
-    /// demonstrations under an hour and their samples in memory.
-    pub fn validate(&self) -> Result<(), String> {
+    /// The paper's classes, as given classes.
+    pub fn paper_classes() -> Vec<ClassExtremes> {
+        PAPER_CLASSES
+            .iter()
+            .map(|(start, end)| ClassExtremes {
+                start: start.to_vec(),
+                end: end.to_vec(),
+            })
+            .collect()
+    }
+
+    /// How many classes (primitives) it makes: those given, or `derived` when none are.
+    pub fn class_count(&self, derived: usize) -> usize {
+        self.classes.as_ref().map_or(derived, Vec::len)
+    }
+
+    /// Checks every field for an arm of `actuators`; the error is `demonstrations.KEY:
+    /// message`. The bounds keep the demonstrations under an hour and their samples in memory.
+    pub fn validate(&self, actuators: usize) -> Result<(), String> {
         let bad = |key: &str, m: String| Err(format!("demonstrations.{key}: {m}"));
         let max_classes = crate::activation::MAX_PRIMITIVES;
-        if self.classes.is_empty() || self.classes.len() > max_classes {
+        if let Some(classes) = &self.classes
+            && (classes.is_empty() || classes.len() > max_classes)
+        {
             return bad(
                 "classes",
                 format!(
-                    "need 1 to {max_classes} classes, got {}",
-                    self.classes.len()
+                    "need 1 to {max_classes} classes (or none: derived from the arm), got {}",
+                    classes.len()
                 ),
             );
         }
@@ -105,7 +128,7 @@ impl DemoRecipe {
                 ),
             );
         }
-        let demos = self.classes.len() * self.demos_per_class;
+        let demos = self.class_count(max_classes) * self.demos_per_class;
         let total_s = demos as f64 * self.duration_s;
         if total_s > 3600.0 {
             return bad(
@@ -128,8 +151,18 @@ impl DemoRecipe {
                 format!("must be 0 to 100, got {}", self.intermediate_points),
             );
         }
-        for (i, c) in self.classes.iter().enumerate() {
+        for (i, c) in self.classes.iter().flatten().enumerate() {
             for (field, values) in [("start", &c.start), ("end", &c.end)] {
+                if values.len() != actuators {
+                    return bad(
+                        &format!("classes[{i}].{field}"),
+                        format!(
+                            "{} values for an arm of {actuators} actuators; give one per \
+                             actuator, or leave `classes` out to derive them from the arm",
+                            values.len()
+                        ),
+                    );
+                }
                 if let Some(d) = values.iter().position(|v| !(0.0..=1.0).contains(v)) {
                     return bad(
                         &format!("classes[{i}].{field}"),
@@ -153,9 +186,12 @@ mod tests {
     #[test]
     fn every_field_is_bounded_and_named() {
         let check = |edit: &dyn Fn(&mut DemoRecipe), want: &str| {
-            let mut r = DemoRecipe::default();
+            let mut r = DemoRecipe {
+                classes: Some(DemoRecipe::paper_classes()),
+                ..DemoRecipe::default()
+            };
             edit(&mut r);
-            let e = r.validate().unwrap_err();
+            let e = r.validate(6).unwrap_err();
             assert!(e.starts_with(want), "{e} (wanted {want:?})");
         };
         check(
@@ -183,8 +219,8 @@ mod tests {
             "demonstrations.spread: must be in [0, 0.5]",
         );
         check(
-            &|r| r.classes.clear(),
-            "demonstrations.classes: need 1 to 8 classes, got 0",
+            &|r| r.classes = Some(Vec::new()),
+            "demonstrations.classes: need 1 to 8 classes (or none: derived from the arm), got 0",
         );
         check(
             &|r| {
@@ -195,12 +231,16 @@ mod tests {
             "demonstrations.demos_per_class: 3000 demonstrations of 600 s take 1800000 s",
         );
         check(
-            &|r| r.classes[1].end[3] = 1.5,
+            &|r| r.classes.as_mut().unwrap()[1].end[3] = 1.5,
             "demonstrations.classes[1].end: actuator 4 is 1.5",
         );
         check(
-            &|r| r.classes[2].start[0] = f64::NAN,
+            &|r| r.classes.as_mut().unwrap()[2].start[0] = f64::NAN,
             "demonstrations.classes[2].start: actuator 1 is NaN",
+        );
+        check(
+            &|r| r.classes.as_mut().unwrap()[0].end.push(0.5),
+            "demonstrations.classes[0].end: 7 values for an arm of 6 actuators",
         );
     }
 }
