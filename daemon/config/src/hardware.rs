@@ -269,7 +269,8 @@ impl TendonConfig {
                 key("ids"),
                 format!(
                     "actuator {} ({}) of [arm] is a pneumatic chamber, which the tendon driver \
-                     cannot drive: chambers run in the sim alone (robot.drivers = [\"sim\"])",
+                     cannot drive: chambers run in the sim alone (robot.drivers = [\"sim\"] and \
+                     no [tendon] section)",
                     i + 1,
                     arm.actuators()[i].name
                 ),

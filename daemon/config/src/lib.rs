@@ -578,7 +578,8 @@ impl Config {
         count("model.basis_functions", self.model.basis_functions, 2, 40)?;
 
         let d = &self.demonstrations;
-        d.validate(n).map_err(|e| keyed("demonstrations", e))?;
+        d.validate(&self.layout())
+            .map_err(|e| keyed("demonstrations", e))?;
         if d.sample_rate_hz > c.rate_hz {
             return invalid(
                 "demonstrations.sample_rate_hz",

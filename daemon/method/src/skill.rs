@@ -7,10 +7,10 @@
 use nalgebra::DMatrix;
 use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
-use softarm_arm::{Kind, Layout, Routing};
+use softarm_arm::{Kind, Layout};
 use softarm_kinematics::forward::ForwardModel;
 use softarm_sections::activation::MAX_PRIMITIVES;
-use softarm_sections::demonstrations::{ClassExtremes, DemoRecipe};
+use softarm_sections::demonstrations::{ClassExtremes, DemoRecipe, derived_classes};
 
 use crate::promp::{Basis, Demonstration, Primitive, PrimitiveError, TrainConfig};
 use crate::space::Position;
@@ -27,7 +27,7 @@ pub fn classes(recipe: &DemoRecipe, arm: &Layout) -> Vec<ClassExtremes> {
     if let Some(given) = &recipe.classes {
         return given.clone();
     }
-    if papers_kind(arm) {
+    if arm.is_papers_kind() {
         return DemoRecipe::paper_classes();
     }
     let modules = arm.modules().len();
@@ -44,6 +44,7 @@ pub fn classes(recipe: &DemoRecipe, arm: &Layout) -> Vec<ClassExtremes> {
         );
     }
     plans.truncate(MAX_PRIMITIVES);
+    debug_assert_eq!(plans.len(), derived_classes(arm));
     plans
         .into_iter()
         .enumerate()
@@ -79,23 +80,6 @@ fn bent(arm: &Layout, plan: &[Option<f64>], phi: f64, sign: f64) -> Vec<f64> {
             (0.5 + sign * SWEEP * pull).clamp(0.0, 1.0)
         })
         .collect()
-}
-
-/// Two soft modules of three tendons at 120°, ending in their module: the arm the paper's
-/// classes were written for.
-fn papers_kind(arm: &Layout) -> bool {
-    arm.modules().len() == 2
-        && arm.routing() == Routing::Independent
-        && arm.modules().iter().all(|m| {
-            let own = &arm.actuators()[m.actuators.clone()];
-            m.backbone_m.is_none()
-                && own.len() == 3
-                && own.iter().all(|a| a.kind == Kind::Tendon)
-                && (0..3).all(|k| {
-                    let step = own[k].angle_rad - own[0].angle_rad;
-                    (step - std::f64::consts::TAU * k as f64 / 3.0).abs() < 1e-9
-                })
-        })
 }
 
 /// The actuation sequences to play of `recipe` with `classes` ([`classes`]), per class:
@@ -232,7 +216,7 @@ mod tests {
     #[test]
     fn recipe_makes_seeded_demos_around_the_class_extremes() {
         let recipe = DemoRecipe::default();
-        recipe.validate(6).unwrap();
+        recipe.validate(&ArmGeometry::default().layout()).unwrap();
         let classes = classes(&recipe, &ArmGeometry::default().layout());
         assert_eq!(classes, DemoRecipe::paper_classes());
         let a = sequences::<6>(&recipe, &classes, 7);
@@ -270,7 +254,7 @@ mod tests {
             spread: 0.9,
             ..Default::default()
         };
-        assert!(bad.validate(6).unwrap_err().contains("spread"));
+        assert!(bad.validate(&arm.layout()).unwrap_err().contains("spread"));
     }
 
     fn shipped(name: &str) -> Layout {

@@ -17,7 +17,7 @@ use softarm_learning::cacla::{self, CaclaMtl, PretrainReport};
 use softarm_method::activation::MAX_PRIMITIVES;
 use softarm_method::promp::{Primitive, PrimitiveError};
 use softarm_method::skill::{self, Recording};
-use softarm_method::space::{ACTUATORS, Actuation, Position, distance};
+use softarm_method::space::{Actuation, Position, distance};
 use softarm_sections::arm::ArmGeometry;
 use softarm_sections::demonstrations::DemoRecipe;
 use softarm_sections::forward_model::NetworkConfig;
@@ -102,8 +102,9 @@ impl TrainingData {
         recipe: &DemoRecipe,
         seed: u64,
     ) -> Result<Self, PipelineError> {
-        recipe.validate(ACTUATORS).map_err(PipelineError::Recipe)?;
-        let classes = skill::classes(recipe, &plant.layout());
+        let layout = plant.layout();
+        recipe.validate(&layout).map_err(PipelineError::Recipe)?;
+        let classes = skill::classes(recipe, &layout);
         let recordings = skill::demonstrations(plant, recipe, &classes, seed);
         let (actuations, positions) = skill::forward_data(&recordings);
         let demo = recordings

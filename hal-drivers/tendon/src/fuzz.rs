@@ -73,7 +73,7 @@ impl Probe {
         );
         Ok(Self {
             link,
-            reading: Reading::new(6),
+            reading: Reading::new(t.ids.len()),
             counts,
         })
     }

@@ -78,6 +78,9 @@ impl Reading {
     /// The oldest motor's newest answer: the data is at least this fresh. `None` until every
     /// motor answered once.
     pub fn stamp_ns(&self) -> Option<u64> {
+        if self.motors == 0 {
+            return None;
+        }
         self.asked_ns[..self.motors]
             .iter()
             .try_fold(u64::MAX, |oldest, a| a.map(|a| oldest.min(a)))

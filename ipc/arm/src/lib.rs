@@ -279,6 +279,23 @@ impl Layout {
         }
     }
 
+    /// The paper's kind of arm: two soft modules of three tendons at 120° each, ending in
+    /// their module (whatever their radius, stroke and rotation).
+    pub fn is_papers_kind(&self) -> bool {
+        self.modules.len() == 2
+            && self.routing == Routing::Independent
+            && self.modules.iter().all(|m| {
+                let own = &self.actuators[m.actuators.clone()];
+                m.backbone_m.is_none()
+                    && own.len() == 3
+                    && own.iter().all(|a| a.kind == Kind::Tendon)
+                    && (0..3).all(|k| {
+                        let step = own[k].angle_rad - own[0].angle_rad;
+                        (step - TAU * k as f64 / 3.0).abs() < 1e-9
+                    })
+            })
+    }
+
     /// The names, in the arm's order.
     pub fn names(&self) -> impl Iterator<Item = &str> {
         self.actuators.iter().map(|a| a.name.as_str())

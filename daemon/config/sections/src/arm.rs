@@ -176,13 +176,16 @@ impl ArmConfig {
             ];
             if let Some(k) = given.iter().position(|g| *g) {
                 return Err(format!(
-                    "arm.{}: a shorthand key of the paper's arm, which `arm.modules` replaces:                      give each module's radius, lengths and rotation in its `tendons` and                      `rotation_deg`, or drop `modules`",
+                    "arm.{}: a shorthand key of the paper's arm, which `arm.modules` replaces: \
+                     give each module's radius, lengths and rotation in its `tendons` and \
+                     `rotation_deg`, or drop `modules`",
                     SHORTHAND[k]
                 ));
             }
         } else if self.routing.is_some() {
             return Err(
-                "arm.routing: with `arm.modules` only (the paper's arm of the shorthand keys                  has independent routing)"
+                "arm.routing: with `arm.modules` only (the paper's arm of the shorthand keys \
+                 has independent routing)"
                     .into(),
             );
         }
@@ -195,7 +198,8 @@ impl ArmConfig {
             let n = layout.actuators().len();
             if v.len() != n {
                 return Err(format!(
-                    "arm.actuator_offset_m: {} values for an arm of {n} actuators; give one                      per actuator, in the arm's order",
+                    "arm.actuator_offset_m: {} values for an arm of {n} actuators; give one \
+                     per actuator, in the arm's order",
                     v.len()
                 ));
             }
@@ -203,7 +207,8 @@ impl ArmConfig {
             for (i, v) in v.iter().enumerate() {
                 if !(v.is_finite() && (-o..=o).contains(v)) {
                     return Err(format!(
-                        "arm.actuator_offset_m: actuator {} is {v:?}; each must be in                          [-{o}, {o}] m",
+                        "arm.actuator_offset_m: actuator {} is {v:?}; each must be in \
+                         [-{o}, {o}] m",
                         i + 1
                     ));
                 }

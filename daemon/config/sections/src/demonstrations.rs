@@ -2,6 +2,9 @@
 //! recipe itself is `softarm_method::skill`.
 
 use serde::{Deserialize, Serialize};
+use softarm_arm::Layout;
+
+use crate::activation::MAX_PRIMITIVES;
 
 /// The extremes of one primitive class: where its motions start and end, one normalised
 /// actuation per actuator in the arm's order.
@@ -28,6 +31,17 @@ pub const PAPER_CLASSES: [([f64; 6], [f64; 6]); 3] = [
         [0.8, 0.5, 0.3, 0.3, 0.6, 0.8],
     ),
 ];
+
+/// How many classes an arm gets when the recipe gives none (`softarm_method::skill::classes`
+/// makes them): the paper's three on its kind of arm; else one sweep per module, all modules
+/// together, and with more than one module an S; at most [`MAX_PRIMITIVES`].
+pub fn derived_classes(arm: &Layout) -> usize {
+    if arm.is_papers_kind() {
+        return PAPER_CLASSES.len();
+    }
+    let modules = arm.modules().len();
+    (modules + 1 + usize::from(modules > 1)).min(MAX_PRIMITIVES)
+}
 
 /// How demonstrations are made.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
@@ -75,16 +89,19 @@ impl DemoRecipe {
             .collect()
     }
 
-    /// How many classes (primitives) it makes: those given, or `derived` when none are.
-    pub fn class_count(&self, derived: usize) -> usize {
-        self.classes.as_ref().map_or(derived, Vec::len)
+    /// How many classes (primitives) it makes on `arm`: those given, or [`derived_classes`].
+    pub fn class_count(&self, arm: &Layout) -> usize {
+        self.classes
+            .as_ref()
+            .map_or_else(|| derived_classes(arm), Vec::len)
     }
 
-    /// Checks every field for an arm of `actuators`; the error is `demonstrations.KEY:
-    /// message`. The bounds keep the demonstrations under an hour and their samples in memory.
-    pub fn validate(&self, actuators: usize) -> Result<(), String> {
+    /// Checks every field for `arm`; the error is `demonstrations.KEY: message`. The bounds
+    /// keep the demonstrations under an hour and their samples in memory.
+    pub fn validate(&self, arm: &Layout) -> Result<(), String> {
         let bad = |key: &str, m: String| Err(format!("demonstrations.{key}: {m}"));
-        let max_classes = crate::activation::MAX_PRIMITIVES;
+        let max_classes = MAX_PRIMITIVES;
+        let actuators = arm.actuators().len();
         if let Some(classes) = &self.classes
             && (classes.is_empty() || classes.len() > max_classes)
         {
@@ -128,7 +145,7 @@ impl DemoRecipe {
                 ),
             );
         }
-        let demos = self.class_count(max_classes) * self.demos_per_class;
+        let demos = self.class_count(arm) * self.demos_per_class;
         let total_s = demos as f64 * self.duration_s;
         if total_s > 3600.0 {
             return bad(
@@ -191,7 +208,9 @@ mod tests {
                 ..DemoRecipe::default()
             };
             edit(&mut r);
-            let e = r.validate(6).unwrap_err();
+            let e = r
+                .validate(&crate::arm::ArmGeometry::default().layout())
+                .unwrap_err();
             assert!(e.starts_with(want), "{e} (wanted {want:?})");
         };
         check(
