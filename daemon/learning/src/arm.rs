@@ -5,9 +5,8 @@
 //! Pure: no I/O, no clock (times are the caller's stamps).
 
 use softarm_kinematics::forward::ForwardModel;
-use softarm_sections::arm::ArmGeometry;
 use softarm_sections::learner::GaussNewtonConfig;
-use softarm_space::{ACTUATORS, Actuation, Position, distance};
+use softarm_space::{ACTUATORS, Position, distance};
 
 /// Targets closer than this are the same point of the corrections (m).
 const SAME_TARGET_M: f64 = 1e-3;
@@ -28,15 +27,15 @@ const SAME_TARGET_M: f64 = 1e-3;
 /// residual, made it worse (5.7 mm; a best try's actuation moves freely along the null space of
 /// the arm's Jacobian, which carried to another target moves the tip).
 #[derive(Debug, Clone, Default)]
-pub struct Corrections {
+pub struct Corrections<const N: usize = ACTUATORS> {
     /// At most `transfer_points`, one per target, oldest first.
-    points: Vec<Corrected>,
+    points: Vec<Corrected<N>>,
 }
 
-impl Corrections {
+impl<const N: usize> Corrections<N> {
     /// Corrections of `points`, as [`Corrections::points`] gave them; the oldest beyond
     /// `transfer_points` are dropped.
-    pub fn from_points(c: &GaussNewtonConfig, points: &[Corrected]) -> Self {
+    pub fn from_points(c: &GaussNewtonConfig, points: &[Corrected<N>]) -> Self {
         let mut out = Self::default();
         for p in points {
             out.set(c, *p);
@@ -45,12 +44,12 @@ impl Corrections {
     }
 
     /// Every corrected point, oldest first.
-    pub fn points(&self) -> &[Corrected] {
+    pub fn points(&self) -> &[Corrected<N>] {
         &self.points
     }
 
     /// The estimate `target` is to start from the next time, once its next step is known.
-    pub fn renew(&mut self, target: &Position, estimate: Actuation) {
+    pub fn renew(&mut self, target: &Position, estimate: [f64; N]) {
         if let Some(p) = self
             .points
             .iter_mut()
@@ -61,7 +60,7 @@ impl Corrections {
     }
 
     /// The estimate that served `target` best, if it was visited.
-    pub fn visited(&self, target: &Position) -> Option<Actuation> {
+    pub fn visited(&self, target: &Position) -> Option<[f64; N]> {
         self.points
             .iter()
             .find(|p| distance(&p.target, target) < SAME_TARGET_M)
@@ -77,7 +76,7 @@ impl Corrections {
     }
 
     /// Records `point`'s correction, the newest per target.
-    pub fn set(&mut self, c: &GaussNewtonConfig, point: Corrected) {
+    pub fn set(&mut self, c: &GaussNewtonConfig, point: Corrected<N>) {
         match self
             .points
             .iter()
@@ -98,12 +97,12 @@ impl Corrections {
 
 /// One visited target's correction.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Corrected {
+pub struct Corrected<const N: usize = ACTUATORS> {
     pub target: Position,
     /// The estimate the target's next visit would have had (the step from its best or last
     /// try; the best try's until that step is known): a set that comes back to this very
     /// target starts from it, exactly where it left, on an arm that creeps too.
-    pub estimate: Actuation,
+    pub estimate: [f64; N],
 }
 
 /// Samples kept of the arm (one per neighbourhood of the actuation space).
@@ -157,13 +156,13 @@ const FOOTPRINT_AGE_NS: u64 = 600_000_000_000;
 /// remounted): what was learnt on it is no longer true. Tracker noise (two samples' worth) and
 /// creep between visits stay well under that threshold; a step of the arm is far over it.
 #[derive(Debug, Clone, Default)]
-pub struct Footprint {
+pub struct Footprint<const N: usize = ACTUATORS> {
     /// At most [`FOOTPRINT_SAMPLES`], the oldest first.
-    samples: Vec<Sample>,
+    samples: Vec<Sample<N>>,
     /// The last [`RECENT`] (stamp, actuation), for the actuators' speed.
-    recent: Vec<(u64, Actuation)>,
+    recent: Vec<(u64, [f64; N])>,
     /// The sample before this one.
-    last: Option<(u64, Actuation, Position)>,
+    last: Option<(u64, [f64; N], Position)>,
     /// The last checks: when, and `true` where the arm disagreed with its footprint.
     checks: [(u64, bool); CHECKS],
     next_check: usize,
@@ -172,9 +171,9 @@ pub struct Footprint {
 /// The arm's position at one neighbourhood of the actuation space: the average of the samples
 /// taken there, as of the newest.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Sample {
+pub struct Sample<const N: usize = ACTUATORS> {
     pub stamp_ns: u64,
-    pub actuation: Actuation,
+    pub actuation: [f64; N],
     pub position: Position,
     /// Samples averaged.
     pub count: u32,
@@ -193,22 +192,22 @@ pub enum Seen {
     Changed(f64),
 }
 
-impl Footprint {
+impl<const N: usize> Footprint<N> {
     /// A footprint of `samples`, as [`Footprint::samples`] gave them.
-    pub fn from_samples(samples: &[Sample]) -> Self {
+    pub fn from_samples(samples: &[Sample<N>]) -> Self {
         let mut out = Self::default();
         let start = samples.len().saturating_sub(FOOTPRINT_SAMPLES);
         out.samples.extend_from_slice(&samples[start..]);
         out
     }
 
-    pub fn samples(&self) -> &[Sample] {
+    pub fn samples(&self) -> &[Sample<N>] {
         &self.samples
     }
 
     /// The samples that still tell where the arm is: within [`FOOTPRINT_AGE_NS`] of the newest
     /// (an arm creeps; what it did an hour ago is another arm's).
-    pub fn current(&self) -> impl Iterator<Item = &Sample> {
+    pub fn current(&self) -> impl Iterator<Item = &Sample<N>> {
         let newest = self.samples.iter().map(|s| s.stamp_ns).max().unwrap_or(0);
         self.samples
             .iter()
@@ -219,10 +218,10 @@ impl Footprint {
     /// footprint and kept when the arm stands still and agrees.
     pub fn observe(
         &mut self,
-        arm: &ArmGeometry,
+        arm: &impl ForwardModel<N>,
         threshold_m: f64,
         stamp_ns: u64,
-        actuation: &Actuation,
+        actuation: &[f64; N],
         position: &Position,
     ) -> Seen {
         self.remember_before_gap(stamp_ns, actuation);
@@ -301,7 +300,7 @@ impl Footprint {
     /// then: a driver that comes back starts where the controller held the arm, so it is what
     /// the first samples after the gap are to be checked against. Without it, an arm changed
     /// right at the end of a set, which it left still moving, went unseen.
-    fn remember_before_gap(&mut self, stamp_ns: u64, actuation: &Actuation) {
+    fn remember_before_gap(&mut self, stamp_ns: u64, actuation: &[f64; N]) {
         let Some((t, a, p)) = self.last else {
             return;
         };
@@ -321,7 +320,7 @@ impl Footprint {
     /// How fast the actuators move (per s): from the newest sample at least [`SPEED_SPAN_NS`]
     /// older than this one, if one came within [`SPEED_GAP_NS`] (a driver that restarted
     /// keeps its arm where it held it: a gap of a few hundred ms shows no motion).
-    fn speed(&mut self, stamp_ns: u64, actuation: &Actuation) -> f64 {
+    fn speed(&mut self, stamp_ns: u64, actuation: &[f64; N]) -> f64 {
         if self.recent.last().is_some_and(|(t, _)| stamp_ns < *t) {
             // The clock went back (another stamp source): start over.
             self.recent.clear();
@@ -342,7 +341,7 @@ impl Footprint {
         speed
     }
 
-    fn keep(&mut self, stamp_ns: u64, actuation: &Actuation, position: &Position) {
+    fn keep(&mut self, stamp_ns: u64, actuation: &[f64; N], position: &Position) {
         if self.samples.len() >= FOOTPRINT_SAMPLES {
             self.samples.remove(0);
         }
@@ -355,20 +354,19 @@ impl Footprint {
     }
 }
 
-impl Sample {
+impl<const N: usize> Sample<N> {
     /// How far `position` is from where this sample says the arm is at `actuation`, and how
     /// far it may be: the sample carried to `actuation` by the configured arm's slope, within
     /// `threshold_m` plus half of the distance carried (the configured arm is only roughly the
     /// real one). Within a neighbourhood that is the threshold alone.
     fn compare(
         &self,
-        arm: &ArmGeometry,
+        arm: &impl ForwardModel<N>,
         threshold_m: f64,
-        actuation: &Actuation,
+        actuation: &[f64; N],
         position: &Position,
     ) -> (f64, f64) {
-        let da =
-            nalgebra::SVector::<f64, ACTUATORS>::from_fn(|i, _| actuation[i] - self.actuation[i]);
+        let da = nalgebra::SVector::<f64, N>::from_fn(|i, _| actuation[i] - self.actuation[i]);
         let moved = arm.jacobian(&self.actuation) * da;
         let predicted: Position = std::array::from_fn(|d| self.position[d] + moved[d]);
         (
@@ -380,7 +378,7 @@ impl Sample {
     /// Averages in another sample of the same neighbourhood: over the last [`AVERAGED`] or so,
     /// so that one noisy tracker sample is not what the arm is judged by, and a creeping arm
     /// is followed.
-    fn take_in(&mut self, stamp_ns: u64, actuation: &Actuation, position: &Position) {
+    fn take_in(&mut self, stamp_ns: u64, actuation: &[f64; N], position: &Position) {
         self.count = (self.count + 1).min(AVERAGED);
         let w = 1.0 / self.count as f64;
         for (a, b) in self.actuation.iter_mut().zip(actuation) {
@@ -393,7 +391,7 @@ impl Sample {
     }
 }
 
-fn actuation_distance(a: &Actuation, b: &Actuation) -> f64 {
+fn actuation_distance<const N: usize>(a: &[f64; N], b: &[f64; N]) -> f64 {
     a.iter()
         .zip(b)
         .map(|(x, y)| (x - y).powi(2))
@@ -405,6 +403,7 @@ fn actuation_distance(a: &Actuation, b: &Actuation) -> f64 {
 mod tests {
     use super::*;
     use softarm_sections::arm::ArmGeometry;
+    use softarm_space::Actuation;
 
     const MS: u64 = 1_000_000;
 

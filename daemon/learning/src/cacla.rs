@@ -2,7 +2,7 @@
 //! estimates the actuation that puts the end effector on each point and corrects it online.
 //! Pure math: no I/O, no clock (pre-training is given its budget as a closure).
 //!
-//! The critic V(p_desired, p_current) and the actor Ac(p_desired) → 6 actuations are linear
+//! The critic V(p_desired, p_current) and the actor Ac(p_desired) → N actuations are linear
 //! in normalised RBF features on sparse lattices ([`softarm_kinematics::rbf`]). Per point n the learner keeps
 //! k_n, the last reached position and the last error. Three corrections to the printed paper
 //! (see docs/ARCHITECTURE.md, "Where the paper lives") are marked `Correction` below.
@@ -10,12 +10,10 @@
 use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
 use rand_distr::{Distribution, StandardNormal};
-use serde::{Deserialize, Serialize};
-
 use softarm_kinematics::forward::ForwardModel;
 use softarm_kinematics::rbf::{Features, Lattice, LinearRbf, RbfError};
 use softarm_sections::learner::{LearnerConfig, PretrainConfig};
-use softarm_space::{ACTUATORS, Actuation, Position, distance};
+use softarm_space::{ACTUATORS, Position, distance};
 
 /// Alg. 1's memory of one conditioning point: k_n, and the state and error of its last visit,
 /// which the next visit's δ needs. Held by whoever visits the points, not by [`CaclaMtl`] (which
@@ -43,11 +41,12 @@ pub struct Visit {
     pub actor_updated: bool,
 }
 
-/// Everything that makes a learner what it is; serialisable, restored exactly.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct LearnerState {
+/// Everything that makes a learner what it is (of an arm of `N` actuators): what a bundle or a
+/// checkpoint saves, restored exactly.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LearnerState<const N: usize = ACTUATORS> {
     pub config: LearnerConfig,
-    pub actor: Vec<(u64, Actuation)>,
+    pub actor: Vec<(u64, [f64; N])>,
     pub critic: Vec<(u64, [f64; 1])>,
 }
 
@@ -82,15 +81,15 @@ impl Critic {
     }
 }
 
-/// The actor Ac(p_desired) → six actuations: linear in normalised RBF features on a sparse 3-D
+/// The actor Ac(p_desired) → `N` actuations: linear in normalised RBF features on a sparse 3-D
 /// lattice over p_desired.
-pub struct Actor {
-    weights: LinearRbf<ACTUATORS>,
+pub struct Actor<const N: usize = ACTUATORS> {
+    weights: LinearRbf<N>,
     features: Features,
 }
 
-impl Actor {
-    fn new(weights: LinearRbf<ACTUATORS>) -> Self {
+impl<const N: usize> Actor<N> {
+    fn new(weights: LinearRbf<N>) -> Self {
         Self {
             weights,
             features: Features::default(),
@@ -98,7 +97,7 @@ impl Actor {
     }
 
     /// Ac(p_desired), clipped to [0, 1].
-    pub fn actuation(&mut self, target: &Position) -> Actuation {
+    pub fn actuation(&mut self, target: &Position) -> [f64; N] {
         self.weights.lattice().features(target, &mut self.features);
         self.weights
             .value(&self.features)
@@ -106,7 +105,7 @@ impl Actor {
     }
 
     /// Moves Ac(p_desired) the fraction `fraction` of the way toward `action` (normalised LMS).
-    fn move_toward(&mut self, target: &Position, fraction: f64, action: &Actuation) {
+    fn move_toward(&mut self, target: &Position, fraction: f64, action: &[f64; N]) {
         self.weights.lattice().features(target, &mut self.features);
         self.weights.move_toward(&self.features, fraction, action);
     }
@@ -136,21 +135,21 @@ pub fn lattices(config: &LearnerConfig) -> Result<(Lattice, Lattice), RbfError> 
 
 /// CACLA-MTL: one actor and one critic shared by every conditioning point. Each point's own
 /// memory ([`PointMemory`]) is passed in by the caller.
-pub struct CaclaMtl {
+pub struct CaclaMtl<const N: usize = ACTUATORS> {
     config: LearnerConfig,
-    actor: Actor,
+    actor: Actor<N>,
     critic: Critic,
     rng: StdRng,
 }
 
-impl CaclaMtl {
+impl<const N: usize> CaclaMtl<N> {
     pub fn new(config: LearnerConfig) -> Result<Self, String> {
         config.validate()?;
         let (actor, critic) = lattices(&config).map_err(|e| e.to_string())?;
         Ok(Self {
             actor: Actor::new(LinearRbf::new(
                 actor,
-                [config.initial_actuation; ACTUATORS],
+                [config.initial_actuation; N],
                 config.actor_max_centres,
             )),
             critic: Critic::new(LinearRbf::new(critic, [0.0], config.critic_max_centres)),
@@ -181,7 +180,7 @@ impl CaclaMtl {
     }
 
     /// Ac(p_desired), clipped to [0, 1].
-    pub fn actor(&mut self, target: &Position) -> Actuation {
+    pub fn actor(&mut self, target: &Position) -> [f64; N] {
         self.actor.actuation(target)
     }
 
@@ -198,7 +197,7 @@ impl CaclaMtl {
         memory: Option<&PointMemory>,
         target: &Position,
         explore: bool,
-    ) -> Actuation {
+    ) -> [f64; N] {
         let mean = self.actor(target);
         let prev = memory.filter(|m| m.target == *target).copied();
         match prev {
@@ -221,7 +220,7 @@ impl CaclaMtl {
         &mut self,
         memory: &mut Option<PointMemory>,
         target: &Position,
-        action: &Actuation,
+        action: &[f64; N],
         reached: &Position,
     ) -> Visit {
         self.visit(memory, target, action, reached, true)
@@ -236,7 +235,7 @@ impl CaclaMtl {
         &mut self,
         memory: &mut Option<PointMemory>,
         target: &Position,
-        action: &Actuation,
+        action: &[f64; N],
         reached: &Position,
     ) -> Visit {
         self.visit(memory, target, action, reached, false)
@@ -246,7 +245,7 @@ impl CaclaMtl {
         &mut self,
         memory: &mut Option<PointMemory>,
         target: &Position,
-        action: &Actuation,
+        action: &[f64; N],
         reached: &Position,
         move_actor: bool,
     ) -> Visit {
@@ -290,7 +289,7 @@ impl CaclaMtl {
 
     /// Supervised warm start of the actor on demonstrated (position, actuation) pairs: the
     /// demonstrations say which actuation reaches which position.
-    pub fn imitate(&mut self, positions: &[Position], actuations: &[Actuation], passes: usize) {
+    pub fn imitate(&mut self, positions: &[Position], actuations: &[[f64; N]], passes: usize) {
         for _ in 0..passes {
             for (p, a) in positions.iter().zip(actuations) {
                 // A running average of the demonstrated actuations near p.
@@ -299,7 +298,7 @@ impl CaclaMtl {
         }
     }
 
-    pub fn state(&self) -> LearnerState {
+    pub fn state(&self) -> LearnerState<N> {
         LearnerState {
             config: self.config,
             actor: self.actor.weights.to_entries(),
@@ -308,13 +307,13 @@ impl CaclaMtl {
     }
 
     /// A learner from saved state. The exploration stream restarts from the config's seed.
-    pub fn restore(state: &LearnerState) -> Result<Self, String> {
+    pub fn restore(state: &LearnerState<N>) -> Result<Self, String> {
         let mut l = Self::new(state.config)?;
         let (actor, critic) = lattices(&state.config).map_err(|e| e.to_string())?;
         l.actor = Actor::new(
             LinearRbf::from_entries(
                 actor,
-                [state.config.initial_actuation; ACTUATORS],
+                [state.config.initial_actuation; N],
                 state.config.actor_max_centres,
                 &state.actor,
             )
@@ -342,9 +341,9 @@ pub struct PretrainReport {
 
 /// Runs epochs against `model` until `max_epochs` or until `keep_going()` says stop (checked
 /// once per epoch: the caller's clock, not ours). Targets are drawn from `pool`.
-pub fn pretrain(
-    learner: &mut CaclaMtl,
-    model: &impl ForwardModel,
+pub fn pretrain<const N: usize>(
+    learner: &mut CaclaMtl<N>,
+    model: &impl ForwardModel<N>,
     pool: &[Position],
     config: &PretrainConfig,
     mut keep_going: impl FnMut(&PretrainReport) -> bool,
@@ -382,9 +381,9 @@ pub fn pretrain(
 }
 
 /// Errors (m) of the actor's mean on `targets`, executed on `plant`.
-pub fn evaluate(
-    learner: &mut CaclaMtl,
-    plant: &impl ForwardModel,
+pub fn evaluate<const N: usize>(
+    learner: &mut CaclaMtl<N>,
+    plant: &impl ForwardModel<N>,
     targets: &[Position],
 ) -> Vec<f64> {
     targets
@@ -420,7 +419,7 @@ mod tests {
 
     #[test]
     fn sigma_shrinks_with_the_error() {
-        let l = CaclaMtl::new(LearnerConfig::default()).unwrap();
+        let l = CaclaMtl::<6>::new(LearnerConfig::default()).unwrap();
         assert!((l.sigma(0.03) - 0.015).abs() < 1e-12);
         assert!(l.sigma(0.0) < 0.002, "{}", l.sigma(0.0));
         assert!(l.sigma(0.2) > 0.0299);
@@ -428,7 +427,7 @@ mod tests {
 
     #[test]
     fn first_visit_has_no_td_update_and_targets_reset_memory() {
-        let mut l = CaclaMtl::new(LearnerConfig::default()).unwrap();
+        let mut l = CaclaMtl::<6>::new(LearnerConfig::default()).unwrap();
         let target = [0.1, 0.0, -0.45];
         let mut memory = None;
         let a = l.act(memory.as_ref(), &target, true);
@@ -450,7 +449,7 @@ mod tests {
     /// A learner whose critic is not zero around two points with different histories, and
     /// the two points' memories.
     fn trained_critic() -> (CaclaMtl, [Position; 2], [Option<PointMemory>; 2]) {
-        let mut l = CaclaMtl::new(LearnerConfig::default()).unwrap();
+        let mut l = CaclaMtl::<6>::new(LearnerConfig::default()).unwrap();
         let targets = [[0.1, 0.0, -0.45], [0.02, 0.08, -0.48]];
         let mut memory = [None; 2];
         let a = [0.5; 6];
@@ -510,7 +509,7 @@ mod tests {
     #[test]
     fn state_round_trips_exactly() {
         let arm = ArmGeometry::default();
-        let mut l = CaclaMtl::new(LearnerConfig::default()).unwrap();
+        let mut l = CaclaMtl::<6>::new(LearnerConfig::default()).unwrap();
         let pool = [[0.1, 0.05, -0.45], [-0.05, 0.1, -0.47]];
         let cfg = PretrainConfig {
             max_epochs: 5,
@@ -519,10 +518,7 @@ mod tests {
         pretrain(&mut l, &arm, &pool, &cfg, |_| true);
         l.observe(&mut None, &pool[0], &[0.4; 6], &[0.1, 0.0, -0.5]);
         let state = l.state();
-        let text = serde_json::to_string(&state).unwrap();
-        let back: LearnerState = serde_json::from_str(&text).unwrap();
-        assert_eq!(back, state);
-        let mut r = CaclaMtl::restore(&back).unwrap();
+        let mut r = CaclaMtl::<6>::restore(&state).unwrap();
         assert_eq!(r.state(), state);
         for p in &pool {
             assert_eq!(r.actor(p), l.actor(p));
@@ -530,7 +526,12 @@ mod tests {
         }
         let mut bad = state.clone();
         bad.actor[0].1[2] = f64::NAN;
-        assert!(CaclaMtl::restore(&bad).err().unwrap().contains("actor"));
+        assert!(
+            CaclaMtl::<6>::restore(&bad)
+                .err()
+                .unwrap()
+                .contains("actor")
+        );
     }
 
     #[test]
@@ -539,6 +540,11 @@ mod tests {
             gamma: 1.5,
             ..Default::default()
         };
-        assert!(CaclaMtl::new(c).err().unwrap().contains("learner.gamma"));
+        assert!(
+            CaclaMtl::<6>::new(c)
+                .err()
+                .unwrap()
+                .contains("learner.gamma")
+        );
     }
 }
