@@ -89,6 +89,17 @@ impl Routes {
         self.modules
     }
 
+    /// The module actuator `i` belongs to: the farthest from the base it runs through (its
+    /// own; with coupled routing a tendon also runs through the ones before).
+    pub fn owner(&self, i: usize) -> usize {
+        7 - self.passes[i].leading_zeros() as usize
+    }
+
+    /// Turns actuator `i` by `d_rad` about its module's axis.
+    pub fn turn(&mut self, i: usize, d_rad: f64) {
+        self.angle_rad[i] += d_rad;
+    }
+
     fn runs_through(&self, i: usize, m: usize) -> bool {
         self.passes[i] & (1 << m) != 0
     }

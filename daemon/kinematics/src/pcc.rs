@@ -343,6 +343,31 @@ impl Arm {
         self.routes.modules()
     }
 
+    /// The module actuator `i` belongs to ([`Routes::owner`]).
+    pub fn owner(&self, i: usize) -> usize {
+        self.routes.owner(i)
+    }
+
+    /// This arm changed as a calibration changes it: the tool and the connectors longer by
+    /// `tool_m` and `connector_m`, each actuator by `offset_m[i]`, each module's own actuators
+    /// turned by `turn_rad[m]` about its axis. Heap-free.
+    pub fn changed(
+        &self,
+        tool_m: f64,
+        connector_m: f64,
+        offset_m: &[f64],
+        turn_rad: &[f64],
+    ) -> Self {
+        let mut a = *self;
+        a.tool_m += tool_m;
+        a.connector_m += connector_m;
+        for i in 0..self.actuators() {
+            a.offset_m[i] += offset_m[i];
+            a.routes.turn(i, turn_rad[self.owner(i)]);
+        }
+        a
+    }
+
     /// End-effector pose for actuator lengths `lengths` (m, one per actuator), each module's
     /// curvature falling from base to tip by `taper` ([`tapered_module_pose`]; 0: PCC).
     pub fn pose_of_lengths(&self, lengths: &[f64], taper: f64) -> Result<Pose, Undetermined> {

@@ -25,6 +25,7 @@ use softarm_ipc::{
     Actuation, ActuationEstimate, ConditioningSample, EstimateRequest, MotorState, Node, Position,
     Pub, Sub, TrackerSample,
 };
+use softarm_kinematics::pcc;
 use softarm_kinematics::poly::Polynomial;
 use softarm_learning::cacla::{CaclaMtl, LearnerState};
 use softarm_learning::online::{ArmState, OnlineLearner};
@@ -48,7 +49,11 @@ pub fn online_learner(
     state.config = runtime_config(state.config, configured);
     let cacla = CaclaMtl::restore(&state)?;
     tracing::info!(algorithm = state.config.algorithm.name(), "online learner");
-    Ok(OnlineLearner::new(cacla, kinematics, arm))
+    Ok(OnlineLearner::new(
+        cacla,
+        kinematics,
+        pcc::Arm::of_geometry(&arm),
+    ))
 }
 
 /// The checkpoint if it descends from the bundle in `model_dir`, else the bundle's learner.

@@ -587,7 +587,11 @@ mod tests {
                 .collect();
             let p: Vec<_> = a.iter().map(|a| arm.position(a)).collect();
             let poly = Polynomial::fit(&a, &p, &PolynomialConfig::default()).unwrap();
-            OnlineLearner::new(CaclaMtl::new(LearnerConfig::default()).unwrap(), poly, arm)
+            OnlineLearner::new(
+                CaclaMtl::new(LearnerConfig::default()).unwrap(),
+                poly,
+                softarm_kinematics::pcc::Arm::of_geometry(&arm),
+            )
         }
 
         fn value() -> impl Strategy<Value = f64> {

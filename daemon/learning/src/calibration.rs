@@ -13,24 +13,32 @@
 //! averaged, and taken where the arm stood still or moved slowly.
 //! Pure: no I/O.
 
-use nalgebra::{DMatrix, DVector, Matrix3, SVector, Vector3};
+use nalgebra::{DMatrix, DVector, Matrix3, SMatrix, SVector, Vector3};
 
 use softarm_kinematics::forward::{ForwardModel, Jacobian};
-use softarm_kinematics::pcc::Kinematics;
-use softarm_sections::arm::ArmGeometry;
-use softarm_space::{ACTUATORS, Actuation, Position};
+use softarm_kinematics::pcc;
+use softarm_space::{ACTUATORS, MAX_ACTUATORS, Position};
 
-/// Parameters fitted: the tool's offset in the tip frame (x, y, z; m), each actuator's length
-/// offset (m), each module's bend per length difference (a fraction: what its actuators'
-/// radius sets), each module's rotation (degrees), the connector's length (m).
+/// Most modules a calibrated arm has.
+const MAX_MODULES: usize = 8;
+
+/// Most parameters of any arm: the tool's offset in the tip frame (x, y, z; m), each
+/// actuator's length offset (m), each module's bend per length difference (a fraction: what
+/// its actuators' radius sets), each module's rotation (degrees), the connector's length (m).
+pub const MAX_PARAMETERS: usize = 3 + MAX_ACTUATORS + 2 * MAX_MODULES + 1;
+
+/// Parameters of the paper's arm (six actuators, two modules): 14.
 pub const PARAMETERS: usize = 3 + ACTUATORS + 2 + 2 + 1;
 
-/// How far each parameter plausibly is from the configured arm: the prior's standard deviation
-/// (same units as the parameter). A tool swapped or bent by centimetres, tendons crept by
-/// millimetres, a module remounted by some degrees.
-const PRIOR: [f64; PARAMETERS] = [
-    0.02, 0.02, 0.03, 0.005, 0.005, 0.005, 0.005, 0.005, 0.005, 0.2, 0.2, 10.0, 10.0, 0.01,
-];
+/// How far each kind of parameter plausibly is from the configured arm: the prior's standard
+/// deviation (same units as the parameter). A tool swapped or bent by centimetres, tendons
+/// crept by millimetres, a module remounted by some degrees.
+const PRIOR_TOOL_XY_M: f64 = 0.02;
+const PRIOR_TOOL_Z_M: f64 = 0.03;
+const PRIOR_OFFSET_M: f64 = 0.005;
+const PRIOR_BEND: f64 = 0.2;
+const PRIOR_ROTATION_DEG: f64 = 10.0;
+const PRIOR_CONNECTOR_M: f64 = 0.01;
 
 /// How well a sample tells where the arm is (m): tracker noise, the actuation's disturbance
 /// between motor and tracker stamps, and what no PCC arm fits.
@@ -39,70 +47,125 @@ const SAMPLE_SIGMA_M: f64 = 0.001;
 /// Levenberg-Marquardt iterations at most.
 const ITERATIONS: usize = 15;
 
-/// The configured arm with fitted parameters.
+/// Where each parameter sits in θ for an arm of `n` actuators and `m` modules.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct CalibratedArm {
-    configured: ArmGeometry,
-    /// Departures from the configured arm, in the order of [`PARAMETERS`].
-    pub theta: [f64; PARAMETERS],
+struct Slots {
+    n: usize,
+    m: usize,
+}
+
+impl Slots {
+    fn of(arm: &pcc::Arm) -> Self {
+        Self {
+            n: arm.actuators(),
+            m: arm.modules(),
+        }
+    }
+    fn count(&self) -> usize {
+        3 + self.n + 2 * self.m + 1
+    }
+    fn offset(&self, i: usize) -> usize {
+        3 + i
+    }
+    fn bend(&self, module: usize) -> usize {
+        3 + self.n + module
+    }
+    fn rotation(&self, module: usize) -> usize {
+        3 + self.n + self.m + module
+    }
+    fn connector(&self) -> usize {
+        3 + self.n + 2 * self.m
+    }
+    /// The prior's standard deviation of parameter `k`.
+    fn prior(&self, k: usize) -> f64 {
+        match k {
+            0 | 1 => PRIOR_TOOL_XY_M,
+            2 => PRIOR_TOOL_Z_M,
+            k if k < self.bend(0) => PRIOR_OFFSET_M,
+            k if k < self.rotation(0) => PRIOR_BEND,
+            k if k < self.connector() => PRIOR_ROTATION_DEG,
+            _ => PRIOR_CONNECTOR_M,
+        }
+    }
+}
+
+/// The configured arm with fitted parameters, for an arm of `N` actuators (the paper's six
+/// unless said).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CalibratedArm<const N: usize = ACTUATORS> {
+    configured: pcc::Arm,
+    /// Departures from the configured arm, in the order of [`MAX_PARAMETERS`]'s doc; as many
+    /// as the arm has ([`CalibratedArm::parameters`]), the rest 0.
+    pub theta: [f64; MAX_PARAMETERS],
     /// Root mean square of the fitted arm's miss over the samples (m).
     pub rms_m: f64,
     /// Samples it was fitted to.
     pub samples: usize,
 }
 
-impl ForwardModel for CalibratedArm {
-    fn position(&self, a: &Actuation) -> Position {
+impl<const N: usize> ForwardModel<N> for CalibratedArm<N> {
+    fn position(&self, a: &[f64; N]) -> Position {
         position(&self.configured, &self.theta, a)
     }
 }
 
-/// Where the arm of `configured` with departures `theta` puts the tracked point at `a`.
-fn position(configured: &ArmGeometry, theta: &[f64; PARAMETERS], a: &Actuation) -> Position {
-    let mut arm = *configured;
-    arm.tool_m += theta[2];
-    arm.connector_m += theta[7 + ACTUATORS];
-    for (o, t) in arm
-        .actuator_offset_m
-        .iter_mut()
-        .zip(&theta[3..3 + ACTUATORS])
-    {
-        *o += t;
+/// Where the arm `configured` with departures `theta` puts the tracked point at `a`.
+fn position(configured: &pcc::Arm, theta: &[f64; MAX_PARAMETERS], a: &[f64]) -> Position {
+    let slots = Slots::of(configured);
+    let mut offsets = [0.0; MAX_ACTUATORS];
+    offsets[..slots.n].copy_from_slice(&theta[slots.offset(0)..slots.offset(slots.n)]);
+    let mut turns = [0.0; MAX_MODULES];
+    for (m, t) in turns.iter_mut().enumerate().take(slots.m) {
+        *t = theta[slots.rotation(m)].to_radians();
     }
-    arm.module_rotation_deg[0] += theta[5 + ACTUATORS];
-    arm.module_rotation_deg[1] += theta[6 + ACTUATORS];
+    let arm = configured.changed(theta[2], theta[slots.connector()], &offsets, &turns);
     // A module's bend is its actuators' length differences over their radius: scaling the
     // differences about their mean is a module whose actuators sit nearer or further out.
     let mut lengths = arm.lengths(a);
-    for (m, module) in lengths.chunks_mut(3).enumerate() {
-        let mean = module.iter().sum::<f64>() / 3.0;
-        let scale = 1.0 + theta[3 + ACTUATORS + m];
-        for l in module {
-            *l = mean + (*l - mean) * scale;
-        }
+    let (mut sum, mut count) = ([0.0; MAX_MODULES], [0usize; MAX_MODULES]);
+    for (i, l) in lengths[..slots.n].iter().enumerate() {
+        sum[arm.owner(i)] += l;
+        count[arm.owner(i)] += 1;
     }
-    let pose = arm.pose_of_lengths(&lengths);
-    let p = pose.position + pose.rotation * Vector3::new(theta[0], theta[1], 0.0);
-    [p.x, p.y, p.z]
+    for (i, l) in lengths[..slots.n].iter_mut().enumerate() {
+        let m = arm.owner(i);
+        let mean = sum[m] / count[m] as f64;
+        *l = mean + (*l - mean) * (1.0 + theta[slots.bend(m)]);
+    }
+    match arm.pose_of_lengths(&lengths[..slots.n], 0.0) {
+        Ok(pose) => {
+            let p = pose.position + pose.rotation * Vector3::new(theta[0], theta[1], 0.0);
+            [p.x, p.y, p.z]
+        }
+        Err(_) => [f64::NAN; 3],
+    }
 }
 
-impl CalibratedArm {
+impl<const N: usize> CalibratedArm<N> {
     /// The configured arm itself: nothing fitted.
-    pub fn configured(arm: ArmGeometry) -> Self {
+    pub fn configured(arm: pcc::Arm) -> Self {
+        debug_assert_eq!(arm.actuators(), N);
         Self {
             configured: arm,
-            theta: [0.0; PARAMETERS],
+            theta: [0.0; MAX_PARAMETERS],
             rms_m: 0.0,
             samples: 0,
         }
+    }
+
+    /// How many parameters its arm has: 3 + N + 2 × modules + 1.
+    pub fn parameters(&self) -> usize {
+        Slots::of(&self.configured).count()
     }
 
     /// The parameters that explain `samples` (measured actuation, tracked position) best
     /// within the prior: damped Gauss-Newton (Levenberg-Marquardt) on
     /// Σ ‖p − f(a; θ)‖² / σ² + Σ (θ_k / prior_k)². With few samples or ones that do not tell
     /// a parameter, the prior keeps it at the configured arm's.
-    pub fn fit(configured: ArmGeometry, samples: &[(Actuation, Position)]) -> Self {
-        let mut theta = [0.0; PARAMETERS];
+    pub fn fit(configured: pcc::Arm, samples: &[([f64; N], Position)]) -> Self {
+        let slots = Slots::of(&configured);
+        let k = slots.count();
+        let mut theta = [0.0; MAX_PARAMETERS];
         let mut cost = cost_of(&configured, &theta, samples);
         let mut lambda = 1e-3;
         for _ in 0..ITERATIONS {
@@ -115,8 +178,10 @@ impl CalibratedArm {
                     continue;
                 };
                 // The solve is in units of the prior; back to the parameters' own.
-                let next: [f64; PARAMETERS] =
-                    std::array::from_fn(|k| theta[k] + step[k] * PRIOR[k]);
+                let mut next = theta;
+                for p in 0..k {
+                    next[p] += step[p] * slots.prior(p);
+                }
                 let next_cost = cost_of(&configured, &next, samples);
                 if next_cost < cost {
                     improved = (cost - next_cost) > 1e-9 * cost;
@@ -147,7 +212,7 @@ impl CalibratedArm {
     /// Gauss-Newton with its steps' null-space part pulled back to `start`, so that two arms
     /// inverted from the same start differ by what differs between them, not by where the
     /// free directions wandered.
-    pub fn invert(model: &impl ForwardModel, target: &Position, start: &Actuation) -> Actuation {
+    pub fn invert(model: &impl ForwardModel<N>, target: &Position, start: &[f64; N]) -> [f64; N] {
         let mut a = *start;
         for _ in 0..ITERATIONS {
             let p = model.position(&a);
@@ -155,11 +220,11 @@ impl CalibratedArm {
             if e.norm() < 1e-6 {
                 break;
             }
-            let j: Jacobian = model.jacobian(&a);
+            let j: Jacobian<N> = model.jacobian(&a);
             let Some(pinv) = damped_pseudo_inverse(&j, 1e-3) else {
                 break;
             };
-            let back = SVector::<f64, ACTUATORS>::from_fn(|i, _| start[i] - a[i]);
+            let back = SVector::<f64, N>::from_fn(|i, _| start[i] - a[i]);
             let step = pinv * e + (back - pinv * (j * back));
             a = std::array::from_fn(|i| (a[i] + step[i]).clamp(0.0, 1.0));
         }
@@ -170,10 +235,10 @@ impl CalibratedArm {
 /// Jᵀ (J Jᵀ + λ² I)⁻¹: the damped minimum-norm inverse of a Jacobian; none if singular. Here
 /// rather than in `online`, which uses it too, so that `online` depends on this module and not
 /// the other way round.
-pub(crate) fn damped_pseudo_inverse(
-    j: &Jacobian,
+pub(crate) fn damped_pseudo_inverse<const N: usize>(
+    j: &Jacobian<N>,
     damping: f64,
-) -> Option<nalgebra::SMatrix<f64, ACTUATORS, 3>> {
+) -> Option<SMatrix<f64, N, 3>> {
     let jjt = j * j.transpose() + Matrix3::identity() * damping * damping;
     Some(j.transpose() * jjt.try_inverse()?)
 }
@@ -183,46 +248,51 @@ fn dist2(a: &Position, b: &Position) -> f64 {
 }
 
 /// The objective, in units of σ and the prior.
-fn cost_of(
-    configured: &ArmGeometry,
-    theta: &[f64; PARAMETERS],
-    s: &[(Actuation, Position)],
+fn cost_of<const N: usize>(
+    configured: &pcc::Arm,
+    theta: &[f64; MAX_PARAMETERS],
+    s: &[([f64; N], Position)],
 ) -> f64 {
+    let slots = Slots::of(configured);
     let data: f64 = s
         .iter()
         .map(|(a, p)| dist2(&position(configured, theta, a), p))
         .sum::<f64>()
         / (SAMPLE_SIGMA_M * SAMPLE_SIGMA_M);
-    let prior: f64 = (0..PARAMETERS).map(|k| (theta[k] / PRIOR[k]).powi(2)).sum();
+    let prior: f64 = (0..slots.count())
+        .map(|k| (theta[k] / slots.prior(k)).powi(2))
+        .sum();
     data + prior
 }
 
 /// JᵀJ and Jᵀr of the whitened residuals (data and prior) in units of the prior, by central
 /// differences over the parameters.
-fn normal_equations(
-    configured: &ArmGeometry,
-    theta: &[f64; PARAMETERS],
-    samples: &[(Actuation, Position)],
+fn normal_equations<const N: usize>(
+    configured: &pcc::Arm,
+    theta: &[f64; MAX_PARAMETERS],
+    samples: &[([f64; N], Position)],
 ) -> (DMatrix<f64>, DVector<f64>) {
-    let mut jtj = DMatrix::<f64>::identity(PARAMETERS, PARAMETERS);
-    let mut jtr = DVector::<f64>::from_fn(PARAMETERS, |k, _| -theta[k] / PRIOR[k]);
+    let slots = Slots::of(configured);
+    let k = slots.count();
+    let mut jtj = DMatrix::<f64>::identity(k, k);
+    let mut jtr = DVector::<f64>::from_fn(k, |p, _| -theta[p] / slots.prior(p));
     const H: f64 = 1e-4;
     for (a, p) in samples {
         let f = position(configured, theta, a);
         let r = Vector3::from_fn(|d, _| (p[d] - f[d]) / SAMPLE_SIGMA_M);
-        let cols: Vec<Vector3<f64>> = (0..PARAMETERS)
-            .map(|k| {
+        let cols: Vec<Vector3<f64>> = (0..k)
+            .map(|q| {
                 let (mut up, mut down) = (*theta, *theta);
-                up[k] += H * PRIOR[k];
-                down[k] -= H * PRIOR[k];
+                up[q] += H * slots.prior(q);
+                down[q] -= H * slots.prior(q);
                 let (u, d) = (position(configured, &up, a), position(configured, &down, a));
                 Vector3::from_fn(|i, _| (u[i] - d[i]) / (2.0 * H) / SAMPLE_SIGMA_M)
             })
             .collect();
-        for k in 0..PARAMETERS {
-            jtr[k] += cols[k].dot(&r);
-            for l in 0..PARAMETERS {
-                jtj[(k, l)] += cols[k].dot(&cols[l]);
+        for q in 0..k {
+            jtr[q] += cols[q].dot(&r);
+            for l in 0..k {
+                jtj[(q, l)] += cols[q].dot(&cols[l]);
             }
         }
     }
@@ -234,6 +304,8 @@ mod tests {
     use super::*;
     use rand::rngs::StdRng;
     use rand::{RngExt, SeedableRng};
+    use softarm_sections::arm::ArmGeometry;
+    use softarm_space::Actuation;
 
     fn actuations(n: usize, seed: u64) -> Vec<Actuation> {
         let mut rng = StdRng::seed_from_u64(seed);
@@ -258,7 +330,7 @@ mod tests {
             .into_iter()
             .map(|a| (a, real.position(&a)))
             .collect();
-        let fitted = CalibratedArm::fit(configured, &samples);
+        let fitted = CalibratedArm::fit(pcc::Arm::of_geometry(&configured), &samples);
         let elsewhere = actuations(50, 2);
         assert!(miss(&configured, &real, &elsewhere) > 0.015);
         let m = miss(&fitted, &real, &elsewhere);
@@ -273,10 +345,47 @@ mod tests {
     #[test]
     fn without_samples_the_calibrated_arm_is_the_configured_one() {
         let configured = ArmGeometry::default();
-        let fitted = CalibratedArm::fit(configured, &[]);
-        assert_eq!(fitted.theta, [0.0; PARAMETERS]);
-        assert_eq!(fitted, CalibratedArm::configured(configured));
+        let arm = pcc::Arm::of_geometry(&configured);
+        let fitted = CalibratedArm::<6>::fit(arm, &[]);
+        assert_eq!(fitted.parameters(), PARAMETERS);
+        assert_eq!(fitted.theta, [0.0; MAX_PARAMETERS]);
+        assert_eq!(fitted, CalibratedArm::configured(arm));
         let a = [0.4, 0.6, 0.5, 0.55, 0.45, 0.5];
         assert_eq!(fitted.position(&a), configured.position(&a));
+    }
+
+    /// Any arm: the nine-tendon TDCR with a longer tool and two crept tendons, found from
+    /// samples of its tip (its 3 + 9 + 6 + 1 parameters).
+    #[test]
+    fn a_calibrated_nine_tendon_arm_finds_its_tool_and_tendons() {
+        let text = include_str!("../../../config/arms/tdcr.toml");
+        let layout = softarm_arm::Layout::new(&toml::from_str(text).unwrap()).unwrap();
+        let configured = pcc::Arm::new(&layout, &[]);
+        let mut offsets = [0.0; 9];
+        offsets[1] = 0.0006;
+        offsets[7] = -0.0004;
+        let real = configured.changed(0.008, 0.0, &offsets, &[0.0; 3]);
+        let mut rng = StdRng::seed_from_u64(4);
+        let mut draw = |n: usize| -> Vec<[f64; 9]> {
+            (0..n)
+                .map(|_| std::array::from_fn(|_| rng.random_range(0.4..0.6)))
+                .collect()
+        };
+        let samples: Vec<([f64; 9], Position)> = draw(60)
+            .into_iter()
+            .map(|a| (a, real.position(&a)))
+            .collect();
+        let fitted = CalibratedArm::<9>::fit(configured, &samples);
+        assert_eq!(fitted.parameters(), 19);
+        let elsewhere = draw(50);
+        let worst = |m: &dyn Fn(&[f64; 9]) -> Position| {
+            elsewhere
+                .iter()
+                .map(|a| dist2(&m(a), &real.position(a)).sqrt())
+                .fold(0.0, f64::max)
+        };
+        assert!(worst(&|a| configured.position(a)) > 0.005);
+        let m = worst(&|a| fitted.position(a));
+        assert!(m < 0.0005, "the fitted arm misses by up to {m} m");
     }
 }

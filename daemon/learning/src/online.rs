@@ -6,7 +6,7 @@
 //! - [`Algorithm::GaussNewton`] (default) — the same actor-critic, but exploration is *directed*:
 //!   the errors of a changed arm are systematic and repeat every execution, so the next action
 //!   of a point is a damped Gauss-Newton step from its best executed action,
-//!   a = a_base + J⁺ (p_d − p_reached), with J the Jacobian of the configured arm's kinematics
+//!   a = a_base + J⁺ (p_d − p_reached), with J the Jacobian<N> of the configured arm's kinematics
 //!   (`[arm]`, [`ArmGeometry`]), Broyden-updated per point from what each step did on the real
 //!   arm, inside a per-point trust region that shrinks when a step makes things worse.
 //!
@@ -20,16 +20,16 @@
 //! one that knows nothing of the arm.
 //! Pure: no I/O, no clock; allocation only when a set starts.
 
-use nalgebra::{SVector, Vector3};
+use nalgebra::{DMatrix, SVector, Vector3};
 
 use crate::arm::{Corrected, Corrections, Footprint, Sample, Seen};
 use crate::cacla::{CaclaMtl, PointMemory, Visit};
 use crate::calibration::{CalibratedArm, damped_pseudo_inverse};
 use softarm_kinematics::forward::{ForwardModel, Jacobian};
+use softarm_kinematics::pcc;
 use softarm_kinematics::poly::Polynomial;
-use softarm_sections::arm::ArmGeometry;
 use softarm_sections::learner::{Algorithm, GaussNewtonConfig};
-use softarm_space::{ACTUATORS, Actuation, MAX_WAYPOINTS, Position, distance};
+use softarm_space::{ACTUATORS, MAX_WAYPOINTS, Position, distance};
 
 /// A visit or estimate that does not fit the running set.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -50,16 +50,16 @@ pub enum OnlineError {
 
 /// One executed try at a point.
 #[derive(Debug, Clone, Copy, PartialEq)]
-struct Try {
+struct Try<const N: usize> {
     /// Under gauss-newton the estimate the try was conditioned on, which is what the learner
     /// controls: the setpoint at T_cond can fall short of it (the slew limit on a steep path
     /// into the point), by an amount that changes with the path, so steps taken from setpoints
     /// wander (measured: a point 6 mm off went to 22 mm and stayed). The one the controller
     /// says the point ran on, not the one last sent: on a loaded machine an estimate can come
     /// after its point's window has started and run an execution later, and a step credited
-    /// with it taught the point's Jacobian that it moved nothing (measured: 9 mm, then 76 mm
+    /// with it taught the point's Jacobian<N> that it moved nothing (measured: 9 mm, then 76 mm
     /// the execution after). Under paper, the setpoint.
-    action: Actuation,
+    action: [f64; N],
     reached: Position,
     error: f64,
     /// The point's visit it was (1, 2, ...).
@@ -71,23 +71,23 @@ struct Try {
 /// learner joining one, starts it over, and it is never checkpointed (what carries over between
 /// sets is the actor, the critic and the transfer).
 #[derive(Debug, Clone, Copy, PartialEq)]
-struct Point {
+struct Point<const N: usize> {
     /// Alg. 1's k_n and last visit, which its δ needs (both algorithms run Alg. 1's update).
     memory: Option<PointMemory>,
     /// Unknown when the learner joined a set already running (after a restart) until a sample
     /// names it.
     target: Option<Position>,
     /// The exploration-free estimate of its first execution.
-    first: Option<Actuation>,
+    first: Option<[f64; N]>,
     /// What the trained model alone would send.
-    model: Option<Actuation>,
-    last: Option<Try>,
-    best: Option<Try>,
+    model: Option<[f64; N]>,
+    last: Option<Try<N>>,
+    best: Option<Try<N>>,
     /// The trust region's radius (‖Δa‖).
     radius: f64,
-    /// The point's own Jacobian: the model's at its first correction, then Broyden-updated
+    /// The point's own Jacobian<N>: the model's at its first correction, then Broyden-updated
     /// from what each step really did, with its singular values kept at or above the second.
-    jacobian: Option<(Jacobian, f64)>,
+    jacobian: Option<(Jacobian<N>, f64)>,
     /// The systematic error p_d − p at the last try and its variance (m²): a Kalman filter
     /// over the executions, so a correction follows the arm, not one noisy tracker sample.
     bias: Option<(Vector3<f64>, f64)>,
@@ -97,7 +97,7 @@ struct Point {
     visits: u32,
 }
 
-impl Point {
+impl<const N: usize> Point<N> {
     /// A point nothing is known of, its trust region at `radius`.
     fn new(radius: f64) -> Self {
         Self {
@@ -137,33 +137,33 @@ const DRIFT: f64 = 0.1;
 /// effector still moves by g e where the others can (a step clipped at the limit afterwards
 /// loses its motion along that actuator and, at a limit, all of it: points of a longer tool
 /// stayed 12–19 mm off for five executions with one actuator at 0).
-fn gauss_newton_step(
-    j: &Jacobian,
+fn gauss_newton_step<const N: usize>(
+    j: &Jacobian<N>,
     e: &Vector3<f64>,
-    d: &Actuation,
+    d: &[f64; N],
     gain: f64,
     c: &GaussNewtonConfig,
     radius: f64,
-    base: &Actuation,
-) -> Actuation {
-    let mut free = [true; ACTUATORS];
-    let mut step = SVector::<f64, ACTUATORS>::zeros();
+    base: &[f64; N],
+) -> [f64; N] {
+    let mut free = [true; N];
+    let mut step = SVector::<f64, N>::zeros();
     // Each pass leaves out at least one more actuator, or ends.
-    for _ in 0..ACTUATORS {
+    for _ in 0..N {
         let mut jf = *j;
-        let mut df = SVector::<f64, ACTUATORS>::from_column_slice(d);
-        for i in (0..ACTUATORS).filter(|i| !free[*i]) {
+        let mut df = SVector::<f64, N>::from_column_slice(d);
+        for i in (0..N).filter(|i| !free[*i]) {
             jf.set_column(i, &Vector3::zeros());
             df[i] = 0.0;
         }
         let Some(pinv) = damped_pseudo_inverse(&jf, c.damping_m) else {
-            return [0.0; ACTUATORS];
+            return [0.0; N];
         };
         step = pinv * e * gain + (df - pinv * (jf * df));
-        for i in (0..ACTUATORS).filter(|i| !free[*i]) {
+        for i in (0..N).filter(|i| !free[*i]) {
             step[i] = 0.0;
         }
-        let blocked: Vec<usize> = (0..ACTUATORS)
+        let blocked: Vec<usize> = (0..N)
             .filter(|&i| free[i] && at_limit(base[i], step[i]))
             .collect();
         if blocked.is_empty() {
@@ -185,28 +185,39 @@ fn at_limit(a: f64, s: f64) -> bool {
     (a <= 0.0 && s < 0.0) || (a >= 1.0 && s > 0.0)
 }
 
-/// How far Broyden updates may shrink a point's Jacobian, as a fraction of the model's smallest
+/// How far Broyden updates may shrink a point's Jacobian<N>, as a fraction of the model's smallest
 /// singular value there. A step that moved the arm less than predicted (lag, backlash, noise)
 /// shrinks J along it, and J⁺ then turns a millimetre of error into a large step: measured with
 /// a 30 mm longer tool, a 1.7 mm error became a 0.13 step and a 17 mm error.
 const JACOBIAN_FLOOR: f64 = 0.5;
 
-/// `j` with its singular values raised to at least `floor`.
-fn with_singular_values_at_least(j: &Jacobian, floor: f64) -> Jacobian {
-    let mut svd = j.svd(true, true);
+/// `j` with its singular values raised to at least `floor`. By a dynamic SVD: nalgebra's
+/// fixed-size one needs its dimensions as type numbers, which a generic `N` is not (the same
+/// algorithm either way; the learner is not on the tick).
+fn with_singular_values_at_least<const N: usize>(j: &Jacobian<N>, floor: f64) -> Jacobian<N> {
+    let mut svd = DMatrix::from_column_slice(3, N, j.as_slice()).svd(true, true);
     if svd.singular_values.min() >= floor {
         return *j;
     }
     svd.singular_values.apply(|v| *v = v.max(floor));
-    svd.recompose().unwrap_or(*j)
+    svd.recompose()
+        .map(|m| Jacobian::<N>::from_column_slice(m.as_slice()))
+        .unwrap_or(*j)
+}
+
+/// The smallest singular value of `j`.
+fn smallest_singular_value<const N: usize>(j: &Jacobian<N>) -> f64 {
+    DMatrix::from_column_slice(3, N, j.as_slice())
+        .singular_values()
+        .min()
 }
 
 /// a − b.
-fn minus(a: &Actuation, b: &Actuation) -> Actuation {
+fn minus<const N: usize>(a: &[f64; N], b: &[f64; N]) -> [f64; N] {
     std::array::from_fn(|i| a[i] - b[i])
 }
 
-fn plus(a: &Actuation, step: &Actuation) -> Actuation {
+fn plus<const N: usize>(a: &[f64; N], step: &[f64; N]) -> [f64; N] {
     std::array::from_fn(|i| (a[i] + step[i]).clamp(0.0, 1.0))
 }
 
@@ -215,23 +226,23 @@ fn error_vector(target: &Position, p: &Position) -> Vector3<f64> {
 }
 
 /// CACLA-MTL at the conditioning points of the running set, with the chosen algorithm.
-pub struct OnlineLearner {
-    cacla: CaclaMtl,
+pub struct OnlineLearner<const N: usize = ACTUATORS> {
+    cacla: CaclaMtl<N>,
     /// The trained model's forward kinematics: what the first estimates are refined against.
-    kinematics: Polynomial,
-    /// The configured arm, whose Jacobian a point's corrections start from. Not the trained
+    kinematics: Polynomial<N>,
+    /// The configured arm, whose Jacobian<N> a point's corrections start from. Not the trained
     /// polynomial's: it fits the demonstrations, but its slopes away from them are up to twice
     /// too steep (singular values 1.5 against 0.8 m per unit, at a point 25 mm off the demo set
     /// on a longer tool), and a step by too steep a J falls short: such points stayed 10–15 mm
     /// off for six executions. The configured arm's kinematics are only roughly the real
     /// arm's (a changed tool, a non-constant curvature), which Broyden's updates make up for.
-    arm: ArmGeometry,
-    corrections: Corrections,
-    footprint: Footprint,
+    arm: pcc::Arm,
+    corrections: Corrections<N>,
+    footprint: Footprint<N>,
     /// The configured arm fitted to the footprint when a set starts ([`OnlineLearner::carried`]).
     /// Worked out from the footprint, so a restarted learner has it from its checkpoint.
-    calibrated: CalibratedArm,
-    set: Vec<Point>,
+    calibrated: CalibratedArm<N>,
+    set: Vec<Point<N>>,
 }
 
 /// Footprint samples below which the calibrated arm is not fitted: right after a change the
@@ -243,15 +254,15 @@ const CALIBRATION_SAMPLES: usize = 10;
 /// What the online learner knows of the arm beyond its trained model; kept in the learner's
 /// checkpoint so that a restarted learner knows the arm it left.
 #[derive(Debug, Clone, Default, PartialEq)]
-pub struct ArmState {
+pub struct ArmState<const N: usize = ACTUATORS> {
     /// [`Corrections::points`].
-    pub corrections: Vec<Corrected>,
+    pub corrections: Vec<Corrected<N>>,
     /// [`Footprint::samples`].
-    pub footprint: Vec<Sample>,
+    pub footprint: Vec<Sample<N>>,
 }
 
-impl OnlineLearner {
-    pub fn new(cacla: CaclaMtl, kinematics: Polynomial, arm: ArmGeometry) -> Self {
+impl<const N: usize> OnlineLearner<N> {
+    pub fn new(cacla: CaclaMtl<N>, kinematics: Polynomial<N>, arm: pcc::Arm) -> Self {
         Self {
             corrections: Corrections::default(),
             footprint: Footprint::default(),
@@ -264,7 +275,7 @@ impl OnlineLearner {
     }
 
     /// What it knows of the arm, for a checkpoint.
-    pub fn arm_state(&self) -> ArmState {
+    pub fn arm_state(&self) -> ArmState<N> {
         ArmState {
             corrections: self.corrections.points().to_vec(),
             footprint: self.footprint.samples().to_vec(),
@@ -272,7 +283,7 @@ impl OnlineLearner {
     }
 
     /// Takes up what a checkpoint knew of the arm.
-    pub fn restore_arm(&mut self, arm: &ArmState) {
+    pub fn restore_arm(&mut self, arm: &ArmState<N>) {
         let c = self.cacla.config().gauss_newton;
         self.corrections = Corrections::from_points(&c, &arm.corrections);
         self.footprint = Footprint::from_samples(&arm.footprint);
@@ -282,7 +293,7 @@ impl OnlineLearner {
         self.cacla.config().algorithm
     }
 
-    pub fn cacla(&self) -> &CaclaMtl {
+    pub fn cacla(&self) -> &CaclaMtl<N> {
         &self.cacla
     }
 
@@ -295,12 +306,7 @@ impl OnlineLearner {
     /// tracked position at `stamp_ns`. When it says the arm has changed (the footprint, see
     /// [`Footprint`]), what was learnt of the old arm is forgotten: the corrections, and every
     /// point's history in the running set. The caller then sends [`OnlineLearner::first_estimates`].
-    pub fn observe_arm(
-        &mut self,
-        stamp_ns: u64,
-        measured: &Actuation,
-        position: &Position,
-    ) -> Seen {
+    pub fn observe_arm(&mut self, stamp_ns: u64, measured: &[f64; N], position: &Position) -> Seen {
         if !measured.iter().chain(position).all(|v| v.is_finite())
             || self.algorithm() != Algorithm::GaussNewton
         {
@@ -327,7 +333,7 @@ impl OnlineLearner {
 
     /// The exploration-free estimate of every point of the running set whose target is known:
     /// what a set's first execution runs, and what replaces a changed arm's estimates.
-    pub fn first_estimates(&mut self) -> Vec<(usize, Actuation)> {
+    pub fn first_estimates(&mut self) -> Vec<(usize, [f64; N])> {
         (0..self.set.len())
             .filter_map(|n| {
                 let target = self.set[n].target?;
@@ -338,7 +344,7 @@ impl OnlineLearner {
 
     /// A new set: every point's history starts over; returns the estimates of its first
     /// execution (no exploration).
-    pub fn start_set(&mut self, targets: &[Position]) -> Result<Vec<Actuation>, OnlineError> {
+    pub fn start_set(&mut self, targets: &[Position]) -> Result<Vec<[f64; N]>, OnlineError> {
         self.begin(targets.len())?;
         if targets.iter().flatten().any(|v| !v.is_finite()) {
             return Err(OnlineError::NotFinite);
@@ -373,7 +379,7 @@ impl OnlineLearner {
         if self.algorithm() != Algorithm::GaussNewton {
             return;
         }
-        let samples: Vec<(Actuation, Position)> = self
+        let samples: Vec<([f64; N], Position)> = self
             .footprint
             .current()
             .map(|s| (s.actuation, s.position))
@@ -392,7 +398,7 @@ impl OnlineLearner {
     /// mm at the second set's points after `tool-change`), where the model plus the difference
     /// of two inverses kept the model's own miss (up to 12 mm at a point off the
     /// demonstrations).
-    fn transferred(&self, target: &Position, model: &Actuation) -> Actuation {
+    fn transferred(&self, target: &Position, model: &[f64; N]) -> [f64; N] {
         if self.calibrated.samples < CALIBRATION_SAMPLES {
             return *model;
         }
@@ -405,7 +411,7 @@ impl OnlineLearner {
     }
 
     /// Checks `point` and `target` against the set and fills in an unknown target.
-    fn point(&mut self, point: usize, target: &Position) -> Result<&mut Point, OnlineError> {
+    fn point(&mut self, point: usize, target: &Position) -> Result<&mut Point<N>, OnlineError> {
         let points = self.set.len();
         let p = self
             .set
@@ -429,14 +435,14 @@ impl OnlineLearner {
 
     /// One visit: `action` was executed for `point` (the setpoint at T_cond), its group
     /// conditioned on `conditioned` (if known), and the end effector reached `reached`. Alg.
-    /// 1's update under both algorithms; under `gauss-newton` also the point's Jacobian, error
+    /// 1's update under both algorithms; under `gauss-newton` also the point's Jacobian<N>, error
     /// filter and trust region, and the transfer, all from `conditioned` (see [`Try::action`]).
     pub fn observe(
         &mut self,
         point: usize,
         target: &Position,
-        action: &Actuation,
-        conditioned: Option<&Actuation>,
+        action: &[f64; N],
+        conditioned: Option<&[f64; N]>,
         reached: &Position,
     ) -> Result<Visit, OnlineError> {
         if !action
@@ -467,7 +473,7 @@ impl OnlineLearner {
             // Broyden: J += (Δp − J Δa) Δaᵀ / ‖Δa‖², from a step large enough to stand out of
             // the noise. It learns what the model gets wrong about this arm at this point.
             if let (Some(last), Some((j, floor))) = (p.last, p.jacobian.as_mut()) {
-                let da = SVector::<f64, ACTUATORS>::from_fn(|i, _| action[i] - last.action[i]);
+                let da = SVector::<f64, N>::from_fn(|i, _| action[i] - last.action[i]);
                 let dp = Vector3::from_fn(|d, _| reached[d] - last.reached[d]);
                 // Judged by what the step was meant to do: a tiny step whose Δp is mostly
                 // noise would teach J a huge slope.
@@ -482,7 +488,7 @@ impl OnlineLearner {
             let r = c.noise_m * c.noise_m;
             p.bias = Some(match (p.bias, p.last, p.jacobian) {
                 (Some((bias, var)), Some(last), Some((j, _))) => {
-                    let da = SVector::<f64, ACTUATORS>::from_fn(|i, _| action[i] - last.action[i]);
+                    let da = SVector::<f64, N>::from_fn(|i, _| action[i] - last.action[i]);
                     let moved = j * da;
                     let predicted = bias - moved;
                     let var = var + (STEP_UNCERTAINTY * moved.norm()).powi(2) + DRIFT * r;
@@ -544,7 +550,7 @@ impl OnlineLearner {
         point: usize,
         target: &Position,
         explore: bool,
-    ) -> Result<Actuation, OnlineError> {
+    ) -> Result<[f64; N], OnlineError> {
         self.point(point, target)?;
         if self.algorithm() == Algorithm::Paper {
             let memory = self.set[point].memory;
@@ -554,7 +560,7 @@ impl OnlineLearner {
     }
 
     /// Gauss-Newton's estimate: the first, or a step from the last or best try.
-    fn directed(&mut self, point: usize, target: &Position, explore: bool) -> Actuation {
+    fn directed(&mut self, point: usize, target: &Position, explore: bool) -> [f64; N] {
         let c = self.cacla.config().gauss_newton;
         let p = self.set[point];
         if explore && let (Some(last), Some(best)) = (p.last, p.best) {
@@ -568,7 +574,7 @@ impl OnlineLearner {
                 Some((j, _)) => j,
                 None => {
                     let j = self.arm.jacobian(&base.action);
-                    let floor = JACOBIAN_FLOOR * j.singular_values().min();
+                    let floor = JACOBIAN_FLOOR * smallest_singular_value(&j);
                     self.set[point].jacobian = Some((j, floor));
                     j
                 }
@@ -580,9 +586,7 @@ impl OnlineLearner {
             };
             // Back toward the point's first estimate in the null space: steps that wander
             // along directions that do not move the end effector lead where no model is right.
-            let home = p
-                .first
-                .map_or([0.0; ACTUATORS], |f| minus(&f, &base.action));
+            let home = p.first.map_or([0.0; N], |f| minus(&f, &base.action));
             let step = gauss_newton_step(&j, &e, &home, c.gain, &c, p.radius, &base.action);
             return plus(&base.action, &step);
         }
@@ -602,7 +606,7 @@ impl OnlineLearner {
 
     /// What the trained model alone would send for `point` (at `target`), worked out once per
     /// point: under gauss-newton the actor never changes online, so neither does this.
-    fn model(&mut self, point: usize, target: &Position) -> Actuation {
+    fn model(&mut self, point: usize, target: &Position) -> [f64; N] {
         if let Some(m) = self.set[point].model {
             return m;
         }
@@ -614,7 +618,7 @@ impl OnlineLearner {
     /// What the trained model alone would send: the actor's mean, refined by Gauss-Newton
     /// against the polynomial kinematics, never further than `trust_max` from the mean (the
     /// polynomial is trusted near the demonstrations only).
-    fn refine(&mut self, target: &Position) -> Actuation {
+    fn refine(&mut self, target: &Position) -> [f64; N] {
         let c = self.cacla.config().gauss_newton;
         let mean = self.cacla.actor(target);
         let model = &self.kinematics;
@@ -634,7 +638,7 @@ impl OnlineLearner {
             let mut improved = false;
             for _ in 0..4 {
                 let mut next = plus(&a, &step);
-                let off: f64 = (0..ACTUATORS)
+                let off: f64 = (0..N)
                     .map(|i| (next[i] - mean[i]).powi(2))
                     .sum::<f64>()
                     .sqrt();
@@ -667,6 +671,7 @@ mod tests {
     use softarm_sections::arm::ArmGeometry;
     use softarm_sections::kinematics::PolynomialConfig;
     use softarm_sections::learner::LearnerConfig;
+    use softarm_space::Actuation;
 
     /// A polynomial of the nominal arm and an actor that imitated it.
     fn learner(algorithm: Algorithm) -> OnlineLearner {
@@ -683,7 +688,7 @@ mod tests {
         };
         let mut cacla = CaclaMtl::new(config).unwrap();
         cacla.imitate(&p, &a, 3);
-        OnlineLearner::new(cacla, poly, arm)
+        OnlineLearner::new(cacla, poly, softarm_kinematics::pcc::Arm::of_geometry(&arm))
     }
 
     fn targets() -> Vec<Position> {
