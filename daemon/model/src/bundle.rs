@@ -22,6 +22,7 @@ use softarm_learning::arm::{Corrected, Sample};
 use softarm_learning::cacla::LearnerState;
 use softarm_learning::online::ArmState;
 use softarm_method::promp::{Basis, Primitive};
+use softarm_method::space::ACTUATORS;
 use softarm_sections::arm::ArmGeometry;
 use softarm_sections::learner::LearnerConfig;
 
@@ -289,14 +290,16 @@ pub fn read<M: for<'de> Deserialize<'de>>(
 }
 
 /// Everything training produces: the primitives, the forward model and the pre-trained learner.
+/// For an arm of `N` actuators (the paper's six unless said): its actuation primitives have `N`
+/// degrees of freedom, its models `N` inputs, its actor `N` outputs.
 #[derive(Debug, Clone)]
-pub struct Model {
+pub struct Model<const N: usize = ACTUATORS> {
     pub actuation: Vec<Primitive>,
     pub task: Vec<Primitive>,
-    pub forward: RbfNetwork,
+    pub forward: RbfNetwork<N>,
     /// The polynomial whose Jacobian steers the online corrections.
-    pub kinematics: Polynomial,
-    pub learner: LearnerState,
+    pub kinematics: Polynomial<N>,
+    pub learner: LearnerState<N>,
     pub demo_duration_s: f64,
     /// The arm it was made for (`softarm_arm::Layout::identity`).
     pub arm: String,
@@ -344,23 +347,26 @@ fn get_primitive(t: &Tensors, name: &str, basis: &Basis, dofs: usize) -> Result<
     .map_err(|e| format!("{name}: {e}"))
 }
 
-fn put_learner(t: &mut Tensors, s: &LearnerState) {
+fn put_learner<const N: usize>(t: &mut Tensors, s: &LearnerState<N>) {
     let keys: Vec<u64> = s.actor.iter().map(|e| e.0).collect();
     let w: Vec<f64> = s.actor.iter().flat_map(|e| e.1).collect();
     t.put_u64("actor.keys", &keys);
-    t.put_f64("actor.weights", &[keys.len(), 6], &w);
+    t.put_f64("actor.weights", &[keys.len(), N], &w);
     let keys: Vec<u64> = s.critic.iter().map(|e| e.0).collect();
     let w: Vec<f64> = s.critic.iter().map(|e| e.1[0]).collect();
     t.put_u64("critic.keys", &keys);
     t.put_f64("critic.weights", &[keys.len()], &w);
 }
 
-fn get_learner(t: &Tensors, config: LearnerConfig) -> Result<LearnerState, String> {
+fn get_learner<const N: usize>(
+    t: &Tensors,
+    config: LearnerConfig,
+) -> Result<LearnerState<N>, String> {
     let keys = t.u64s("actor.keys")?;
-    let (_, w) = t.f64s("actor.weights", &[Some(keys.len()), Some(6)])?;
+    let (_, w) = t.f64s("actor.weights", &[Some(keys.len()), Some(N)])?;
     let actor = keys
         .iter()
-        .zip(w.chunks_exact(6))
+        .zip(w.chunks_exact(N))
         .map(|(k, c)| (*k, std::array::from_fn(|i| c[i])))
         .collect();
     let keys = t.u64s("critic.keys")?;
@@ -375,7 +381,7 @@ fn get_learner(t: &Tensors, config: LearnerConfig) -> Result<LearnerState, Strin
     })
 }
 
-impl Model {
+impl<const N: usize> Model<N> {
     /// Writes the bundle into `dir` (as `model.toml` + tensors) and returns its id.
     pub fn write(&self, dir: &Path) -> Result<String, BundleError> {
         if self.arm.is_empty() {
@@ -406,7 +412,7 @@ impl Model {
             put_primitive(&mut t, &format!("promp.task.{j}"), p);
         }
         let c: Vec<f64> = centres.iter().flatten().copied().collect();
-        t.put_f64("forward.centres", &[centres.len(), 6], &c);
+        t.put_f64("forward.centres", &[centres.len(), N], &c);
         let w: Vec<f64> = weights.iter().flatten().copied().collect();
         t.put_f64("forward.weights", &[weights.len(), 3], &w);
         let k = self.kinematics.weights();
@@ -419,21 +425,33 @@ impl Model {
     /// Reads the bundle in `dir` ([`Model::read`]) for the arm `arm`
     /// (`softarm_arm::Layout::identity`): a bundle made for another arm is refused, naming
     /// both.
-    pub fn read_for(dir: &Path, arm: &str) -> Result<Self, BundleError> {
-        let model = Self::read(dir)?;
-        if model.arm != arm {
-            return Err(BundleError::OtherArm {
-                path: dir.to_path_buf(),
-                bundle: model.arm,
-                config: arm.to_string(),
-            });
-        }
-        Ok(model)
+    /// Before the tensors: a bundle of another arm has other shapes, which are not what is
+    /// wrong with it. For an arm of `N` actuators ([`Model::read_for`]: the paper's six).
+    pub fn read_for_arm(dir: &Path, arm: &str) -> Result<Self, BundleError> {
+        Self::read_checked(dir, Some(arm))
     }
 
-    /// Reads and checks the bundle in `dir`; nothing is half-loaded.
-    pub fn read(dir: &Path) -> Result<Self, BundleError> {
+    /// Reads and checks the bundle of an arm of `N` actuators in `dir`; nothing is
+    /// half-loaded.
+    pub fn read_of(dir: &Path) -> Result<Self, BundleError> {
+        Self::read_checked(dir, None)
+    }
+
+    fn read_checked(dir: &Path, want_arm: Option<&str>) -> Result<Self, BundleError> {
         let (meta, t, reference): (ModelMeta, _, _) = read(dir, "model", "model bundle")?;
+        let made_for = meta
+            .arm
+            .clone()
+            .unwrap_or_else(|| ArmGeometry::default().layout().identity());
+        if let Some(want) = want_arm
+            && made_for != want
+        {
+            return Err(BundleError::OtherArm {
+                path: dir.to_path_buf(),
+                bundle: made_for,
+                config: want.to_string(),
+            });
+        }
         let invalid = |why: String| BundleError::Invalid {
             path: dir.join("model.toml"),
             why,
@@ -449,23 +467,23 @@ impl Model {
         }
         let basis = Basis::new(meta.basis_functions, Some(meta.basis_width))
             .map_err(|e| invalid(e.to_string()))?;
-        let build = || -> Result<Model, String> {
+        let build = || -> Result<Model<N>, String> {
             let actuation = (0..meta.primitives)
-                .map(|j| get_primitive(&t, &format!("promp.actuation.{j}"), &basis, 6))
+                .map(|j| get_primitive(&t, &format!("promp.actuation.{j}"), &basis, N))
                 .collect::<Result<Vec<_>, _>>()?;
             let task = (0..meta.primitives)
                 .map(|j| get_primitive(&t, &format!("promp.task.{j}"), &basis, 3))
                 .collect::<Result<Vec<_>, _>>()?;
-            let (shape, c) = t.f64s("forward.centres", &[None, Some(6)])?;
-            let centres: Vec<[f64; 6]> = c
-                .chunks_exact(6)
+            let (shape, c) = t.f64s("forward.centres", &[None, Some(N)])?;
+            let centres: Vec<[f64; N]> = c
+                .chunks_exact(N)
                 .map(|r| std::array::from_fn(|i| r[i]))
                 .collect();
-            let (_, w) = t.f64s("forward.weights", &[Some(shape[0] + 7), Some(3)])?;
+            let (_, w) = t.f64s("forward.weights", &[Some(shape[0] + N + 1), Some(3)])?;
             let weights: Vec<[f64; 3]> = w.chunks_exact(3).map(|r| [r[0], r[1], r[2]]).collect();
             let forward = RbfNetwork::from_parts(centres, meta.forward_sigma, weights)?;
             let terms = softarm_kinematics::poly::terms(
-                6,
+                N,
                 meta.kinematics_degree
                     .min(softarm_sections::kinematics::MAX_DEGREE),
             );
@@ -483,14 +501,23 @@ impl Model {
                 kinematics,
                 learner,
                 demo_duration_s: meta.demo_duration_s,
-                arm: meta
-                    .arm
-                    .clone()
-                    .unwrap_or_else(|| ArmGeometry::default().layout().identity()),
+                arm: made_for.clone(),
                 id: reference.fnv64.clone(),
             })
         };
         build().map_err(invalid)
+    }
+}
+
+impl Model {
+    /// [`Model::read_for_arm`] of the paper's six actuators.
+    pub fn read_for(dir: &Path, arm: &str) -> Result<Self, BundleError> {
+        Self::read_for_arm(dir, arm)
+    }
+
+    /// [`Model::read_of`] the paper's six actuators.
+    pub fn read(dir: &Path) -> Result<Self, BundleError> {
+        Self::read_of(dir)
     }
 }
 
@@ -551,10 +578,10 @@ struct CheckpointMeta {
 }
 
 /// Saves the learner's state as `<dir>/learner.toml` + tensors.
-pub fn write_checkpoint(
+pub fn write_checkpoint<const N: usize>(
     dir: &Path,
-    state: &LearnerState,
-    arm: &ArmState,
+    state: &LearnerState<N>,
+    arm: &ArmState<N>,
     model_id: &str,
 ) -> Result<(), BundleError> {
     let meta = CheckpointMeta {
@@ -571,16 +598,21 @@ pub fn write_checkpoint(
 
 /// A learner checkpoint as read back.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Checkpoint {
-    pub state: LearnerState,
+pub struct Checkpoint<const N: usize = ACTUATORS> {
+    pub state: LearnerState<N>,
     /// What the learner knew of the arm (empty from checkpoints written before it was kept).
-    pub arm: ArmState,
+    pub arm: ArmState<N>,
     /// The id of the model it descends from.
     pub model: String,
 }
 
-/// Reads a learner checkpoint.
+/// Reads a learner checkpoint of the paper's six actuators.
 pub fn read_checkpoint(dir: &Path) -> Result<Checkpoint, BundleError> {
+    read_checkpoint_of(dir)
+}
+
+/// Reads a learner checkpoint of an arm of `N` actuators.
+pub fn read_checkpoint_of<const N: usize>(dir: &Path) -> Result<Checkpoint<N>, BundleError> {
     let (meta, t, _): (CheckpointMeta, _, _) = read(dir, "learner", "learner checkpoint")?;
     let invalid = |why: String| BundleError::Invalid {
         path: dir.join("learner.toml"),
@@ -602,12 +634,12 @@ pub fn read_checkpoint(dir: &Path) -> Result<Checkpoint, BundleError> {
     })
 }
 
-fn put_arm(t: &mut Tensors, arm: &ArmState) {
+fn put_arm<const N: usize>(t: &mut Tensors, arm: &ArmState<N>) {
     let n = arm.corrections.len();
     let targets: Vec<f64> = arm.corrections.iter().flat_map(|c| c.target).collect();
     let estimates: Vec<f64> = arm.corrections.iter().flat_map(|c| c.estimate).collect();
     t.put_f64("arm.corrections.targets", &[n, 3], &targets);
-    t.put_f64("arm.corrections.estimates", &[n, 6], &estimates);
+    t.put_f64("arm.corrections.estimates", &[n, N], &estimates);
     let m = arm.footprint.len();
     let stamps: Vec<u64> = arm.footprint.iter().map(|s| s.stamp_ns).collect();
     let counts: Vec<u64> = arm.footprint.iter().map(|s| u64::from(s.count)).collect();
@@ -615,30 +647,30 @@ fn put_arm(t: &mut Tensors, arm: &ArmState) {
     let positions: Vec<f64> = arm.footprint.iter().flat_map(|s| s.position).collect();
     t.put_u64("arm.footprint.stamps", &stamps);
     t.put_u64("arm.footprint.counts", &counts);
-    t.put_f64("arm.footprint.actuations", &[m, 6], &actuations);
+    t.put_f64("arm.footprint.actuations", &[m, N], &actuations);
     t.put_f64("arm.footprint.positions", &[m, 3], &positions);
 }
 
 /// The arm's state; none in a checkpoint written before it was kept.
-fn get_arm(t: &Tensors) -> Result<ArmState, String> {
+fn get_arm<const N: usize>(t: &Tensors) -> Result<ArmState<N>, String> {
     if !t.has("arm.corrections.targets") {
         return Ok(ArmState::default());
     }
     let (s, targets) = t.f64s("arm.corrections.targets", &[None, Some(3)])?;
-    let (_, estimates) = t.f64s("arm.corrections.estimates", &[Some(s[0]), Some(6)])?;
+    let (_, estimates) = t.f64s("arm.corrections.estimates", &[Some(s[0]), Some(N)])?;
     if let Some(v) = estimates.iter().find(|v| !(0.0..=1.0).contains(*v)) {
         return Err(format!("an estimate of {v} is outside [0, 1]"));
     }
     let corrections = (0..s[0])
         .map(|i| Corrected {
             target: std::array::from_fn(|d| targets[3 * i + d]),
-            estimate: std::array::from_fn(|d| estimates[6 * i + d]),
+            estimate: std::array::from_fn(|d| estimates[N * i + d]),
         })
         .collect();
     let stamps = t.u64s("arm.footprint.stamps")?;
     let m = Some(stamps.len());
     let counts = t.u64s("arm.footprint.counts")?;
-    let (_, actuations) = t.f64s("arm.footprint.actuations", &[m, Some(6)])?;
+    let (_, actuations) = t.f64s("arm.footprint.actuations", &[m, Some(N)])?;
     let (_, positions) = t.f64s("arm.footprint.positions", &[m, Some(3)])?;
     if counts.len() != stamps.len() {
         return Err(format!(
@@ -654,7 +686,7 @@ fn get_arm(t: &Tensors) -> Result<ArmState, String> {
         .map(|i| {
             Ok(Sample {
                 stamp_ns: stamps[i],
-                actuation: std::array::from_fn(|d| actuations[6 * i + d]),
+                actuation: std::array::from_fn(|d| actuations[N * i + d]),
                 position: std::array::from_fn(|d| positions[3 * i + d]),
                 count: u32::try_from(counts[i])
                     .ok()
@@ -798,12 +830,12 @@ mod tests {
         // A checkpoint of before the arm's state was kept reads with none.
         let mut t = Tensors::default();
         put_learner(&mut t, &m.learner);
-        assert_eq!(get_arm(&t), Ok(ArmState::default()));
+        assert_eq!(get_arm::<6>(&t), Ok(ArmState::default()));
         // A broken one is refused, saying what is wrong.
         let mut broken = arm;
         broken.footprint[0].actuation[2] = 1.5;
         put_arm(&mut t, &broken);
-        let e = get_arm(&t).unwrap_err();
+        let e = get_arm::<6>(&t).unwrap_err();
         assert!(e.contains("1.5 is outside [0, 1]"), "{e}");
         fs::remove_dir_all(&dir).unwrap();
     }

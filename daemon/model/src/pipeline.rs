@@ -10,6 +10,7 @@
 //!
 //! [`cacla::pretrain`]: softarm_learning::cacla::pretrain
 
+use softarm_arm::Layout;
 use softarm_kinematics::forward::ForwardModel;
 use softarm_kinematics::poly::Polynomial;
 use softarm_kinematics::rbf::{RbfError, RbfNetwork};
@@ -17,7 +18,7 @@ use softarm_learning::cacla::{self, CaclaMtl, PretrainReport};
 use softarm_method::activation::MAX_PRIMITIVES;
 use softarm_method::promp::{Primitive, PrimitiveError};
 use softarm_method::skill::{self, Recording};
-use softarm_method::space::{Actuation, Position, distance};
+use softarm_method::space::{ACTUATORS, Position, distance};
 use softarm_sections::arm::ArmGeometry;
 use softarm_sections::demonstrations::DemoRecipe;
 use softarm_sections::forward_model::NetworkConfig;
@@ -81,30 +82,42 @@ pub struct Training {
 
 /// What the pipeline learns from.
 #[derive(Debug, Clone, PartialEq)]
-pub struct TrainingData {
+pub struct TrainingData<const N: usize = ACTUATORS> {
     /// The demonstrations the ProMPs learn from (commanded actuation, end-effector position).
-    pub recordings: Vec<Recording>,
+    pub recordings: Vec<Recording<N>>,
     /// Their nominal duration (s): the bundle's `demo_duration_s`.
     pub duration_s: f64,
     /// D_fwd, which the forward model and the imitation learn from: on the stack what the
     /// actuators really did, from the kinematic model the commanded actuations.
-    pub actuations: Vec<Actuation>,
+    pub actuations: Vec<[f64; N]>,
     pub positions: Vec<Position>,
     /// The demonstration (index into `recordings`) each D_fwd sample belongs to.
     pub demo: Vec<usize>,
 }
 
 impl TrainingData {
-    /// The recipe's demonstrations played through `plant` (the kinematic model), D_fwd all of
-    /// their samples.
+    /// The recipe's demonstrations played through `plant` (the paper's arm's kinematic model),
+    /// D_fwd all of their samples.
     pub fn from_plant(
         plant: &ArmGeometry,
         recipe: &DemoRecipe,
         seed: u64,
     ) -> Result<Self, PipelineError> {
-        let layout = plant.layout();
-        recipe.validate(&layout).map_err(PipelineError::Recipe)?;
-        let classes = skill::classes(recipe, &layout);
+        TrainingData::of_arm(&plant.layout(), plant, recipe, seed)
+    }
+}
+
+impl<const N: usize> TrainingData<N> {
+    /// The recipe's demonstrations on the arm of `layout` played through `plant` (its
+    /// kinematic model), D_fwd all of their samples.
+    pub fn of_arm(
+        layout: &Layout,
+        plant: &impl ForwardModel<N>,
+        recipe: &DemoRecipe,
+        seed: u64,
+    ) -> Result<Self, PipelineError> {
+        recipe.validate(layout).map_err(PipelineError::Recipe)?;
+        let classes = skill::classes(recipe, layout);
         let recordings = skill::demonstrations(plant, recipe, &classes, seed);
         let (actuations, positions) = skill::forward_data(&recordings);
         let demo = recordings
@@ -141,10 +154,10 @@ pub struct TrainReport {
     pub pretrain: PretrainReport,
 }
 
-/// One actuation-space (6 DoF) and one task-space (3 DoF) ProMP per class, K = `basis_functions`.
-/// Classes are numbered from 0 and each needs a recording.
-pub fn primitives(
-    recordings: &[Recording],
+/// One actuation-space (`N` DoF) and one task-space (3 DoF) ProMP per class, K =
+/// `basis_functions`. Classes are numbered from 0 and each needs a recording.
+pub fn primitives<const N: usize>(
+    recordings: &[Recording<N>],
     basis_functions: usize,
 ) -> Result<(Vec<Primitive>, Vec<Primitive>), PipelineError> {
     if recordings.is_empty() {
@@ -172,7 +185,10 @@ pub fn primitives(
     skill::train_primitives(recordings, basis_functions).map_err(PipelineError::Primitives)
 }
 
-fn same_length(actuations: &[Actuation], positions: &[Position]) -> Result<(), PipelineError> {
+fn same_length<const N: usize>(
+    actuations: &[[f64; N]],
+    positions: &[Position],
+) -> Result<(), PipelineError> {
     if actuations.len() != positions.len() {
         return Err(PipelineError::Mismatch {
             actuations: actuations.len(),
@@ -185,7 +201,10 @@ fn same_length(actuations: &[Actuation], positions: &[Position]) -> Result<(), P
     Ok(())
 }
 
-fn same_demos(actuations: &[Actuation], demo: &[usize]) -> Result<(), PipelineError> {
+fn same_demos<const N: usize>(
+    actuations: &[[f64; N]],
+    demo: &[usize],
+) -> Result<(), PipelineError> {
     if demo.len() != actuations.len() {
         return Err(PipelineError::DemoIndex {
             samples: actuations.len(),
@@ -197,11 +216,11 @@ fn same_demos(actuations: &[Actuation], demo: &[usize]) -> Result<(), PipelineEr
 
 /// Fits `fit` without every [`HOLD_OUT_EVERY`]-th demonstration, measures the error there,
 /// then fits again on every sample.
-fn held_out_fit<M: ForwardModel, E>(
-    actuations: &[Actuation],
+fn held_out_fit<const N: usize, M: ForwardModel<N>, E>(
+    actuations: &[[f64; N]],
     positions: &[Position],
     demo: &[usize],
-    fit: impl Fn(&[Actuation], &[Position]) -> Result<M, E>,
+    fit: impl Fn(&[[f64; N]], &[Position]) -> Result<M, E>,
     wrap: impl Fn(&'static str, E) -> PipelineError,
 ) -> Result<(M, HeldOut), PipelineError> {
     same_length(actuations, positions)?;
@@ -228,12 +247,12 @@ fn held_out_fit<M: ForwardModel, E>(
 }
 
 /// The RBF forward model on D_fwd, with its error on held-out demonstrations.
-pub fn forward_model(
-    actuations: &[Actuation],
+pub fn forward_model<const N: usize>(
+    actuations: &[[f64; N]],
     positions: &[Position],
     demo: &[usize],
     config: &NetworkConfig,
-) -> Result<(RbfNetwork, HeldOut), PipelineError> {
+) -> Result<(RbfNetwork<N>, HeldOut), PipelineError> {
     held_out_fit(
         actuations,
         positions,
@@ -245,12 +264,12 @@ pub fn forward_model(
 
 /// The polynomial kinematics on D_fwd (whose Jacobian steers the online corrections), with its
 /// error on held-out demonstrations.
-pub fn kinematics(
-    actuations: &[Actuation],
+pub fn kinematics<const N: usize>(
+    actuations: &[[f64; N]],
     positions: &[Position],
     demo: &[usize],
     config: &PolynomialConfig,
-) -> Result<(Polynomial, HeldOut), PipelineError> {
+) -> Result<(Polynomial<N>, HeldOut), PipelineError> {
     held_out_fit(
         actuations,
         positions,
@@ -262,12 +281,12 @@ pub fn kinematics(
 
 /// The imitation warm start: a new learner whose actor took `passes` supervised passes over
 /// D_fwd (the demonstrations say which actuation reaches which position).
-pub fn imitation(
+pub fn imitation<const N: usize>(
     config: LearnerConfig,
-    actuations: &[Actuation],
+    actuations: &[[f64; N]],
     positions: &[Position],
     passes: usize,
-) -> Result<CaclaMtl, PipelineError> {
+) -> Result<CaclaMtl<N>, PipelineError> {
     same_length(actuations, positions)?;
     let mut learner = CaclaMtl::new(config).map_err(PipelineError::Learner)?;
     learner.imitate(positions, actuations, passes);
@@ -276,13 +295,13 @@ pub fn imitation(
 
 /// The imitation warm start, then CACLA-MTL pre-training against `model` on targets drawn from
 /// D_fwd's positions, until `training.pretrain.max_epochs` or until `keep_going` says stop.
-pub fn learner(
+pub fn learner<const N: usize>(
     training: &Training,
-    model: &impl ForwardModel,
-    actuations: &[Actuation],
+    model: &impl ForwardModel<N>,
+    actuations: &[[f64; N]],
     positions: &[Position],
     keep_going: impl FnMut(&PretrainReport) -> bool,
-) -> Result<(CaclaMtl, PretrainReport), PipelineError> {
+) -> Result<(CaclaMtl<N>, PretrainReport), PipelineError> {
     let mut learner = imitation(
         training.learner,
         actuations,
@@ -301,11 +320,11 @@ pub fn learner(
 
 /// The whole pipeline: primitives, forward model, pre-trained learner, as a [`Model`] (its `id`
 /// empty until written, its `arm` for the caller, who knows which arm the data came from).
-pub fn train(
-    data: &TrainingData,
+pub fn train<const N: usize>(
+    data: &TrainingData<N>,
     training: &Training,
     keep_going: impl FnMut(&PretrainReport) -> bool,
-) -> Result<(Model, TrainReport), PipelineError> {
+) -> Result<(Model<N>, TrainReport), PipelineError> {
     let (actuation, task) = primitives(&data.recordings, training.basis_functions)?;
     let (forward, forward_error) = forward_model(
         &data.actuations,
@@ -532,7 +551,10 @@ mod tests {
         let arm = ArmGeometry::default();
         let data = TrainingData::from_plant(&arm, &recipe(), 1).unwrap();
         let t = quick();
-        assert_eq!(primitives(&[], 8).unwrap_err(), PipelineError::NoRecordings);
+        assert_eq!(
+            primitives::<6>(&[], 8).unwrap_err(),
+            PipelineError::NoRecordings
+        );
 
         let mut short = data.recordings.clone();
         short[5].position.pop();
@@ -585,7 +607,7 @@ mod tests {
             }
         );
         assert_eq!(
-            forward_model(&[], &[], &[], &t.forward).unwrap_err(),
+            forward_model::<6>(&[], &[], &[], &t.forward).unwrap_err(),
             PipelineError::NoSamples
         );
         // Only demonstration 0, which is held out: nothing to fit without it.
@@ -627,5 +649,37 @@ mod tests {
         )
         .unwrap_err();
         assert!(matches!(e, PipelineError::Recipe(_)), "{e}");
+    }
+
+    /// Any arm: a quick model of the nine-tendon TDCR from its kinematics, its classes taken
+    /// from the arm; the bundle of nine reads back for that arm alone.
+    #[test]
+    fn a_quick_model_of_a_nine_tendon_arm() {
+        let text = include_str!("../../../config/arms/tdcr.toml");
+        let layout = Layout::new(&toml::from_str(text).unwrap()).unwrap();
+        let arm = softarm_kinematics::pcc::Arm::new(&layout, &[]);
+        let data = TrainingData::<9>::of_arm(&layout, &arm, &recipe(), 3).unwrap();
+        assert_eq!(data.recordings.len(), 5 * 4);
+        let training = Training {
+            learner: LearnerConfig {
+                workspace_min_m: [-0.2, -0.2, 0.0],
+                workspace_max_m: [0.2, 0.2, 0.25],
+                ..LearnerConfig::default()
+            },
+            ..quick()
+        };
+        let (mut m, r) = train(&data, &training, |_| true).unwrap();
+        assert_eq!((m.actuation.len(), m.actuation[0].dofs()), (5, 9));
+        assert!(r.kinematics_error.mean_m < 0.005, "{r:?}");
+        let dir = std::env::temp_dir().join(format!("softarm-nine-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        m.arm = layout.identity();
+        m.write(&dir).unwrap();
+        let back = Model::<9>::read_for_arm(&dir, &layout.identity()).unwrap();
+        assert_eq!(back.learner, m.learner);
+        let paper = ArmGeometry::default().layout().identity();
+        let e = Model::read_for(&dir, &paper).unwrap_err().to_string();
+        assert!(e.contains("9 actuators (a1 .. a9) in 3 modules"), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }
