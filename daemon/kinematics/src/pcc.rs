@@ -177,12 +177,6 @@ pub trait Kinematics {
 
     /// End-effector pose for a normalised actuation a ∈ [0, 1]^6.
     fn pose(&self, a: &[f64; ACTUATORS]) -> Pose;
-
-    /// The backbone for a normalised actuation, base to tip, as four polylines in the base
-    /// frame (m): module 1 (`per_module` + 1 points along its arc), the connector, module 2
-    /// (the same), the tool. Each starts where the one before ends; the last point is
-    /// [`ForwardModel::position`](crate::forward::ForwardModel::position). For drawing the arm.
-    fn backbone(&self, a: &[f64; ACTUATORS], per_module: usize) -> [Vec<[f64; 3]>; 4];
 }
 
 impl Kinematics for ArmGeometry {
@@ -239,36 +233,6 @@ impl Kinematics for ArmGeometry {
 
     fn pose(&self, a: &[f64; ACTUATORS]) -> Pose {
         self.pose_of_lengths(&self.lengths(a))
-    }
-
-    fn backbone(&self, a: &[f64; ACTUATORS], per_module: usize) -> [Vec<[f64; 3]>; 4] {
-        let per_module = per_module.max(1);
-        let point = |p: &Pose| [p.position.x, p.position.y, p.position.z];
-        let arc = |from: &Pose, m: &Arc| -> Vec<[f64; 3]> {
-            (0..=per_module)
-                .map(|i| {
-                    let s = i as f64 / per_module as f64;
-                    let part = Arc {
-                        length: m.length * s,
-                        theta: m.theta * s,
-                        phi: m.phi,
-                    };
-                    point(&from.then(&module_pose(&part)))
-                })
-                .collect()
-        };
-        let [m1, m2] = self.arcs_of_lengths(&self.lengths(a));
-        let base = base(self);
-        let end1 = base.then(&module_pose(&m1));
-        let start2 = end1.then(&Pose::translation_z(self.connector_m));
-        let end2 = start2.then(&module_pose(&m2));
-        let tip = end2.then(&Pose::translation_z(self.tool_m));
-        [
-            arc(&base, &m1),
-            vec![point(&end1), point(&start2)],
-            arc(&start2, &m2),
-            vec![point(&end2), point(&tip)],
-        ]
     }
 }
 
@@ -507,18 +471,19 @@ mod tests {
 
     #[test]
     fn the_backbone_runs_from_the_base_to_the_end_effector() {
-        let mut arm = ArmGeometry::default();
-        arm.actuator_offset_m[4] = 0.003;
+        let mut geometry = ArmGeometry::default();
+        geometry.actuator_offset_m[4] = 0.003;
+        let arm = Arm::of_geometry(&geometry);
         let mut rng = StdRng::seed_from_u64(3);
         for _ in 0..200 {
             let a: [f64; 6] = std::array::from_fn(|_| rng.random());
-            let lines = arm.backbone(&a, 8);
+            let lines = arm.backbone(&a, 8).unwrap();
             assert_eq!(lines.iter().map(Vec::len).collect::<Vec<_>>(), [9, 2, 9, 2]);
             close(lines[0][0], [0.0; 3], 1e-15);
             for w in lines.windows(2) {
                 close(w[1][0], *w[0].last().unwrap(), 1e-15);
             }
-            close(*lines[3].last().unwrap(), arm.position(&a), 1e-12);
+            close(*lines[3].last().unwrap(), geometry.position(&a), 1e-12);
             // The arc's points lie on it: as long as the module's backbone.
             let arc_length: f64 = lines[0]
                 .windows(2)
@@ -638,11 +603,8 @@ mod tests {
             let got = arm.pose_of_lengths(&arm.lengths(&a), 0.3).unwrap();
             assert!((tapered.position - got.position).norm() < 1e-12);
             let lines = arm.backbone(&a, 8).unwrap();
-            let old = geometry.backbone(&a, 8);
             assert_eq!(lines.len(), 4);
-            for (l, o) in lines.iter().zip(&old) {
-                close(*l.last().unwrap(), *o.last().unwrap(), 1e-12);
-            }
+            close(*lines[3].last().unwrap(), geometry.position(&a), 1e-12);
         }
         let tdcr: softarm_arm::Description =
             toml::from_str(include_str!("../../../ipc/arm/testdata/tdcr.toml")).unwrap();
