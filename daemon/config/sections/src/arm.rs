@@ -5,7 +5,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use softarm_arm::{Description, Group, Kind, Layout, ModuleDescription};
+use softarm_arm::{Description, Group, Layout, ModuleDescription};
 pub use softarm_arm::{Mount, Routing};
 pub use softarm_space::ACTUATORS;
 
@@ -63,22 +63,6 @@ const SHORTHAND: [&str; 4] = [
 ];
 
 impl ArmConfig {
-    /// The paper's arm of `geometry`, in the shorthand form.
-    pub fn of_geometry(g: &ArmGeometry) -> Self {
-        Self {
-            modules: None,
-            routing: None,
-            actuator_radius_m: Some(g.actuator_radius_m),
-            actuator_min_m: Some(g.actuator_min_m),
-            actuator_max_m: Some(g.actuator_max_m),
-            module_rotation_deg: Some(g.module_rotation_deg),
-            connector_m: Some(g.connector_m),
-            tool_m: Some(g.tool_m),
-            mount: Some(g.mount),
-            actuator_offset_m: Some(g.actuator_offset_m.to_vec()),
-        }
-    }
-
     /// The arm as a description: `modules` as written, or the shorthand's two modules.
     pub fn description(&self) -> Description {
         let d = ArmGeometry::default();
@@ -216,11 +200,6 @@ impl ArmConfig {
         }
         Ok(())
     }
-
-    /// Whether every actuator is a tendon (what the tendon driver drives).
-    pub fn all_tendons(layout: &Layout) -> bool {
-        layout.actuators().iter().all(|a| a.kind == Kind::Tendon)
-    }
 }
 
 /// Actuators per module and modules per arm.
@@ -228,8 +207,10 @@ pub const ACTUATORS_PER_MODULE: usize = 3;
 pub const MODULES: usize = 2;
 const _: () = assert!(ACTUATORS == ACTUATORS_PER_MODULE * MODULES);
 
-/// The arm's geometry; the `[arm]` section of the config. Defaults: two modules,
-/// actuator radius 25 mm, actuator length 0.19–0.25 m, second module rotated 60°, hanging base.
+/// The paper's arm's geometry: what `[arm]`'s shorthand keys describe ([`ArmConfig::geometry`]),
+/// what the controller and the learner compute for, and what scenarios change. Defaults: two
+/// modules, actuator radius 25 mm, actuator length 0.19–0.25 m, second module rotated 60°,
+/// hanging base.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct ArmGeometry {
