@@ -380,7 +380,6 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         }
         Command::Controller(stack) => {
             let c = stack.load()?;
-            c.paper_arm()?;
             keep_pace(&c);
             softarm_controller::run(&c, &*stop_flag()?)?
         }
@@ -404,7 +403,6 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Emulate(args) => emulate::run(&args, &*stop_flag()?)?,
         Command::Train { stack, seed } => {
             let config = stack.load()?;
-            config.paper_arm()?;
             let r = train::train(&config, &stack.namespace()?, seed)?;
             println!(
                 "trained model {} in {}: {}",

@@ -170,7 +170,7 @@ fn fresh_first(model: &Model, config: &Config, scenario: &str, set: &str) -> f64
         model.learner.clone(),
         model.kinematics.clone(),
         config.learner,
-        config.paper_arm().unwrap(),
+        softarm_kinematics::pcc::Arm::of_geometry(&config.paper_arm().unwrap()),
     )
     .unwrap();
     let learner = Learner::new(online, config);

@@ -1,8 +1,7 @@
 //! Arms other than the paper's, described in `[arm]` alone: the sim drives the shipped
 //! nine-tendon TDCR and the hybrid with its chambers from setpoints of their own counts, the
 //! Python mirror reads a nine-actuator stack, the ROS 2 bridge names the hybrid's joints as its
-//! `[arm]` does, and the processes whose math runs the paper's arm alone refuse the others,
-//! naming the arm.
+//! `[arm]` does, and the whole stack executes a set on the TDCR.
 
 use std::time::Duration;
 
@@ -201,24 +200,49 @@ fn the_sim_drives_the_hybrid_arm_and_refuses_six() {
     );
 }
 
-/// The controller, the learner, `train` and a scenario run the paper's arm alone: on the TDCR
-/// each exits as a config error (78, which neither `up` nor systemd restarts), naming the arm.
+/// The whole stack on the nine-tendon TDCR: the sim, the controller and the learner run its
+/// nine actuators from a model made for it, and a set on its own demonstrations is executed:
+/// every point seen, each execution re-conditioned by the learner's estimates. The scenarios
+/// change the paper's arm alone: one on the TDCR is a config error (78, which neither `up` nor
+/// systemd restarts), naming the arm.
 #[test]
-fn what_computes_for_the_papers_arm_alone_refuses_another_naming_it() {
-    let (s, _) = on_arm("arm-refused", "tdcr", &[]);
-    for args in [
-        &["controller"][..],
-        &["learner"],
-        &["train"],
-        &["sim", "--scenario", "tool-change"],
-    ] {
-        let out = s.run(args);
-        let err = String::from_utf8_lossy(&out.stderr);
-        assert_eq!(out.status.code(), Some(78), "{args:?}: {err}");
-        assert!(
-            err.contains("9 actuators (a1 .. a9) in 3 modules"),
-            "{args:?}: {err}"
+fn the_stack_executes_a_set_on_the_nine_tendon_arm() {
+    let (mut s, c) = on_arm("arm-tdcr-stack", "tdcr", &[]);
+    let out = s.run(&["sim", "--scenario", "tool-change"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(78), "{err}");
+    assert!(err.contains("9 actuators (a1 .. a9) in 3 modules"), "{err}");
+
+    softarm_test_support::quick_model_of(&s.dir.join("model"), &c);
+    s.up();
+    let file = softarm_stack::demo::demo_set(&c).unwrap();
+    let mut text = format!("duration_s = {}\n", file.duration_s);
+    for p in &file.point {
+        text += &format!(
+            "[[point]]\nt_s = {}\nposition_m = {:?}\n",
+            p.t_s, p.position_m
         );
+    }
+    let path = s.dir.join("tdcr-set.toml");
+    std::fs::write(&path, text).unwrap();
+    let id = s.executing(&path, 3);
+    let stats = s.wait_stats(id, 3, Duration::from_secs(120));
+    for st in &stats {
+        assert_eq!(st["errors_mm"].as_array().unwrap().len(), 5, "{st}");
+        assert_eq!(st["unseen"], 0, "{st}");
+        assert!(st["mean_mm"].as_f64().unwrap().is_finite(), "{st}");
+    }
+    // From the second execution on, the learner's estimates re-condition it as it runs.
+    assert!(
+        stats[1..]
+            .iter()
+            .all(|st| st["reconditions"].as_u64().unwrap() > 0),
+        "{stats:?}"
+    );
+    // Every sample a visit, every estimate used: no count was another arm's.
+    let logs = s.logs();
+    for refusal in ["sample refused", "estimate not used"] {
+        assert!(!logs.contains(refusal), "{refusal}: {logs}");
     }
 }
 

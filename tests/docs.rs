@@ -63,10 +63,18 @@ fn code_spans(text: &str) -> Vec<(usize, String)> {
 }
 
 /// Whether `name` is defined in the Rust source `text` (as fn, struct, enum, trait, type,
-/// const, static or mod).
+/// const, static, mod or macro).
 fn defines(text: &str, name: &str) -> bool {
     [
-        "fn", "struct", "enum", "trait", "type", "const", "static", "mod",
+        "fn",
+        "struct",
+        "enum",
+        "trait",
+        "type",
+        "const",
+        "static",
+        "mod",
+        "macro_rules!",
     ]
     .iter()
     .any(|kw| {

@@ -24,7 +24,9 @@ pub use iceoryx2;
 
 pub mod drivers;
 pub use drivers::{DRIVERS, Driver};
-pub use softarm_space::{ACTUATORS, Actuation, MAX_ACTUATORS, MAX_WAYPOINTS, Position};
+pub use softarm_space::{
+    ACTUATORS, Actuation, MAX_ACTUATORS, MAX_WAYPOINTS, MIN_ACTUATORS, Position, with_actuators,
+};
 
 mod actuators;
 pub use actuators::Actuators;

@@ -11,8 +11,8 @@ use anyhow::{Context, Result, anyhow, bail, ensure};
 use indicatif::{ProgressBar, ProgressStyle};
 use softarm_config::Config;
 use softarm_ipc::{
-    Actuation, Client, ControllerState, DemonstrateReply, DemonstrateRequest, MotorState,
-    Namespace, Node, Setpoint, Sub, TrackerSample,
+    Client, ControllerState, DemonstrateReply, DemonstrateRequest, MotorState, Namespace, Node,
+    Setpoint, Sub, TrackerSample,
 };
 use softarm_method::skill::Recording;
 use softarm_model::pipeline::{self, IMITATION_PASSES, Training, TrainingData};
@@ -68,19 +68,22 @@ fn bar(len: u64, msg: &str) -> ProgressBar {
     b
 }
 
-struct Sample {
+struct Sample<const N: usize> {
     demo: u32,
     class: u32,
     stamp_ns: u64,
-    commanded: [f64; 6],
-    measured: [f64; 6],
+    commanded: [f64; N],
+    measured: [f64; N],
     position: [f64; 3],
 }
 
 /// Records demonstrations through the running stack in `namespace`: (samples, demonstrations,
 /// seconds it took).
-fn record(namespace: &Namespace, seed: u64) -> Result<(Vec<Sample>, usize, f64)> {
-    let mut r = Recorder::open(namespace)?;
+fn record<const N: usize>(
+    namespace: &Namespace,
+    seed: u64,
+) -> Result<(Vec<Sample<N>>, usize, f64)> {
+    let mut r = Recorder::<N>::open(namespace)?;
     let (demos, deadline) = r.request(namespace, seed)?;
     tracing::info!(
         "recording {demos} demonstrations through the stack (giving up after {:.0} s)",
@@ -109,21 +112,21 @@ fn record(namespace: &Namespace, seed: u64) -> Result<(Vec<Sample>, usize, f64)>
 
 /// The recording of one `softarm train`: its ports, the latest setpoint and motor state, and
 /// a sample per tracker sample taken while a demonstration plays.
-struct Recorder {
+struct Recorder<const N: usize> {
     setpoints: Sub<Setpoint>,
     motors: Sub<MotorState>,
     tracker: Sub<TrackerSample>,
     demonstrate: Client<DemonstrateRequest, DemonstrateReply>,
     setpoint: Option<Setpoint>,
-    measured: Option<Actuation>,
-    samples: Vec<Sample>,
+    measured: Option<[f64; N]>,
+    samples: Vec<Sample<N>>,
     seen_last: bool,
     demonstrating: bool,
     /// Last, so the ports go before it.
     _node: Node,
 }
 
-impl Recorder {
+impl<const N: usize> Recorder<N> {
     fn open(namespace: &Namespace) -> Result<Self> {
         let node = Node::open(namespace.clone(), "train")
             .with_context(|| format!("joining namespace {:?}", namespace.as_str()))?;
@@ -264,10 +267,10 @@ fn budget(seconds: f64) -> Result<Duration> {
 
 /// The samples of demonstrations `0..demos`, one recording each: commanded actuation and
 /// tracked position, times from the demonstration's first sample, strictly increasing.
-fn recordings(samples: &[Sample], demos: usize) -> Result<Vec<Recording>> {
+fn recordings<const N: usize>(samples: &[Sample<N>], demos: usize) -> Result<Vec<Recording<N>>> {
     let mut recordings = Vec::with_capacity(demos);
     for d in 0..demos as u32 {
-        let mine: Vec<&Sample> = samples.iter().filter(|s| s.demo == d).collect();
+        let mine: Vec<&Sample<N>> = samples.iter().filter(|s| s.demo == d).collect();
         if mine.len() < 10 {
             bail!(
                 "demonstration {d} has only {} samples (tracker or controller stalled); nothing was written",
@@ -295,7 +298,6 @@ fn recordings(samples: &[Sample], demos: usize) -> Result<Vec<Recording>> {
     Ok(recordings)
 }
 
-/// Runs the whole training against the stack in `namespace` and writes the bundle.
 /// `softarm train`'s settings: the config's sections the pipeline reads.
 pub fn training(config: &Config) -> Training {
     Training {
@@ -308,9 +310,19 @@ pub fn training(config: &Config) -> Training {
     }
 }
 
+/// Runs the whole training against the stack in `namespace`, for the config's arm, and writes
+/// the bundle.
 pub fn train(config: &Config, namespace: &Namespace, seed: u64) -> Result<Trained> {
+    let n = config.layout().actuators().len();
+    softarm_ipc::with_actuators!(n, N => train_for::<N>(config, namespace, seed), n => {
+        unreachable!("a loaded config's arm has 3 to 16 actuators, not {n}")
+    })
+}
+
+/// [`train`] for an arm of `N` actuators.
+fn train_for<const N: usize>(config: &Config, namespace: &Namespace, seed: u64) -> Result<Trained> {
     let budget = budget(config.pretrain.budget_s)?;
-    let (samples, demos, demonstrate_s) = record(namespace, seed)?;
+    let (samples, demos, demonstrate_s) = record::<N>(namespace, seed)?;
     tracing::info!(
         "{demos} demonstrations recorded in {demonstrate_s:.1} s ({} samples): fitting the \
          primitives, the forward model and the kinematics",
@@ -382,7 +394,7 @@ mod tests {
 
     use super::*;
 
-    fn sample(demo: u32, class: u32, stamp_ns: u64, v: f64) -> Sample {
+    fn sample(demo: u32, class: u32, stamp_ns: u64, v: f64) -> Sample<6> {
         Sample {
             demo,
             class,
@@ -423,7 +435,7 @@ mod tests {
 
     #[test]
     fn a_stalled_demonstration_is_an_error() {
-        let samples: Vec<Sample> = (0..30).map(|i| sample(i % 3, 0, i as u64, 0.5)).collect();
+        let samples: Vec<Sample<6>> = (0..30).map(|i| sample(i % 3, 0, i as u64, 0.5)).collect();
         let e = recordings(&samples, 4).unwrap_err().to_string();
         assert!(e.contains("demonstration 3 has only 0 samples"), "{e}");
         assert!(recordings(&samples, 3).is_ok());

@@ -56,10 +56,14 @@ pub fn check(arm: &str, origin: &str) -> Result<ArmConfig, ConfigError> {
 
 /// `config` (a config file's text) with its `[arm]` section replaced by `arm` (an arm file's
 /// text, checked by [`check`], `origin` naming it). Comments and layout of the rest survive.
-/// The result is checked when it is parsed: an arm that does not fit the rest (a list of
-/// another length) is refused there, naming the key.
+/// Another arm than the config's brings its own boxes: where way-points may lie
+/// (`waypoints.workspace_*`, `waypoints.reach_m`) and what the learner's lattices span
+/// (`learner.workspace_*`) become the cube around the mount the arm's reach bounds
+/// ([`reach_box`]); the same arm keeps the config's. The result is checked when it is
+/// parsed: an arm that does not fit the rest (a list of another length) is refused there,
+/// naming the key.
 pub fn with_arm(config: &str, arm: &str, origin: &str) -> Result<String, ConfigError> {
-    check(arm, origin)?;
+    let new = check(arm, origin)?;
     let table: toml_edit::DocumentMut =
         arm.parse().map_err(|e: toml_edit::TomlError| ConfigError {
             origin: origin.into(),
@@ -74,10 +78,44 @@ pub fn with_arm(config: &str, arm: &str, origin: &str) -> Result<String, ConfigE
                 line: e.span().map(|s| crate::line_at(config, s.start)),
                 message: e.message().to_string(),
             })?;
+    let old: Option<ArmConfig> = doc
+        .get("arm")
+        .and_then(|a| toml::from_str(&a.to_string()).ok());
+    let same = old
+        .and_then(|o| o.layout().ok())
+        .is_some_and(|o| Ok(o) == new.layout());
+    if !same {
+        let reach = reach_box(&new.layout().expect("checked"));
+        for (section, keys) in [
+            (
+                "waypoints",
+                &["workspace_min_m", "workspace_max_m", "reach_m"][..],
+            ),
+            ("learner", &["workspace_min_m", "workspace_max_m"][..]),
+        ] {
+            if doc.get(section).is_none() {
+                doc.insert(section, toml_edit::table());
+            }
+            for key in keys {
+                let v = match *key {
+                    "workspace_min_m" => toml_edit::value(toml_edit::Array::from_iter([-reach; 3])),
+                    "workspace_max_m" => toml_edit::value(toml_edit::Array::from_iter([reach; 3])),
+                    _ => toml_edit::value(reach),
+                };
+                doc[section][key] = v;
+            }
+        }
+    }
     let mut table = table.as_table().clone();
     table.set_implicit(false);
     doc.insert("arm", toml_edit::Item::Table(table));
     Ok(doc.to_string())
+}
+
+/// The half-width (m) of the cube around the mount that holds everything `arm` can reach: its
+/// reach ([`softarm_arm::Layout::reach_m`]), rounded up to the millimetre.
+pub fn reach_box(arm: &softarm_arm::Layout) -> f64 {
+    (arm.reach_m() * 1e3).ceil() / 1e3
 }
 
 #[cfg(test)]
@@ -128,6 +166,28 @@ mod tests {
                 .message
                 .contains("paper, hybrid, tdcr")
         );
+    }
+
+    /// Another arm brings the boxes its reach bounds; the config's own arm keeps the config's.
+    #[test]
+    fn another_arm_brings_its_boxes_and_the_same_arm_keeps_the_configs() {
+        let d = Config::default_sim(".".into());
+        let paper = with_arm(crate::DEFAULT, SHIPPED[0].1, "paper").unwrap();
+        let p = Config::parse(&paper, "paper", ".".into()).unwrap();
+        assert_eq!(p.waypoints, d.waypoints);
+        assert_eq!(p.learner, d.learner);
+        let tdcr = with_arm(crate::DEFAULT, SHIPPED[2].1, "tdcr").unwrap();
+        let t = Config::parse(&tdcr, "tdcr", ".".into()).unwrap();
+        // Three 60 mm backbones and a 10 mm tool.
+        assert_eq!(reach_box(&t.layout()), 0.19);
+        assert_eq!(t.waypoints.reach_m, 0.19);
+        assert_eq!(t.waypoints.workspace_min_m, [-0.19; 3]);
+        assert_eq!(t.waypoints.workspace_max_m, [0.19; 3]);
+        assert_eq!(t.learner.workspace_min_m, [-0.19; 3]);
+        assert_eq!(t.learner.workspace_max_m, [0.19; 3]);
+        // The rest of the sections as they were.
+        assert_eq!(t.learner.actor_spacing_m, d.learner.actor_spacing_m);
+        assert_eq!(t.waypoints.max_executions, d.waypoints.max_executions);
     }
 
     /// A bad arm file is refused naming its own line and key, whatever the config.

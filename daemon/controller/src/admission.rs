@@ -6,7 +6,7 @@
 use anyhow::bail;
 use softarm_config::Config;
 use softarm_config::waypoints::validate;
-use softarm_ipc::{ACTUATORS, Actuation, EstimateRequest, MAX_WAYPOINTS, Position, WaypointSet};
+use softarm_ipc::{EstimateRequest, MAX_WAYPOINTS, Position, WaypointSet};
 use softarm_method::blend::{BlendError, ConditioningPoint, Planner, Replanner, Timeline};
 use softarm_method::classify::classify;
 use softarm_model::bundle::Model;
@@ -15,23 +15,23 @@ use crate::execution::ReadySet;
 
 /// A set that passed admission: planned, with each way-point's primitive and its mean there,
 /// waiting for the learner's first estimates.
-pub struct Admitted {
-    planner: Planner<ACTUATORS>,
+pub struct Admitted<const N: usize> {
+    planner: Planner<N>,
     classes: Vec<usize>,
     /// Without the learner's estimate, each point's primitive's own mean at its phase (no
     /// conditioning change), from the model this set was planned with.
-    fallback: Vec<Actuation>,
+    fallback: Vec<[f64; N]>,
     executions: u32,
     desired: [Position; MAX_WAYPOINTS],
 }
 
 /// Validates `set` and plans it with `model`: ClassifyToPrimitives, then the primitives'
 /// marginals on the tick grid. Any error is the rejection reason, worded for the user.
-pub fn admit(
+pub fn admit<const N: usize>(
     config: &Config,
-    model: Option<&Model>,
+    model: Option<&Model<N>>,
     set: &WaypointSet,
-) -> anyhow::Result<Admitted> {
+) -> anyhow::Result<Admitted<N>> {
     validate(set, &config.waypoints, &config.activation).map_err(anyhow::Error::msg)?;
     let Some(model) = model else {
         bail!(
@@ -74,7 +74,7 @@ pub fn admit(
     })
 }
 
-impl Admitted {
+impl<const N: usize> Admitted<N> {
     /// The set's way-points (conditioning points).
     pub fn points(&self) -> usize {
         self.classes.len()
@@ -108,9 +108,9 @@ impl Admitted {
     pub fn start(
         self,
         set_id: u64,
-        estimates: &[Option<Actuation>],
-    ) -> Result<(ReadySet, Replanner<ACTUATORS>), BlendError> {
-        let initial: Vec<Actuation> = self
+        estimates: &[Option<[f64; N]>],
+    ) -> Result<(ReadySet<N>, Replanner<N>), BlendError> {
+        let initial: Vec<[f64; N]> = self
             .fallback
             .iter()
             .enumerate()

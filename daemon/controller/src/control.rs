@@ -4,9 +4,7 @@
 //! what is rehearsed is this very sequence. Allocation-free once running.
 
 use softarm_config::Controller;
-use softarm_ipc::{
-    Actuation, ConditioningSample, ControllerState, ExecutionStats, Position, Setpoint,
-};
+use softarm_ipc::{ConditioningSample, ControllerState, ExecutionStats, Position, Setpoint};
 
 use crate::demonstration::{self, DemoPlayback, DemoSequences, NO_DEMO};
 use crate::execution::{self, Execution, ReadySet, Track};
@@ -14,34 +12,34 @@ use crate::lag::ActuatorLag;
 use crate::limiter::Limiter;
 
 /// What the service side hands the tick: a set to execute, or demonstrations to play.
-pub enum Plan {
-    Execute(Box<ReadySet>),
-    Demonstrate(Box<DemoSequences>),
+pub enum Plan<const N: usize> {
+    Execute(Box<ReadySet<N>>),
+    Demonstrate(Box<DemoSequences<N>>),
 }
 
 /// What the tick is done with, handed back to be freed off the tick thread.
-pub enum Retired {
-    Set(Box<ReadySet>),
-    Demo(Box<DemoSequences>),
+pub enum Retired<const N: usize> {
+    Set(Box<ReadySet<N>>),
+    Demo(Box<DemoSequences<N>>),
 }
 
 /// Where the tick's results go: the controller's outbox and rings, or a rehearsal.
-pub trait Outputs {
+pub trait Outputs<const N: usize> {
     fn setpoint(&mut self, s: Setpoint);
     fn sample(&mut self, s: ConditioningSample);
     fn stats(&mut self, s: ExecutionStats);
     /// Must not block or free on the tick thread.
-    fn retire(&mut self, r: Retired);
+    fn retire(&mut self, r: Retired<N>);
 }
 
 /// The newest of what the drivers and the e-stop said, as the tick reads it.
-pub struct Latest {
+pub struct Latest<const N: usize> {
     /// The end-effector position and its stamp.
     pub position: Option<(Position, u64)>,
     /// The newest positions, for the reach at a conditioning point.
     pub track: Track,
     /// The measured actuation and its stamp.
-    pub measured: Option<(Actuation, u64)>,
+    pub measured: Option<([f64; N], u64)>,
     /// The e-stop is engaged.
     pub engaged: bool,
     /// The driver reports a motor with a hardware error, or its torque off (it has not engaged
@@ -50,7 +48,7 @@ pub struct Latest {
     pub driver_fault: bool,
 }
 
-impl Latest {
+impl<const N: usize> Latest<N> {
     /// Nothing heard yet; `engaged`: the e-stop as the process found it.
     pub fn new(engaged: bool) -> Self {
         Self {
@@ -69,7 +67,7 @@ impl Latest {
     }
 
     /// A measured actuation stamped `stamp_ns`, already checked to be numbers.
-    pub fn take_motors(&mut self, stamp_ns: u64, actuation: Actuation) {
+    pub fn take_motors(&mut self, stamp_ns: u64, actuation: [f64; N]) {
         self.measured = Some((actuation, stamp_ns));
     }
 }
@@ -108,10 +106,10 @@ pub struct Report {
 /// What a playing tick does. One lives in place: boxing the execution would allocate on the
 /// tick thread when a set starts.
 #[allow(clippy::large_enum_variant)]
-enum Mode {
+enum Mode<const N: usize> {
     Idle,
-    Demonstrate(DemoPlayback),
-    Execute(Execution),
+    Demonstrate(DemoPlayback<N>),
+    Execute(Execution<N>),
 }
 
 /// The configured timing, in ticks where the loop counts ticks.
@@ -135,9 +133,9 @@ impl Timing {
 }
 
 /// What the mode produced this tick.
-struct Step {
+struct Step<const N: usize> {
     /// `None` holds the last setpoint.
-    target: Option<Actuation>,
+    target: Option<[f64; N]>,
     /// (demonstration, class) while one is recorded.
     demo: (u32, u32),
     /// The execution under way, 0 if none.
@@ -146,7 +144,7 @@ struct Step {
     finished: Option<ExecutionStats>,
 }
 
-impl Step {
+impl<const N: usize> Step<N> {
     const HOLD: Self = Self {
         target: None,
         demo: (NO_DEMO, NO_DEMO),
@@ -171,19 +169,19 @@ struct Counts {
 }
 
 /// Everything the tick keeps between ticks, bar its I/O.
-pub struct Control {
+pub struct Control<const N: usize> {
     timing: Timing,
     /// Clamp range and slew limit, for the limiter made at the first measured state.
-    actuator_min: Actuation,
-    actuator_max: Actuation,
+    actuator_min: [f64; N],
+    actuator_max: [f64; N],
     slew_per_s: f64,
     /// `None` until the arm's state is known: the first setpoint starts there.
-    limiter: Option<Limiter>,
+    limiter: Option<Limiter<N>>,
     /// The actuators' lag behind the setpoints, which executions lead by.
-    lag: ActuatorLag,
-    mode: Mode,
+    lag: ActuatorLag<N>,
+    mode: Mode<N>,
     /// The next set, waiting for the running one's execution to end.
-    queued: Option<Box<ReadySet>>,
+    queued: Option<Box<ReadySet<N>>>,
     was_safe: bool,
     /// The e-stop was engaged since the arm was last safe: the drivers held their own
     /// positions (or dropped the torque), not the setpoint.
@@ -191,7 +189,7 @@ pub struct Control {
     count: Counts,
 }
 
-impl Control {
+impl<const N: usize> Control<N> {
     pub fn new(c: &Controller) -> Self {
         Self {
             timing: Timing::new(c),
@@ -214,9 +212,9 @@ impl Control {
         &mut self,
         now: u64,
         skipped: u64,
-        latest: &Latest,
-        plan: Option<Plan>,
-        out: &mut impl Outputs,
+        latest: &Latest<N>,
+        plan: Option<Plan<N>>,
+        out: &mut impl Outputs<N>,
     ) -> Decided {
         match plan {
             Some(Plan::Execute(set)) => self.execute(set, out),
@@ -251,12 +249,12 @@ impl Control {
     }
 
     /// The actuators' lag as measured so far.
-    pub fn lag(&self) -> &ActuatorLag {
+    pub fn lag(&self) -> &ActuatorLag<N> {
         &self.lag
     }
 
     /// Takes a lag measured elsewhere (a controller that has been running).
-    pub fn set_lag(&mut self, lag: ActuatorLag) {
+    pub fn set_lag(&mut self, lag: ActuatorLag<N>) {
         self.lag = lag;
     }
 
@@ -279,7 +277,7 @@ impl Control {
     }
 
     /// A new set runs at once, or after the running set's execution (replacing a queued one).
-    fn execute(&mut self, set: Box<ReadySet>, out: &mut impl Outputs) {
+    fn execute(&mut self, set: Box<ReadySet<N>>, out: &mut impl Outputs<N>) {
         if let Mode::Execute(_) = self.mode {
             if let Some(old) = self.queued.replace(set) {
                 out.retire(Retired::Set(old));
@@ -293,12 +291,12 @@ impl Control {
     }
 
     /// A set's executions, to be led by the actuators' lag.
-    fn start(&self, set: Box<ReadySet>) -> Execution {
+    fn start(&self, set: Box<ReadySet<N>>) -> Execution<N> {
         Execution::new(set, self.timing.rest_ticks, self.lag.max_lead_ticks())
     }
 
     /// Demonstrations play only from idle.
-    fn demonstrate(&mut self, seqs: Box<DemoSequences>, out: &mut impl Outputs) {
+    fn demonstrate(&mut self, seqs: Box<DemoSequences<N>>, out: &mut impl Outputs<N>) {
         if let Mode::Idle = self.mode {
             self.mode = Mode::Demonstrate(DemoPlayback::new(seqs, self.timing.demo_rest_ticks));
         } else {
@@ -307,7 +305,7 @@ impl Control {
     }
 
     /// Nothing is published before the arm's state is known: the first setpoint starts there.
-    fn start_limiter(&mut self, latest: &Latest) {
+    fn start_limiter(&mut self, latest: &Latest<N>) {
         if self.limiter.is_none()
             && let Some((m, _)) = latest.measured
         {
@@ -321,7 +319,7 @@ impl Control {
         }
     }
 
-    fn health(&self, now: u64, latest: &Latest) -> Health {
+    fn health(&self, now: u64, latest: &Latest<N>) -> Health {
         let age = |stamp: Option<u64>| stamp.map_or(u64::MAX, |t| now.saturating_sub(t));
         let tracker_age_ns = age(latest.position.map(|p| p.1));
         let motor_age_ns = age(latest.measured.map(|m| m.1));
@@ -338,7 +336,7 @@ impl Control {
 
     /// STOPPED on e-stop, HOLD on stale data (or before the arm's state is known), else the
     /// mode's.
-    fn decide_state(&self, latest: &Latest, health: &Health) -> ControllerState {
+    fn decide_state(&self, latest: &Latest<N>, health: &Health) -> ControllerState {
         if latest.engaged {
             ControllerState::Stopped
         } else if !health.safe || self.limiter.is_none() {
@@ -360,7 +358,7 @@ impl Control {
     /// e-stop there is none ([`abandon`]).
     ///
     /// [`abandon`]: Self::abandon
-    fn resume(&mut self, latest: &Latest) {
+    fn resume(&mut self, latest: &Latest<N>) {
         if std::mem::take(&mut self.stopped_since_safe)
             && let (Some(lim), Some((m, _))) = (self.limiter.as_mut(), latest.measured)
         {
@@ -371,7 +369,7 @@ impl Control {
     /// E-stop: the running and the queued set, or the demonstrations, are dropped, so a reset
     /// never sets the arm moving by itself: the next motion needs a new submit. The execution
     /// under way publishes no statistics (it did not finish).
-    fn abandon(&mut self, out: &mut impl Outputs) {
+    fn abandon(&mut self, out: &mut impl Outputs<N>) {
         match std::mem::replace(&mut self.mode, Mode::Idle) {
             Mode::Execute(x) => {
                 self.count.held_solves += x.held_solves();
@@ -386,7 +384,7 @@ impl Control {
     }
 
     /// The mode's target for this tick; unsafe, the mode pauses and the setpoint holds.
-    fn step_mode(&mut self, safe: bool, now: u64, skipped: u64, latest: &Latest) -> Step {
+    fn step_mode(&mut self, safe: bool, now: u64, skipped: u64, latest: &Latest<N>) -> Step<N> {
         if !safe {
             return Step::HOLD;
         }
@@ -421,7 +419,7 @@ impl Control {
     }
 
     /// Clamp and slew; `None` holds the last setpoint.
-    fn limit(&mut self, target: Option<Actuation>) -> Actuation {
+    fn limit(&mut self, target: Option<[f64; N]>) -> [f64; N] {
         let lim = self.limiter.as_mut().expect("only called with a limiter");
         match target {
             Some(t) => lim.apply(&t),
@@ -431,7 +429,7 @@ impl Control {
 
     /// The setpoint published and the actuators' newest state, for their lag; only while the
     /// arm is safe (held, or stopped, the actuators do not follow the setpoint).
-    fn measure_lag(&mut self, now: u64, setpoint: &Actuation, latest: &Latest, safe: bool) {
+    fn measure_lag(&mut self, now: u64, setpoint: &[f64; N], latest: &Latest<N>, safe: bool) {
         let measured = latest.measured.as_ref().filter(|_| safe);
         self.lag
             .published(now, setpoint, measured.map(|(m, t)| (*t, m)));
@@ -439,7 +437,7 @@ impl Control {
 
     /// What a conditioning point whose time came at this tick credits: the setpoint the
     /// actuators were following (published the set's lead before) and where they were.
-    fn credit(&mut self, now: u64, setpoint: &Actuation, latest: &Latest) {
+    fn credit(&mut self, now: u64, setpoint: &[f64; N], latest: &Latest<N>) {
         if let Mode::Execute(x) = &mut self.mode {
             let followed = self.lag.followed(now, x.lead()).unwrap_or(*setpoint);
             x.published(&followed, latest.measured.as_ref().map(|(m, _)| m));
@@ -451,9 +449,9 @@ impl Control {
         &mut self,
         state: ControllerState,
         now: u64,
-        setpoint: Actuation,
-        step: Step,
-        out: &mut impl Outputs,
+        setpoint: [f64; N],
+        step: Step<N>,
+        out: &mut impl Outputs<N>,
     ) {
         self.count.setpoints += 1;
         out.setpoint(Setpoint {
@@ -481,7 +479,7 @@ impl Control {
 
     /// Mode changes at boundaries: a finished demonstration run, or a way-point set through (or
     /// giving way to the queued one) between executions.
-    fn end_at_boundary(&mut self, out: &mut impl Outputs) {
+    fn end_at_boundary(&mut self, out: &mut impl Outputs<N>) {
         let done = match &self.mode {
             Mode::Demonstrate(d) => d.done(),
             Mode::Execute(x) => {
@@ -521,7 +519,7 @@ mod tests {
         retired: usize,
     }
 
-    impl Outputs for Sent {
+    impl Outputs<ACTUATORS> for Sent {
         fn setpoint(&mut self, s: Setpoint) {
             self.setpoints.push(s);
         }
@@ -529,7 +527,7 @@ mod tests {
         fn stats(&mut self, _: ExecutionStats) {
             self.stats += 1;
         }
-        fn retire(&mut self, _: Retired) {
+        fn retire(&mut self, _: Retired<ACTUATORS>) {
             self.retired += 1;
         }
     }
@@ -537,7 +535,13 @@ mod tests {
     const PERIOD_NS: u64 = 20_000_000;
 
     /// A tick `PERIOD_NS` after the last, the drivers' data stamped now if `fresh`.
-    fn tick(c: &mut Control, latest: &mut Latest, now: &mut u64, fresh: bool, out: &mut Sent) {
+    fn tick(
+        c: &mut Control<ACTUATORS>,
+        latest: &mut Latest<ACTUATORS>,
+        now: &mut u64,
+        fresh: bool,
+        out: &mut Sent,
+    ) {
         *now += PERIOD_NS;
         if fresh {
             latest.take_motors(*now, [0.5; ACTUATORS]);

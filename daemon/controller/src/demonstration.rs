@@ -3,20 +3,19 @@
 //! so the recorder can tell them apart.
 
 use softarm_config::{Config, Controller};
-use softarm_ipc::Actuation;
 
 /// The demonstration tag of a setpoint that is not part of a demonstration.
 pub(crate) const NO_DEMO: u32 = u32::MAX;
 
 /// Demonstration sequences to play, as the service thread hands them to the tick.
-pub struct DemoSequences {
+pub struct DemoSequences<const N: usize> {
     /// (class, samples) per demonstration.
-    pub(crate) sequences: Vec<(usize, Vec<Actuation>)>,
+    pub(crate) sequences: Vec<(usize, Vec<[f64; N]>)>,
     /// Ticks per sequence sample.
     pub(crate) ticks_per_sample: usize,
 }
 
-impl DemoSequences {
+impl<const N: usize> DemoSequences<N> {
     /// The configured recipe's sequences for `seed`, at the controller's rate.
     pub(crate) fn new(config: &Config, seed: u64) -> Self {
         let recipe = &config.demonstrations;
@@ -42,15 +41,15 @@ pub(crate) fn rest_s(c: &Controller) -> f64 {
 }
 
 /// Playing the demonstration sequences, each after a rest that slews to its start.
-pub(crate) struct DemoPlayback {
-    sequences: Box<DemoSequences>,
+pub(crate) struct DemoPlayback<const N: usize> {
+    sequences: Box<DemoSequences<N>>,
     demo: usize,
     /// Ticks into this demo; negative while resting before it.
     k: i64,
 }
 
-impl DemoPlayback {
-    pub(crate) fn new(sequences: Box<DemoSequences>, rest_ticks: i64) -> Self {
+impl<const N: usize> DemoPlayback<N> {
+    pub(crate) fn new(sequences: Box<DemoSequences<N>>, rest_ticks: i64) -> Self {
         Self {
             sequences,
             demo: 0,
@@ -59,7 +58,7 @@ impl DemoPlayback {
     }
 
     /// The target of this tick, and (demo, class) while a demonstration is being recorded.
-    pub(crate) fn step(&mut self, rest_ticks: i64) -> (Actuation, Option<(u32, u32)>) {
+    pub(crate) fn step(&mut self, rest_ticks: i64) -> ([f64; N], Option<(u32, u32)>) {
         let (class, seq) = &self.sequences.sequences[self.demo];
         let ticks_per_sample = self.sequences.ticks_per_sample;
         let out = if self.k < 0 {
@@ -81,13 +80,13 @@ impl DemoPlayback {
     }
 
     /// The sequences back, to be freed off the tick thread.
-    pub(crate) fn into_sequences(self) -> Box<DemoSequences> {
+    pub(crate) fn into_sequences(self) -> Box<DemoSequences<N>> {
         self.sequences
     }
 }
 
 /// The demonstration sequence at tick k, linearly interpolated between its samples.
-fn sample_at(seq: &[Actuation], k: usize, ticks_per_sample: usize) -> Actuation {
+fn sample_at<const N: usize>(seq: &[[f64; N]], k: usize, ticks_per_sample: usize) -> [f64; N] {
     let i = (k / ticks_per_sample).min(seq.len() - 1);
     let j = (i + 1).min(seq.len() - 1);
     let f = (k % ticks_per_sample) as f64 / ticks_per_sample as f64;

@@ -4,9 +4,7 @@
 //! place that decides when a point is sampled and which estimate the learner sends next.
 
 use softarm_config::Controller;
-use softarm_ipc::{
-    ACTUATORS, Actuation, ConditioningSample, ExecutionStats, MAX_WAYPOINTS, Position,
-};
+use softarm_ipc::{ConditioningSample, ExecutionStats, MAX_WAYPOINTS, Position};
 use softarm_method::blend::{Blend, ConditionedOn, ConditioningPoint};
 use softarm_method::distance;
 
@@ -95,18 +93,18 @@ pub fn rest_ticks(c: &Controller) -> i64 {
 
 /// A way-point set ready to run: its blend and what the tick needs to know. Made by
 /// [`Admitted::start`](crate::Admitted::start).
-pub struct ReadySet {
+pub struct ReadySet<const N: usize> {
     pub(crate) set_id: u64,
     pub(crate) executions: u32,
     /// How many of `points` the set has.
     pub(crate) count: usize,
     pub(crate) points: [ConditioningPoint; MAX_WAYPOINTS],
-    pub(crate) blend: Blend<ACTUATORS>,
+    pub(crate) blend: Blend<N>,
 }
 
 /// Executing a way-point set, `executions` times over.
-pub struct Execution {
-    set: Box<ReadySet>,
+pub struct Execution<const N: usize> {
+    set: Box<ReadySet<N>>,
     /// 1-based.
     execution: u32,
     /// Ticks into the execution, the next to play; negative while resting before it.
@@ -122,43 +120,43 @@ pub struct Execution {
     max_lead: i64,
     next_point: usize,
     /// A point whose time has come, waiting for the tracker samples after it.
-    pending: Option<Pending>,
+    pending: Option<Pending<N>>,
     errors: [f64; MAX_WAYPOINTS],
     /// Points of the current execution so far that ran on their estimate for it.
     in_force: u32,
     /// What each point's group ran on in the current execution, for the first `evaluated`.
-    ran_on: [ConditionedOn<ACTUATORS>; MAX_WAYPOINTS],
+    ran_on: [ConditionedOn<N>; MAX_WAYPOINTS],
     evaluated: usize,
 }
 
 /// A conditioning point whose time has come.
 #[derive(Debug, Clone, Copy)]
-struct Pending {
+struct Pending<const N: usize> {
     point: usize,
     /// T_cond (ns): the time of the tick it came at.
     t_cond: u64,
     /// The setpoint published at that tick (the action the learner credits) and the actuators'
     /// newest measured state then (NaN if none), once [`Execution::published`] said them.
-    setpoint: Actuation,
-    measured: Actuation,
+    setpoint: [f64; N],
+    measured: [f64; N],
     /// The estimate its group ran on.
-    conditioned: Actuation,
+    conditioned: [f64; N],
 }
 
 /// What one tick of an execution produced.
-pub struct ExecutionTick {
+pub struct ExecutionTick<const N: usize> {
     /// Before the limiter.
-    pub target: Actuation,
+    pub target: [f64; N],
     /// A conditioning point's sample for the learner, complete but for its number.
     pub point: Option<ConditioningSample>,
     /// At the end of an execution: its stats (sequence number by the caller).
     pub finished: Option<ExecutionStats>,
 }
 
-impl Execution {
+impl<const N: usize> Execution<N> {
     /// The set's first execution, from the start of its rest; leads of up to `max_lead`
     /// ticks (see [`Execution::step`]).
-    pub fn new(set: Box<ReadySet>, rest_ticks: i64, max_lead: i64) -> Self {
+    pub fn new(set: Box<ReadySet<N>>, rest_ticks: i64, max_lead: i64) -> Self {
         Self {
             execution: 1,
             k: -rest_ticks,
@@ -206,7 +204,7 @@ impl Execution {
     }
 
     /// The set back, to be freed off the tick thread.
-    pub(crate) fn into_set(self) -> Box<ReadySet> {
+    pub(crate) fn into_set(self) -> Box<ReadySet<N>> {
         self.set
     }
 
@@ -230,7 +228,7 @@ impl Execution {
         lead: i64,
         now: u64,
         skipped: u64,
-    ) -> ExecutionTick {
+    ) -> ExecutionTick<N> {
         let last = self.set.blend.timeline().ticks() as i64 - 1;
         self.k = self
             .k
@@ -263,8 +261,8 @@ impl Execution {
             self.pending = Some(Pending {
                 point: self.next_point,
                 t_cond: now,
-                setpoint: [f64::NAN; ACTUATORS],
-                measured: [f64::NAN; ACTUATORS],
+                setpoint: [f64::NAN; N],
+                measured: [f64::NAN; N],
                 conditioned: on.actuation,
             });
             self.next_point += 1;
@@ -283,7 +281,7 @@ impl Execution {
 
     /// Eq. 11 at tick `ahead` of the execution (the rest's target before it), noting what the
     /// groups whose points' times it reaches run on.
-    fn evaluate(&mut self, ahead: i64) -> Actuation {
+    fn evaluate(&mut self, ahead: i64) -> [f64; N] {
         let Ok(ahead) = usize::try_from(ahead) else {
             return self.set.blend.rest();
         };
@@ -307,12 +305,12 @@ impl Execution {
     /// The setpoint the actuators were following at this tick (after the limiter: the one
     /// published the set's lead before, see [`ActuatorLag::followed`](crate::ActuatorLag)) and
     /// their newest measured state: what a point whose time came at this tick credits.
-    pub fn published(&mut self, setpoint: &Actuation, measured: Option<&Actuation>) {
+    pub fn published(&mut self, setpoint: &[f64; N], measured: Option<&[f64; N]>) {
         if let Some(p) = self.pending.as_mut()
             && p.setpoint[0].is_nan()
         {
             p.setpoint = *setpoint;
-            p.measured = measured.copied().unwrap_or([f64::NAN; ACTUATORS]);
+            p.measured = measured.copied().unwrap_or([f64::NAN; N]);
         }
     }
 
@@ -400,6 +398,7 @@ pub(crate) mod tests {
     use super::*;
     use nalgebra::DMatrix;
     use softarm_config::activation::ActivationConfig;
+    use softarm_ipc::ACTUATORS;
     use softarm_method::blend::{Planner, Replanner, Timeline};
     use softarm_method::promp::{Basis, Demonstration, Primitive, TrainConfig};
 
@@ -410,7 +409,12 @@ pub(crate) mod tests {
 
     /// One tick played at `clock` (in periods), the tracker at `REACHED` with a sample at the
     /// tick's time, the actuators' lag asking for no lead.
-    fn play(x: &mut Execution, track: &mut Track, clock: u64, skipped: u64) -> ExecutionTick {
+    fn play(
+        x: &mut Execution<ACTUATORS>,
+        track: &mut Track,
+        clock: u64,
+        skipped: u64,
+    ) -> ExecutionTick<ACTUATORS> {
         let now = clock * PERIOD;
         track.push(now, REACHED);
         let t = x.step(track, REST, 0, now, skipped);
@@ -450,11 +454,11 @@ pub(crate) mod tests {
     }
 
     /// [`planner`]'s set, executed twice.
-    pub(crate) fn ready_set() -> Box<ReadySet> {
+    pub(crate) fn ready_set() -> Box<ReadySet<ACTUATORS>> {
         ready_set_and_replanner().0
     }
 
-    fn ready_set_and_replanner() -> (Box<ReadySet>, Replanner<ACTUATORS>) {
+    fn ready_set_and_replanner() -> (Box<ReadySet<ACTUATORS>>, Replanner<ACTUATORS>) {
         let planner = planner();
         let mut points = [ConditioningPoint::default(); MAX_WAYPOINTS];
         let positions = [[0.1, 0.0, -0.3], [0.0, 0.2, -0.3]];
@@ -484,7 +488,7 @@ pub(crate) mod tests {
         let mut x = Execution::new(set, REST, 0);
         let (mut track, mut clock) = (Track::default(), 0);
         let mut samples = Vec::new();
-        let mut step = |x: &mut Execution| {
+        let mut step = |x: &mut Execution<ACTUATORS>| {
             clock += 1;
             let t = play(x, &mut track, clock, 0);
             samples.extend(t.point.map(|s| (s.execution, s.point, s.conditioned[0])));
@@ -642,12 +646,12 @@ pub(crate) mod tests {
     }
 
     fn x_step(
-        x: &mut Execution,
+        x: &mut Execution<ACTUATORS>,
         track: &mut Track,
         clock: u64,
         rest: i64,
         lead: i64,
-    ) -> ExecutionTick {
+    ) -> ExecutionTick<ACTUATORS> {
         let now = clock * PERIOD;
         track.push(now, REACHED);
         let t = x.step(track, rest, lead, now, 0);

@@ -17,8 +17,6 @@
 //! set's first rest already tells it; a dead time d gives about d on smooth paths. Fixed size:
 //! the tick allocates nothing.
 
-use softarm_ipc::{ACTUATORS, Actuation};
-
 /// Published setpoints kept: 256 ticks (0.5 s at 500 Hz), more than the lag and the measured
 /// samples' age at any supported rate.
 const RING: usize = 256;
@@ -37,39 +35,39 @@ const HYSTERESIS_TICKS: f64 = 0.75;
 
 /// The actuators' lag as measured, and the lead it asks for.
 #[derive(Debug, Clone)]
-pub struct ActuatorLag {
+pub struct ActuatorLag<const N: usize> {
     /// (time published, setpoint), oldest overwritten.
-    published: [(u64, Actuation); RING],
+    published: [(u64, [f64; N]); RING],
     len: usize,
     next: usize,
     /// The newest measured sample taken in: (stamp ns, actuation).
-    last_measured: Option<(u64, Actuation)>,
+    last_measured: Option<(u64, [f64; N])>,
     /// Exponentially forgotten sums: weight, per actuator Σe, Σṁ, Σeṁ, Σṁ².
     weight: f64,
-    e: Actuation,
-    v: Actuation,
-    ev: Actuation,
-    vv: Actuation,
+    e: [f64; N],
+    v: [f64; N],
+    ev: [f64; N],
+    vv: [f64; N],
     period_ns: u64,
     max_lead_ticks: i64,
     /// The lead in force (ticks).
     lead_ticks: i64,
 }
 
-impl ActuatorLag {
+impl<const N: usize> ActuatorLag<N> {
     /// For a tick of `rate_hz`, leads of at most `max_lead_s` (0: none).
     pub fn new(rate_hz: f64, max_lead_s: f64) -> Self {
         let period_ns = (1e9 / rate_hz).round().max(1.0) as u64;
         Self {
-            published: [(0, [0.0; ACTUATORS]); RING],
+            published: [(0, [0.0; N]); RING],
             len: 0,
             next: 0,
             last_measured: None,
             weight: 0.0,
-            e: [0.0; ACTUATORS],
-            v: [0.0; ACTUATORS],
-            ev: [0.0; ACTUATORS],
-            vv: [0.0; ACTUATORS],
+            e: [0.0; N],
+            v: [0.0; N],
+            ev: [0.0; N],
+            vv: [0.0; N],
             period_ns,
             max_lead_ticks: (max_lead_s.max(0.0) * 1e9 / period_ns as f64).floor() as i64,
             lead_ticks: 0,
@@ -80,12 +78,7 @@ impl ActuatorLag {
     /// if any: a measured sample not taken in before is compared with what was published.
     /// Pass none while the setpoint is not the tick's own (held, stopped): the arm's state
     /// then says nothing of the lag.
-    pub fn published(
-        &mut self,
-        now: u64,
-        setpoint: &Actuation,
-        measured: Option<(u64, &Actuation)>,
-    ) {
+    pub fn published(&mut self, now: u64, setpoint: &[f64; N], measured: Option<(u64, &[f64; N])>) {
         if self.newest().is_some_and(|(t, _)| now <= t) {
             return;
         }
@@ -106,7 +99,7 @@ impl ActuatorLag {
     }
 
     /// One pair of measured samples: the shortfall at their midpoint against their velocity.
-    fn take_in(&mut self, t0: u64, m0: &Actuation, t1: u64, m1: &Actuation) {
+    fn take_in(&mut self, t0: u64, m0: &[f64; N], t1: u64, m1: &[f64; N]) {
         let mid = t0 + (t1 - t0) / 2;
         let Some(at) = self.setpoint_at(mid) else {
             return;
@@ -114,7 +107,7 @@ impl ActuatorLag {
         let dt = (t1 - t0) as f64 * 1e-9;
         let forget = (-dt / MEMORY_S).exp();
         self.weight = self.weight * forget + 1.0;
-        for i in 0..ACTUATORS {
+        for i in 0..N {
             let e = at[i] - 0.5 * (m0[i] + m1[i]);
             let v = (m1[i] - m0[i]) / dt;
             self.e[i] = self.e[i] * forget + e;
@@ -137,7 +130,7 @@ impl ActuatorLag {
             return None;
         }
         let (mut cov, mut var) = (0.0, 0.0);
-        for i in 0..ACTUATORS {
+        for i in 0..N {
             cov += self.ev[i] - self.e[i] * self.v[i] / w;
             var += self.vv[i] - self.v[i] * self.v[i] / w;
         }
@@ -163,18 +156,18 @@ impl ActuatorLag {
 
     /// The setpoint the actuators were following at `now` under a lead of `lead` ticks: the
     /// one published that long before (Eq. 11 at `now`, limited); none if no longer kept.
-    pub fn followed(&self, now: u64, lead: i64) -> Option<Actuation> {
+    pub fn followed(&self, now: u64, lead: i64) -> Option<[f64; N]> {
         let back = u64::try_from(lead).ok()?.saturating_mul(self.period_ns);
         self.setpoint_at(now.checked_sub(back)?)
     }
 
-    fn newest(&self) -> Option<(u64, Actuation)> {
+    fn newest(&self) -> Option<(u64, [f64; N])> {
         (self.len > 0).then(|| self.published[(self.next + RING - 1) % RING])
     }
 
     /// The setpoint in force at `t`: the last published at or before it, linearly toward the
     /// next (the arm's drivers take setpoints as they come); none before the oldest kept.
-    fn setpoint_at(&self, t: u64) -> Option<Actuation> {
+    fn setpoint_at(&self, t: u64) -> Option<[f64; N]> {
         let at = |k: usize| self.published[(self.next + RING - self.len + k) % RING];
         if self.len == 0 || t < at(0).0 {
             return None;
@@ -194,6 +187,7 @@ impl ActuatorLag {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use softarm_ipc::{ACTUATORS, Actuation};
 
     const RATE_HZ: f64 = 500.0;
     const PERIOD: u64 = 2_000_000;
@@ -221,7 +215,7 @@ mod tests {
     /// Setpoints at 500 Hz along `path` for `seconds` from `lag`'s newest, the actuators
     /// following as `how` (from on the path), sampled every 5 ms, into `lag`.
     fn measure_into(
-        lag: &mut ActuatorLag,
+        lag: &mut ActuatorLag<ACTUATORS>,
         path: impl Fn(f64) -> Actuation,
         how: Actuators,
         seconds: f64,
@@ -260,7 +254,7 @@ mod tests {
         how: Actuators,
         seconds: f64,
         max_lead_s: f64,
-    ) -> ActuatorLag {
+    ) -> ActuatorLag<ACTUATORS> {
         let mut lag = ActuatorLag::new(RATE_HZ, max_lead_s);
         measure_into(&mut lag, path, how, seconds);
         lag

@@ -78,6 +78,14 @@ impl Shared {
 
 /// Runs the controller until `stop` is set. The tick loop runs on the calling thread.
 pub fn run(config: &Config, stop: &AtomicBool) -> anyhow::Result<()> {
+    let n = config.layout().actuators().len();
+    softarm_ipc::with_actuators!(n, N => run_for::<N>(config, stop), n => {
+        unreachable!("a loaded config's arm has 3 to 16 actuators, not {n}")
+    })
+}
+
+/// [`run`] for an arm of `N` actuators.
+fn run_for<const N: usize>(config: &Config, stop: &AtomicBool) -> anyhow::Result<()> {
     let namespace = config.bus()?;
     let shared = Arc::new(Shared::default());
     let latch = config.estop_latch();
@@ -89,8 +97,8 @@ pub fn run(config: &Config, stop: &AtomicBool) -> anyhow::Result<()> {
         );
     }
     shared.latched.store(latched, Ordering::Relaxed);
-    let (to_tick, plans) = RingBuffer::<Plan>::new(TO_TICK_CAPACITY);
-    let (retired, retired_rx) = RingBuffer::<Retired>::new(RETIRED_CAPACITY);
+    let (to_tick, plans) = RingBuffer::<Plan<N>>::new(TO_TICK_CAPACITY);
+    let (retired, retired_rx) = RingBuffer::<Retired<N>>::new(RETIRED_CAPACITY);
     // Tells the service and io threads to finish once the tick has.
     let threads_stop = Arc::new(AtomicBool::new(false));
 

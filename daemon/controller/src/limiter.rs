@@ -1,24 +1,22 @@
 //! The last word on every setpoint: clamped to the actuator limits, slewed at most a fixed step
 //! per tick.
 
-use softarm_ipc::{ACTUATORS, Actuation};
-
 /// Clamps to the actuator limits and limits the change per tick.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Limiter {
-    min: Actuation,
-    max: Actuation,
+pub struct Limiter<const N: usize> {
+    min: [f64; N],
+    max: [f64; N],
     step: f64,
-    last: Actuation,
+    last: [f64; N],
 }
 
-impl Limiter {
+impl<const N: usize> Limiter<N> {
     pub fn new(
-        min: Actuation,
-        max: Actuation,
+        min: [f64; N],
+        max: [f64; N],
         slew_per_s: f64,
         rate_hz: f64,
-        start: Actuation,
+        start: [f64; N],
     ) -> Self {
         let mut l = Self {
             min,
@@ -33,19 +31,19 @@ impl Limiter {
     /// Starts again from a measured state, so resuming never jumps: the tick does this when it
     /// is safe again after an e-stop (after HOLD it goes on from the held setpoint, which the
     /// drivers kept applying).
-    pub fn reset(&mut self, measured: Actuation) {
+    pub fn reset(&mut self, measured: [f64; N]) {
         self.last = std::array::from_fn(|i| measured[i].clamp(self.min[i], self.max[i]));
     }
 
-    pub fn last(&self) -> Actuation {
+    pub fn last(&self) -> [f64; N] {
         self.last
     }
 
     /// The setpoint for a target: at most `step` from the last, inside the limits. A non-finite
     /// target holds the last setpoint.
-    pub fn apply(&mut self, target: &Actuation) -> Actuation {
+    pub fn apply(&mut self, target: &[f64; N]) -> [f64; N] {
         if target.iter().all(|v| v.is_finite()) {
-            for i in 0..ACTUATORS {
+            for i in 0..N {
                 let t = target[i].clamp(self.min[i], self.max[i]);
                 self.last[i] += (t - self.last[i]).clamp(-self.step, self.step);
             }
@@ -57,6 +55,7 @@ impl Limiter {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use softarm_ipc::ACTUATORS;
 
     #[test]
     fn the_limiter_clamps_and_slews() {

@@ -11,8 +11,8 @@ use anyhow::Context;
 use rtrb::{Consumer, Producer, PushError};
 use softarm_config::Config;
 use softarm_ipc::{
-    ACTUATORS, Actuation, ActuationEstimate, ControllerState, DemonstrateReply, DemonstrateRequest,
-    EstimateRequest, Namespace, Node, Pub, Server, Sub, WaypointReply, WaypointSet,
+    ActuationEstimate, ControllerState, DemonstrateReply, DemonstrateRequest, EstimateRequest,
+    Namespace, Node, Pub, Server, Sub, WaypointReply, WaypointSet,
 };
 use softarm_method::blend::{BlendError, Replanner};
 use softarm_model::bundle::{BundleWatch, Model};
@@ -35,15 +35,15 @@ const LATCH_EVERY: Duration = Duration::from_millis(50);
 const TO_TICK_RETRY: Duration = Duration::from_micros(200);
 
 /// A set admitted and planned, waiting for the learner's first estimates.
-struct PendingSet {
+struct PendingSet<const N: usize> {
     set_id: u64,
     /// `None`: wait for every estimate, however long.
     deadline: Option<Instant>,
-    admitted: Admitted,
-    estimates: Vec<Option<Actuation>>,
+    admitted: Admitted<N>,
+    estimates: Vec<Option<[f64; N]>>,
 }
 
-impl PendingSet {
+impl<const N: usize> PendingSet<N> {
     fn ready(&self, now: Instant) -> bool {
         self.estimates.iter().all(Option::is_some) || self.deadline.is_some_and(|d| now >= d)
     }
@@ -54,12 +54,12 @@ impl PendingSet {
 /// one never takes the running set's estimates, and its replanner is used only once it runs
 /// (estimates for it come only from its own conditioning samples).
 #[derive(Default)]
-struct Replanners {
-    sets: Vec<(u64, Replanner<ACTUATORS>)>,
+struct Replanners<const N: usize> {
+    sets: Vec<(u64, Replanner<N>)>,
 }
 
-impl Replanners {
-    fn add(&mut self, set_id: u64, replanner: Replanner<ACTUATORS>) {
+impl<const N: usize> Replanners<N> {
+    fn add(&mut self, set_id: u64, replanner: Replanner<N>) {
         self.sets.push((set_id, replanner));
     }
 
@@ -69,7 +69,7 @@ impl Replanners {
         &mut self,
         set_id: u64,
         point: usize,
-        actuation: &Actuation,
+        actuation: &[f64; N],
         execution: u32,
     ) -> Option<Result<(), BlendError>> {
         let (_, r) = self.sets.iter_mut().find(|(id, _)| *id == set_id)?;
@@ -91,20 +91,20 @@ impl Replanners {
 const STOPPED_REASON: &str = "the e-stop is engaged (STOPPED): nothing was queued; release it with `softarm estop --reset`, then submit again";
 
 /// The model the controller plans with, reloaded when `softarm train` writes a new bundle.
-struct ModelSlot {
+struct ModelSlot<const N: usize> {
     watch: BundleWatch,
-    model: Option<Model>,
+    model: Option<Model<N>>,
     /// The arm the config describes: a bundle made for another is not used.
     arm: String,
 }
 
-impl ModelSlot {
+impl<const N: usize> ModelSlot<N> {
     /// Loads the bundle when it appears or changes; a bad bundle is reported and not used.
     fn refresh(&mut self, shared: &Shared) {
         if !self.watch.changed() {
             return;
         }
-        match Model::read_for(self.watch.dir(), &self.arm) {
+        match Model::read_for_arm(self.watch.dir(), &self.arm) {
             Ok(m) => {
                 tracing::info!(id = %m.id, primitives = m.actuation.len(), "model bundle loaded");
                 self.model = Some(m);
@@ -138,29 +138,29 @@ impl Ports {
     }
 }
 
-pub(crate) struct Service {
+pub(crate) struct Service<const N: usize> {
     config: Config,
     shared: Arc<Shared>,
     ports: Ports,
-    to_tick: Producer<Plan>,
-    retired: Consumer<Retired>,
-    slot: ModelSlot,
-    pending: Option<PendingSet>,
+    to_tick: Producer<Plan<N>>,
+    retired: Consumer<Retired<N>>,
+    slot: ModelSlot<N>,
+    pending: Option<PendingSet<N>>,
     /// The sets the tick runs, has queued or has yet to take, each with its replanner.
-    handed: Replanners,
+    handed: Replanners<N>,
     next_set_id: u64,
     request_seq: u64,
     latch: EstopLatch,
     latch_read: Instant,
 }
 
-impl Service {
+impl<const N: usize> Service<N> {
     pub(crate) fn open(
         config: Config,
         namespace: Namespace,
         shared: Arc<Shared>,
-        to_tick: Producer<Plan>,
-        retired: Consumer<Retired>,
+        to_tick: Producer<Plan<N>>,
+        retired: Consumer<Retired<N>>,
     ) -> anyhow::Result<Self> {
         let ports = Ports::open(namespace).context("opening the service thread's ports")?;
         let mut slot = ModelSlot {
@@ -238,7 +238,7 @@ impl Service {
     }
 
     /// Names an admitted set, asks the learner for its first estimates, and keeps it pending.
-    fn request_estimates(&mut self, set: &WaypointSet, admitted: Admitted) -> u64 {
+    fn request_estimates(&mut self, set: &WaypointSet, admitted: Admitted<N>) -> u64 {
         self.next_set_id += 1;
         let set_id = self.next_set_id;
         let n = admitted.points();
@@ -314,7 +314,7 @@ impl Service {
                 tracing::warn!(
                     set_id = s.set_id,
                     point,
-                    "estimate not used: {} actuators, the arm has {ACTUATORS}",
+                    "estimate not used: {} actuators, the arm has {N}",
                     s.actuation.len()
                 );
                 continue;
@@ -391,7 +391,7 @@ impl Service {
 
     /// Hands the tick a message, waiting (this thread only) while its ring is full; false if
     /// the tick is gone.
-    fn send_to_tick(&mut self, mut m: Plan) -> bool {
+    fn send_to_tick(&mut self, mut m: Plan<N>) -> bool {
         loop {
             if self.to_tick.is_abandoned() {
                 return false;
@@ -438,6 +438,7 @@ fn estimate_deadline(now: Instant, timeout_s: f64) -> Option<Instant> {
 mod tests {
     use super::*;
     use crate::execution::tests::planner;
+    use softarm_ipc::ACTUATORS;
 
     #[test]
     fn a_queued_set_leaves_the_running_set_its_replanner() {

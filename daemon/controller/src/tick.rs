@@ -21,20 +21,20 @@ use crate::latency::TickLatency;
 use crate::{Shared, rt};
 
 /// The tick's ends of the rings to the other threads.
-pub(crate) struct Links {
+pub(crate) struct Links<const N: usize> {
     /// Sets and demonstrations from the service thread.
-    pub(crate) plans: Consumer<Plan>,
+    pub(crate) plans: Consumer<Plan<N>>,
     /// What the tick is done with, back to the service thread.
-    pub(crate) retired: Producer<Retired>,
+    pub(crate) retired: Producer<Retired<N>>,
     pub(crate) outbox: Outbox,
 }
 
 /// Runs the tick loop on the calling thread until `stop` is set.
-pub(crate) fn run(
+pub(crate) fn run<const N: usize>(
     config: &Config,
     namespace: Namespace,
     shared: &Shared,
-    links: Links,
+    links: Links<N>,
     stop: &AtomicBool,
 ) -> anyhow::Result<()> {
     let engaged = shared.latched.load(Ordering::Relaxed);
@@ -77,11 +77,11 @@ impl Timing {
 }
 
 /// The subscriptions, and the newest of each.
-struct Inputs {
+struct Inputs<const N: usize> {
     tracker: Sub<TrackerSample>,
     motors: Sub<MotorState>,
     estop: Sub<EstopState>,
-    latest: Latest,
+    latest: Latest<N>,
     /// The latch file said engaged when last looked at ([`Shared::latched`]).
     latched: bool,
     /// Samples whose position or actuation is not a number: never taken as fresh data (the
@@ -91,7 +91,7 @@ struct Inputs {
     _node: Node,
 }
 
-impl Inputs {
+impl<const N: usize> Inputs<N> {
     /// `engaged`: the e-stop latch as the process found it on disk.
     fn open(namespace: Namespace, engaged: bool) -> Result<Self, softarm_ipc::Error> {
         let node = Node::open(namespace, "controller")?;
@@ -143,7 +143,7 @@ impl Inputs {
 }
 
 /// The controller's outputs: the outbox to the io thread, the ring back to the service thread.
-impl Outputs for Links {
+impl<const N: usize> Outputs<N> for Links<N> {
     fn setpoint(&mut self, s: Setpoint) {
         self.outbox.send(Outgoing::Setpoint(s));
     }
@@ -158,27 +158,27 @@ impl Outputs for Links {
 
     /// Never blocks: the ring has room for all that can be in flight; were it full, the box
     /// would be freed here, as with any bounded channel.
-    fn retire(&mut self, r: Retired) {
+    fn retire(&mut self, r: Retired<N>) {
         let _ = self.retired.push(r);
     }
 }
 
 /// Everything the tick loop keeps between ticks: its I/O around the [`Control`].
-struct Tick<'a> {
+struct Tick<'a, const N: usize> {
     timing: Timing,
-    inputs: Inputs,
+    inputs: Inputs<N>,
     shared: &'a Shared,
-    links: Links,
+    links: Links<N>,
     ticker: Ticker,
     latency: TickLatency,
-    control: Control,
+    control: Control<N>,
     /// Periods the clock skipped before this tick (overruns): a playing execution follows.
     skipped: u64,
     ticks: u64,
 }
 
-impl<'a> Tick<'a> {
-    fn new(config: &Controller, inputs: Inputs, shared: &'a Shared, links: Links) -> Self {
+impl<'a, const N: usize> Tick<'a, N> {
+    fn new(config: &Controller, inputs: Inputs<N>, shared: &'a Shared, links: Links<N>) -> Self {
         let timing = Timing::new(config);
         Self {
             // On the io thread's phase, from the first deadline still ahead: opening the

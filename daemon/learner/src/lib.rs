@@ -19,48 +19,45 @@ use std::sync::{Arc, Condvar, Mutex};
 use std::time::{Duration, Instant};
 
 use softarm_config::Config;
-use softarm_config::arm::ArmGeometry;
 use softarm_config::learner::LearnerConfig;
 use softarm_ipc::{
-    Actuation, ActuationEstimate, ConditioningSample, EstimateRequest, MotorState, Node, Position,
-    Pub, Sub, TrackerSample,
+    ActuationEstimate, ConditioningSample, EstimateRequest, MotorState, Node, Position, Pub, Sub,
+    TrackerSample,
 };
 use softarm_kinematics::pcc;
 use softarm_kinematics::poly::Polynomial;
 use softarm_learning::cacla::{CaclaMtl, LearnerState};
 use softarm_learning::online::{ArmState, OnlineLearner};
-use softarm_model::bundle::{BundleError, BundleWatch, Model, read_checkpoint, write_checkpoint};
+use softarm_model::bundle::{
+    BundleError, BundleWatch, Model, read_checkpoint_of, write_checkpoint,
+};
 use softarm_runtime::now_ns;
 
-struct Loaded {
-    learner: Learner,
+struct Loaded<const N: usize> {
+    learner: Learner<N>,
     model_id: String,
 }
 
 /// The online learner of a trained `state` (a bundle's or a checkpoint's) with the runtime
 /// settings of `configured` (`runtime_config`), steering its corrections by the configured
 /// `arm`, as the learner process runs it.
-pub fn online_learner(
-    mut state: LearnerState,
-    kinematics: Polynomial,
+pub fn online_learner<const N: usize>(
+    mut state: LearnerState<N>,
+    kinematics: Polynomial<N>,
     configured: LearnerConfig,
-    arm: ArmGeometry,
-) -> Result<OnlineLearner, String> {
+    arm: pcc::Arm,
+) -> Result<OnlineLearner<N>, String> {
     state.config = runtime_config(state.config, configured);
     let cacla = CaclaMtl::restore(&state)?;
     tracing::info!(algorithm = state.config.algorithm.name(), "online learner");
-    Ok(OnlineLearner::new(
-        cacla,
-        kinematics,
-        pcc::Arm::of_geometry(&arm),
-    ))
+    Ok(OnlineLearner::new(cacla, kinematics, arm))
 }
 
 /// The checkpoint if it descends from the bundle in `model_dir`, else the bundle's learner.
-fn load(config: &Config, configured: ArmGeometry) -> Result<Loaded, BundleError> {
+fn load<const N: usize>(config: &Config, configured: pcc::Arm) -> Result<Loaded<N>, BundleError> {
     let model_dir = config.model_dir();
-    let model = Model::read_for(&model_dir, &config.arm_identity())?;
-    let (state, arm) = match read_checkpoint(&config.state_dir()) {
+    let model = Model::<N>::read_for_arm(&model_dir, &config.arm_identity())?;
+    let (state, arm) = match read_checkpoint_of::<N>(&config.state_dir()) {
         Ok(c) if c.model == model.id => {
             tracing::info!(
                 dir = %config.state_dir().display(),
@@ -122,7 +119,12 @@ fn runtime_config(trained: LearnerConfig, configured: LearnerConfig) -> LearnerC
     runtime
 }
 
-fn checkpoint(dir: &Path, state: &LearnerState, arm: &ArmState, model_id: &str) {
+fn checkpoint<const N: usize>(
+    dir: &Path,
+    state: &LearnerState<N>,
+    arm: &ArmState<N>,
+    model_id: &str,
+) {
     let started = Instant::now();
     match write_checkpoint(dir, state, arm, model_id) {
         // Slow writes are worth knowing of: they are why checkpoints are off the answering loop.
@@ -141,20 +143,25 @@ fn checkpoint(dir: &Path, state: &LearnerState, arm: &ArmState, model_id: &str) 
 /// a busy disk takes seconds, and the controller wants each next estimate within about 100 ms.
 /// The newest state waiting replaces an older one not yet written; [`Checkpoints::finish`]
 /// writes what is waiting and stops.
-struct Checkpoints {
-    shared: Arc<(Mutex<Pending>, Condvar)>,
+struct Checkpoints<const N: usize> {
+    shared: Arc<(Mutex<Pending<N>>, Condvar)>,
     writer: Option<std::thread::JoinHandle<()>>,
 }
 
-#[derive(Default)]
-struct Pending {
-    next: Option<(LearnerState, ArmState, String)>,
+struct Pending<const N: usize> {
+    next: Option<(LearnerState<N>, ArmState<N>, String)>,
     done: bool,
 }
 
-impl Checkpoints {
+impl<const N: usize> Checkpoints<N> {
     fn start(dir: PathBuf) -> Self {
-        let shared = Arc::new((Mutex::new(Pending::default()), Condvar::new()));
+        let shared = Arc::new((
+            Mutex::new(Pending {
+                next: None,
+                done: false,
+            }),
+            Condvar::new(),
+        ));
         let writer = {
             let shared = shared.clone();
             std::thread::spawn(move || {
@@ -181,7 +188,7 @@ impl Checkpoints {
     }
 
     /// Queues `l`'s state, replacing one not yet written.
-    fn save(&self, l: &Loaded) {
+    fn save(&self, l: &Loaded<N>) {
         let online = l.learner.online();
         let job = (
             online.cacla().state(),
@@ -228,14 +235,14 @@ impl Incoming {
 }
 
 /// The learner's ports: requests and samples from the controller, estimates back.
-struct Ports {
+struct Ports<const N: usize> {
     requests: Sub<EstimateRequest>,
     samples: Sub<ConditioningSample>,
     /// The arm itself, as the controller reads it: for the footprint that tells when it changed.
     tracker: Sub<TrackerSample>,
     motors: Sub<MotorState>,
     /// The newest motor samples, (stamp, actuation), for pairing with tracker samples.
-    motor_samples: [(u64, Actuation); MOTOR_SAMPLES],
+    motor_samples: [(u64, [f64; N]); MOTOR_SAMPLES],
     next_motor: usize,
     estimates: Pub<ActuationEstimate>,
     /// Estimates sent.
@@ -244,7 +251,7 @@ struct Ports {
     _node: Node,
 }
 
-impl Ports {
+impl<const N: usize> Ports<N> {
     fn open(config: &Config) -> anyhow::Result<Self> {
         let namespace = config.bus()?;
         let node = Node::open(namespace, "learner")?;
@@ -253,7 +260,7 @@ impl Ports {
             samples: node.subscriber(&node.cp_sample()?)?,
             tracker: node.subscriber(&node.tracker()?)?,
             motors: node.subscriber(&node.motor_state()?)?,
-            motor_samples: [(0, [f64::NAN; 6]); MOTOR_SAMPLES],
+            motor_samples: [(0, [f64::NAN; N]); MOTOR_SAMPLES],
             next_motor: 0,
             estimates: node.publisher(&node.estimate()?)?,
             seq: 0,
@@ -264,7 +271,7 @@ impl Ports {
     /// (stamp, measured actuation, position) of each tracker sample since the last call that a
     /// motor sample was taken within [`PAIRED_NS`] of (drivers stamp on their own: the sim both
     /// at once, a tendon bus and a tracker each when it read).
-    fn arm_samples(&mut self) -> Vec<(u64, Actuation, Position)> {
+    fn arm_samples(&mut self) -> Vec<(u64, [f64; N], Position)> {
         while let Ok(Some(m)) = self.motors.receive() {
             let Some(a) = m.actuation.fixed() else {
                 continue;
@@ -299,13 +306,13 @@ impl Ports {
 }
 
 /// Everything the learner's loop keeps between turns.
-struct Process<'a> {
+struct Process<'a, const N: usize> {
     config: &'a Config,
     /// The arm the learner's corrections are steered by (the configured `[arm]`).
-    arm: ArmGeometry,
-    ports: Ports,
+    arm: pcc::Arm,
+    ports: Ports<N>,
     watch: BundleWatch,
-    loaded: Option<Loaded>,
+    loaded: Option<Loaded<N>>,
     /// Said once that no bundle is there yet.
     warned: bool,
     inbox: Vec<Incoming>,
@@ -315,14 +322,23 @@ struct Process<'a> {
     watchdog: Option<(Duration, Instant)>,
     /// The state last told in STATUS= (model loaded, set).
     told: Option<(bool, u64)>,
-    checkpoints: Checkpoints,
+    checkpoints: Checkpoints<N>,
 }
 
 /// Runs the learner until `stop` is set.
 pub fn run(config: &Config, stop: &AtomicBool) -> anyhow::Result<()> {
-    let mut p = Process {
+    let n = config.layout().actuators().len();
+    softarm_ipc::with_actuators!(n, N => run_for::<N>(config, stop), n => {
+        unreachable!("a loaded config's arm has 3 to 16 actuators, not {n}")
+    })
+}
+
+/// [`run`] for an arm of `N` actuators.
+fn run_for<const N: usize>(config: &Config, stop: &AtomicBool) -> anyhow::Result<()> {
+    let offsets = config.arm.actuator_offset_m.clone().unwrap_or_default();
+    let mut p = Process::<N> {
         config,
-        arm: config.paper_arm()?,
+        arm: pcc::Arm::new(&config.layout(), &offsets),
         ports: Ports::open(config)?,
         watch: BundleWatch::new(config.model_dir(), Duration::from_millis(200)),
         loaded: None,
@@ -358,7 +374,7 @@ pub fn run(config: &Config, stop: &AtomicBool) -> anyhow::Result<()> {
     Ok(())
 }
 
-impl Process<'_> {
+impl<const N: usize> Process<'_, N> {
     /// One turn: systemd, the model, then what the controller sent, answered in order.
     fn turn(&mut self) {
         self.keep_watchdog();

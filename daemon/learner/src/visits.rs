@@ -5,8 +5,7 @@
 
 use softarm_config::Config;
 use softarm_ipc::{
-    ACTUATORS, Actuation, ActuationEstimate, ConditioningSample, EstimateRequest, MAX_WAYPOINTS,
-    Position,
+    ActuationEstimate, ConditioningSample, EstimateRequest, MAX_WAYPOINTS, Position,
 };
 use softarm_learning::arm::Seen;
 use softarm_learning::online::OnlineLearner;
@@ -17,10 +16,10 @@ use softarm_space::Workspace;
 /// (its Jacobians, corrections and critic scale with the error), and the checkpoint with it.
 const REACH_MARGIN_M: f64 = 0.25;
 
-/// An [`OnlineLearner`] at the conditioning points of the sets the controller runs. What does
+/// An [`OnlineLearner<N>`] at the conditioning points of the sets the controller runs. What does
 /// not fit is refused, counted and logged, naming what was wrong; nothing else changes then.
-pub struct Learner {
-    online: OnlineLearner,
+pub struct Learner<const N: usize> {
+    online: OnlineLearner<N>,
     /// Where a reached position may be: the way-point workspace grown by [`REACH_MARGIN_M`].
     reach: Workspace,
     /// The set learnt on; 0 for none.
@@ -32,9 +31,9 @@ pub struct Learner {
     arm_changes: u64,
 }
 
-impl Learner {
+impl<const N: usize> Learner<N> {
     /// `online` at the points of sets checked against `config`'s way-point workspace.
-    pub fn new(online: OnlineLearner, config: &Config) -> Self {
+    pub fn new(online: OnlineLearner<N>, config: &Config) -> Self {
         let w = config.waypoints.workspace();
         Self {
             online,
@@ -60,7 +59,7 @@ impl Learner {
     pub fn observe_arm(
         &mut self,
         stamp_ns: u64,
-        measured: &Actuation,
+        measured: &[f64; N],
         position: &Position,
     ) -> Vec<ActuationEstimate> {
         let off = match self.online.observe_arm(stamp_ns, measured, position) {
@@ -89,7 +88,7 @@ impl Learner {
             .collect()
     }
 
-    pub fn online(&self) -> &OnlineLearner {
+    pub fn online(&self) -> &OnlineLearner<N> {
         &self.online
     }
 
@@ -147,7 +146,7 @@ impl Learner {
     /// sender's.
     pub fn visit(&mut self, s: &ConditioningSample) -> Option<ActuationEstimate> {
         let mut s = *s;
-        if let Err(why) = check(&s).and_then(|()| check_order(&s, self.last_visit)) {
+        if let Err(why) = check::<N>(&s).and_then(|()| check_order(&s, self.last_visit)) {
             self.refuse(&s, &why);
             return None;
         }
@@ -207,7 +206,12 @@ impl Learner {
 }
 
 /// `point`'s estimate for `execution` of set `set_id`.
-fn estimate(set_id: u64, point: u32, execution: u32, actuation: Actuation) -> ActuationEstimate {
+fn estimate<const N: usize>(
+    set_id: u64,
+    point: u32,
+    execution: u32,
+    actuation: [f64; N],
+) -> ActuationEstimate {
     ActuationEstimate {
         seq: 0,
         stamp_ns: 0,
@@ -221,7 +225,7 @@ fn estimate(set_id: u64, point: u32, execution: u32, actuation: Actuation) -> Ac
 /// A sample the learner can use: a set (ids start at 1), points in range (the memory grows to
 /// the point's index), executions counted from 1 and not going back, and finite positions and
 /// actuation. The reason names the field.
-fn check(s: &ConditioningSample) -> Result<(), String> {
+fn check<const N: usize>(s: &ConditioningSample) -> Result<(), String> {
     if s.set_id == 0 {
         return Err("set_id 0 is no set".into());
     }
@@ -254,11 +258,8 @@ fn check(s: &ConditioningSample) -> Result<(), String> {
         ("measured", &s.measured),
         ("conditioned", &s.conditioned),
     ] {
-        if v.len() != ACTUATORS {
-            return Err(format!(
-                "{name} has {} actuators; the arm has {ACTUATORS}",
-                v.len()
-            ));
+        if v.len() != N {
+            return Err(format!("{name} has {} actuators; the arm has {N}", v.len()));
         }
     }
     for (name, v) in [
@@ -324,10 +325,10 @@ fn check_request(r: &EstimateRequest) -> Result<(), String> {
 /// One visit and the estimate asked for next; without a tracker position at the point there is
 /// nothing to learn, but the estimate is still due. A sample that does not fit the running set
 /// (point, target) changes nothing.
-fn observe_and_estimate(
-    learner: &mut OnlineLearner,
+fn observe_and_estimate<const N: usize>(
+    learner: &mut OnlineLearner<N>,
     s: &ConditioningSample,
-) -> Result<Actuation, String> {
+) -> Result<[f64; N], String> {
     if learner.points() != s.points as usize {
         return Err(format!(
             "the set has {} points, the sample says {}",
@@ -336,7 +337,7 @@ fn observe_and_estimate(
         ));
     }
     // `check` counted them: this arm's actuators.
-    let arm = |a: &softarm_ipc::Actuators| a.fixed::<ACTUATORS>().expect("checked");
+    let arm = |a: &softarm_ipc::Actuators| a.fixed::<N>().expect("checked");
     let (actuation, conditioned) = (arm(&s.actuation), arm(&s.conditioned));
     // NaN: the controller did not say (`check` refuses a half-known one).
     let conditioned = conditioned[0].is_finite().then_some(&conditioned);
@@ -377,6 +378,7 @@ fn observe_and_estimate(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use softarm_ipc::{ACTUATORS, Actuation};
 
     fn sample() -> ConditioningSample {
         ConditioningSample {
@@ -395,7 +397,7 @@ mod tests {
 
     #[test]
     fn malformed_samples_are_refused_with_a_reason() {
-        assert_eq!(check(&sample()), Ok(()));
+        assert_eq!(check::<ACTUATORS>(&sample()), Ok(()));
         let bad = [
             ConditioningSample {
                 points: 0,
@@ -449,17 +451,17 @@ mod tests {
         ];
         // Not known (all NaN) is fine.
         assert_eq!(
-            check(&ConditioningSample {
+            check::<ACTUATORS>(&ConditioningSample {
                 conditioned: [f64::NAN; 6].into(),
                 ..sample()
             }),
             Ok(())
         );
         for s in bad {
-            assert!(check(&s).is_err(), "{s:?}");
+            assert!(check::<ACTUATORS>(&s).is_err(), "{s:?}");
         }
         // The field is named.
-        let why = |s| check(&s).unwrap_err();
+        let why = |s| check::<ACTUATORS>(&s).unwrap_err();
         assert!(
             why(ConditioningSample {
                 point: 7,
@@ -578,7 +580,7 @@ mod tests {
         use softarm_kinematics::poly::Polynomial;
         use softarm_learning::cacla::CaclaMtl;
 
-        pub(super) fn learner() -> OnlineLearner {
+        pub(super) fn learner() -> OnlineLearner<ACTUATORS> {
             let arm = ArmGeometry::default();
             let a: Vec<Actuation> = (0..400)
                 .map(|i| {
@@ -655,7 +657,7 @@ mod tests {
             ) {
                 let mut l = learner();
                 for s in samples {
-                    if check(&s).is_err() {
+                    if check::<ACTUATORS>(&s).is_err() {
                         continue;
                     }
                     if l.points() != s.points as usize {

@@ -128,6 +128,43 @@ fn interpolate<const N: usize>(knots: &[(f64, [f64; N])], z: f64) -> [f64; N] {
     std::array::from_fn(|d| a0[d] + f * (a1[d] - a0[d]))
 }
 
+/// Where the demo set's points lie on the demonstrations: three along the first class's path,
+/// two along the second's, (class of the two, phase), as the paper's demo set lies on its
+/// classes 1 and 2. Not the second's middle: a derived class sweeps through the straight arm
+/// there, where the first's middle already is.
+const DEMO_PHASES: [(usize, f64); 5] = [(0, 0.3), (0, 0.5), (0, 0.7), (1, 0.7), (1, 0.85)];
+
+/// A way-point for each of [`DEMO_PHASES`] on the nominal demonstrations of `classes` (start to
+/// end, as [`sequences`] plays them without the jitter), through the kinematics `arm`: on the
+/// two classes whose paths carry the end effector farthest, the farther first. Every point
+/// lies where a primitive was trained, so a set of them is one the arm can pass through; what
+/// `softarm demo` runs on an arm without a set of its own.
+pub fn demo_points<const N: usize>(
+    classes: &[ClassExtremes],
+    arm: &impl ForwardModel<N>,
+) -> Vec<Position> {
+    let along = |c: &ClassExtremes, f: f64| -> Position {
+        arm.position(&std::array::from_fn(|d| {
+            c.start[d] + f * (c.end[d] - c.start[d])
+        }))
+    };
+    let travel = |c: &ClassExtremes| -> f64 {
+        (1..=20)
+            .map(|i| {
+                let (a, b) = (along(c, (i - 1) as f64 / 20.0), along(c, i as f64 / 20.0));
+                crate::space::distance(&a, &b)
+            })
+            .sum()
+    };
+    let mut order: Vec<(usize, f64)> = classes.iter().map(travel).enumerate().collect();
+    order.sort_by(|x, y| y.1.total_cmp(&x.1));
+    let pick = [order[0].0, order[order.len().min(2) - 1].0];
+    DEMO_PHASES
+        .iter()
+        .map(|&(k, f)| along(&classes[pick[k]], f))
+        .collect()
+}
+
 /// One recorded demonstration: what was commanded and where the end effector went.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Recording<const N: usize = { crate::space::ACTUATORS }> {

@@ -64,7 +64,7 @@ fn rehearsal<'a>(
         model.learner.clone(),
         model.kinematics.clone(),
         config.learner,
-        config.paper_arm().unwrap(),
+        softarm_kinematics::pcc::Arm::of_geometry(&config.paper_arm().unwrap()),
     )
     .map_err(anyhow::Error::msg)?;
     let r = Rehearsal::new(model, config, Learner::new(online, config), arm, sim)?;

@@ -59,12 +59,12 @@ fn main() -> anyhow::Result<()> {
         .ok()
         .and_then(|s| s.parse().ok())
         .unwrap_or(6);
-    let learner = || -> anyhow::Result<Learner> {
+    let learner = || -> anyhow::Result<Learner<6>> {
         let online = online_learner(
             model.learner.clone(),
             model.kinematics.clone(),
             config.learner,
-            config.paper_arm().unwrap(),
+            softarm_kinematics::pcc::Arm::of_geometry(&config.paper_arm().unwrap()),
         )
         .map_err(anyhow::Error::msg)?;
         Ok(Learner::new(online, &config))

@@ -71,7 +71,7 @@ fn main() -> anyhow::Result<()> {
             model.learner.clone(),
             model.kinematics.clone(),
             config.learner,
-            config.paper_arm().unwrap(),
+            softarm_kinematics::pcc::Arm::of_geometry(&config.paper_arm().unwrap()),
         )
         .map_err(anyhow::Error::msg)
     };

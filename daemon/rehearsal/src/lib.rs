@@ -181,7 +181,7 @@ struct Published {
     stats: Option<ExecutionStats>,
 }
 
-impl Outputs for Published {
+impl Outputs<ACTUATORS> for Published {
     fn setpoint(&mut self, s: Setpoint) {
         self.setpoint = Some(s);
     }
@@ -195,7 +195,7 @@ impl Outputs for Published {
     }
 
     /// Freed here: the rehearsal has no tick thread to keep from freeing.
-    fn retire(&mut self, _: Retired) {}
+    fn retire(&mut self, _: Retired<ACTUATORS>) {}
 }
 
 /// The running set's side on the service thread: its id and its replanner.
@@ -220,14 +220,14 @@ struct Running {
 pub struct Rehearsal<'a> {
     model: &'a Model,
     config: &'a Config,
-    learner: Learner,
+    learner: Learner<ACTUATORS>,
     sim_driver: SimDriver,
     /// The controller's tick, as the tick thread runs it.
-    control: Control,
+    control: Control<ACTUATORS>,
     /// What the tick has read of the sim, as the controller's inputs keep it.
-    latest: Latest,
+    latest: Latest<ACTUATORS>,
     /// A set admitted and not yet handed to the tick.
-    plan: Option<Plan>,
+    plan: Option<Plan<ACTUATORS>>,
     running: Option<Running>,
     rest_ticks: i64,
     period_ns: u64,
@@ -251,7 +251,7 @@ impl<'a> Rehearsal<'a> {
     pub fn new(
         model: &'a Model,
         config: &'a Config,
-        learner: Learner,
+        learner: Learner<ACTUATORS>,
         arm: ArmGeometry,
         sim: &SimConfig,
     ) -> anyhow::Result<Self> {
@@ -293,25 +293,25 @@ impl<'a> Rehearsal<'a> {
         self
     }
 
-    pub fn learner(&self) -> &Learner {
+    pub fn learner(&self) -> &Learner<ACTUATORS> {
         &self.learner
     }
 
     /// The actuators' lag as its controller has measured it.
-    pub fn lag(&self) -> &ActuatorLag {
+    pub fn lag(&self) -> &ActuatorLag<ACTUATORS> {
         self.control.lag()
     }
 
     /// Its controller has measured `lag` already: a freshly started learner beside a
     /// controller that has been running, which is what "a fresh learner" is compared as (a
     /// fresh controller would lead by nothing in its first set).
-    pub fn with_lag(mut self, lag: &ActuatorLag) -> Self {
+    pub fn with_lag(mut self, lag: &ActuatorLag<ACTUATORS>) -> Self {
         self.control.set_lag(lag.clone());
         self
     }
 
     /// Another learner takes over (a restarted learner process); the one that ran.
-    pub fn replace_learner(&mut self, learner: Learner) -> Learner {
+    pub fn replace_learner(&mut self, learner: Learner<ACTUATORS>) -> Learner<ACTUATORS> {
         std::mem::replace(&mut self.learner, learner)
     }
 

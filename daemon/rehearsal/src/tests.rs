@@ -40,7 +40,7 @@ fn setup_on<'a>(
         model.learner.clone(),
         model.kinematics.clone(),
         configured,
-        config.paper_arm().unwrap(),
+        softarm_kinematics::pcc::Arm::of_geometry(&config.paper_arm().unwrap()),
     )
     .unwrap();
     Rehearsal::new(model, config, Learner::new(online, config), arm, sim).unwrap()
@@ -356,7 +356,7 @@ fn a_restarted_learner_keeps_what_it_knew_of_the_arm() {
         back.state,
         model.kinematics.clone(),
         config.learner,
-        config.paper_arm().unwrap(),
+        softarm_kinematics::pcc::Arm::of_geometry(&config.paper_arm().unwrap()),
     )
     .unwrap();
     restarted.restore_arm(&back.arm);

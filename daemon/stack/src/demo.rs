@@ -35,6 +35,12 @@ pub struct Args {
     /// Where the trained model is kept between runs (default: the user's cache folder).
     #[arg(long)]
     model_dir: Option<PathBuf>,
+    /// The arm to run: a shipped arm (paper, hybrid, tdcr) or an arm file (an `[arm]` section
+    /// on its own, as in config/arms/); default the paper's. Another arm brings the boxes its
+    /// reach bounds, its own trained model, and without --set a way-point set on its own
+    /// demonstrations.
+    #[arg(long, value_name = "NAME|FILE")]
+    arm: Option<String>,
     /// Runs the set on another arm than the model was trained on: a shipped scenario (nominal,
     /// tool-change, creep, twist, stiffer, not-pcc, ...) or a scenario file. The model stays the
     /// nominal one.
@@ -105,6 +111,21 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
     let (config, ns) = (&sandbox.config, &sandbox.namespace);
     // The user's sets, read and checked as the controller will check them, before the stack.
     let (file, then) = sets(args, config)?;
+    if args.set.is_none() && config.paper_arm().is_err() {
+        let points: Vec<String> = file
+            .point
+            .iter()
+            .map(|p| format!("{:?} m at {} s", p.position_m, p.t_s))
+            .collect();
+        say(
+            args.json,
+            &format!(
+                "softarm demo: the arm {}; the way-points lie on its own demonstrations: {}",
+                config.arm_identity(),
+                points.join(", ")
+            ),
+        );
+    }
 
     let mut sup = sandbox.supervisor(&["sim", "controller", "learner"], "warn")?;
     say(
@@ -172,6 +193,13 @@ fn check(args: &Args) -> anyhow::Result<Option<Scenario>> {
         bail!("--executions must be at least 1");
     }
     let scenario = args.scenario_arg().map(Scenario::resolve).transpose()?;
+    if let (Some(arm), Some(s)) = (args.arm.as_deref().filter(|a| *a != "paper"), &scenario) {
+        bail!(
+            "--arm {arm} with scenario {}: the scenarios change the paper's arm; on another arm \
+             the demo runs the arm as it is described",
+            s.name
+        );
+    }
     if let Some(s) = scenario.as_ref().filter(|s| !s.changes_over_time())
         && args.drift.is_some()
     {
@@ -192,10 +220,37 @@ fn check(args: &Args) -> anyhow::Result<Option<Scenario>> {
     Ok(scenario)
 }
 
+/// The model folder: `--model-dir`, else one in the cache per arm and seed (an arm file's by
+/// a hash of its text, so an edited arm is trained again).
 fn model_dir(args: &Args) -> PathBuf {
-    args.model_dir
-        .clone()
-        .unwrap_or_else(|| sandbox::cache_dir().join(format!("demo-model-seed{}", args.seed)))
+    args.model_dir.clone().unwrap_or_else(|| {
+        let arm = match args.arm.as_deref() {
+            None | Some("paper") => String::new(),
+            Some(name)
+                if softarm_config::arms::SHIPPED
+                    .iter()
+                    .any(|(n, _)| *n == name) =>
+            {
+                format!("{name}-")
+            }
+            Some(file) => {
+                let text = softarm_config::arms::resolve(file).unwrap_or_default();
+                format!("arm{:016x}-", softarm_model::bundle::fnv64(text.as_bytes()))
+            }
+        };
+        sandbox::cache_dir().join(format!("demo-model-{arm}seed{}", args.seed))
+    })
+}
+
+/// The embedded default config, with `--arm`'s arm in it.
+fn config_text(args: &Args) -> anyhow::Result<String> {
+    match args.arm.as_deref() {
+        None => Ok(DEFAULT.to_string()),
+        Some(arm) => {
+            let text = softarm_config::arms::resolve(arm)?;
+            Ok(softarm_config::arms::with_arm(DEFAULT, &text, arm)?)
+        }
+    }
 }
 
 /// The embedded default, in this demo's own namespace, with its own state, model and seeds.
@@ -207,7 +262,7 @@ fn sandbox_for(args: &Args) -> anyhow::Result<Sandbox> {
     };
     Sandbox::for_command(
         "demo",
-        DEFAULT,
+        &config_text(args)?,
         &[
             ("model.dir", model_dir(args).display().to_string().into()),
             ("learner.seed", seed.into()),
@@ -223,9 +278,7 @@ fn sets(args: &Args, config: &Config) -> anyhow::Result<(WaypointFile, Option<Wa
     let file = match &args.set {
         Some(path) => load_set("--set", path, config, args.executions())?,
         None => {
-            let file = WaypointFile::parse(sandbox::DEMO_WAYPOINTS)
-                .map_err(anyhow::Error::msg)
-                .context("the demo way-points")?;
+            let file = demo_set(config)?;
             file.to_set(args.executions())
                 .and_then(|set| validate(&set, &config.waypoints, &config.activation))
                 .map_err(|e| anyhow::anyhow!("--executions: {e}"))?;
@@ -238,6 +291,39 @@ fn sets(args: &Args, config: &Config) -> anyhow::Result<(WaypointFile, Option<Wa
         .map(|path| load_set("--then", path, config, 1))
         .transpose()?;
     Ok((file, then))
+}
+
+/// The demo's way-point set on `config`'s arm: the shipped one on the paper's, else five points
+/// on the arm's own nominal demonstrations ([`softarm_method::skill::demo_points`]) at the
+/// shipped set's times.
+pub fn demo_set(config: &Config) -> anyhow::Result<WaypointFile> {
+    let shipped = WaypointFile::parse(sandbox::DEMO_WAYPOINTS)
+        .map_err(anyhow::Error::msg)
+        .context("the demo way-points")?;
+    let layout = config.layout();
+    if config.paper_arm().is_ok() {
+        return Ok(shipped);
+    }
+    let classes = softarm_method::skill::classes(&config.demonstrations, &layout);
+    let offsets = config.arm.actuator_offset_m.clone().unwrap_or_default();
+    let arm = softarm_kinematics::pcc::Arm::new(&layout, &offsets);
+    let points = softarm_ipc::with_actuators!(layout.actuators().len(),
+        N => softarm_method::skill::demo_points::<N>(&classes, &arm),
+        n => bail!("an arm of {n} actuators"));
+    // To the tenth of a millimetre, as a way-point file would say them.
+    let round = |p: [f64; 3]| p.map(|v| (v * 1e4).round() / 1e4);
+    Ok(WaypointFile {
+        duration_s: shipped.duration_s,
+        point: shipped
+            .point
+            .iter()
+            .zip(points)
+            .map(|(p, position)| softarm_config::waypoints::Point {
+                t_s: p.t_s,
+                position_m: round(position),
+            })
+            .collect(),
+    })
 }
 
 /// Trained (or reused) on the nominal arm; now the sim becomes the scenario's arm.
@@ -488,6 +574,43 @@ mod tests {
         let e = check(&fixed).unwrap_err().to_string();
         assert!(e.contains("does not change while the arm runs"), "{e}");
         assert!(parse(&["--drift", "creeping", "--scenario", "twist"]).is_err());
+    }
+
+    /// On the paper's arm the shipped set; on another, five points the arm's own demonstrations
+    /// pass through, apart from each other, that the controller admits.
+    #[test]
+    fn each_arm_gets_a_demo_set_on_its_own_demonstrations() {
+        for (name, _) in softarm_config::arms::SHIPPED {
+            let a = parse(&["--arm", name, "--no-record"]).unwrap();
+            let c = Config::parse(&config_text(&a).unwrap(), name, ".".into()).unwrap();
+            let file = demo_set(&c).unwrap();
+            let set = file.to_set(20).unwrap();
+            validate(&set, &c.waypoints, &c.activation).unwrap_or_else(|e| panic!("{name}: {e}"));
+            let p: Vec<[f64; 3]> = file.point.iter().map(|p| p.position_m).collect();
+            assert_eq!(p.len(), 5, "{name}");
+            for i in 0..p.len() {
+                for j in 0..i {
+                    let d = softarm_method::distance(&p[i], &p[j]);
+                    assert!(
+                        d > 0.005,
+                        "{name}: points {} and {} are {d} m apart",
+                        j + 1,
+                        i + 1
+                    );
+                }
+            }
+            if name == "paper" {
+                assert_eq!(file, WaypointFile::parse(sandbox::DEMO_WAYPOINTS).unwrap());
+            }
+        }
+        let e = check(&parse(&["--arm", "tdcr", "--scenario", "tool-change"]).unwrap())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("the scenarios change the paper's arm"), "{e}");
+        assert!(
+            check(&parse(&["--arm", "paper", "--scenario", "tool-change", "--no-record"]).unwrap())
+                .is_ok()
+        );
     }
 
     #[test]

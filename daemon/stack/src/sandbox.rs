@@ -149,8 +149,12 @@ impl Sandbox {
         )?;
         let model_dir = self.config.model_dir();
         // A cached model an older softarm wrote is not readable any more: trained again.
-        let train_because = match Model::read_for(&model_dir, &self.config.arm_identity()) {
-            Ok(_) => None,
+        let arm = self.config.arm_identity();
+        let readable = softarm_ipc::with_actuators!(self.config.layout().actuators().len(),
+            N => Model::<N>::read_for_arm(&model_dir, &arm).map(drop),
+            n => unreachable!("a loaded config's arm has 3 to 16 actuators, not {n}"));
+        let train_because = match readable {
+            Ok(()) => None,
             Err(_) if !model_dir.join("model.toml").exists() => {
                 Some(format!("no model in {}", model_dir.display()))
             }

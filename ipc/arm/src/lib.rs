@@ -296,6 +296,26 @@ impl Layout {
             })
     }
 
+    /// How far the tool can be from the mount at most (m): every module at its longest (its
+    /// backbone, or its longest actuator's full length), the connectors and the tool in a
+    /// line. An upper bound of the reach, for the boxes way-points and the learner's lattices
+    /// may span.
+    pub fn reach_m(&self) -> f64 {
+        let modules: f64 = self
+            .modules
+            .iter()
+            .map(|m| {
+                m.backbone_m.unwrap_or_else(|| {
+                    self.actuators[m.actuators.clone()]
+                        .iter()
+                        .map(|a| a.min_m.max(a.max_m))
+                        .fold(0.0, f64::max)
+                })
+            })
+            .sum();
+        modules + self.connector_m * (self.modules.len() - 1) as f64 + self.tool_m
+    }
+
     /// The names, in the arm's order.
     pub fn names(&self) -> impl Iterator<Item = &str> {
         self.actuators.iter().map(|a| a.name.as_str())

@@ -7,6 +7,38 @@ pub const ACTUATORS: usize = 6;
 /// Most actuators an arm may have: the capacity of every per-actuator payload.
 pub const MAX_ACTUATORS: usize = 16;
 
+/// Fewest actuators an arm may have: one module bending every way needs three.
+pub const MIN_ACTUATORS: usize = 3;
+
+/// Runs `$body` with the const `$N` set to the arm's actuator count `$n`, known only at run
+/// time: the body is compiled once for every count an arm may have ([`MIN_ACTUATORS`] ..=
+/// [`MAX_ACTUATORS`]), so what it calls keeps its per-actuator values in fixed arrays, sized at
+/// compile time, allocation-free on the tick. Any other count gives `$other` (with `$n` bound
+/// to `$count`).
+///
+/// ```
+/// fn run<const N: usize>() -> usize { N }
+/// let n = 9;
+/// let got = softarm_space::with_actuators!(n, N => run::<N>(), other => panic!("{other}"));
+/// assert_eq!(got, 9);
+/// ```
+#[macro_export]
+macro_rules! with_actuators {
+    ($n:expr, $N:ident => $body:expr, $count:ident => $other:expr) => {
+        $crate::with_actuators!(@arms $n, $N, $body, $count, $other;
+            3 4 5 6 7 8 9 10 11 12 13 14 15 16)
+    };
+    (@arms $n:expr, $N:ident, $body:expr, $count:ident, $other:expr; $($k:literal)*) => {
+        match $n {
+            $($k => {
+                const $N: usize = $k;
+                $body
+            })*
+            $count => $other,
+        }
+    };
+}
+
 /// At most this many way-points (conditioning points) in a set.
 pub const MAX_WAYPOINTS: usize = 16;
 
@@ -54,6 +86,18 @@ impl Workspace {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn with_actuators_runs_every_count_an_arm_may_have_and_no_other() {
+        fn n<const N: usize>() -> usize {
+            N
+        }
+        for k in 0..=MAX_ACTUATORS + 1 {
+            let got = with_actuators!(k, N => Some(n::<N>()), _other => None);
+            let valid = (MIN_ACTUATORS..=MAX_ACTUATORS).contains(&k);
+            assert_eq!(got, valid.then_some(k), "{k} actuators");
+        }
+    }
 
     #[test]
     fn boxes_are_checked_and_contain_their_edges() {

@@ -17,7 +17,7 @@ pub mod stack;
 pub mod turns;
 
 pub use config::{config_text, hardware_config_text, with_overrides};
-pub use model::{quick_model, quick_training};
+pub use model::{quick_model, quick_model_of, quick_training};
 pub use process::{FaultSeed, Guard, eventually, output};
 pub use stack::{DEMO_WAYPOINTS, TestStack, alive, children_of, set_id};
 pub use turns::Devices;

@@ -5,7 +5,7 @@ use softarm_config::arm::ArmGeometry;
 use softarm_config::demonstrations::DemoRecipe;
 use softarm_config::forward_model::NetworkConfig;
 use softarm_config::learner::{LearnerConfig, PretrainConfig};
-use softarm_model::pipeline::{Training, from_plant};
+use softarm_model::pipeline::{Training, TrainingData, from_plant, train};
 
 /// Quick settings: K = 15, 80 centres, two imitation passes, 300 epochs of pre-training.
 pub fn quick_training() -> Training {
@@ -36,6 +36,22 @@ pub fn quick_model(dir: &std::path::Path) -> String {
         .expect("the quick model trains");
     model.arm = arm.layout().identity();
     model.write(dir).expect("the quick model is written")
+}
+
+/// [`quick_model`] for the arm `config` describes, its demonstrations those the arm's recipe
+/// (or the classes derived from the arm) plays through its PCC kinematics; its id.
+pub fn quick_model_of(dir: &std::path::Path, config: &softarm_config::Config) -> String {
+    let layout = config.layout();
+    let offsets = config.arm.actuator_offset_m.clone().unwrap_or_default();
+    let plant = softarm_kinematics::pcc::Arm::new(&layout, &offsets);
+    softarm_ipc::with_actuators!(layout.actuators().len(), N => {
+        let data = TrainingData::<N>::of_arm(&layout, &plant, &config.demonstrations, 5)
+            .expect("the arm's demonstrations");
+        let (mut model, _) = train(&data, &quick_training(), |_| true)
+            .expect("the quick model trains");
+        model.arm = layout.identity();
+        model.write(dir).expect("the quick model is written")
+    }, n => unreachable!("{n} actuators"))
 }
 
 #[cfg(test)]
