@@ -320,21 +320,18 @@ fn init_logging(default: &str) {
 /// arm, a scenario's.
 fn sim(c: &Config, scenario: Option<&str>) -> anyhow::Result<()> {
     let Ok(configured) = c.paper_arm() else {
-        if scenario.is_some() {
-            return Err(ConfigError {
-                origin: "--scenario".into(),
-                line: None,
-                message: format!(
-                    "the scenarios change the paper's arm; this config's arm ({}) runs as its \
-                     [arm] describes it",
-                    c.arm_identity()
-                ),
+        let (arm, sim) = match scenario {
+            Some(s) => {
+                let s = Scenario::resolve(s)?;
+                tracing::info!(scenario = %s.name, "the sim runs another arm: {}", s.describe());
+                s.apply_to(&c.arm, &c.sim)?
             }
-            .into());
-        }
-        let offsets = c.arm.actuator_offset_m.clone().unwrap_or_default();
-        let body = Body::of_layout(&c.layout(), &offsets);
-        return softarm_sim::run(&c.sim, body, c.bus()?, &c.estop_latch(), &*stop_flag()?);
+            None => (c.arm.clone(), c.sim.clone()),
+        };
+        let offsets = arm.actuator_offset_m.clone().unwrap_or_default();
+        let layout = arm.layout().map_err(anyhow::Error::msg)?;
+        let body = Body::of_layout(&layout, &offsets);
+        return softarm_sim::run(&sim, body, c.bus()?, &c.estop_latch(), &*stop_flag()?);
     };
     let (arm, sim) = match scenario {
         Some(s) => {
@@ -365,7 +362,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             let config = stack.load()?;
             if let Some(s) = &scenario {
                 // Refused here, before anything starts, rather than by a restarting sim.
-                Scenario::resolve(s)?;
+                Scenario::resolve(s)?.check_on(&config)?;
             }
             up::run(
                 stack.args(),

@@ -26,7 +26,7 @@
 
 use std::path::Path;
 
-use crate::arm::ArmGeometry;
+use crate::arm::{ArmConfig, ArmGeometry};
 use crate::changes::{Changes, Drift, Step};
 use crate::sim::SimConfig;
 use serde::de::DeserializeOwned;
@@ -35,7 +35,7 @@ use serde::{Deserialize, Serialize};
 use crate::{ConfigError, key_line, line_at};
 
 /// The scenarios shipped in `config/scenarios/`, embedded so `--scenario NAME` works anywhere.
-pub const SHIPPED: [(&str, &str); 11] = [
+pub const SHIPPED: [(&str, &str); 13] = [
     (
         "nominal",
         include_str!("../../../config/scenarios/nominal.toml"),
@@ -80,12 +80,27 @@ pub const SHIPPED: [(&str, &str); 11] = [
         "sequence",
         include_str!("../../../config/scenarios/sequence.toml"),
     ),
+    (
+        "tdcr-creep",
+        include_str!("../../../config/scenarios/tdcr-creep.toml"),
+    ),
+    (
+        "hybrid-weak-chamber",
+        include_str!("../../../config/scenarios/hybrid-weak-chamber.toml"),
+    ),
 ];
+
+/// The `[arm]` keys every arm has, which a scenario without `for_arm` may set on any arm.
+const EVERY_ARMS: [&str; 2] = ["tool_m", "connector_m"];
 
 /// What a scenario file may hold.
 #[derive(Debug, Default, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct File {
+    /// The arm the scenario changes: a shipped arm's name or an arm file; the paper's arm
+    /// when absent.
+    #[serde(default)]
+    for_arm: Option<String>,
     #[serde(default)]
     arm: toml::Table,
     #[serde(default)]
@@ -116,6 +131,8 @@ struct SimPart {
 #[derive(Debug, Clone)]
 pub struct Scenario {
     pub name: String,
+    /// The arm it changes (`for_arm`), `None` for the paper's.
+    for_arm: Option<ArmConfig>,
     origin: String,
     text: String,
     arm: toml::Table,
@@ -167,8 +184,20 @@ impl Scenario {
             line: e.span().map(|s| line_at(text, s.start)),
             message: e.message().to_string(),
         })?;
+        let for_arm = match &file.for_arm {
+            None => None,
+            Some(arm) => {
+                let text = crate::arms::resolve(arm).map_err(|e| ConfigError {
+                    origin: origin.into(),
+                    line: key_line(text, "for_arm"),
+                    message: format!("for_arm: {}", e.message),
+                })?;
+                Some(crate::arms::check(&text, arm)?)
+            }
+        };
         let s = Self {
             name: name.into(),
+            for_arm,
             origin: origin.into(),
             text: text.into(),
             arm: file.arm,
@@ -176,8 +205,87 @@ impl Scenario {
             steps: file.step.into_iter().map(|s| (s.at_s, s.arm)).collect(),
             drift: file.drift,
         };
-        s.apply(&ArmGeometry::default(), &SimConfig::default())?;
+        match s.for_arm.as_ref().map(|a| (a, a.geometry())) {
+            None => s
+                .apply(&ArmGeometry::default(), &SimConfig::default())
+                .map(drop)?,
+            Some((_, Some(paper))) => s.apply(&paper, &SimConfig::default()).map(drop)?,
+            Some((arm, None)) => s.apply_to(arm, &SimConfig::default()).map(drop)?,
+        }
         Ok(s)
+    }
+
+    /// Checks the scenario on `config`'s arm, as the sim will apply it: what refuses it before
+    /// anything starts.
+    pub fn check_on(&self, config: &crate::Config) -> Result<(), ConfigError> {
+        match config.paper_arm() {
+            Ok(paper) => self.apply(&paper, &config.sim).map(drop),
+            Err(_) => self.apply_to(&config.arm, &config.sim).map(drop),
+        }
+    }
+
+    /// The sim's arm and settings on an arm of any layout (`arm`, the config's `[arm]`): the
+    /// scenario's `[arm]` keys in place of the config's, its `[sim.realism]` keys in place of
+    /// the sim's. A scenario for another arm than `arm` (by `for_arm`; the paper's when
+    /// absent), one whose values do not fit `arm` (an offset per actuator of another count) or
+    /// that changes the arm's structure, or steps and drift, which change the paper's arm
+    /// alone, are refused naming the key.
+    pub fn apply_to(
+        &self,
+        arm: &ArmConfig,
+        sim: &SimConfig,
+    ) -> Result<(ArmConfig, SimConfig), ConfigError> {
+        let layout = arm.layout().map_err(|m| self.error(&m))?;
+        match &self.for_arm {
+            Some(a) => {
+                let mine = a.layout().map_err(|m| self.error(&m))?.identity();
+                if mine != layout.identity() {
+                    return Err(self.error(&format!(
+                        "for_arm: the scenario changes the arm {mine}; this arm is {}",
+                        layout.identity()
+                    )));
+                }
+            }
+            // Without `for_arm`, the keys every arm has.
+            None => {
+                if let Some(k) = self.arm.keys().find(|k| !EVERY_ARMS.contains(&k.as_str())) {
+                    return Err(self.error(&format!(
+                        "arm.{k}: a key of the paper's arm; a scenario for this arm ({}) says \
+                         so with for_arm = \"NAME|FILE\", or sets only {}",
+                        layout.identity(),
+                        EVERY_ARMS.join(", ")
+                    )));
+                }
+            }
+        }
+        if self.changes_over_time() {
+            return Err(self.error(&format!(
+                "step: steps and drifts change the paper's arm alone; on this arm ({}) a \
+                 scenario sets [arm] and [sim.realism] keys from the start",
+                layout.identity()
+            )));
+        }
+        let n = layout.actuators().len();
+        let mut base = arm.clone();
+        base.tool_m.get_or_insert(layout.tool_m);
+        base.connector_m.get_or_insert(layout.connector_m);
+        base.actuator_offset_m.get_or_insert_with(|| vec![0.0; n]);
+        let changed: ArmConfig = self.overlay("arm", &base, &self.arm)?;
+        changed.validate().map_err(|m| self.error(&m))?;
+        let after = changed.layout().map_err(|m| self.error(&m))?.identity();
+        if after != layout.identity() {
+            return Err(self.error(&format!(
+                "arm.modules: the scenario makes the arm {after}; a scenario changes an arm's \
+                 lengths and offsets, not its actuators"
+            )));
+        }
+        let realism = self.overlay("sim.realism", &sim.realism, &self.realism)?;
+        let sim = SimConfig {
+            realism,
+            ..sim.clone()
+        };
+        sim.validate(n).map_err(|m| self.error(&m))?;
+        Ok((changed, sim))
     }
 
     /// Whether it changes nothing.
@@ -268,6 +376,13 @@ impl Scenario {
         arm: &ArmGeometry,
         sim: &SimConfig,
     ) -> Result<(ArmGeometry, SimConfig), ConfigError> {
+        if let Some(other) = self.for_arm.as_ref().filter(|a| a.geometry().is_none()) {
+            let other = other.layout().map_err(|m| self.error(&m))?.identity();
+            return Err(self.error(&format!(
+                "for_arm: the scenario changes the arm {other}; this arm is the paper's ({})",
+                arm.layout().identity()
+            )));
+        }
         let arm: ArmGeometry = self.overlay("arm", arm, &self.arm)?;
         arm.validate().map_err(|m| self.error(&m))?;
         let realism = self.overlay("sim.realism", &sim.realism, &self.realism)?;
@@ -381,6 +496,8 @@ mod tests {
             "twist",
             "stiffer",
             "not-pcc",
+            "tdcr-creep",
+            "hybrid-weak-chamber",
         ];
         for (name, _) in SHIPPED {
             let s = Scenario::resolve(name).unwrap();
@@ -533,6 +650,70 @@ mod tests {
             "{}",
             s.describe()
         );
+    }
+
+    /// On another arm: the keys every arm has from any scenario, the arm's own scenarios with
+    /// their per-actuator values, and nothing sized for another arm or changing over time.
+    #[test]
+    fn another_arm_takes_its_own_scenarios_and_those_of_every_arm() {
+        let on = |arm: &str| {
+            let text = crate::arms::resolve(arm).unwrap();
+            let c = crate::Config::parse(
+                &crate::arms::with_arm(crate::DEFAULT, &text, arm).unwrap(),
+                arm,
+                ".".into(),
+            )
+            .unwrap();
+            (c.arm.clone(), c)
+        };
+        let (tdcr, c) = on("tdcr");
+        let (arm, _) = Scenario::resolve("tool-change")
+            .unwrap()
+            .apply_to(&tdcr, &c.sim)
+            .unwrap();
+        assert_eq!(arm.tool_m, Some(0.05));
+        assert_eq!(arm.layout().unwrap().identity(), c.arm_identity());
+        let creep = Scenario::resolve("tdcr-creep").unwrap();
+        let (arm, _) = creep.apply_to(&tdcr, &c.sim).unwrap();
+        assert_eq!(arm.actuator_offset_m.unwrap()[4], 0.0003);
+        assert!(creep.check_on(&c).is_ok());
+        let e = creep
+            .check_on(&crate::Config::default_sim(".".into()))
+            .unwrap_err();
+        assert!(
+            e.message
+                .starts_with("for_arm: the scenario changes the arm 9 actuators"),
+            "{e}"
+        );
+        let (hybrid, h) = on("hybrid");
+        let e = creep.apply_to(&hybrid, &h.sim).unwrap_err();
+        assert!(e.message.contains("this arm is 8 actuators"), "{e}");
+        assert!(
+            Scenario::resolve("hybrid-weak-chamber")
+                .unwrap()
+                .check_on(&h)
+                .is_ok()
+        );
+        for (paper_only, says) in [
+            ("creep", "arm.actuator_offset_m: a key of the paper's arm"),
+            (
+                "tool-swap",
+                "step: steps and drifts change the paper's arm alone",
+            ),
+        ] {
+            let e = Scenario::resolve(paper_only)
+                .unwrap()
+                .check_on(&c)
+                .unwrap_err();
+            assert!(e.message.starts_with(says), "{paper_only}: {e}");
+        }
+        let six = "for_arm = \"tdcr\"\n[arm]\nactuator_offset_m = [0, 0, 0, 0, 0, 0.001]\n";
+        let e = Scenario::parse(six, "six", "six.toml").unwrap_err();
+        assert_eq!(e.line, Some(3), "{e}");
+        assert!(e.message.contains("6 values for an arm of 9"), "{e}");
+        let e = Scenario::parse("for_arm = \"octopus\"\n", "x", "x.toml").unwrap_err();
+        assert_eq!(e.line, Some(1), "{e}");
+        assert!(e.message.starts_with("for_arm: no such arm file"), "{e}");
     }
 
     #[test]
