@@ -8,7 +8,7 @@ use anyhow::Context;
 use clap::{Parser, Subcommand};
 use softarm_channels::scene;
 use softarm_clients::{estop, stats, status, submit};
-use softarm_config::scenario::Scenario;
+use softarm_config::scenario::{OnArm, Scenario};
 use softarm_config::{Config, ConfigError};
 #[cfg(feature = "rig")]
 use softarm_emulate::command as emulate;
@@ -320,18 +320,20 @@ fn init_logging(default: &str) {
 /// arm, a scenario's.
 fn sim(c: &Config, scenario: Option<&str>) -> anyhow::Result<()> {
     let Ok(configured) = c.paper_arm() else {
-        let (arm, sim) = match scenario {
+        let on = match scenario {
             Some(s) => {
                 let s = Scenario::resolve(s)?;
                 tracing::info!(scenario = %s.name, "the sim runs another arm: {}", s.describe());
                 s.apply_to(&c.arm, &c.sim)?
             }
-            None => (c.arm.clone(), c.sim.clone()),
+            None => OnArm {
+                arm: c.arm.clone(),
+                sim: c.sim.clone(),
+                steps: Vec::new(),
+            },
         };
-        let offsets = arm.actuator_offset_m.clone().unwrap_or_default();
-        let layout = arm.layout().map_err(anyhow::Error::msg)?;
-        let body = Body::of_layout(&layout, &offsets);
-        return softarm_sim::run(&sim, body, c.bus()?, &c.estop_latch(), &*stop_flag()?);
+        let body = Body::of_arm(&on.arm, &on.steps).map_err(anyhow::Error::msg)?;
+        return softarm_sim::run(&on.sim, body, c.bus()?, &c.estop_latch(), &*stop_flag()?);
     };
     let (arm, sim) = match scenario {
         Some(s) => {

@@ -35,7 +35,7 @@ use serde::{Deserialize, Serialize};
 use crate::{ConfigError, key_line, line_at};
 
 /// The scenarios shipped in `config/scenarios/`, embedded so `--scenario NAME` works anywhere.
-pub const SHIPPED: [(&str, &str); 13] = [
+pub const SHIPPED: [(&str, &str); 14] = [
     (
         "nominal",
         include_str!("../../../config/scenarios/nominal.toml"),
@@ -85,10 +85,24 @@ pub const SHIPPED: [(&str, &str); 13] = [
         include_str!("../../../config/scenarios/tdcr-creep.toml"),
     ),
     (
+        "tdcr-sequence",
+        include_str!("../../../config/scenarios/tdcr-sequence.toml"),
+    ),
+    (
         "hybrid-weak-chamber",
         include_str!("../../../config/scenarios/hybrid-weak-chamber.toml"),
     ),
 ];
+
+/// A scenario on an arm of any layout ([`Scenario::apply_to`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct OnArm {
+    /// The sim's arm from the start.
+    pub arm: ArmConfig,
+    pub sim: SimConfig,
+    /// Each step's time (s of the sim's clock) and the arm from then on.
+    pub steps: Vec<(f64, ArmConfig)>,
+}
 
 /// The `[arm]` keys every arm has, which a scenario without `for_arm` may set on any arm.
 const EVERY_ARMS: [&str; 2] = ["tool_m", "connector_m"];
@@ -226,15 +240,11 @@ impl Scenario {
 
     /// The sim's arm and settings on an arm of any layout (`arm`, the config's `[arm]`): the
     /// scenario's `[arm]` keys in place of the config's, its `[sim.realism]` keys in place of
-    /// the sim's. A scenario for another arm than `arm` (by `for_arm`; the paper's when
-    /// absent), one whose values do not fit `arm` (an offset per actuator of another count) or
-    /// that changes the arm's structure, or steps and drift, which change the paper's arm
-    /// alone, are refused naming the key.
-    pub fn apply_to(
-        &self,
-        arm: &ArmConfig,
-        sim: &SimConfig,
-    ) -> Result<(ArmConfig, SimConfig), ConfigError> {
+    /// the sim's, and each step's arm (its `[step.arm]` keys on the arm before it). A scenario
+    /// for another arm than `arm` (by `for_arm`; the paper's when absent), one whose values do
+    /// not fit `arm` (an offset per actuator of another count) or that changes the arm's
+    /// structure, or a drift, which changes the paper's arm alone, are refused naming the key.
+    pub fn apply_to(&self, arm: &ArmConfig, sim: &SimConfig) -> Result<OnArm, ConfigError> {
         let layout = arm.layout().map_err(|m| self.error(&m))?;
         match &self.for_arm {
             Some(a) => {
@@ -248,9 +258,16 @@ impl Scenario {
             }
             // Without `for_arm`, the keys every arm has.
             None => {
-                if let Some(k) = self.arm.keys().find(|k| !EVERY_ARMS.contains(&k.as_str())) {
+                let mut keys = self.arm.keys().map(|k| format!("arm.{k}")).chain(
+                    self.steps.iter().enumerate().flat_map(|(i, (_, t))| {
+                        t.keys().map(move |k| format!("step[{i}].arm.{k}"))
+                    }),
+                );
+                let every =
+                    |key: &String| EVERY_ARMS.iter().any(|k| key.rsplit('.').next() == Some(k));
+                if let Some(key) = keys.find(|k| !every(k)) {
                     return Err(self.error(&format!(
-                        "arm.{k}: a key of the paper's arm; a scenario for this arm ({}) says \
+                        "{key}: a key of the paper's arm; a scenario for this arm ({}) says \
                          so with for_arm = \"NAME|FILE\", or sets only {}",
                         layout.identity(),
                         EVERY_ARMS.join(", ")
@@ -258,10 +275,10 @@ impl Scenario {
                 }
             }
         }
-        if self.changes_over_time() {
+        if !self.drift.is_off() {
             return Err(self.error(&format!(
-                "step: steps and drifts change the paper's arm alone; on this arm ({}) a \
-                 scenario sets [arm] and [sim.realism] keys from the start",
+                "drift: a drift changes the paper's arm alone; on this arm ({}) a scenario \
+                 sets [arm] and [sim.realism] keys, from the start and in steps",
                 layout.identity()
             )));
         }
@@ -270,13 +287,26 @@ impl Scenario {
         base.tool_m.get_or_insert(layout.tool_m);
         base.connector_m.get_or_insert(layout.connector_m);
         base.actuator_offset_m.get_or_insert_with(|| vec![0.0; n]);
-        let changed: ArmConfig = self.overlay("arm", &base, &self.arm)?;
-        changed.validate().map_err(|m| self.error(&m))?;
-        let after = changed.layout().map_err(|m| self.error(&m))?.identity();
-        if after != layout.identity() {
+        let changed = self.arm_with("arm", &base, &self.arm, &layout)?;
+        let mut steps = Vec::with_capacity(self.steps.len());
+        let mut before = changed.clone();
+        for (k, (at_s, keys)) in self.steps.iter().enumerate() {
+            let after = steps.last().map_or(0.0, |(t, _)| *t);
+            if !(at_s.is_finite() && *at_s > after && *at_s <= crate::changes::MAX_TIME_S) {
+                return Err(self.error(&format!(
+                    "step[{k}].at_s: must be after {after} s (the steps in order of time, the \
+                     first after 0) and at most {} s, got {at_s:?}",
+                    crate::changes::MAX_TIME_S
+                )));
+            }
+            before = self.arm_with(&format!("step[{k}].arm"), &before, keys, &layout)?;
+            steps.push((*at_s, before.clone()));
+        }
+        if steps.len() > crate::changes::MAX_STEPS {
             return Err(self.error(&format!(
-                "arm.modules: the scenario makes the arm {after}; a scenario changes an arm's \
-                 lengths and offsets, not its actuators"
+                "step: at most {} steps, got {}",
+                crate::changes::MAX_STEPS,
+                steps.len()
             )));
         }
         let realism = self.overlay("sim.realism", &sim.realism, &self.realism)?;
@@ -285,7 +315,34 @@ impl Scenario {
             ..sim.clone()
         };
         sim.validate(n).map_err(|m| self.error(&m))?;
-        Ok((changed, sim))
+        Ok(OnArm {
+            arm: changed,
+            sim,
+            steps,
+        })
+    }
+
+    /// `base` with `keys` (of `section`) set, checked, and still an arm of `layout`'s
+    /// actuators.
+    fn arm_with(
+        &self,
+        section: &str,
+        base: &ArmConfig,
+        keys: &toml::Table,
+        layout: &softarm_arm::Layout,
+    ) -> Result<ArmConfig, ConfigError> {
+        let changed: ArmConfig = self.overlay(section, base, keys)?;
+        changed
+            .validate()
+            .map_err(|m| self.error(&m.replacen("arm.", &format!("{section}."), 1)))?;
+        let after = changed.layout().map_err(|m| self.error(&m))?.identity();
+        if after != layout.identity() {
+            return Err(self.error(&format!(
+                "{section}.modules: the scenario makes the arm {after}; a scenario changes an \
+                 arm's lengths and offsets, not its actuators"
+            )));
+        }
+        Ok(changed)
     }
 
     /// Whether it changes nothing.
@@ -667,15 +724,27 @@ mod tests {
             (c.arm.clone(), c)
         };
         let (tdcr, c) = on("tdcr");
-        let (arm, _) = Scenario::resolve("tool-change")
+        let arm = Scenario::resolve("tool-change")
             .unwrap()
             .apply_to(&tdcr, &c.sim)
-            .unwrap();
+            .unwrap()
+            .arm;
         assert_eq!(arm.tool_m, Some(0.05));
         assert_eq!(arm.layout().unwrap().identity(), c.arm_identity());
         let creep = Scenario::resolve("tdcr-creep").unwrap();
-        let (arm, _) = creep.apply_to(&tdcr, &c.sim).unwrap();
-        assert_eq!(arm.actuator_offset_m.unwrap()[4], 0.0003);
+        let arm = creep.apply_to(&tdcr, &c.sim).unwrap().arm;
+        // Steps of the keys every arm has step any arm.
+        let swap = Scenario::resolve("tool-swap")
+            .unwrap()
+            .apply_to(&tdcr, &c.sim)
+            .unwrap();
+        assert_eq!(swap.arm.tool_m, Some(0.01));
+        assert_eq!(swap.steps.len(), 1);
+        assert_eq!(
+            (swap.steps[0].0, swap.steps[0].1.tool_m),
+            (90.0, Some(0.05))
+        );
+        assert_eq!(arm.actuator_offset_m.unwrap()[4], 0.0006);
         assert!(creep.check_on(&c).is_ok());
         let e = creep
             .check_on(&crate::Config::default_sim(".".into()))
@@ -696,9 +765,10 @@ mod tests {
         );
         for (paper_only, says) in [
             ("creep", "arm.actuator_offset_m: a key of the paper's arm"),
+            ("creeping", "drift: a drift changes the paper's arm alone"),
             (
-                "tool-swap",
-                "step: steps and drifts change the paper's arm alone",
+                "sequence",
+                "step[0].arm.actuator_offset_m: a key of the paper's arm",
             ),
         ] {
             let e = Scenario::resolve(paper_only)

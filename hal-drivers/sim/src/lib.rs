@@ -39,7 +39,7 @@ pub fn run(
     let ipc = Node::open(namespace, "sim")?;
     let n = match arm {
         Body::Paper(_) => ACTUATORS,
-        Body::Any(a) => a.actuators(),
+        Body::Any(a) | Body::Stepped { start: a, .. } => a.actuators(),
     };
     let mut commands = Commands::open(&ipc, latch, n)?;
     // A real arm stays where it was while its driver restarts: a sim restarted beside a
@@ -144,9 +144,8 @@ impl SimArm {
                 let start: Actuation = start.try_into().context("the paper's arm has six")?;
                 Plant::of_sim(arm, config, start)
             }
-            Body::Any(_) if !config.changes.is_empty() => Err(
-                "a scenario changes the paper's arm; this arm runs as its [arm] describes it"
-                    .into(),
+            Body::Any(_) | Body::Stepped { .. } if !config.changes.is_empty() => Err(
+                "a scenario's drift changes the paper's arm; this arm's scenarios step it".into(),
             ),
             any => Plant::of_body(any, config.realism, start),
         }

@@ -13,8 +13,8 @@ use rand::{RngExt, SeedableRng};
 use rand_distr::StandardNormal;
 use softarm_arm::{Layout, MAX_ACTUATORS};
 use softarm_kinematics::pcc;
-use softarm_sections::arm::{ACTUATORS, ArmGeometry};
-use softarm_sections::changes::Changes;
+use softarm_sections::arm::{ACTUATORS, ArmConfig, ArmGeometry};
+use softarm_sections::changes::{Changes, MAX_STEPS};
 use softarm_sections::sim::{Realism, SimConfig};
 
 /// The arm a plant simulates. Made once, where a plant is, and copied by value: the
@@ -24,8 +24,14 @@ use softarm_sections::sim::{Realism, SimConfig};
 pub enum Body {
     /// The paper's arm, which a scenario may change while it runs.
     Paper(ArmGeometry),
-    /// Any arm, from its layout (`pcc::Arm`); no scenario changes it.
+    /// Any arm, from its layout (`pcc::Arm`).
     Any(pcc::Arm),
+    /// Any arm that a scenario's steps change: `start` until the first step's time, then each
+    /// step's arm from its time (s of plant time) on.
+    Stepped {
+        start: pcc::Arm,
+        steps: [Option<(f64, pcc::Arm)>; MAX_STEPS],
+    },
 }
 
 impl Body {
@@ -34,11 +40,69 @@ impl Body {
         Self::Any(pcc::Arm::new(layout, offset_m))
     }
 
+    /// The arm of `[arm]` `arm` (its offsets included), becoming each of `steps` (time in s of
+    /// plant time, the arm from then on) at its time.
+    pub fn of_arm(arm: &ArmConfig, steps: &[(f64, ArmConfig)]) -> Result<Self, String> {
+        let kinematics = |arm: &ArmConfig| -> Result<pcc::Arm, String> {
+            let offsets = arm.actuator_offset_m.clone().unwrap_or_default();
+            Ok(pcc::Arm::new(&arm.layout()?, &offsets))
+        };
+        let start = kinematics(arm)?;
+        if steps.is_empty() {
+            return Ok(Self::Any(start));
+        }
+        let steps = (steps.iter())
+            .map(|(at_s, arm)| Ok((*at_s, kinematics(arm)?)))
+            .collect::<Result<Vec<_>, String>>()?;
+        Self::stepped(start, &steps)
+    }
+
+    /// `start`, becoming each of `steps` (time in s of plant time, the arm) at its time: in
+    /// order of time, at most [`MAX_STEPS`], each of `start`'s actuator count.
+    pub fn stepped(start: pcc::Arm, steps: &[(f64, pcc::Arm)]) -> Result<Self, String> {
+        if steps.len() > MAX_STEPS {
+            return Err(format!("step[{MAX_STEPS}]: at most {MAX_STEPS} steps"));
+        }
+        let mut after = 0.0;
+        for (k, (at_s, arm)) in steps.iter().enumerate() {
+            if !(at_s.is_finite() && *at_s > after) {
+                return Err(format!(
+                    "step[{k}].at_s: must be after {after} s, got {at_s:?}"
+                ));
+            }
+            if arm.actuators() != start.actuators() {
+                return Err(format!(
+                    "step[{k}]: an arm of {} actuators; the arm has {}",
+                    arm.actuators(),
+                    start.actuators()
+                ));
+            }
+            after = *at_s;
+        }
+        let mut all = [None; MAX_STEPS];
+        for (slot, s) in all.iter_mut().zip(steps) {
+            *slot = Some(*s);
+        }
+        Ok(Self::Stepped { start, steps: all })
+    }
+
     fn kinematics(&self) -> pcc::Arm {
         match self {
             Body::Paper(g) => pcc::Arm::of_geometry(g),
-            Body::Any(a) => *a,
+            Body::Any(a) | Body::Stepped { start: a, .. } => *a,
         }
+    }
+
+    /// The arm at plant time `t`, for a body whose steps change it.
+    fn stepped_at(&self, t: f64) -> Option<pcc::Arm> {
+        let Body::Stepped { start, steps } = self else {
+            return None;
+        };
+        let now = steps
+            .iter()
+            .map_while(Option::as_ref)
+            .take_while(|(at_s, _)| *at_s <= t);
+        Some(now.last().map_or(*start, |(_, arm)| *arm))
     }
 }
 
@@ -122,7 +186,7 @@ impl Plant {
         start[..n].copy_from_slice(initial);
         let geometry = match body {
             Body::Paper(g) => Some(g),
-            Body::Any(_) => None,
+            Body::Any(_) | Body::Stepped { .. } => None,
         };
         Ok(Self {
             body,
@@ -187,6 +251,9 @@ impl Plant {
             let now = self.changes.arm_at(arm, self.time);
             self.geometry = Some(now);
             self.kinematics = pcc::Arm::of_geometry(&now);
+        }
+        if let Some(now) = self.body.stepped_at(self.time) {
+            self.kinematics = now;
         }
         self.actuate(command, dt);
         self.disturb(dt);
@@ -514,6 +581,41 @@ mod tests {
             .sum::<f64>()
             .sqrt();
         assert!(moved > 2e-3, "{moved}");
+    }
+
+    /// A stepped arm is its start until the step's time, then the step's arm; steps out of
+    /// order or of another count are refused naming the step.
+    #[test]
+    fn a_stepped_arm_becomes_each_step_at_its_time() {
+        let text = include_str!("../../../ipc/arm/testdata/tdcr.toml");
+        let layout = Layout::new(&toml::from_str(text).unwrap()).unwrap();
+        let start = pcc::Arm::new(&layout, &[]);
+        let mut longer = [0.0; 9];
+        longer[4] = 0.0005;
+        let crept = pcc::Arm::new(&layout, &longer);
+        let body = Body::stepped(start, &[(1.0, crept)]).unwrap();
+        let mut plant = Plant::of_body(body, Realism::ideal(), &[0.5; 9]).unwrap();
+        let at = |p: &mut Plant, steps: usize| {
+            (0..steps)
+                .map(|_| p.step(&[0.5; 9], 0.01))
+                .last()
+                .unwrap()
+                .position
+        };
+        let distance = |a: &[f64; 3], b: &[f64; 3]| {
+            ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+        };
+        let before = at(&mut plant, 90);
+        assert_eq!(before, at(&mut plant, 5));
+        let after = at(&mut plant, 10);
+        let want = crept.pose(&[0.5; 9]).unwrap().position;
+        assert!((after[0] - want.x).abs() < 1e-9 && (after[2] - want.z).abs() < 1e-9);
+        assert!(distance(&before, &after) > 0.001, "{before:?} {after:?}");
+        let e = Body::stepped(start, &[(2.0, crept), (1.0, start)]).unwrap_err();
+        assert!(e.starts_with("step[1].at_s"), "{e}");
+        let six = pcc::Arm::of_geometry(&ArmGeometry::default());
+        let e = Body::stepped(start, &[(2.0, six)]).unwrap_err();
+        assert!(e.starts_with("step[0]: an arm of 6 actuators"), "{e}");
     }
 
     #[test]

@@ -59,7 +59,8 @@ fn a_plant_step_on_a_changing_arm_allocates_nothing() {
     );
 }
 
-/// Any arm's plant, too: the nine-tendon TDCR's, with every effect of the realism on.
+/// Any arm's plant, too: the nine-tendon TDCR's, with every effect of the realism on and a
+/// scenario's step taken.
 #[test]
 fn a_plant_step_on_any_arm_allocates_nothing() {
     use softarm_sections::sim::Realism;
@@ -71,7 +72,11 @@ fn a_plant_step_on_any_arm_allocates_nothing() {
         drift_m: 0.0005,
         ..Realism::default()
     };
-    let mut plant = Plant::of_body(Body::of_layout(&layout, &[]), realism, &[0.5; 9]).unwrap();
+    // A scenario's step 2 s in: every tendon 0.2 mm longer.
+    let start = softarm_kinematics::pcc::Arm::new(&layout, &[]);
+    let crept = softarm_kinematics::pcc::Arm::new(&layout, &[0.0002; 9]);
+    let body = Body::stepped(start, &[(2.0, crept)]).unwrap();
+    let mut plant = Plant::of_body(body, realism, &[0.5; 9]).unwrap();
 
     let _counted = alloc::count_this_thread();
     let before = alloc::this_thread();
