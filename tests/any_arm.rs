@@ -202,16 +202,21 @@ fn the_sim_drives_the_hybrid_arm_and_refuses_six() {
 
 /// The whole stack on the nine-tendon TDCR: the sim, the controller and the learner run its
 /// nine actuators from a model made for it, and a set on its own demonstrations is executed:
-/// every point seen, each execution re-conditioned by the learner's estimates. The scenarios
-/// change the paper's arm alone: one on the TDCR is a config error (78, which neither `up` nor
-/// systemd restarts), naming the arm.
+/// every point seen, each execution re-conditioned by the learner's estimates. A scenario of
+/// the paper's arm's per-actuator values on the TDCR is a config error (78, which neither `up`
+/// nor systemd restarts), naming the arm and the key.
 #[test]
 fn the_stack_executes_a_set_on_the_nine_tendon_arm() {
     let (mut s, c) = on_arm("arm-tdcr-stack", "tdcr", &[]);
-    let out = s.run(&["sim", "--scenario", "tool-change"]);
+    // The paper's creep names six actuators: a config error on this arm, naming both.
+    let out = s.run(&["sim", "--scenario", "creep"]);
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(78), "{err}");
     assert!(err.contains("9 actuators (a1 .. a9) in 3 modules"), "{err}");
+    assert!(
+        err.contains("arm.actuator_offset_m: a key of the paper's arm"),
+        "{err}"
+    );
 
     softarm_test_support::quick_model_of(&s.dir.join("model"), &c);
     s.up();

@@ -744,7 +744,7 @@ mod tests {
             (swap.steps[0].0, swap.steps[0].1.tool_m),
             (90.0, Some(0.05))
         );
-        assert_eq!(arm.actuator_offset_m.unwrap()[4], 0.0006);
+        assert_eq!(arm.actuator_offset_m.unwrap()[4], 0.0009);
         assert!(creep.check_on(&c).is_ok());
         let e = creep
             .check_on(&crate::Config::default_sim(".".into()))
