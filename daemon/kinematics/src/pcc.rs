@@ -11,7 +11,7 @@ use crate::arcs::{Routes, Undetermined};
 use softarm_arm::{Layout, MAX_ACTUATORS, MAX_MODULES};
 
 pub use softarm_sections::arm::{ACTUATORS, ACTUATORS_PER_MODULE, MODULES};
-use softarm_sections::arm::{ArmGeometry, Mount};
+use softarm_sections::arm::{ArmConfig, ArmGeometry, Mount};
 
 /// Arc parameters of one constant-curvature module.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -273,6 +273,13 @@ impl Arm {
             tool_m: layout.tool_m,
             mount: layout.mount,
         }
+    }
+
+    /// The arm `[arm]` describes, its `actuator_offset_m` included; the error is the
+    /// section's own, for an `arm` that is not valid.
+    pub fn of_config(arm: &ArmConfig) -> Result<Self, String> {
+        let offsets = arm.actuator_offset_m.as_deref().unwrap_or_default();
+        Ok(Self::new(&arm.layout()?, offsets))
     }
 
     /// The paper's arm of `g` (its offsets included), without the heap: what a plant whose

@@ -335,10 +335,9 @@ pub fn run(config: &Config, stop: &AtomicBool) -> anyhow::Result<()> {
 
 /// [`run`] for an arm of `N` actuators.
 fn run_for<const N: usize>(config: &Config, stop: &AtomicBool) -> anyhow::Result<()> {
-    let offsets = config.arm.actuator_offset_m.clone().unwrap_or_default();
     let mut p = Process::<N> {
         config,
-        arm: pcc::Arm::new(&config.layout(), &offsets),
+        arm: pcc::Arm::of_config(&config.arm).map_err(anyhow::Error::msg)?,
         ports: Ports::open(config)?,
         watch: BundleWatch::new(config.model_dir(), Duration::from_millis(200)),
         loaded: None,

@@ -302,8 +302,7 @@ pub fn demo_set(config: &Config) -> anyhow::Result<WaypointFile> {
         return Ok(shipped);
     }
     let classes = softarm_method::skill::classes(&config.demonstrations, &layout);
-    let offsets = config.arm.actuator_offset_m.clone().unwrap_or_default();
-    let arm = softarm_kinematics::pcc::Arm::new(&layout, &offsets);
+    let arm = softarm_kinematics::pcc::Arm::of_config(&config.arm).map_err(anyhow::Error::msg)?;
     let points = softarm_ipc::with_actuators!(layout.actuators().len(),
         N => softarm_method::skill::demo_points::<N>(&classes, &arm),
         n => bail!("an arm of {n} actuators"));

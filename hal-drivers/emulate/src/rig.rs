@@ -62,8 +62,7 @@ impl Rig {
         let layout = config.layout();
         let mapping = Mapping::new(tendon, &layout);
         let frame = Frame::new(tracker);
-        let offsets = config.arm.actuator_offset_m.clone().unwrap_or_default();
-        let arm = pcc::Arm::new(&layout, &offsets);
+        let arm = pcc::Arm::of_config(&config.arm).map_err(anyhow::Error::msg)?;
         let n = mapping.motors();
 
         let motors = (0..n)

@@ -43,16 +43,12 @@ impl Body {
     /// The arm of `[arm]` `arm` (its offsets included), becoming each of `steps` (time in s of
     /// plant time, the arm from then on) at its time.
     pub fn of_arm(arm: &ArmConfig, steps: &[(f64, ArmConfig)]) -> Result<Self, String> {
-        let kinematics = |arm: &ArmConfig| -> Result<pcc::Arm, String> {
-            let offsets = arm.actuator_offset_m.clone().unwrap_or_default();
-            Ok(pcc::Arm::new(&arm.layout()?, &offsets))
-        };
-        let start = kinematics(arm)?;
+        let start = pcc::Arm::of_config(arm)?;
         if steps.is_empty() {
             return Ok(Self::Any(start));
         }
         let steps = (steps.iter())
-            .map(|(at_s, arm)| Ok((*at_s, kinematics(arm)?)))
+            .map(|(at_s, arm)| Ok((*at_s, pcc::Arm::of_config(arm)?)))
             .collect::<Result<Vec<_>, String>>()?;
         Self::stepped(start, &steps)
     }

@@ -42,8 +42,7 @@ pub fn quick_model(dir: &std::path::Path) -> String {
 /// (or the classes derived from the arm) plays through its PCC kinematics; its id.
 pub fn quick_model_of(dir: &std::path::Path, config: &softarm_config::Config) -> String {
     let layout = config.layout();
-    let offsets = config.arm.actuator_offset_m.clone().unwrap_or_default();
-    let plant = softarm_kinematics::pcc::Arm::new(&layout, &offsets);
+    let plant = softarm_kinematics::pcc::Arm::of_config(&config.arm).expect("a loaded arm");
     softarm_ipc::with_actuators!(layout.actuators().len(), N => {
         let data = TrainingData::<N>::of_arm(&layout, &plant, &config.demonstrations, 5)
             .expect("the arm's demonstrations");
