@@ -1033,3 +1033,117 @@ fn a_nine_tendon_arm_is_driven_motor_by_motor() {
         "a six-actuator setpoint was followed"
     );
 }
+
+/// The nine-tendon TDCR with its top segment's three motors on a second bus (ids 11 to 13
+/// again: ids are a bus's own).
+fn tdcr_on_two_buses(text: String, second: &std::cell::OnceCell<std::path::PathBuf>) -> String {
+    // Until the rig has made it: any path but tendon.port's.
+    let port = (second.get()).map_or("/dev/softarm-second-bus".into(), |p| {
+        p.display().to_string()
+    });
+    let text = format!(
+        "{}\n[[tendon.extra_bus]]\nport = {port:?}\nactuators = [7, 8, 9]\n",
+        tdcr(text)
+    );
+    let ids = (11..17).chain(11..14).map(toml::Value::from).collect();
+    softarm_test_support::with_overrides(&text, &[("tendon.ids", toml::Value::Array(ids))])
+}
+
+/// Motors on more than one bus: the driver engages the nine where they stand, drives each bus's
+/// motors to their own goals, reports the nine in the arm's order, FOLLOWING; a hardware error
+/// on the second bus holds the first too (the arm is one body), and both buses' positions are
+/// still read.
+#[test]
+fn a_nine_tendon_arm_on_two_buses_is_driven_as_one() {
+    let second = std::cell::OnceCell::new();
+    let (s, c, rig) = TestStack::with_devices_for(
+        BIN,
+        "hw-two-buses",
+        Devices::Shared,
+        |text| tdcr_on_two_buses(text, &second),
+        |c| {
+            let rig = Rig::start(c, 0.5).unwrap();
+            second.set(rig.tendon_paths()[1].clone()).unwrap();
+            let (tendon, tracker) = (rig.tendon_path().into(), rig.tracker_path().into());
+            (rig, tendon, tracker)
+        },
+    );
+    watch(&rig);
+    let t = c.tendon.clone().unwrap();
+    assert_eq!(t.extra_bus[0].port, rig.tendon_paths()[1]);
+    let mapping = Mapping::new(&t, &c.layout());
+    let on_bus = |k: usize, f: &dyn Fn(&softarm_emulate::dynamixel::Motor) -> i32| -> Vec<i32> {
+        let bus = rig.buses[k].lock().unwrap();
+        let ids: &[u8] = if k == 0 { &t.ids[..6] } else { &t.ids[6..] };
+        ids.iter().map(|&id| f(bus.motor(id).unwrap())).collect()
+    };
+    let all = |f: &dyn Fn(&softarm_emulate::dynamixel::Motor) -> i32| {
+        [on_bus(0, f), on_bus(1, f)].concat()
+    };
+    let n = node(&s);
+    let setpoints = n.publisher(&n.setpoint().unwrap()).unwrap();
+    let motors = n.subscriber(&n.motor_state().unwrap()).unwrap();
+    let driver = spawn(&s, "tendon");
+
+    let m: MotorState = eventually("motor state", || newest(&motors));
+    assert_eq!(m.actuation.len(), 9, "{:?}", m.actuation);
+    eventually("nine motors' torque on at 0.5, on both buses", || {
+        send_each(&setpoints, &[0.5; 9]);
+        (all(&|m| i32::from(m.torque_enabled())) == [1; 9]).then_some(())
+    });
+    let want: Vec<f64> = (0..9).map(|i| 0.47 + 0.0075 * i as f64).collect();
+    let goals_of: Vec<i32> = (0..9).map(|i| mapping.ticks(i, want[i])).collect();
+    eventually("each motor's goal, on its own bus", || {
+        send_each(&setpoints, &want);
+        (all(&|m| m.goal_position()) == goals_of).then_some(())
+    });
+    eventually("nine actuators where they were sent, FOLLOWING", || {
+        send_each(&setpoints, &want);
+        newest(&motors).filter(|m| {
+            m.driver_state() == Some(DriverState::Following)
+                && m.actuation
+                    .iter()
+                    .zip(&want)
+                    .all(|(a, w)| (a - w).abs() < 2e-3)
+        })
+    });
+    // A hardware error on the second bus's first motor (actuator 7).
+    rig.buses[1]
+        .lock()
+        .unwrap()
+        .set_hardware_error(t.ids[6], 0x01);
+    let m = eventually("the fault reported as actuator 7's", || {
+        send_each(&setpoints, &want);
+        newest(&motors).filter(|m| m.driver_state() == Some(DriverState::Fault))
+    });
+    assert_eq!(m.hardware_error[6], 0x01, "{:?}", m.hardware_error);
+    assert_eq!(m.hardware_error.iter().filter(|&&e| e != 0).count(), 1);
+    let held = all(&|m| m.goal_position());
+    let moved: Vec<f64> = want.iter().map(|w| w + 0.01).collect();
+    for _ in 0..25 {
+        send_each(&setpoints, &moved);
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    assert_eq!(
+        all(&|m| m.goal_position()),
+        held,
+        "goals written on a bus after a motor fault on the other"
+    );
+    let on = all(&|m| i32::from(m.torque_enabled()));
+    assert_eq!(on[6], 0, "the faulted motor is off: {on:?}");
+    assert_eq!(on.iter().sum::<i32>(), 8, "the others hold: {on:?}");
+    // Both buses still read: positions asked of each after the fault.
+    let reads = |k: usize| rig.buses[k].lock().unwrap().counters().position_reads;
+    let start = (reads(0), reads(1));
+    eventually("positions read on both buses after the fault", || {
+        send_each(&setpoints, &moved);
+        (reads(0) > start.0 + 20 && reads(1) > start.1 + 20).then_some(())
+    });
+    eventually("fresh motor state beside the faulted motor", || {
+        send_each(&setpoints, &moved);
+        newest(&motors).filter(|m| {
+            now_ns() - m.stamp_ns < 100_000_000 && m.driver_state() == Some(DriverState::Fault)
+        })
+    });
+    assert!(stop(driver).success());
+}

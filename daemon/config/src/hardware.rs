@@ -26,8 +26,13 @@ pub struct TendonConfig {
     pub port: PathBuf,
     /// The bus's baud rate, as the motors are set to.
     pub baud: u32,
-    /// The motor id of each actuator, in the arm's order (`[arm]`): one per actuator.
+    /// The motor id of each actuator, in the arm's order (`[arm]`): one per actuator, unique
+    /// on its bus.
     pub ids: Vec<u8>,
+    /// More motor buses (`[[tendon.extra_bus]]`), each with its port and the actuators on it;
+    /// every other actuator's motor is on `port`. All at `baud`, driven in one cycle.
+    #[serde(default)]
+    pub extra_bus: Vec<ExtraBus>,
     /// Goal positions written and positions and currents read per second.
     pub rate_hz: f64,
     /// Motor ticks per spool revolution (4096 on X-series).
@@ -53,6 +58,25 @@ pub struct TendonConfig {
     pub hold_after_ms: f64,
     /// ...and this long (ms): torque off.
     pub torque_off_after_ms: f64,
+}
+
+/// Another motor bus of the tendon driver.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct ExtraBus {
+    /// Its serial device.
+    pub port: PathBuf,
+    /// The actuators whose motors are on it (1 = the arm's first), each on one bus.
+    pub actuators: Vec<usize>,
+}
+
+/// One motor bus of the tendon driver: its section (`port`, `ids` and every per-motor list
+/// of its actuators alone) and which of the arm's actuators they are.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Bus {
+    pub tendon: TendonConfig,
+    /// The arm's actuators on it (0-based, in the arm's order), one per motor of `tendon`.
+    pub actuators: Vec<usize>,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, schemars::JsonSchema)]
@@ -225,6 +249,20 @@ impl Mapping {
         }
     }
 
+    /// The mapping of `actuators` (0-based, in that order) alone: one bus's motors.
+    pub fn select(&self, actuators: &[usize]) -> Self {
+        let mut m = Self {
+            ticks_per_unit: [0.0; MAX_ACTUATORS],
+            zero_ticks: [0; MAX_ACTUATORS],
+            motors: actuators.len(),
+        };
+        for (k, &i) in actuators.iter().enumerate() {
+            m.ticks_per_unit[k] = self.ticks_per_unit[i];
+            m.zero_ticks[k] = self.zero_ticks[i];
+        }
+        m
+    }
+
     /// How many motors it maps.
     pub fn motors(&self) -> usize {
         self.motors
@@ -252,6 +290,92 @@ impl Mapping {
 }
 
 impl TendonConfig {
+    /// The buses of a checked section: `port`'s first, with every actuator not on an extra
+    /// bus, then each `extra_bus` in order.
+    pub fn buses(&self) -> Vec<Bus> {
+        let n = self.ids.len();
+        let extra: Vec<usize> = self
+            .extra_bus
+            .iter()
+            .flat_map(|b| b.actuators.iter().map(|a| a - 1))
+            .collect();
+        let main: Vec<usize> = (0..n).filter(|i| !extra.contains(i)).collect();
+        std::iter::once((self.port.clone(), main))
+            .chain(
+                (self.extra_bus.iter())
+                    .map(|b| (b.port.clone(), b.actuators.iter().map(|a| a - 1).collect())),
+            )
+            .map(|(port, actuators)| self.bus(port, actuators))
+            .collect()
+    }
+
+    fn bus(&self, port: PathBuf, actuators: Vec<usize>) -> Bus {
+        fn pick<T: Copy>(all: &[T], which: &[usize]) -> Vec<T> {
+            which.iter().map(|&i| all[i]).collect()
+        }
+        let tendon = TendonConfig {
+            port,
+            ids: pick(&self.ids, &actuators),
+            extra_bus: Vec::new(),
+            spool_radius_m: pick(&self.spool_radius_m, &actuators),
+            zero_ticks: pick(&self.zero_ticks, &actuators),
+            direction: pick(&self.direction, &actuators),
+            min_ticks: pick(&self.min_ticks, &actuators),
+            max_ticks: pick(&self.max_ticks, &actuators),
+            ..self.clone()
+        };
+        Bus { tendon, actuators }
+    }
+
+    /// The extra buses: a port each, none twice nor `port`, and actuators of the arm's `n`,
+    /// each on one bus, `port`'s keeping at least one.
+    fn validate_buses(&self, n: usize) -> Result<(), Invalid> {
+        let mut taken: Vec<Option<usize>> = vec![None; n];
+        for (k, b) in self.extra_bus.iter().enumerate() {
+            let key = |what: &str| format!("tendon.extra_bus[{k}].{what}");
+            if b.port.as_os_str().is_empty() {
+                return invalid(key("port"), "must name the serial device".into());
+            }
+            let earlier =
+                std::iter::once(&self.port).chain(self.extra_bus[..k].iter().map(|b| &b.port));
+            if earlier.clone().any(|p| *p == b.port) {
+                return invalid(
+                    key("port"),
+                    format!("{} is the port of another bus", b.port.display()),
+                );
+            }
+            if b.actuators.is_empty() {
+                return invalid(
+                    key("actuators"),
+                    "a bus drives at least one actuator".into(),
+                );
+            }
+            for &a in &b.actuators {
+                if !(1..=n).contains(&a) {
+                    return invalid(
+                        key("actuators"),
+                        format!("actuator {a}: the arm has actuators 1 to {n}"),
+                    );
+                }
+                if let Some(other) = taken[a - 1].replace(k) {
+                    return invalid(
+                        key("actuators"),
+                        format!("actuator {a} is on extra_bus[{other}] already"),
+                    );
+                }
+            }
+        }
+        if !self.extra_bus.is_empty() && taken.iter().all(Option::is_some) {
+            return invalid(
+                "tendon.port".into(),
+                "every actuator is on an extra bus: put one on port's, or make one extra bus \
+                 the port"
+                    .into(),
+            );
+        }
+        Ok(())
+    }
+
     /// Checks the section against the arm and the controller's actuator limits: every setpoint
     /// the controller may send must map to ticks the motors accept.
     /// `controller_rate_hz`: the time-outs must span several of the controller's periods.
@@ -298,12 +422,19 @@ impl TendonConfig {
         if self.port.as_os_str().is_empty() {
             return invalid(key("port"), "must name the serial device".into());
         }
+        self.validate_buses(n)?;
         if !(9600..=10_500_000).contains(&self.baud) {
             return invalid(
                 key("baud"),
                 format!("must be 9600 to 10500000 baud, got {}", self.baud),
             );
         }
+        // Unique on each bus: two buses may each have a motor 1.
+        let bus_of = |i: usize| {
+            (self.extra_bus.iter())
+                .position(|b| b.actuators.contains(&(i + 1)))
+                .map_or(0, |k| k + 1)
+        };
         for (i, &id) in self.ids.iter().enumerate() {
             if id > 252 {
                 return invalid(
@@ -311,12 +442,12 @@ impl TendonConfig {
                     format!("motor ids are 0 to 252, got {id}"),
                 );
             }
-            if let Some(first) = self.ids[..i].iter().position(|&x| x == id) {
+            if let Some(first) = (0..i).find(|&j| self.ids[j] == id && bus_of(j) == bus_of(i)) {
                 return invalid(
                     format!("tendon.ids[{i}]"),
                     format!(
-                        "id {id} is the motor of actuator {} already; each motor drives one \
-                         actuator",
+                        "id {id} is the motor of actuator {} already, on the same bus; each \
+                         motor drives one actuator",
                         first + 1
                     ),
                 );
@@ -552,6 +683,7 @@ mod tests {
             port: "/dev/null".into(),
             baud: 1_000_000,
             ids: vec![1, 2, 3, 4, 5, 6],
+            extra_bus: Vec::new(),
             rate_hz: 100.0,
             ticks_per_rev: 4096,
             spool_radius_m: vec![0.015; 6],
@@ -606,7 +738,7 @@ mod tests {
             t.validate(&arm, &[0.0; 6], &[1.0; 6], 500.0).unwrap_err(),
             (
                 "tendon.ids[5]".into(),
-                "id 1 is the motor of actuator 1 already; each motor drives one actuator".into()
+                "id 1 is the motor of actuator 1 already, on the same bus; each motor drives one actuator".into()
             )
         );
         let mut t = tendon();
@@ -676,6 +808,97 @@ mod tests {
             .unwrap_err();
         assert_eq!(key, "tendon.ids");
         assert!(message.contains("pneumatic chamber"), "{message}");
+    }
+
+    /// Motors on more than one bus: each bus's section holds its own actuators' motors, ids
+    /// may repeat across buses but not on one, and an actuator on two buses, one the arm does
+    /// not have, a port named twice or a main bus left empty are refused naming the key.
+    #[test]
+    fn motors_on_more_than_one_bus() {
+        let tdcr = layout(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../ipc/arm/testdata/tdcr.toml"
+        ));
+        let two = TendonConfig {
+            ids: vec![1, 2, 3, 4, 5, 6, 1, 2, 3],
+            extra_bus: vec![ExtraBus {
+                port: "/dev/tendon-b".into(),
+                actuators: vec![7, 8, 9],
+            }],
+            spool_radius_m: vec![0.005; 9],
+            zero_ticks: (0..9).map(|i| 1000 + i).collect(),
+            direction: vec![1; 9],
+            min_ticks: vec![900; 9],
+            max_ticks: vec![3700; 9],
+            ..tendon()
+        };
+        two.validate(&tdcr, &[0.0; 9], &[1.0; 9], 500.0).unwrap();
+        let buses = two.buses();
+        assert_eq!(buses.len(), 2);
+        assert_eq!(buses[0].actuators, [0, 1, 2, 3, 4, 5]);
+        assert_eq!(buses[1].actuators, [6, 7, 8]);
+        assert_eq!(buses[1].tendon.port, PathBuf::from("/dev/tendon-b"));
+        assert_eq!(buses[1].tendon.ids, [1, 2, 3]);
+        assert_eq!(buses[1].tendon.zero_ticks, [1006, 1007, 1008]);
+        let m = Mapping::new(&two, &tdcr);
+        let b = m.select(&buses[1].actuators);
+        assert_eq!(b.motors(), 3);
+        assert_eq!(b.ticks(2, 0.5), m.ticks(8, 0.5));
+        // One bus: all of it.
+        assert_eq!(tendon().buses()[0].actuators, [0, 1, 2, 3, 4, 5]);
+        let refused = |t: TendonConfig, key: &str, says: &str| {
+            let (k, message) = t.validate(&tdcr, &[0.0; 9], &[1.0; 9], 500.0).unwrap_err();
+            assert_eq!(k, key, "{message}");
+            assert!(message.contains(says), "{message}");
+        };
+        let with_bus = |port: &str, actuators: Vec<usize>| TendonConfig {
+            extra_bus: vec![ExtraBus {
+                port: port.into(),
+                actuators,
+            }],
+            ..two.clone()
+        };
+        refused(
+            TendonConfig {
+                ids: vec![1, 2, 3, 4, 5, 6, 1, 2, 1],
+                ..two.clone()
+            },
+            "tendon.ids[8]",
+            "id 1 is the motor of actuator 7 already, on the same bus",
+        );
+        refused(
+            TendonConfig {
+                extra_bus: Vec::new(),
+                ..two.clone()
+            },
+            "tendon.ids[6]",
+            "id 1 is the motor of actuator 1 already",
+        );
+        refused(
+            with_bus("/dev/tendon-b", vec![7, 8, 10]),
+            "tendon.extra_bus[0].actuators",
+            "actuator 10: the arm has actuators 1 to 9",
+        );
+        refused(
+            with_bus("/dev/null", vec![7, 8, 9]),
+            "tendon.extra_bus[0].port",
+            "the port of another bus",
+        );
+        refused(
+            with_bus("/dev/tendon-b", (1..=9).collect()),
+            "tendon.port",
+            "every actuator is on an extra bus",
+        );
+        let mut twice = with_bus("/dev/tendon-b", vec![7, 8, 9]);
+        twice.extra_bus.push(ExtraBus {
+            port: "/dev/tendon-c".into(),
+            actuators: vec![9],
+        });
+        refused(
+            twice,
+            "tendon.extra_bus[1].actuators",
+            "actuator 9 is on extra_bus[0] already",
+        );
     }
 
     #[test]

@@ -256,7 +256,8 @@ pub struct StateConfig {
 /// A config key (`section.key`, sections nested with dots) and the value it is set to.
 pub type Override<'a> = (&'a str, toml::Value);
 
-/// `text` (a config) with each `(dotted key, value)` set, e.g. `("sim.realism.seed", 3)`; the
+/// `text` (a config) with each `(dotted key, value)` set, e.g. `("sim.realism.seed", 3)` or
+/// `("tendon.extra_bus[0].port", ..)` (the first `[[tendon.extra_bus]]`); the
 /// key's section must exist. For the tools that write or run a config of their own (`softarm
 /// demo`, `softarm install`, the tests). Comments and layout survive; a replaced value loses
 /// the comment after it.
@@ -270,10 +271,21 @@ pub fn with_overrides(text: &str, overrides: &[Override]) -> Result<String, Stri
             .ok_or_else(|| format!("{key:?}: need section.key"))?;
         let mut table: &mut dyn toml_edit::TableLike = doc.as_table_mut();
         for section in path.split('.') {
-            table = table
-                .get_mut(section)
-                .and_then(toml_edit::Item::as_table_like_mut)
-                .ok_or_else(|| format!("{key:?}: no section [{path}] in the config"))?;
+            // `name[k]`: the k-th table of an array of tables (`[[name]]`).
+            let indexed = (section.strip_suffix(']'))
+                .and_then(|s| s.split_once('['))
+                .and_then(|(name, k)| Some((name, k.parse::<usize>().ok()?)));
+            let next = match indexed {
+                Some((name, k)) => table
+                    .get_mut(name)
+                    .and_then(toml_edit::Item::as_array_of_tables_mut)
+                    .and_then(|a| a.get_mut(k))
+                    .map(|t| t as &mut dyn toml_edit::TableLike),
+                None => table
+                    .get_mut(section)
+                    .and_then(toml_edit::Item::as_table_like_mut),
+            };
+            table = next.ok_or_else(|| format!("{key:?}: no section [{path}] in the config"))?;
         }
         let value: toml_edit::Value = value
             .to_string()

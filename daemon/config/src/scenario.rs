@@ -31,11 +31,12 @@ use crate::changes::{Changes, Drift, Step};
 use crate::sim::SimConfig;
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
+use softarm_arm::Kind;
 
 use crate::{ConfigError, key_line, line_at};
 
 /// The scenarios shipped in `config/scenarios/`, embedded so `--scenario NAME` works anywhere.
-pub const SHIPPED: [(&str, &str); 14] = [
+pub const SHIPPED: [(&str, &str); 15] = [
     (
         "nominal",
         include_str!("../../../config/scenarios/nominal.toml"),
@@ -87,6 +88,10 @@ pub const SHIPPED: [(&str, &str); 14] = [
     (
         "tdcr-sequence",
         include_str!("../../../config/scenarios/tdcr-sequence.toml"),
+    ),
+    (
+        "tdcr-creeping",
+        include_str!("../../../config/scenarios/tdcr-creeping.toml"),
     ),
     (
         "hybrid-weak-chamber",
@@ -242,8 +247,9 @@ impl Scenario {
     /// scenario's `[arm]` keys in place of the config's, its `[sim.realism]` keys in place of
     /// the sim's, and each step's arm (its `[step.arm]` keys on the arm before it). A scenario
     /// for another arm than `arm` (by `for_arm`; the paper's when absent), one whose values do
-    /// not fit `arm` (an offset per actuator of another count) or that changes the arm's
-    /// structure, or a drift, which changes the paper's arm alone, are refused naming the key.
+    /// not fit `arm` (an offset per actuator of another count, a drift's rates) or that changes
+    /// the arm's structure are refused naming the key. The drift goes into the sim's
+    /// `changes` (steps come as `steps`).
     pub fn apply_to(&self, arm: &ArmConfig, sim: &SimConfig) -> Result<OnArm, ConfigError> {
         let layout = arm.layout().map_err(|m| self.error(&m))?;
         match &self.for_arm {
@@ -275,13 +281,6 @@ impl Scenario {
                 }
             }
         }
-        if !self.drift.is_off() {
-            return Err(self.error(&format!(
-                "drift: a drift changes the paper's arm alone; on this arm ({}) a scenario \
-                 sets [arm] and [sim.realism] keys, from the start and in steps",
-                layout.identity()
-            )));
-        }
         let n = layout.actuators().len();
         let mut base = arm.clone();
         base.tool_m.get_or_insert(layout.tool_m);
@@ -309,9 +308,19 @@ impl Scenario {
                 steps.len()
             )));
         }
+        // The drift on every arm it will be: the tendons' smallest radius over the steps.
+        let mut min_radius = None::<f64>;
+        for a in std::iter::once(&changed).chain(steps.iter().map(|(_, a)| a)) {
+            let l = a.layout().map_err(|m| self.error(&m))?;
+            for t in l.actuators().iter().filter(|t| t.kind == Kind::Tendon) {
+                min_radius = Some(min_radius.map_or(t.radius_m, |r| r.min(t.radius_m)));
+            }
+        }
+        (self.drift.check_for(n, min_radius)).map_err(|m| self.error(&m))?;
         let realism = self.overlay("sim.realism", &sim.realism, &self.realism)?;
         let sim = SimConfig {
             realism,
+            changes: Changes::new(&[], self.drift).map_err(|m| self.error(&m))?,
             ..sim.clone()
         };
         sim.validate(n).map_err(|m| self.error(&m))?;
@@ -744,7 +753,7 @@ mod tests {
             (swap.steps[0].0, swap.steps[0].1.tool_m),
             (90.0, Some(0.05))
         );
-        assert_eq!(arm.actuator_offset_m.unwrap()[4], 0.0009);
+        assert_eq!(arm.actuator_offset_m.unwrap()[4], 0.0015);
         assert!(creep.check_on(&c).is_ok());
         let e = creep
             .check_on(&crate::Config::default_sim(".".into()))
@@ -765,7 +774,10 @@ mod tests {
         );
         for (paper_only, says) in [
             ("creep", "arm.actuator_offset_m: a key of the paper's arm"),
-            ("creeping", "drift: a drift changes the paper's arm alone"),
+            (
+                "creeping",
+                "drift.creep_mm_per_min: 6 values for an arm of 9 actuators",
+            ),
             (
                 "sequence",
                 "step[0].arm.actuator_offset_m: a key of the paper's arm",
@@ -777,6 +789,29 @@ mod tests {
                 .unwrap_err();
             assert!(e.message.starts_with(says), "{paper_only}: {e}");
         }
+        // Drifts on any arm: the TDCR's own creep, sized to it, and a radius cycle (every arm's).
+        let on_tdcr = Scenario::resolve("tdcr-creeping")
+            .unwrap()
+            .apply_to(&c.arm, &c.sim)
+            .unwrap();
+        assert_eq!(on_tdcr.sim.changes.drift.creep_mm_per_min.len(), 9);
+        assert!(on_tdcr.steps.is_empty());
+        let cycle = Scenario::resolve("stiffness-cycle").unwrap();
+        assert!(cycle.check_on(&c).is_ok());
+        let wide = "[drift]\nactuator_radius_amplitude_m = 0.005\nactuator_radius_period_s = 60\n";
+        let e = Scenario::parse(wide, "wide", "wide.toml")
+            .unwrap()
+            .check_on(&c)
+            .unwrap_err();
+        assert!(
+            e.message.contains("smallest tendon radius (0.0045 m)"),
+            "{e}"
+        );
+        let e = Scenario::resolve("tdcr-creeping")
+            .unwrap()
+            .check_on(&h)
+            .unwrap_err();
+        assert!(e.message.starts_with("for_arm:"), "{e}");
         let six = "for_arm = \"tdcr\"\n[arm]\nactuator_offset_m = [0, 0, 0, 0, 0, 0.001]\n";
         let e = Scenario::parse(six, "six", "six.toml").unwrap_err();
         assert_eq!(e.line, Some(3), "{e}");

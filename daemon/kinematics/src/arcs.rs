@@ -100,6 +100,16 @@ impl Routes {
         self.angle_rad[i] += d_rad;
     }
 
+    /// Moves every tendon `dr_m` further from the backbone; a chamber, on the axis, stays.
+    pub fn widen(&mut self, dr_m: f64) {
+        for r in self.radius_m[..self.actuators]
+            .iter_mut()
+            .filter(|r| **r > 0.0)
+        {
+            *r += dr_m;
+        }
+    }
+
     fn runs_through(&self, i: usize, m: usize) -> bool {
         self.passes[i] & (1 << m) != 0
     }

@@ -339,6 +339,14 @@ impl Arm {
         a
     }
 
+    /// This arm with every tendon `dr_m` further from the backbone (a module stiffening or
+    /// softening: the same length differences bend it less or more). Heap-free.
+    pub fn widened(&self, dr_m: f64) -> Self {
+        let mut a = *self;
+        a.routes.widen(dr_m);
+        a
+    }
+
     /// End-effector pose for actuator lengths `lengths` (m, one per actuator), each module's
     /// curvature falling from base to tip by `taper` ([`tapered_module_pose`]; 0: PCC).
     pub fn pose_of_lengths(&self, lengths: &[f64], taper: f64) -> Result<Pose, Undetermined> {

@@ -73,16 +73,21 @@ fn text_of(p: &Path) -> String {
 /// from wherever it is written.
 fn emulated_config(text: &str, c: &Config, rig: &Rig) -> anyhow::Result<String> {
     let absolute = |p: PathBuf| std::path::absolute(&p).unwrap_or(p);
-    softarm_config::with_overrides(
-        text,
-        &[
-            ("tendon.port", text_of(rig.tendon_path()).into()),
-            ("tracker.port", text_of(rig.tracker_path()).into()),
-            ("model.dir", text_of(&absolute(c.model_dir())).into()),
-            ("state.dir", text_of(&absolute(c.state_dir())).into()),
-        ],
-    )
-    .map_err(anyhow::Error::msg)
+    let extra = (rig.tendon_paths().iter().enumerate().skip(1))
+        .map(|(k, p)| (format!("tendon.extra_bus[{}].port", k - 1), text_of(p)));
+    let overrides: Vec<_> = [
+        ("tendon.port".to_string(), text_of(rig.tendon_path())),
+        ("tracker.port".to_string(), text_of(rig.tracker_path())),
+        ("model.dir".to_string(), text_of(&absolute(c.model_dir()))),
+        ("state.dir".to_string(), text_of(&absolute(c.state_dir()))),
+    ]
+    .into_iter()
+    .chain(extra)
+    .collect();
+    let overrides: Vec<softarm_config::Override> = (overrides.iter())
+        .map(|(k, v)| (k.as_str(), v.as_str().into()))
+        .collect();
+    softarm_config::with_overrides(text, &overrides).map_err(anyhow::Error::msg)
 }
 
 /// Refuses, before the emulators start, a `--write-config` path the copy cannot go to, or that
@@ -143,9 +148,11 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
     let text = std::fs::read_to_string(&args.config)
         .with_context(|| format!("reading {}", args.config.display()))?;
     let rig = Rig::start(&c, args.initial)?;
-    if let Ok(mut bus) = rig.bus.lock() {
-        bus.set_fault_seed(args.fault_seed);
-        bus.set_faults(faults);
+    for bus in &rig.buses {
+        if let Ok(mut bus) = bus.lock() {
+            bus.set_fault_seed(args.fault_seed);
+            bus.set_faults(faults);
+        }
     }
     if faults != crate::dynamixel::BusFaults::default() {
         println!(
@@ -158,6 +165,9 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
         "tendon motors (Dynamixel 2.0): {}",
         rig.tendon_path().display()
     );
+    for (k, p) in rig.tendon_paths().iter().enumerate().skip(1) {
+        println!("  extra_bus[{}]:                {}", k - 1, p.display());
+    }
     println!(
         "tracker (Bird protocol):       {}",
         rig.tracker_path().display()

@@ -32,10 +32,13 @@ struct Tracker {
 
 /// The two devices, running on their own threads until [`Rig::stop`] (or drop).
 pub struct Rig {
-    tendon_path: std::path::PathBuf,
+    /// Each motor bus's device, `tendon.port`'s first.
+    tendon_paths: Vec<std::path::PathBuf>,
     tracker_path: std::path::PathBuf,
-    /// The motor bus: tests read goals and torque from it and inject faults.
+    /// The motor bus of `tendon.port`: tests read goals and torque from it and inject faults.
     pub bus: Arc<Mutex<dynamixel::Bus>>,
+    /// Every motor bus, `tendon.port`'s first, then each `tendon.extra_bus`.
+    pub buses: Vec<Arc<Mutex<dynamixel::Bus>>>,
     /// The tracker's fault switches.
     pub tracker_faults: Arc<BirdFaults>,
     /// What the tracker has done: records sent, opens heard.
@@ -64,37 +67,39 @@ impl Rig {
         let frame = Frame::new(tracker);
         let arm = pcc::Arm::of_config(&config.arm).map_err(anyhow::Error::msg)?;
         let n = mapping.motors();
-
-        let motors = (0..n)
-            .map(|i| dynamixel::Motor::new(tendon.ids[i], mapping.ticks(i, initial)))
-            .collect();
-        let bus = Arc::new(Mutex::new(dynamixel::Bus::with_motors(motors)));
         let stop = Arc::new(AtomicBool::new(false));
-        let tendon_pty = Pty::open().context("opening a pseudo-terminal for the motor bus")?;
-        let tendon_path = tendon_pty.path().to_path_buf();
-
-        let mut threads = Vec::new();
-        {
-            let (bus, stop) = (bus.clone(), stop.clone());
+        let (mut buses, mut tendon_paths, mut threads) = (Vec::new(), Vec::new(), Vec::new());
+        // Which bus and motor id each actuator has.
+        let mut motor_of = vec![(0, 0); n];
+        for (k, b) in tendon.buses().iter().enumerate() {
+            let motors = (b.actuators.iter().zip(&b.tendon.ids))
+                .map(|(&i, &id)| dynamixel::Motor::new(id, mapping.ticks(i, initial)))
+                .collect();
+            for (&i, &id) in b.actuators.iter().zip(&b.tendon.ids) {
+                motor_of[i] = (k, id);
+            }
+            let bus = Arc::new(Mutex::new(dynamixel::Bus::with_motors(motors)));
+            let pty = Pty::open().context("opening a pseudo-terminal for a motor bus")?;
+            tendon_paths.push(pty.path().to_path_buf());
+            let (served, stop) = (bus.clone(), stop.clone());
             threads.push(
                 std::thread::Builder::new()
-                    .name("emulated motors".into())
-                    .spawn(move || dynamixel::serve(tendon_pty, bus, stop))?,
+                    .name(format!("emulated motors {}", k + 1))
+                    .spawn(move || dynamixel::serve(pty, served, stop))?,
             );
+            buses.push(bus);
         }
         let pose: Pose = {
-            let (bus, ids) = (bus.clone(), tendon.ids.clone());
+            let buses = buses.clone();
             // Where the last actuation put the tip, for an actuation whose arcs the model
             // cannot tell (the motors far outside their strokes).
             let last = Mutex::new([0.0; 3]);
             Arc::new(move || {
                 let mut a = [0.0; MAX_ACTUATORS];
-                {
-                    let b = bus.lock().unwrap();
-                    for i in 0..n {
-                        let ticks = b.motor(ids[i]).map_or(0, |m| m.present_position());
-                        a[i] = mapping.actuation(i, ticks);
-                    }
+                for (i, &(k, id)) in motor_of.iter().enumerate() {
+                    let b = buses[k].lock().unwrap();
+                    let ticks = b.motor(id).map_or(0, |m| m.present_position());
+                    a[i] = mapping.actuation(i, ticks);
                 }
                 let mut last = last.lock().unwrap();
                 if let Ok(p) = arm.pose(&a[..n]) {
@@ -104,9 +109,10 @@ impl Rig {
             })
         };
         let mut rig = Self {
-            tendon_path,
+            tendon_paths,
             tracker_path: std::path::PathBuf::new(),
-            bus,
+            bus: buses[0].clone(),
+            buses,
             tracker_faults: Arc::new(BirdFaults::default()),
             tracker_counts: Arc::new(BirdCounts::default()),
             canary: Canary::start().context("starting the pty canary")?,
@@ -164,9 +170,14 @@ impl Rig {
         }
     }
 
-    /// The motor bus's device (`/dev/pts/N`).
+    /// The device of `tendon.port`'s motor bus (`/dev/pts/N`).
     pub fn tendon_path(&self) -> &std::path::Path {
-        &self.tendon_path
+        &self.tendon_paths[0]
+    }
+
+    /// Every motor bus's device, `tendon.port`'s first, then each `tendon.extra_bus`'s.
+    pub fn tendon_paths(&self) -> &[std::path::PathBuf] {
+        &self.tendon_paths
     }
 
     /// The tracker's device.

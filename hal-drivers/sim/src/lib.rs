@@ -144,10 +144,11 @@ impl SimArm {
                 let start: Actuation = start.try_into().context("the paper's arm has six")?;
                 Plant::of_sim(arm, config, start)
             }
-            Body::Any(_) | Body::Stepped { .. } if !config.changes.is_empty() => Err(
-                "a scenario's drift changes the paper's arm; this arm's scenarios step it".into(),
-            ),
-            any => Plant::of_body(any, config.realism, start),
+            Body::Any(_) | Body::Stepped { .. } if config.changes.steps().next().is_some() => {
+                Err("this arm's steps come with its body (Body::stepped), not sim.changes".into())
+            }
+            any => Plant::of_body(any, config.realism, start)
+                .and_then(|p| p.drifting(config.changes.drift)),
         }
         .map_err(anyhow::Error::msg)
         .context("the simulated plant")?;

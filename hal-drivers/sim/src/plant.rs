@@ -3,7 +3,8 @@
 //!
 //! Per actuator, a command passes backlash (play operator) → rate limit → first-order lag, and
 //! a coloured disturbance moves the actuator from there; the kinematics use the arm (for the
-//! paper's arm, as a scenario changes it at the plant's time, [`Changes`]) with a slow drift of
+//! paper's arm, as a scenario changes it at the plant's time, [`Changes`]; any other arm by its
+//! steps, [`Body::Stepped`], and a scenario's [`Drift`]) with a slow drift of
 //! the actuator lengths, optionally bent not quite at constant curvature, and the tracker adds
 //! noise to the end-effector position. With every effect off it is the kinematic model exactly.
 //! Per-actuator state has room for every arm ([`MAX_ACTUATORS`]), so a step allocates nothing.
@@ -11,10 +12,10 @@
 use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
 use rand_distr::StandardNormal;
-use softarm_arm::{Layout, MAX_ACTUATORS};
+use softarm_arm::{Layout, MAX_ACTUATORS, MAX_MODULES};
 use softarm_kinematics::pcc;
 use softarm_sections::arm::{ACTUATORS, ArmConfig, ArmGeometry};
-use softarm_sections::changes::{Changes, MAX_STEPS};
+use softarm_sections::changes::{Changes, Drift, MAX_STEPS};
 use softarm_sections::sim::{Realism, SimConfig};
 
 /// The arm a plant simulates. Made once, where a plant is, and copied by value: the
@@ -89,16 +90,30 @@ impl Body {
         }
     }
 
-    /// The arm at plant time `t`, for a body whose steps change it.
-    fn stepped_at(&self, t: f64) -> Option<pcc::Arm> {
-        let Body::Stepped { start, steps } = self else {
-            return None;
+    /// The arm at plant time `t`, for any arm that its steps or `drift` change: the step's arm
+    /// in force, crept (each actuator's creep bounded as the paper's arm's is) and its tendons'
+    /// radius cycled. `None` for the paper's arm (its scenario changes it, [`Changes`]) and an
+    /// arm that nothing changes.
+    fn drifted_at(&self, t: f64, drift: &Drift) -> Option<pcc::Arm> {
+        let now = match self {
+            Body::Paper(_) => return None,
+            Body::Any(_) if drift.is_off() => return None,
+            Body::Any(arm) => *arm,
+            Body::Stepped { start, steps } => {
+                let now = steps
+                    .iter()
+                    .map_while(Option::as_ref)
+                    .take_while(|(at_s, _)| *at_s <= t);
+                now.last().map_or(*start, |(_, arm)| *arm)
+            }
         };
-        let now = steps
-            .iter()
-            .map_while(Option::as_ref)
-            .take_while(|(at_s, _)| *at_s <= t);
-        Some(now.last().map_or(*start, |(_, arm)| *arm))
+        if drift.is_off() {
+            return Some(now);
+        }
+        let o = ArmGeometry::MAX_OFFSET_M;
+        let creep = drift.creep_m(t).map(|c| c.clamp(-o, o));
+        let crept = now.changed(0.0, 0.0, &creep, &[0.0; MAX_MODULES]);
+        Some(crept.widened(drift.radius_change_m(t)))
     }
 }
 
@@ -200,6 +215,17 @@ impl Plant {
         })
     }
 
+    /// This plant with `drift` on its arm, for any arm but the paper's, whose drift comes with
+    /// its scenario's changes ([`Plant::of_sim`]). `drift` is checked against the arm by
+    /// whoever made it (`Scenario::apply_to`).
+    pub fn drifting(mut self, drift: Drift) -> Result<Self, String> {
+        if matches!(self.body, Body::Paper(_)) {
+            return Err("the paper's arm drifts by its scenario's changes (Plant::of_sim)".into());
+        }
+        self.changes.drift = drift;
+        Ok(self)
+    }
+
     /// The sim's plant: `arm` changing as `sim.changes` say, under `sim.realism`, at rest at
     /// `initial`. The sim driver and the rehearsal build theirs here, so a scenario runs the
     /// same in both.
@@ -248,7 +274,7 @@ impl Plant {
             self.geometry = Some(now);
             self.kinematics = pcc::Arm::of_geometry(&now);
         }
-        if let Some(now) = self.body.stepped_at(self.time) {
+        if let Some(now) = self.body.drifted_at(self.time, &self.changes.drift) {
             self.kinematics = now;
         }
         self.actuate(command, dt);
@@ -505,10 +531,10 @@ mod tests {
 
     #[test]
     fn a_scenario_changes_the_arm_at_the_plants_time() {
-        use softarm_sections::changes::{Drift, Step};
+        use softarm_sections::changes::{Drift, Rates, Step};
         let arm = ArmGeometry::default();
         let mut drift = Drift::default();
-        drift.creep_mm_per_min[1] = 6.0;
+        drift.creep_mm_per_min = Rates::new(&[0.0, 6.0, 0.0, 0.0, 0.0, 0.0]).unwrap();
         let swap = Step {
             at_s: 1.0,
             arm: ArmGeometry {
@@ -612,6 +638,63 @@ mod tests {
         let six = pcc::Arm::of_geometry(&ArmGeometry::default());
         let e = Body::stepped(start, &[(2.0, six)]).unwrap_err();
         assert!(e.starts_with("step[0]: an arm of 6 actuators"), "{e}");
+    }
+
+    /// Any arm creeps as its drift says, bounded as the paper's arm is; its tendons' radius
+    /// cycles; the paper's arm takes its drift from its scenario, not so.
+    #[test]
+    fn any_arm_creeps_and_cycles_as_its_drift_says() {
+        use softarm_sections::changes::Rates;
+        let text = include_str!("../../../ipc/arm/testdata/tdcr.toml");
+        let layout = Layout::new(&toml::from_str(text).unwrap()).unwrap();
+        let arm = pcc::Arm::new(&layout, &[]);
+        let mut rates = [0.0; 9];
+        rates[4] = 0.6;
+        let drift = Drift {
+            creep_mm_per_min: Rates::new(&rates).unwrap(),
+            ..Drift::default()
+        };
+        let mut plant = Plant::of_body(Body::Any(arm), Realism::ideal(), &[0.5; 9])
+            .unwrap()
+            .drifting(drift)
+            .unwrap();
+        let a = [0.4, 0.6, 0.5, 0.55, 0.45, 0.5, 0.5, 0.6, 0.4];
+        // Each step 10 s: 0.1 mm of tendon 5 a step.
+        let at = |p: &mut Plant| p.step(&a, 10.0).position;
+        let first = at(&mut plant);
+        let mut offsets = [0.0; 9];
+        offsets[4] = 0.0001;
+        let want = pcc::Arm::new(&layout, &offsets).pose(&a).unwrap().position;
+        assert!((first[0] - want.x).abs() < 1e-9 && (first[1] - want.y).abs() < 1e-9);
+        // Past the bound (100 min at 0.6 mm/min is 60 mm): where the bound holds it.
+        for _ in 0..2000 {
+            at(&mut plant);
+        }
+        offsets[4] = ArmGeometry::MAX_OFFSET_M;
+        let bound = pcc::Arm::new(&layout, &offsets).pose(&a).unwrap().position;
+        let late = at(&mut plant);
+        assert!((late[2] - bound.z).abs() < 1e-9, "{late:?} {bound:?}");
+        // A radius cycle: a quarter period in, every tendon 1 mm further out.
+        let cycle = Drift {
+            actuator_radius_amplitude_m: 0.001,
+            actuator_radius_period_s: 40.0,
+            ..Drift::default()
+        };
+        let mut plant = Plant::of_body(Body::Any(arm), Realism::ideal(), &[0.5; 9])
+            .unwrap()
+            .drifting(cycle)
+            .unwrap();
+        let p = at(&mut plant);
+        let want = arm.widened(0.001).pose(&a).unwrap().position;
+        assert!((p[0] - want.x).abs() < 1e-9, "{p:?} {want:?}");
+        assert!((p[0] - arm.pose(&a).unwrap().position.x).abs() > 1e-4);
+        let paper = Plant::of_body(
+            Body::Paper(ArmGeometry::default()),
+            Realism::ideal(),
+            &[0.5; 6],
+        )
+        .unwrap();
+        assert!(paper.drifting(cycle).is_err());
     }
 
     #[test]

@@ -11,7 +11,7 @@ static GLOBAL: Counting = Counting;
 #[test]
 fn a_plant_step_on_a_changing_arm_allocates_nothing() {
     use softarm_sections::arm::ArmGeometry;
-    use softarm_sections::changes::{Changes, Drift, Step};
+    use softarm_sections::changes::{Changes, Drift, Rates, Step};
     use softarm_sections::sim::{Realism, SimConfig};
     use softarm_sim::plant::Plant;
     let arm = ArmGeometry::default();
@@ -28,7 +28,7 @@ fn a_plant_step_on_a_changing_arm_allocates_nothing() {
         })
         .collect();
     let drift = Drift {
-        creep_mm_per_min: [0.5, 0.0, 0.0, 0.0, 0.5, 0.0],
+        creep_mm_per_min: Rates::new(&[0.5, 0.0, 0.0, 0.0, 0.5, 0.0]).unwrap(),
         actuator_radius_amplitude_m: 0.002,
         actuator_radius_period_s: 1.0,
     };
@@ -59,8 +59,8 @@ fn a_plant_step_on_a_changing_arm_allocates_nothing() {
     );
 }
 
-/// Any arm's plant, too: the nine-tendon TDCR's, with every effect of the realism on and a
-/// scenario's step taken.
+/// Any arm's plant, too: the nine-tendon TDCR's, with every effect of the realism on, a
+/// scenario's step taken and a drift (creep and radius cycle).
 #[test]
 fn a_plant_step_on_any_arm_allocates_nothing() {
     use softarm_sections::sim::Realism;
@@ -76,7 +76,15 @@ fn a_plant_step_on_any_arm_allocates_nothing() {
     let start = softarm_kinematics::pcc::Arm::new(&layout, &[]);
     let crept = softarm_kinematics::pcc::Arm::new(&layout, &[0.0002; 9]);
     let body = Body::stepped(start, &[(2.0, crept)]).unwrap();
-    let mut plant = Plant::of_body(body, realism, &[0.5; 9]).unwrap();
+    let drift = softarm_sections::changes::Drift {
+        creep_mm_per_min: softarm_sections::changes::Rates::new(&[0.1; 9]).unwrap(),
+        actuator_radius_amplitude_m: 0.001,
+        actuator_radius_period_s: 1.0,
+    };
+    let mut plant = Plant::of_body(body, realism, &[0.5; 9])
+        .unwrap()
+        .drifting(drift)
+        .unwrap();
 
     let _counted = alloc::count_this_thread();
     let before = alloc::this_thread();

@@ -1,7 +1,9 @@
-//! The `tendon` driver process: the arm's six tendon motors on a Dynamixel Protocol 2.0 bus
-//! (X-series), through the driver's own packet layer ([`wire`]). Consumes `setpoint` and
-//! `estop`, publishes `motor_state`, and is safe on its own: torque comes on only with a valid
-//! setpoint close to where the motors stand, an e-stop turns it off at once, setpoints that
+//! The `tendon` driver process: the arm's tendon motors, one per actuator, on one or more
+//! Dynamixel Protocol 2.0 buses (X-series), through the driver's own packet layer ([`wire`]).
+//! Each bus is a [`Driver`] of its own (its port, survey, reads, health), all run in one cycle
+//! and published as one `motor_state` in the arm's order; a motor's hardware error anywhere
+//! holds every bus. Consumes `setpoint` and `estop`, publishes `motor_state`, and is safe on
+//! its own: torque comes on only with a valid setpoint close to where the motors stand, an e-stop turns it off at once, setpoints that
 //! stop arriving lead to hold and then torque off ([`softarm_driver::Supervisor`]), a motor
 //! reporting a hardware error is turned off and gets no other command.
 //!
@@ -17,7 +19,7 @@ use std::time::Duration;
 use anyhow::Context;
 
 use softarm_config::Config;
-use softarm_config::hardware::{Mapping, TendonConfig};
+use softarm_config::hardware::{Bus as BusConfig, Mapping, TendonConfig};
 use softarm_config::per_actuator::PerActuator;
 use softarm_driver::{Action, Commands, Poll, Supervisor, Timeouts};
 use softarm_ipc::{Actuators, DriverState, MAX_ACTUATORS, MotorState, Namespace, Node};
@@ -43,35 +45,102 @@ pub fn run(config: &Config, namespace: Namespace, stop: &AtomicBool) -> anyhow::
     let node = Node::open(namespace, "tendon")?;
     let mut commands = Commands::open(&node, &config.estop_latch(), t.ids.len())?;
     let publisher = node.publisher(&node.motor_state()?)?;
-    let mut driver = Driver::open(config, t)?;
+    let buses = t.buses();
+    let mapping = Mapping::new(t, &config.layout());
+    let mut drivers = (buses.iter())
+        .map(|b| Driver::open(config, b, mapping.select(&b.actuators)))
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let hold_after_ns = drivers[0].timeouts.hold_after_ns;
     let mut ticker = Ticker::new(t.rate_hz);
+    let mut seq = 0;
     while !stop.load(Ordering::Relaxed) {
         ticker.wait();
         let now = now_ns();
-        let poll = commands.poll(now, driver.timeouts.hold_after_ns);
-        driver.cycle(now, &poll);
-        if let Some(state) = driver.motor_state() {
+        let poll = commands.poll(now, hold_after_ns);
+        // A fault on one bus holds them all: the arm is one body.
+        let fault = drivers.iter().any(Driver::fault);
+        for d in &mut drivers {
+            d.cycle(now, &poll, fault);
+        }
+        if let Some(state) = motor_state(&mut drivers, t.ids.len(), &mut seq) {
             let _ = publisher.send_copy(state);
         }
     }
-    driver.leave();
-    let c = driver.totals();
+    for d in &mut drivers {
+        d.leave();
+        let c = d.totals();
+        tracing::info!(
+            port = %d.t.port.display(),
+            dropped = c.dropped,
+            crc_errors = c.crc_errors,
+            garbage_bytes = c.garbage_bytes,
+            timeouts = c.timeouts,
+            reopens = c.reopens,
+            goal_writes = d.goal_writes,
+            clamped = d.clamped,
+            refused_engage = d.refused_engage,
+            reengaged = d.reengaged,
+            stranded = d.stranded,
+            "tendon bus stopped"
+        );
+    }
     tracing::info!(
-        dropped = c.dropped,
-        crc_errors = c.crc_errors,
-        garbage_bytes = c.garbage_bytes,
-        timeouts = c.timeouts,
-        reopens = c.reopens,
-        goal_writes = driver.goal_writes,
-        clamped = driver.clamped,
-        refused_engage = driver.refused_engage,
-        reengaged = driver.reengaged,
-        stranded = driver.stranded,
         refused = commands.refused(),
         overruns = ticker.overruns(),
         "tendon driver stopped"
     );
     Ok(())
+}
+
+/// The state every bus's motors are in, as one `motor_state` in the arm's order (`n`
+/// actuators): stamped by the oldest bus's data, the counts summed, the state the least
+/// able of the buses'. `None` before every bus has heard every motor once.
+fn motor_state(drivers: &mut [Driver], n: usize, seq: &mut u64) -> Option<MotorState> {
+    let mut all = MotorState {
+        actuation: Actuators::filled(n, 0.0),
+        current_a: Actuators::filled(n, 0.0),
+        state: DriverState::Following as u32,
+        goal_writes: u64::MAX,
+        stamp_ns: u64::MAX,
+        ..MotorState::default()
+    };
+    for d in drivers.iter_mut() {
+        let s = d.motor_state()?;
+        for (k, &i) in d.actuators.iter().enumerate() {
+            all.actuation[i] = s.actuation[k];
+            all.current_a[i] = s.current_a[k];
+            all.hardware_error[i] = s.hardware_error[k];
+        }
+        all.stamp_ns = all.stamp_ns.min(s.stamp_ns);
+        all.faults += s.faults;
+        all.dropped += s.dropped;
+        all.crc_errors += s.crc_errors;
+        all.garbage_bytes += s.garbage_bytes;
+        all.timeouts += s.timeouts;
+        all.reopens += s.reopens;
+        all.setpoint_cycles = s.setpoint_cycles;
+        all.goal_writes = all.goal_writes.min(s.goal_writes);
+        all.loss_permille = all.loss_permille.max(s.loss_permille);
+        all.age_cycles = all.age_cycles.max(s.age_cycles);
+        all.state = least_able(all.state, s.state);
+    }
+    *seq += 1;
+    all.seq = *seq;
+    Some(all)
+}
+
+/// Of two buses' states, the one that can do less: a fault, stopped, off, holding, degraded,
+/// following.
+fn least_able(a: u32, b: u32) -> u32 {
+    let rank = |s: u32| match DriverState::from_u32(s) {
+        Some(DriverState::Fault) | None => 0,
+        Some(DriverState::Stopped) => 1,
+        Some(DriverState::Off) => 2,
+        Some(DriverState::Holding) => 3,
+        Some(DriverState::Degraded) => 4,
+        Some(DriverState::Following) => 5,
+    };
+    if rank(b) < rank(a) { b } else { a }
 }
 
 /// The bus counts as `motor_state` reports them.
@@ -87,8 +156,11 @@ struct Totals {
 /// The driver's state between cycles: the bus, what the motors last said, the safety state
 /// machine and the counts it reports.
 struct Driver<'a> {
+    /// This bus's section: its port, and its motors' ids and lists alone.
     t: &'a TendonConfig,
-    /// The motors: one per actuator of the arm.
+    /// The arm's actuators on this bus, one per motor (0-based, in the arm's order).
+    actuators: &'a [usize],
+    /// Its motors.
     n: usize,
     mapping: Mapping,
     timeouts: Timeouts,
@@ -168,7 +240,9 @@ fn said_ready(t: &TendonConfig) {
 }
 
 impl<'a> Driver<'a> {
-    fn open(config: &Config, t: &'a TendonConfig) -> anyhow::Result<Self> {
+    /// The driver of bus `bus`, whose motors map by `mapping` (this bus's, [`Mapping::select`]).
+    fn open(config: &Config, bus: &'a BusConfig, mapping: Mapping) -> anyhow::Result<Self> {
+        let t = &bus.tendon;
         let ms = |v: f64| (v * 1e6) as u64;
         let timeouts = Timeouts {
             hold_after_ns: ms(t.hold_after_ms),
@@ -187,13 +261,14 @@ impl<'a> Driver<'a> {
                 t.port.display()
             ),
         }
-        let layout = config.layout();
         let n = t.ids.len();
-        let limit = |p: &PerActuator| std::array::from_fn(|i| if i < n { p.get(i) } else { 0.0 });
+        let on = &bus.actuators;
+        let limit = |p: &PerActuator| std::array::from_fn(|i| on.get(i).map_or(0.0, |&a| p.get(a)));
         Ok(Self {
             t,
+            actuators: on,
             n,
-            mapping: Mapping::new(t, &layout),
+            mapping,
             timeouts,
             supervisor: Supervisor::new(timeouts),
             limits: (
@@ -229,10 +304,10 @@ impl<'a> Driver<'a> {
     /// One cycle as named steps: the safety decision, the port kept (reopened only when it is
     /// gone), the motors surveyed until every one has answered, the last read's replies
     /// taken, the action written, the next read sent, the state reported.
-    fn cycle(&mut self, now: u64, poll: &Poll) {
+    /// `fault`: a motor reports a hardware error, on this bus or another.
+    fn cycle(&mut self, now: u64, poll: &Poll, fault: bool) {
         self.cycle += 1;
         self.setpoint_cycles += u64::from(poll.setpoint.is_some());
-        let fault = self.reading.hardware_error.iter().any(|&e| e != 0);
         let action = self.supervisor.update(now, poll, fault);
         self.keep_port(now);
         self.survey();
@@ -240,6 +315,11 @@ impl<'a> Driver<'a> {
         self.act(action);
         self.ask(now);
         self.report(now);
+    }
+
+    /// A motor of this bus reports a hardware error.
+    fn fault(&self) -> bool {
+        self.reading.hardware_error.iter().any(|&e| e != 0)
     }
 
     /// Reopens a closed port once the back-off allows; closes one whose device is gone or
@@ -515,15 +595,17 @@ impl<'a> Driver<'a> {
 
     /// The goal ticks of setpoint `a`, clamped, and per motor whether its torque may come on
     /// for them: its position is known and within `tendon.max_engage_step` of its goal.
-    /// `a` has one value per motor: [`Commands`] refused every other count.
+    /// `a` has one value per actuator of the arm ([`Commands`] refused every other count);
+    /// this bus's motors take theirs.
     fn goals(&mut self, a: &Actuators) -> ([i32; MAX_ACTUATORS], [bool; MAX_ACTUATORS]) {
         let (t, mapping, (lo, hi), n) = (self.t, &self.mapping, self.limits, self.n);
         let mut goals = [0i32; MAX_ACTUATORS];
         let mut wild = false;
         for i in 0..n {
-            let v = a[i].clamp(lo[i], hi[i]);
+            let want = a[self.actuators[i]];
+            let v = want.clamp(lo[i], hi[i]);
             let g = mapping.ticks(i, v).clamp(t.min_ticks[i], t.max_ticks[i]);
-            wild |= v != a[i] || mapping.ticks(i, v) != g;
+            wild |= v != want || mapping.ticks(i, v) != g;
             goals[i] = g;
         }
         if wild {
@@ -562,7 +644,7 @@ impl<'a> Driver<'a> {
                 self.reported_errors[i] = e;
                 tracing::error!(
                     id = self.t.ids[i],
-                    actuator = i + 1,
+                    actuator = self.actuators[i] + 1,
                     hardware_error = format!("{e:#04x}"),
                     "motor reports a hardware error: turned off, the others hold; restart the \
                      driver once the cause is fixed"

@@ -8,6 +8,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::arm::{ACTUATORS, ArmGeometry};
+use softarm_space::MAX_ACTUATORS;
 
 /// Most steps a scenario may hold (fixed, so [`Changes`] is `Copy` and allocation-free).
 pub const MAX_STEPS: usize = 16;
@@ -29,11 +30,12 @@ pub struct Step {
 #[serde(deny_unknown_fields, default)]
 pub struct Drift {
     /// How fast each actuator lengthens (mm per minute; negative: shortens), from time 0, added
-    /// to the arm's `actuator_offset_m`. The sum stops at ±[`ArmGeometry::MAX_OFFSET_M`]
+    /// to the arm's `actuator_offset_m`: one per actuator of the arm, or none. The sum stops at ±[`ArmGeometry::MAX_OFFSET_M`]
     /// (100 minutes at 0.5 mm/min): the arm stays valid however long the sim runs.
-    pub creep_mm_per_min: [f64; ACTUATORS],
-    /// Amplitude of the actuator radius's cycle (m): r(t) = r + A sin(2π t / P), as a module
-    /// stiffening and softening with temperature or pressure.
+    #[schemars(with = "Vec<f64>")]
+    pub creep_mm_per_min: Rates,
+    /// Amplitude of the actuator radius's cycle (m): r(t) = r + A sin(2π t / P) for every
+    /// tendon, as a module stiffening and softening with temperature or pressure.
     pub actuator_radius_amplitude_m: f64,
     /// Period P of that cycle (s).
     pub actuator_radius_period_s: f64,
@@ -47,7 +49,7 @@ impl Drift {
     /// Checks every value; the error is `drift.KEY: message`.
     pub fn validate(&self) -> Result<(), String> {
         let c = MAX_CREEP_MM_PER_MIN;
-        for (i, v) in self.creep_mm_per_min.iter().enumerate() {
+        for (i, v) in self.creep_mm_per_min.as_slice().iter().enumerate() {
             if !(v.is_finite() && (-c..=c).contains(v)) {
                 return Err(format!(
                     "drift.creep_mm_per_min: actuator {} is {v:?}; each must be in [-{c}, {c}] mm/min",
@@ -79,9 +81,37 @@ impl Drift {
         Ok(())
     }
 
-    /// The length each actuator has crept by at time `t` (m), before the bound.
-    pub fn creep_m(&self, t: f64) -> [f64; ACTUATORS] {
-        self.creep_mm_per_min.map(|v| v * 1e-3 * t / 60.0)
+    /// The length each actuator has crept by at time `t` (m), before the bound; 0 past the
+    /// rates given.
+    pub fn creep_m(&self, t: f64) -> [f64; MAX_ACTUATORS] {
+        self.creep_mm_per_min.values.map(|v| v * 1e-3 * t / 60.0)
+    }
+
+    /// Checks it for an arm of `actuators` actuators whose tendons' smallest routing radius is
+    /// `min_radius_m` (`None`: no tendon): a rate per actuator, and a radius cycle that leaves
+    /// every tendon's radius above 0. The error is `drift.KEY: message`.
+    pub fn check_for(&self, actuators: usize, min_radius_m: Option<f64>) -> Result<(), String> {
+        self.validate()?;
+        let given = self.creep_mm_per_min.len();
+        if given != 0 && given != actuators {
+            return Err(format!(
+                "drift.creep_mm_per_min: {given} values for an arm of {actuators} actuators; \
+                 give one per actuator in the arm's order"
+            ));
+        }
+        let a = self.actuator_radius_amplitude_m;
+        match min_radius_m {
+            _ if a == 0.0 => Ok(()),
+            None => Err(format!(
+                "drift.actuator_radius_amplitude_m: {a} m, but this arm has no tendon whose \
+                 radius could cycle"
+            )),
+            Some(r) if a >= r => Err(format!(
+                "drift.actuator_radius_amplitude_m: {a} m takes the smallest tendon radius \
+                 ({r} m) to 0 or below; it must be under {r} m"
+            )),
+            Some(_) => Ok(()),
+        }
     }
 
     /// The actuator radius's change at time `t` (m).
@@ -91,6 +121,61 @@ impl Drift {
         }
         let w = 2.0 * std::f64::consts::PI / self.actuator_radius_period_s;
         self.actuator_radius_amplitude_m * (w * t).sin()
+    }
+}
+
+/// A rate per actuator, as many as given (up to [`MAX_ACTUATORS`]): fixed capacity, so a
+/// [`Drift`] stays `Copy` and the plant reads it without allocating.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Rates {
+    values: [f64; MAX_ACTUATORS],
+    count: usize,
+}
+
+impl Rates {
+    /// `values`, at most [`MAX_ACTUATORS`].
+    pub fn new(values: &[f64]) -> Result<Self, String> {
+        if values.len() > MAX_ACTUATORS {
+            return Err(format!(
+                "{} values; an arm has at most {MAX_ACTUATORS} actuators",
+                values.len()
+            ));
+        }
+        let mut r = Self::default();
+        r.values[..values.len()].copy_from_slice(values);
+        r.count = values.len();
+        Ok(r)
+    }
+
+    pub fn as_slice(&self) -> &[f64] {
+        &self.values[..self.count]
+    }
+
+    pub fn len(&self) -> usize {
+        self.count
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.count == 0
+    }
+
+    /// Actuator `i`'s rate (0 past those given).
+    pub fn set(&mut self, i: usize, v: f64) {
+        self.values[i] = v;
+        self.count = self.count.max(i + 1);
+    }
+}
+
+impl Serialize for Rates {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        self.as_slice().serialize(s)
+    }
+}
+
+impl<'de> Deserialize<'de> for Rates {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let v = Vec::<f64>::deserialize(d)?;
+        Self::new(&v).map_err(serde::de::Error::custom)
     }
 }
 
@@ -144,6 +229,13 @@ impl Changes {
     /// names the step (`step[k].arm.KEY: ...`) or the drift that breaks it.
     pub fn validate(&self, arm: &ArmGeometry) -> Result<(), String> {
         self.drift.validate()?;
+        let given = self.drift.creep_mm_per_min.len();
+        if given != 0 && given != ACTUATORS {
+            return Err(format!(
+                "drift.creep_mm_per_min: {given} values for the paper's arm of {ACTUATORS} \
+                 actuators; give one per actuator in the arm's order"
+            ));
+        }
         let a = self.drift.actuator_radius_amplitude_m;
         let states = std::iter::once((None, arm))
             .chain(self.steps().enumerate().map(|(k, s)| (Some(k), &s.arm)));
@@ -224,8 +316,7 @@ mod tests {
     fn creep_is_its_rate_and_stops_at_the_bound() {
         let arm = ArmGeometry::default();
         let mut drift = Drift::default();
-        drift.creep_mm_per_min[1] = 0.5;
-        drift.creep_mm_per_min[5] = -0.5;
+        drift.creep_mm_per_min = Rates::new(&[0.0, 0.5, 0.0, 0.0, 0.0, -0.5]).unwrap();
         let c = Changes::new(&[], drift).unwrap();
         let at_20_min = c.arm_at(&arm, 1200.0).actuator_offset_m;
         assert!((at_20_min[1] - 0.010).abs() < 1e-12, "{at_20_min:?}");
@@ -274,7 +365,7 @@ mod tests {
             "step[16]: at most 16 steps",
         );
         let mut creep = off;
-        creep.creep_mm_per_min[2] = f64::INFINITY;
+        creep.creep_mm_per_min = Rates::new(&[0.0, 0.0, f64::INFINITY, 0.0, 0.0, 0.0]).unwrap();
         check(
             Changes::new(&[], creep).map(drop),
             "drift.creep_mm_per_min: actuator 3 is inf",
