@@ -29,6 +29,8 @@ pub struct Learner<const N: usize> {
     refused: u64,
     /// Arm changes seen since the start.
     arm_changes: u64,
+    /// The calibrated arm last logged: the samples it was fitted to.
+    calibrated_logged: usize,
 }
 
 impl<const N: usize> Learner<N> {
@@ -44,6 +46,7 @@ impl<const N: usize> Learner<N> {
             set_id: 0,
             last_visit: None,
             refused: 0,
+            calibrated_logged: 0,
             arm_changes: 0,
         }
     }
@@ -165,7 +168,9 @@ impl<const N: usize> Learner<N> {
         if s.set_id != self.set_id && self.online.begin(s.points as usize).is_ok() {
             self.set_id = s.set_id;
         }
-        match observe_and_estimate(&mut self.online, &s) {
+        let result = observe_and_estimate(&mut self.online, &s);
+        self.say_calibrated();
+        match result {
             Ok(next) => {
                 tracing::debug!(point = s.next_point, estimate = ?next, "estimate");
                 self.last_visit = Some((s.set_id, s.execution, s.point));
@@ -176,6 +181,21 @@ impl<const N: usize> Learner<N> {
                 None
             }
         }
+    }
+
+    /// Logs the calibrated arm once per fit: what the learner now believes of the arm.
+    fn say_calibrated(&mut self) {
+        let c = self.online.calibrated();
+        if c.samples == self.calibrated_logged {
+            return;
+        }
+        self.calibrated_logged = c.samples;
+        tracing::info!(
+            samples = c.samples,
+            rms_mm = c.rms_m * 1e3,
+            tool_mm = ?c.theta[..3].iter().map(|v| v * 1e3).collect::<Vec<_>>(),
+            "the arm calibrated (tool offset in the tip frame)"
+        );
     }
 
     /// The execution of the running set whose `point` is visited next: the one last visited if

@@ -44,6 +44,12 @@ const PRIOR_CONNECTOR_M: f64 = 0.01;
 /// between motor and tracker stamps, and what no PCC arm fits.
 const SAMPLE_SIGMA_M: f64 = 0.001;
 
+/// A sample missed by more than this many times the median miss of a first fit is left out
+/// of the second ([`CalibratedArm::fit`]).
+const OUTLIER_FACTOR: f64 = 4.0;
+/// ...and by more than this (m): tracker noise and the lag of a moving arm are not outliers.
+const OUTLIER_FLOOR_M: f64 = 0.003;
+
 /// Levenberg-Marquardt iterations at most.
 const ITERATIONS: usize = 15;
 
@@ -162,7 +168,32 @@ impl<const N: usize> CalibratedArm<N> {
     /// within the prior: damped Gauss-Newton (Levenberg-Marquardt) on
     /// Σ ‖p − f(a; θ)‖² / σ² + Σ (θ_k / prior_k)². With few samples or ones that do not tell
     /// a parameter, the prior keeps it at the configured arm's.
+    ///
+    /// Then once more without the samples the first fit misses by more than
+    /// [`OUTLIER_FACTOR`] times its median miss (and [`OUTLIER_FLOOR_M`]): a sample that paired
+    /// a tracker position with an actuation of another moment (a loaded machine) is not the
+    /// arm, and one such pulled the fit 10 mm off.
     pub fn fit(configured: pcc::Arm, samples: &[([f64; N], Position)]) -> Self {
+        let first = Self::fit_all(configured, samples);
+        let mut misses: Vec<f64> = (samples.iter())
+            .map(|(a, p)| dist2(&first.position(a), p).sqrt())
+            .collect();
+        let limit = {
+            misses.sort_by(f64::total_cmp);
+            let median = misses.get(misses.len() / 2).copied().unwrap_or(0.0);
+            (OUTLIER_FACTOR * median).max(OUTLIER_FLOOR_M)
+        };
+        let kept: Vec<([f64; N], Position)> = (samples.iter())
+            .filter(|(a, p)| dist2(&first.position(a), p).sqrt() <= limit)
+            .copied()
+            .collect();
+        if kept.len() == samples.len() || kept.len() < samples.len() / 2 {
+            return first;
+        }
+        Self::fit_all(configured, &kept)
+    }
+
+    fn fit_all(configured: pcc::Arm, samples: &[([f64; N], Position)]) -> Self {
         let slots = Slots::of(&configured);
         let k = slots.count();
         let mut theta = [0.0; MAX_PARAMETERS];
@@ -387,5 +418,16 @@ mod tests {
         assert!(worst(&|a| configured.position(a)) > 0.005);
         let m = worst(&|a| fitted.position(a));
         assert!(m < 0.0005, "the fitted arm misses by up to {m} m");
+        // Five samples that paired a position with the actuation of another moment: left out.
+        let mut wild = samples.clone();
+        for (k, (_, p)) in wild.iter_mut().take(5).enumerate() {
+            p[k % 3] += 0.08;
+        }
+        let fitted = CalibratedArm::<9>::fit(configured, &wild);
+        let m = worst(&|a| fitted.position(a));
+        assert!(
+            m < 0.0005,
+            "with five wild samples, the fitted arm misses by up to {m} m"
+        );
     }
 }
