@@ -391,7 +391,7 @@ impl<const N: usize> Sample<N> {
     }
 }
 
-fn actuation_distance<const N: usize>(a: &[f64; N], b: &[f64; N]) -> f64 {
+pub(crate) fn actuation_distance<const N: usize>(a: &[f64; N], b: &[f64; N]) -> f64 {
     a.iter()
         .zip(b)
         .map(|(x, y)| (x - y).powi(2))

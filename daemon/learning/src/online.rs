@@ -788,6 +788,7 @@ impl<const N: usize> OnlineLearner<N> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::arm::actuation_distance;
     use rand::rngs::StdRng;
     use rand::{RngExt, SeedableRng};
     use softarm_sections::arm::ArmGeometry;
@@ -929,12 +930,16 @@ mod tests {
         means
     }
 
-    fn actuation_distance<const N: usize>(a: &[f64; N], b: &[f64; N]) -> f64 {
-        a.iter()
-            .zip(b)
-            .map(|(x, y)| (x - y).powi(2))
-            .sum::<f64>()
-            .sqrt()
+    /// Three targets of the TDCR's nominal arm, bent every way.
+    fn tdcr_targets(arm: &pcc::Arm) -> Vec<Position> {
+        [
+            [0.45, 0.55, 0.5, 0.6, 0.45, 0.5, 0.55, 0.5, 0.4],
+            [0.6, 0.45, 0.5, 0.5, 0.55, 0.4, 0.5, 0.6, 0.5],
+            [0.5, 0.5, 0.4, 0.45, 0.5, 0.6, 0.4, 0.5, 0.55],
+        ]
+        .iter()
+        .map(|a| arm.position(a))
+        .collect()
     }
 
     /// A tool 40 mm longer on the TDCR, from the set's start: the second execution is the
@@ -944,14 +949,7 @@ mod tests {
     fn a_longer_tool_on_the_tdcr_is_mostly_corrected_by_the_second_execution() {
         let (mut l, arm) = tdcr_learner();
         let real = arm.changed(0.04, 0.0, &[0.0; 9], &[0.0; 3]);
-        let targets: Vec<Position> = [
-            [0.45, 0.55, 0.5, 0.6, 0.45, 0.5, 0.55, 0.5, 0.4],
-            [0.6, 0.45, 0.5, 0.5, 0.55, 0.4, 0.5, 0.6, 0.5],
-            [0.5, 0.5, 0.4, 0.45, 0.5, 0.6, 0.4, 0.5, 0.55],
-        ]
-        .iter()
-        .map(|a| arm.position(a))
-        .collect();
+        let targets = tdcr_targets(&arm);
         let means = run_along(&mut l, &real, &targets, 4);
         assert!(means[0] > 0.02, "the longer tool is felt: {means:?}");
         // Its first point's step came before the footprint held enough to calibrate by.
@@ -1008,14 +1006,7 @@ mod tests {
     #[test]
     fn a_wrong_calibrated_arm_does_not_stall_a_point() {
         let (mut l, arm) = tdcr_learner();
-        let targets: Vec<Position> = [
-            [0.45, 0.55, 0.5, 0.6, 0.45, 0.5, 0.55, 0.5, 0.4],
-            [0.6, 0.45, 0.5, 0.5, 0.55, 0.4, 0.5, 0.6, 0.5],
-            [0.5, 0.5, 0.4, 0.45, 0.5, 0.6, 0.4, 0.5, 0.55],
-        ]
-        .iter()
-        .map(|a| arm.position(a))
-        .collect();
+        let targets = tdcr_targets(&arm);
         run_along(&mut l, &arm, &targets, 3);
         assert!(l.calibrated.samples >= CALIBRATION_SAMPLES);
         // The calibrated arm believes every module turned 90° (its slope at right angles to the
