@@ -533,8 +533,10 @@ mod tests {
     fn a_scenario_changes_the_arm_at_the_plants_time() {
         use softarm_sections::changes::{Drift, Rates, Step};
         let arm = ArmGeometry::default();
-        let mut drift = Drift::default();
-        drift.creep_mm_per_min = Rates::new(&[0.0, 6.0, 0.0, 0.0, 0.0, 0.0]).unwrap();
+        let drift = Drift {
+            creep_mm_per_min: Rates::new(&[0.0, 6.0, 0.0, 0.0, 0.0, 0.0]).unwrap(),
+            ..Drift::default()
+        };
         let swap = Step {
             at_s: 1.0,
             arm: ArmGeometry {

@@ -315,8 +315,10 @@ mod tests {
     #[test]
     fn creep_is_its_rate_and_stops_at_the_bound() {
         let arm = ArmGeometry::default();
-        let mut drift = Drift::default();
-        drift.creep_mm_per_min = Rates::new(&[0.0, 0.5, 0.0, 0.0, 0.0, -0.5]).unwrap();
+        let drift = Drift {
+            creep_mm_per_min: Rates::new(&[0.0, 0.5, 0.0, 0.0, 0.0, -0.5]).unwrap(),
+            ..Drift::default()
+        };
         let c = Changes::new(&[], drift).unwrap();
         let at_20_min = c.arm_at(&arm, 1200.0).actuator_offset_m;
         assert!((at_20_min[1] - 0.010).abs() < 1e-12, "{at_20_min:?}");
