@@ -173,13 +173,29 @@ enum Command {
     /// arm's model: the hardware stack without hardware.
     #[cfg(feature = "rig")]
     Emulate(emulate::Args),
-    /// Demonstrations through the running stack, then ProMPs, forward model, pre-training.
+    /// Demonstrations through the running stack, then ProMPs, forward model, pre-training;
+    /// or, with --from, the arm's physical model calibrated to a recording its lab made.
     Train {
         #[command(flatten)]
         stack: Stack,
         /// Seeds the demonstration sequences.
         #[arg(long, default_value_t = 1, allow_negative_numbers = true)]
         seed: u64,
+        /// A recording of the arm (CSV: actuator commands beside a tracked tip, a row per
+        /// settled pose): calibrates the arm to it instead, and writes the model and the
+        /// calibrated arm (the twin, an [arm] file) into --output.
+        #[arg(long, value_name = "FILE", requires = "columns")]
+        from: Option<PathBuf>,
+        #[command(flatten)]
+        recording: RecordingArgs,
+        /// Where --from writes (default: the config's model folder).
+        #[arg(long, value_name = "DIR", requires = "from")]
+        output: Option<PathBuf>,
+    },
+    /// Models of the arm.
+    Model {
+        #[command(subcommand)]
+        command: ModelCommand,
     },
     /// Submits a way-point set; exit 0 accepted, 2 rejected, 1 no controller.
     Submit {
@@ -287,6 +303,52 @@ enum Command {
     Install(install::Args),
     /// Removes the units and the binary; keeps the config, the state and the user.
     Uninstall(install::UninstallArgs),
+}
+
+/// A recording's column map, and the arm it is of.
+#[derive(clap::Args, Clone)]
+struct RecordingArgs {
+    /// How the recording's columns map onto the arm (TOML; e.g.
+    /// config/recordings/opencr-tdcr/columns.toml).
+    #[arg(long, value_name = "FILE")]
+    columns: Option<PathBuf>,
+    /// The arm the recording is of (a shipped arm's name or an [arm] file; default the
+    /// config's).
+    #[arg(long, value_name = "NAME|FILE")]
+    arm: Option<String>,
+}
+
+impl RecordingArgs {
+    fn layout(&self, config: &Config) -> anyhow::Result<softarm_arm::Layout> {
+        match &self.arm {
+            None => Ok(config.layout()),
+            Some(arm) => {
+                let text = softarm_config::arms::resolve(arm)?;
+                let arm = softarm_config::arms::check(&text, arm)?;
+                arm.layout().map_err(anyhow::Error::msg)
+            }
+        }
+    }
+}
+
+#[derive(Subcommand)]
+enum ModelCommand {
+    /// How well a model predicts a recording it was not trained on: RMS, mean, RMS with the
+    /// mean offset removed, p95 and max of the tip's miss (mm), overall and per motion family.
+    Check {
+        /// The recording (CSV).
+        recording: PathBuf,
+        #[command(flatten)]
+        columns: RecordingArgs,
+        /// The model (default: identified.toml in the config's model folder).
+        #[arg(long, value_name = "FILE")]
+        model: Option<PathBuf>,
+        /// One JSON object.
+        #[arg(long)]
+        json: bool,
+        #[command(flatten)]
+        stack: Stack,
+    },
 }
 
 #[derive(Subcommand)]
@@ -400,7 +462,43 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         }
         #[cfg(feature = "rig")]
         Command::Emulate(args) => emulate::run(&args, &*stop_flag()?)?,
-        Command::Train { stack, seed } => {
+        Command::Train {
+            stack,
+            from: Some(from),
+            recording,
+            output,
+            ..
+        } => {
+            let config = stack.load()?;
+            let arm = recording.layout(&config)?;
+            let columns = recording.columns.context("--from needs --columns FILE")?;
+            let out = output.unwrap_or_else(|| config.model_dir());
+            let trained = softarm_identify::run::train(&from, &columns, &arm, &out)?;
+            println!("{}", trained.summary());
+        }
+        Command::Model {
+            command:
+                ModelCommand::Check {
+                    recording,
+                    columns,
+                    model,
+                    json,
+                    stack,
+                },
+        } => {
+            let config = stack.load()?;
+            let arm = columns.layout(&config)?;
+            let map = (columns.columns.clone()).context("give the recording's --columns FILE")?;
+            let model =
+                model.unwrap_or_else(|| config.model_dir().join(softarm_identify::run::MODEL_FILE));
+            let (_, check) = softarm_identify::run::check(&model, &recording, &map, &arm)?;
+            if json {
+                println!("{}", check.json());
+            } else {
+                print!("{}", check.table());
+            }
+        }
+        Command::Train { stack, seed, .. } => {
             let config = stack.load()?;
             let r = train::train(&config, &stack.namespace()?, seed)?;
             println!(

@@ -21,6 +21,7 @@ mod faults;
 mod hardware;
 mod hardware_faults;
 mod hardware_noise;
+mod identify;
 mod install;
 mod iox2;
 mod layering;

@@ -1,0 +1,158 @@
+//! The identified model on disk (TOML, written atomically), and the calibrated arm written
+//! out as an `[arm]` file the sim runs: the twin a lab rehearses on before its arm moves.
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+use softarm_arm::Layout;
+
+use crate::tendon::{Slots, Structure};
+
+/// The format this build writes and reads.
+pub const FORMAT: u32 = 1;
+
+/// A physical model calibrated to a recording.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Identified {
+    pub format: u32,
+    /// The arm's identity ([`Layout::identity`]): another arm's model is refused.
+    pub arm: String,
+    /// The recording it was fitted to, and how many rows.
+    pub recording: String,
+    pub rows: usize,
+    /// The prior's strength cross-validation chose, and what it measured of each tried:
+    /// `[strength, RMS over held-out motions in mm]`.
+    pub strength: f64,
+    pub validated: Vec<[f64; 2]>,
+    /// RMS over the rows it was fitted to (mm).
+    pub fitted_rms_mm: f64,
+    /// The parameters, in [`Slots`]' order.
+    pub theta: Vec<f64>,
+}
+
+/// A model file that cannot be used, and why.
+#[derive(Debug, thiserror::Error)]
+#[error("{}: {message}", path.display())]
+pub struct ModelFileError {
+    pub path: PathBuf,
+    pub message: String,
+}
+
+impl Identified {
+    pub fn write(&self, path: &Path) -> std::io::Result<()> {
+        let text = toml::to_string(self).map_err(std::io::Error::other)?;
+        let head = "# softarm: an arm identified from a recording (softarm train --from)\n";
+        softarm_runtime::file::write_atomic(path, format!("{head}{text}").as_bytes(), None)
+    }
+
+    /// Reads `path` for `arm`: refused, saying why, if it is not a model file of this format,
+    /// is for another arm, or holds a parameter that is not a number.
+    pub fn read(path: &Path, arm: &Layout) -> Result<Self, ModelFileError> {
+        let fail = |message: String| ModelFileError {
+            path: path.into(),
+            message,
+        };
+        let text = std::fs::read_to_string(path).map_err(|e| fail(format!("cannot read: {e}")))?;
+        let model: Self = toml::from_str(&text).map_err(|e| {
+            let line = e
+                .span()
+                .map(|s| 1 + text[..s.start].bytes().filter(|b| *b == b'\n').count());
+            fail(match line {
+                Some(l) => format!("line {l}: {}", e.message()),
+                None => e.message().to_string(),
+            })
+        })?;
+        if model.format != FORMAT {
+            return Err(fail(format!(
+                "format {}; this softarm reads format {FORMAT}: train it again",
+                model.format
+            )));
+        }
+        if model.arm != arm.identity() {
+            return Err(fail(format!(
+                "made for the arm {}, not the config's {}",
+                model.arm,
+                arm.identity()
+            )));
+        }
+        let slots = Structure::of(arm).slots;
+        if model.theta.len() != slots.count() {
+            return Err(fail(format!(
+                "{} parameters; this arm's model has {}",
+                model.theta.len(),
+                slots.count()
+            )));
+        }
+        if let Some(k) = model.theta.iter().position(|v| !v.is_finite()) {
+            return Err(fail(format!("parameter {k} is not a finite number")));
+        }
+        Ok(model)
+    }
+}
+
+/// The calibrated arm as an `[arm]` file: `arm`'s structure and strokes with the fitted
+/// backbones, radii (each module's mean), angles and the marker's height as the tool. What an
+/// `[arm]` cannot say (slack, stiffnesses, compression, the marker off the axis, the base's
+/// pose) stays in the model and is named in the file's head.
+pub fn twin(arm: &Layout, theta: &[f64], source: &str) -> String {
+    let structure = Structure::of(arm);
+    let s: Slots = structure.slots;
+    let mut out = format!(
+        "# The arm calibrated from {source} by softarm train --from: its geometry as the sim\n\
+         # runs it. Not in an [arm] file, so not in the twin: tendon slack and offsets, the\n\
+         # modules' stiffnesses and compression, the marker off the axis ({:.1}, {:.1} mm), the\n\
+         # base's tilt and position.\n",
+        theta[s.marker(0)] * 1e3,
+        theta[s.marker(1)] * 1e3
+    );
+    out.push_str(&format!(
+        "routing = \"{}\"\nmount = \"{}\"\nconnector_m = {}\ntool_m = {:.5}\n",
+        routing_name(arm),
+        mount_name(arm),
+        arm.connector_m,
+        theta[s.marker(2)].max(0.0)
+    ));
+    for (m, module) in arm.modules().iter().enumerate() {
+        let own = module.actuators.clone();
+        let radius = own.clone().map(|i| theta[s.radius(i)].abs()).sum::<f64>() / own.len() as f64;
+        let angles: Vec<String> = (own.clone())
+            .map(|i| {
+                let deg = (theta[s.angle(i)] + theta[s.rotation(m)]).to_degrees();
+                format!("{:.2}", deg.rem_euclid(360.0))
+            })
+            .collect();
+        let first = &arm.actuators()[own.start];
+        let names: Vec<String> = (own.clone())
+            .map(|i| format!("\"{}\"", arm.actuators()[i].name))
+            .collect();
+        out.push_str(&format!(
+            "\n[[modules]]\nbackbone_m = {:.5}\ntendons = {{ count = {}, radius_m = {:.6}, angles_deg = [{}], length_m = [{}, {}], names = [{}] }}\n",
+            theta[s.length(m)],
+            own.len(),
+            radius,
+            angles.join(", "),
+            first.min_m,
+            first.max_m,
+            names.join(", ")
+        ));
+    }
+    out
+}
+
+fn routing_name(arm: &Layout) -> &'static str {
+    match arm.routing() {
+        softarm_arm::Routing::Coupled => "coupled",
+        softarm_arm::Routing::Independent => "independent",
+    }
+}
+
+fn mount_name(arm: &Layout) -> String {
+    let text = toml::to_string(&Wrap { mount: arm.mount }).unwrap_or_default();
+    text.split('"').nth(1).unwrap_or("standing").to_string()
+}
+
+#[derive(Serialize)]
+struct Wrap {
+    mount: softarm_arm::Mount,
+}

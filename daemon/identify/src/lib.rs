@@ -1,0 +1,19 @@
+//! An arm identified from the recordings its lab already has: actuator commands beside a
+//! motion-capture tip, each row a settled pose.
+//!
+//! - [`recording`]: a CSV recording read through a column map ([`recording::Columns`]), every
+//!   bad value refused with its file, line and column.
+//! - [`tendon`]: a physical model of a tendon-driven continuum arm: constant-curvature modules
+//!   bent and compressed by tendons that only pull. Pure math.
+//! - [`fit`]: that model calibrated to a recording (geometry, offsets, stiffnesses, base pose,
+//!   the marker), its regularisation chosen by cross-validation over held-out motions.
+//! - [`check`]: how well a model predicts a recording, overall and per label family.
+//! - [`file`]: the identified model on disk, and the twin: the calibrated arm as an `[arm]`.
+//! - [`run`]: the commands, `softarm train --from` and `softarm model check`.
+
+pub mod check;
+pub mod file;
+pub mod fit;
+pub mod recording;
+pub mod run;
+pub mod tendon;

@@ -1,0 +1,182 @@
+//! The commands: `softarm train --from` (a recording → an identified model and its twin) and
+//! `softarm model check` (a model against a recording), with progress for people.
+
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
+
+use indicatif::{ProgressBar, ProgressStyle};
+use softarm_arm::Layout;
+
+use crate::check::{self, Check};
+use crate::file::{self, FORMAT, Identified, ModelFileError};
+use crate::fit::{self, Sample};
+use crate::recording::{self, Columns, Recording, RecordingError};
+use crate::tendon::{Model, Structure};
+
+/// What went wrong, for the user: a recording, a column map, a model file, or writing.
+#[derive(Debug, thiserror::Error)]
+pub enum Error {
+    #[error(transparent)]
+    Recording(#[from] RecordingError),
+    #[error(transparent)]
+    Model(#[from] ModelFileError),
+    #[error("{}: {message}", path.display())]
+    Write { path: PathBuf, message: String },
+}
+
+/// The model file's name in the output folder, and the twin's.
+pub const MODEL_FILE: &str = "identified.toml";
+pub const TWIN_FILE: &str = "twin-arm.toml";
+
+/// Rows a fit needs at least, per parameter: each row gives three numbers.
+const ROWS_PER_PARAMETER: usize = 2;
+
+fn bar(len: u64, what: &str) -> ProgressBar {
+    if !std::io::stderr().is_terminal() {
+        return ProgressBar::hidden();
+    }
+    let b = ProgressBar::new(len);
+    b.set_style(
+        ProgressStyle::with_template("{msg:>12} [{bar:40}] {pos}/{len} ({elapsed})")
+            .expect("a valid template")
+            .progress_chars("=> "),
+    );
+    b.set_message(what.to_string());
+    b
+}
+
+/// What `train --from` made.
+#[derive(Debug, Clone)]
+pub struct Trained {
+    pub model: Identified,
+    pub model_path: PathBuf,
+    pub twin_path: PathBuf,
+    /// The model on the recording it was fitted to.
+    pub check: Check,
+}
+
+/// Reads `recording` through `columns` onto `arm`, calibrates the physical model to it and
+/// writes the model and the twin into `out`. Nothing is written unless all of it succeeded.
+pub fn train(
+    recording_path: &Path,
+    columns_path: &Path,
+    arm: &Layout,
+    out: &Path,
+) -> Result<Trained, Error> {
+    let columns = Columns::load(columns_path)?;
+    let recording = recording::read(recording_path, &columns, arm)?;
+    let structure = Structure::of(arm);
+    let needed = ROWS_PER_PARAMETER * structure.slots.count();
+    if recording.len() < needed {
+        return Err(RecordingError {
+            file: recording_path.into(),
+            line: None,
+            column: None,
+            message: format!(
+                "{} rows; calibrating this arm's {} parameters needs at least {needed}",
+                recording.len(),
+                structure.slots.count()
+            ),
+        }
+        .into());
+    }
+    let motions = recording.motions();
+    let samples: Vec<Sample> = (recording.rows.iter())
+        .map(|r| Sample {
+            pull_m: r.pull_m.clone(),
+            tip_m: r.tip_m,
+            group: motions.binary_search(&r.motion).unwrap_or(0),
+        })
+        .collect();
+    let nominal = structure.nominal(arm);
+    let fits = (fit::STRENGTHS.len() * fit::FOLDS + 1) as u64;
+    let progress = bar(fits, "calibrating");
+    let (fitted, strength, validated) =
+        fit::calibrate(&structure, &nominal, &samples, &mut || progress.inc(1));
+    progress.finish_and_clear();
+    let source = recording_path.file_name().map_or_else(
+        || recording_path.display().to_string(),
+        |n| n.to_string_lossy().into(),
+    );
+    let model = Identified {
+        format: FORMAT,
+        arm: arm.identity(),
+        recording: source.clone(),
+        rows: recording.len(),
+        strength,
+        validated: (validated.iter())
+            .map(|v| [v.strength, v.held_out_rms_m * 1e3])
+            .collect(),
+        fitted_rms_mm: fitted.rms_m * 1e3,
+        theta: fitted.theta,
+    };
+    let check = check_model(&model, arm, &recording);
+    let model_path = out.join(MODEL_FILE);
+    let twin_path = out.join(TWIN_FILE);
+    let write = |path: &Path, bytes: &[u8]| {
+        softarm_runtime::file::write_atomic(path, bytes, None).map_err(|e| Error::Write {
+            path: path.into(),
+            message: e.to_string(),
+        })
+    };
+    write(
+        &twin_path,
+        file::twin(arm, &model.theta, &source).as_bytes(),
+    )?;
+    model.write(&model_path).map_err(|e| Error::Write {
+        path: model_path.clone(),
+        message: e.to_string(),
+    })?;
+    Ok(Trained {
+        model,
+        model_path,
+        twin_path,
+        check,
+    })
+}
+
+fn check_model(model: &Identified, arm: &Layout, recording: &Recording) -> Check {
+    let structure = Structure::of(arm);
+    let physical = Model::new(&structure, &model.theta);
+    let progress = bar(recording.len() as u64, "checking");
+    let c = check::check(recording, |p| physical.predict(p), &mut || progress.inc(1));
+    progress.finish_and_clear();
+    c
+}
+
+/// `softarm model check`: the model at `model_path` against the recording.
+pub fn check(
+    model_path: &Path,
+    recording_path: &Path,
+    columns_path: &Path,
+    arm: &Layout,
+) -> Result<(Identified, Check), Error> {
+    let model = Identified::read(model_path, arm)?;
+    let columns = Columns::load(columns_path)?;
+    let recording = recording::read(recording_path, &columns, arm)?;
+    let c = check_model(&model, arm, &recording);
+    Ok((model, c))
+}
+
+impl Trained {
+    /// What was fitted and chosen, in a few lines for the user.
+    pub fn summary(&self) -> String {
+        let m = &self.model;
+        let tried: Vec<String> = (m.validated.iter())
+            .map(|[s, rms]| format!("{s}: {rms:.2} mm"))
+            .collect();
+        format!(
+            "calibrated the arm's physical model to {} ({} rows); the prior's strength {} \
+             chosen by cross-validation over held-out motions ({}); on the recording itself \
+             {:.2} mm RMS, {:.2} mm with the mean offset removed\nmodel: {}\ntwin arm: {}",
+            m.recording,
+            m.rows,
+            m.strength,
+            tried.join(", "),
+            self.check.all.rms_mm,
+            self.check.all.offset_removed_rms_mm,
+            self.model_path.display(),
+            self.twin_path.display()
+        )
+    }
+}
