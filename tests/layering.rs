@@ -107,6 +107,19 @@ fn each_crate_links_only_what_its_layer_allows() {
         "the learning code is pure math",
     );
     forbid(
+        "softarm-identify",
+        &[
+            "iceoryx2",
+            "softarm-ipc",
+            "softarm-config",
+            "softarm-method",
+            "softarm-learning",
+            "softarm-model",
+        ],
+        "identifying an arm from a recording is offline: it reads files and the arm's \
+         description, and links neither the stack's services nor its real-time math",
+    );
+    forbid(
         "softarm-config",
         &["softarm-learning", "softarm-model"],
         "every process reads the config: it links no learning code and no pipeline",
