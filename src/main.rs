@@ -343,6 +343,9 @@ enum ModelCommand {
         /// The model (default: identified.toml in the config's model folder).
         #[arg(long, value_name = "FILE")]
         model: Option<PathBuf>,
+        /// The physical model alone, without its learnt residual.
+        #[arg(long)]
+        physical: bool,
         /// One JSON object.
         #[arg(long)]
         json: bool,
@@ -482,6 +485,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                     recording,
                     columns,
                     model,
+                    physical,
                     json,
                     stack,
                 },
@@ -491,7 +495,8 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             let map = (columns.columns.clone()).context("give the recording's --columns FILE")?;
             let model =
                 model.unwrap_or_else(|| config.model_dir().join(softarm_identify::run::MODEL_FILE));
-            let (_, check) = softarm_identify::run::check(&model, &recording, &map, &arm)?;
+            let (_, check) =
+                softarm_identify::run::check(&model, &recording, &map, &arm, physical)?;
             if json {
                 println!("{}", check.json());
             } else {

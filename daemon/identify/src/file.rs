@@ -6,7 +6,8 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 use softarm_arm::Layout;
 
-use crate::tendon::{Slots, Structure};
+use crate::residual::Residual;
+use crate::tendon::{Model, Slots, Structure};
 
 /// The format this build writes and reads.
 pub const FORMAT: u32 = 1;
@@ -29,6 +30,21 @@ pub struct Identified {
     pub fitted_rms_mm: f64,
     /// The parameters, in [`Slots`]' order.
     pub theta: Vec<f64>,
+    /// What cross-validation measured of each residual tried (none first).
+    pub residual_validated: Vec<ResidualTried>,
+    /// The residual it chose over the physical model, if any.
+    pub residual: Option<Residual>,
+}
+
+/// One residual cross-validation tried.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ResidualTried {
+    /// Its width (strokes) and ridge; absent: the physical model alone.
+    pub width: Option<f64>,
+    pub ridge: Option<f64>,
+    /// RMS over held-out motions (mm).
+    pub held_out_rms_mm: f64,
 }
 
 /// A model file that cannot be used, and why.
@@ -87,7 +103,35 @@ impl Identified {
         if let Some(k) = model.theta.iter().position(|v| !v.is_finite()) {
             return Err(fail(format!("parameter {k} is not a finite number")));
         }
+        if let Some(r) = &model.residual
+            && !r.is_valid(slots.tendons)
+        {
+            return Err(fail(format!(
+                "its residual is not one of {} actuators with finite numbers",
+                slots.tendons
+            )));
+        }
         Ok(model)
+    }
+
+    /// Where it puts the tip (m) at pulls `pull_m`: the physical model, and its residual
+    /// unless `physical_only`.
+    pub fn predictor<'a>(
+        &'a self,
+        structure: &'a Structure,
+        physical_only: bool,
+    ) -> impl Fn(&[f64]) -> [f64; 3] + 'a {
+        let model = Model::new(structure, &self.theta);
+        move |pull: &[f64]| {
+            let mut p = model.predict(pull);
+            if let (Some(r), false) = (&self.residual, physical_only) {
+                let c = r.correction(pull);
+                for k in 0..3 {
+                    p[k] += c[k];
+                }
+            }
+            p
+        }
     }
 }
 

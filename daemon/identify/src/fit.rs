@@ -10,6 +10,7 @@
 
 use nalgebra::{DMatrix, DVector};
 
+use crate::residual::{RIDGES, Residual, WIDTHS};
 use crate::tendon::{Model, Shape, Slots, Structure};
 
 /// One sample: the actuators' pulls (m) and the tracked tip (m).
@@ -219,20 +220,38 @@ pub struct Validated {
     pub held_out_rms_m: f64,
 }
 
+/// What [`calibrate`] found.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Calibration {
+    /// Fitted to every sample at the chosen strength.
+    pub fitted: Fitted,
+    pub strength: f64,
+    pub validated: Vec<Validated>,
+    /// At the chosen strength, each fold's fit (without its held-out motions): what the
+    /// residual's cross-validation builds on.
+    pub folds: Vec<Vec<f64>>,
+}
+
+/// Whether `sample` is held out in `fold`.
+pub fn held_out(sample: &Sample, fold: usize) -> bool {
+    sample.group % FOLDS == fold
+}
+
 /// The calibration of `structure` to `samples`: oriented, then for each of [`STRENGTHS`]
 /// fitted [`FOLDS`] times with a fifth of the motions held out; the strength whose held-out
-/// RMS is least, fitted to all. `tick` is called after each fit: [`STRENGTHS`] × ([`FOLDS`])
+/// RMS is least, fitted to all. `tick` is called after each fit: [`STRENGTHS`] × [`FOLDS`]
 /// + 1 in all.
 pub fn calibrate(
     structure: &Structure,
     nominal: &[f64],
     samples: &[Sample],
     tick: &mut dyn FnMut(),
-) -> (Fitted, f64, Vec<Validated>) {
+) -> Calibration {
     let all: Vec<&Sample> = samples.iter().collect();
     let center = orient(structure, nominal, &all);
     let sd = prior_sd(structure.slots, nominal);
     let mut validated = Vec::new();
+    let mut folds_of = Vec::new();
     for strength in STRENGTHS {
         let problem = Problem {
             structure,
@@ -241,40 +260,137 @@ pub fn calibrate(
             strength,
         };
         let (mut sum, mut count) = (0.0, 0usize);
+        let mut folds = Vec::new();
         for fold in 0..FOLDS {
-            let (train, held): (Vec<&Sample>, Vec<&Sample>) =
-                all.iter().partition(|s| s.group % FOLDS != fold);
-            if train.is_empty() || held.is_empty() {
-                continue;
-            }
-            let fitted = problem.fit(&center, &train);
+            let (held, train): (Vec<&Sample>, Vec<&Sample>) =
+                all.iter().partition(|s| held_out(s, fold));
+            let fitted = if train.is_empty() {
+                center.clone()
+            } else {
+                problem.fit(&center, &train).theta
+            };
             tick();
-            sum += rms_m(structure, &fitted.theta, &held).powi(2) * held.len() as f64;
-            count += held.len();
+            if !held.is_empty() {
+                sum += rms_m(structure, &fitted, &held).powi(2) * held.len() as f64;
+                count += held.len();
+            }
+            folds.push(fitted);
         }
         validated.push(Validated {
             strength,
             held_out_rms_m: (sum / count.max(1) as f64).sqrt(),
         });
+        folds_of.push(folds);
     }
-    let best = (validated.iter())
-        .min_by(|a, b| a.held_out_rms_m.total_cmp(&b.held_out_rms_m))
-        .map_or(1.0, |v| v.strength);
+    let best = (0..validated.len())
+        .min_by(|a, b| {
+            validated[*a]
+                .held_out_rms_m
+                .total_cmp(&validated[*b].held_out_rms_m)
+        })
+        .unwrap_or(0);
     let problem = Problem {
         structure,
         center: &center,
         sd: &sd,
-        strength: best,
+        strength: validated[best].strength,
     };
     let fitted = problem.fit(&center, &all);
     tick();
-    (fitted, best, validated)
+    Calibration {
+        fitted,
+        strength: validated[best].strength,
+        validated,
+        folds: folds_of.swap_remove(best),
+    }
+}
+
+/// What cross-validation found for one residual (`None`: the physical model alone).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ResidualValidated {
+    pub width_ridge: Option<(f64, f64)>,
+    pub held_out_rms_m: f64,
+}
+
+/// The residual over the physical model, or none, as cross-validation over the same held-out
+/// motions chooses: each fold's residual learnt on what its fold's physical fit misses of the
+/// motions it saw, judged on those it did not. Then fitted to every sample's miss of
+/// `calibration.fitted`. `tick` is called once per fold of each candidate.
+pub fn residual(
+    structure: &Structure,
+    calibration: &Calibration,
+    samples: &[Sample],
+    scale_m: &[f64],
+    tick: &mut dyn FnMut(),
+) -> (Option<Residual>, Vec<ResidualValidated>) {
+    // Each fold's physical prediction of every sample, once.
+    let predicted: Vec<Vec<[f64; 3]>> = (calibration.folds.iter())
+        .map(|theta| {
+            let model = Model::new(structure, theta);
+            samples.iter().map(|s| model.predict(&s.pull_m)).collect()
+        })
+        .collect();
+    let miss = |p: &[f64; 3], s: &Sample| -> [f64; 3] {
+        [s.tip_m[0] - p[0], s.tip_m[1] - p[1], s.tip_m[2] - p[2]]
+    };
+    let mut tried = vec![ResidualValidated {
+        width_ridge: None,
+        held_out_rms_m: (calibration.validated.iter())
+            .find(|v| v.strength == calibration.strength)
+            .map_or(f64::INFINITY, |v| v.held_out_rms_m),
+    }];
+    for width in WIDTHS {
+        for ridge in RIDGES {
+            let (mut sum, mut count) = (0.0, 0usize);
+            for (fold, predicted) in predicted.iter().enumerate() {
+                tick();
+                let seen: Vec<usize> = (0..samples.len())
+                    .filter(|j| !held_out(&samples[*j], fold))
+                    .collect();
+                let pulls: Vec<&[f64]> =
+                    seen.iter().map(|j| samples[*j].pull_m.as_slice()).collect();
+                let misses: Vec<[f64; 3]> = seen
+                    .iter()
+                    .map(|j| miss(&predicted[*j], &samples[*j]))
+                    .collect();
+                let Some(r) = Residual::fit(&pulls, &misses, scale_m, width, ridge) else {
+                    sum = f64::INFINITY;
+                    continue;
+                };
+                for (j, s) in samples
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, s)| held_out(s, fold))
+                {
+                    let c = r.correction(&s.pull_m);
+                    let m = miss(&predicted[j], s);
+                    sum += (0..3).map(|k| (m[k] - c[k]).powi(2)).sum::<f64>();
+                    count += 1;
+                }
+            }
+            tried.push(ResidualValidated {
+                width_ridge: Some((width, ridge)),
+                held_out_rms_m: (sum / count.max(1) as f64).sqrt(),
+            });
+        }
+    }
+    let best = (tried.iter())
+        .min_by(|a, b| a.held_out_rms_m.total_cmp(&b.held_out_rms_m))
+        .and_then(|v| v.width_ridge);
+    let fitted = best.and_then(|(width, ridge)| {
+        let model = Model::new(structure, &calibration.fitted.theta);
+        let pulls: Vec<&[f64]> = samples.iter().map(|s| s.pull_m.as_slice()).collect();
+        let misses: Vec<[f64; 3]> = (samples.iter())
+            .map(|s| miss(&model.predict(&s.pull_m), s))
+            .collect();
+        Residual::fit(&pulls, &misses, scale_m, width, ridge)
+    });
+    (fitted, tried)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::tendon::Model;
 
     fn arm() -> softarm_arm::Layout {
         let d: softarm_arm::Description = toml::from_str(

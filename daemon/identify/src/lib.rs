@@ -7,6 +7,7 @@
 //!   bent and compressed by tendons that only pull. Pure math.
 //! - [`fit`]: that model calibrated to a recording (geometry, offsets, stiffnesses, base pose,
 //!   the marker), its regularisation chosen by cross-validation over held-out motions.
+//! - [`residual`]: what the physical model still misses, learnt, fading away from the data.
 //! - [`check`]: how well a model predicts a recording, overall and per label family.
 //! - [`file`]: the identified model on disk, and the twin: the calibrated arm as an `[arm]`.
 //! - [`run`]: the commands, `softarm train --from` and `softarm model check`.
@@ -15,5 +16,6 @@ pub mod check;
 pub mod file;
 pub mod fit;
 pub mod recording;
+pub mod residual;
 pub mod run;
 pub mod tendon;

@@ -8,10 +8,11 @@ use indicatif::{ProgressBar, ProgressStyle};
 use softarm_arm::Layout;
 
 use crate::check::{self, Check};
-use crate::file::{self, FORMAT, Identified, ModelFileError};
+use crate::file::{self, FORMAT, Identified, ModelFileError, ResidualTried};
 use crate::fit::{self, Sample};
 use crate::recording::{self, Columns, Recording, RecordingError};
-use crate::tendon::{Model, Structure};
+use crate::residual;
+use crate::tendon::Structure;
 
 /// What went wrong, for the user: a recording, a column map, a model file, or writing.
 #[derive(Debug, thiserror::Error)]
@@ -91,8 +92,16 @@ pub fn train(
     let nominal = structure.nominal(arm);
     let fits = (fit::STRENGTHS.len() * fit::FOLDS + 1) as u64;
     let progress = bar(fits, "calibrating");
-    let (fitted, strength, validated) =
-        fit::calibrate(&structure, &nominal, &samples, &mut || progress.inc(1));
+    let calibration = fit::calibrate(&structure, &nominal, &samples, &mut || progress.inc(1));
+    progress.finish_and_clear();
+    let scale_m: Vec<f64> = (arm.actuators().iter())
+        .map(|a| (a.max_m - a.min_m).abs())
+        .collect();
+    let candidates = (residual::WIDTHS.len() * residual::RIDGES.len() * fit::FOLDS) as u64;
+    let progress = bar(candidates, "residual");
+    let (learnt, tried) = fit::residual(&structure, &calibration, &samples, &scale_m, &mut || {
+        progress.inc(1)
+    });
     progress.finish_and_clear();
     let source = recording_path.file_name().map_or_else(
         || recording_path.display().to_string(),
@@ -103,14 +112,22 @@ pub fn train(
         arm: arm.identity(),
         recording: source.clone(),
         rows: recording.len(),
-        strength,
-        validated: (validated.iter())
+        strength: calibration.strength,
+        validated: (calibration.validated.iter())
             .map(|v| [v.strength, v.held_out_rms_m * 1e3])
             .collect(),
-        fitted_rms_mm: fitted.rms_m * 1e3,
-        theta: fitted.theta,
+        fitted_rms_mm: calibration.fitted.rms_m * 1e3,
+        theta: calibration.fitted.theta,
+        residual_validated: (tried.iter())
+            .map(|t| ResidualTried {
+                width: t.width_ridge.map(|(w, _)| w),
+                ridge: t.width_ridge.map(|(_, r)| r),
+                held_out_rms_mm: t.held_out_rms_m * 1e3,
+            })
+            .collect(),
+        residual: learnt,
     };
-    let check = check_model(&model, arm, &recording);
+    let check = check_model(&model, arm, &recording, false);
     let model_path = out.join(MODEL_FILE);
     let twin_path = out.join(TWIN_FILE);
     let write = |path: &Path, bytes: &[u8]| {
@@ -135,26 +152,33 @@ pub fn train(
     })
 }
 
-fn check_model(model: &Identified, arm: &Layout, recording: &Recording) -> Check {
+fn check_model(
+    model: &Identified,
+    arm: &Layout,
+    recording: &Recording,
+    physical_only: bool,
+) -> Check {
     let structure = Structure::of(arm);
-    let physical = Model::new(&structure, &model.theta);
+    let predict = model.predictor(&structure, physical_only);
     let progress = bar(recording.len() as u64, "checking");
-    let c = check::check(recording, |p| physical.predict(p), &mut || progress.inc(1));
+    let c = check::check(recording, predict, &mut || progress.inc(1));
     progress.finish_and_clear();
     c
 }
 
-/// `softarm model check`: the model at `model_path` against the recording.
+/// `softarm model check`: the model at `model_path` against the recording; `physical_only`:
+/// without its residual.
 pub fn check(
     model_path: &Path,
     recording_path: &Path,
     columns_path: &Path,
     arm: &Layout,
+    physical_only: bool,
 ) -> Result<(Identified, Check), Error> {
     let model = Identified::read(model_path, arm)?;
     let columns = Columns::load(columns_path)?;
     let recording = recording::read(recording_path, &columns, arm)?;
-    let c = check_model(&model, arm, &recording);
+    let c = check_model(&model, arm, &recording, physical_only);
     Ok((model, c))
 }
 
@@ -165,14 +189,26 @@ impl Trained {
         let tried: Vec<String> = (m.validated.iter())
             .map(|[s, rms]| format!("{s}: {rms:.2} mm"))
             .collect();
+        let residuals: Vec<String> = (m.residual_validated.iter())
+            .map(|t| match (t.width, t.ridge) {
+                (Some(w), Some(r)) => format!("{w}/{r}: {:.2} mm", t.held_out_rms_mm),
+                _ => format!("none: {:.2} mm", t.held_out_rms_mm),
+            })
+            .collect();
+        let chosen = match &m.residual {
+            Some(r) => format!("width {} strokes, ridge {}", r.width, r.ridge),
+            None => "none".into(),
+        };
         format!(
             "calibrated the arm's physical model to {} ({} rows); the prior's strength {} \
-             chosen by cross-validation over held-out motions ({}); on the recording itself \
-             {:.2} mm RMS, {:.2} mm with the mean offset removed\nmodel: {}\ntwin arm: {}",
+             chosen by cross-validation over held-out motions ({}); its residual: {chosen} \
+             (width/ridge: {}); on the recording itself {:.2} mm RMS, {:.2} mm with the mean \
+             offset removed\nmodel: {}\ntwin arm: {}",
             m.recording,
             m.rows,
             m.strength,
             tried.join(", "),
+            residuals.join(", "),
             self.check.all.rms_mm,
             self.check.all.offset_removed_rms_mm,
             self.model_path.display(),
