@@ -319,15 +319,31 @@ struct RecordingArgs {
 }
 
 impl RecordingArgs {
-    fn layout(&self, config: &Config) -> anyhow::Result<softarm_arm::Layout> {
-        match &self.arm {
-            None => Ok(config.layout()),
-            Some(arm) => {
-                let text = softarm_config::arms::resolve(arm)?;
-                let arm = softarm_config::arms::check(&text, arm)?;
-                arm.layout().map_err(anyhow::Error::msg)
-            }
-        }
+    /// The config with `--arm`'s arm in it (and the boxes its reach bounds), else as loaded.
+    fn config(&self, stack: &Stack) -> anyhow::Result<Config> {
+        let loaded = stack.load()?;
+        let Some(arm) = &self.arm else {
+            return Ok(loaded);
+        };
+        let (text, origin) = match stack.path() {
+            Some(p) => (std::fs::read_to_string(&p)?, p.display().to_string()),
+            None => (
+                softarm_config::DEFAULT.to_string(),
+                "embedded default config".into(),
+            ),
+        };
+        let text =
+            softarm_config::arms::with_arm(&text, &softarm_config::arms::resolve(arm)?, arm)?;
+        let mut c = Config::parse(&text, &origin, loaded.base_dir.clone())?;
+        c.state.dir = loaded.state.dir;
+        c.robot.namespace = loaded.robot.namespace;
+        Ok(c)
+    }
+
+    fn columns(&self) -> anyhow::Result<&Path> {
+        self.columns
+            .as_deref()
+            .context("give the recording's column map: --columns FILE")
     }
 }
 
@@ -343,9 +359,6 @@ enum ModelCommand {
         /// The model (default: identified.toml in the config's model folder).
         #[arg(long, value_name = "FILE")]
         model: Option<PathBuf>,
-        /// The physical model alone, without its learnt residual.
-        #[arg(long)]
-        physical: bool,
         /// One JSON object.
         #[arg(long)]
         json: bool,
@@ -472,11 +485,9 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             output,
             ..
         } => {
-            let config = stack.load()?;
-            let arm = recording.layout(&config)?;
-            let columns = recording.columns.context("--from needs --columns FILE")?;
+            let config = recording.config(&stack)?;
             let out = output.unwrap_or_else(|| config.model_dir());
-            let trained = softarm_identify::run::train(&from, &columns, &arm, &out)?;
+            let trained = train::recording::train_from(&config, &from, recording.columns()?, &out)?;
             println!("{}", trained.summary());
         }
         Command::Model {
@@ -485,18 +496,15 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                     recording,
                     columns,
                     model,
-                    physical,
                     json,
                     stack,
                 },
         } => {
-            let config = stack.load()?;
-            let arm = columns.layout(&config)?;
-            let map = (columns.columns.clone()).context("give the recording's --columns FILE")?;
+            let config = columns.config(&stack)?;
             let model =
                 model.unwrap_or_else(|| config.model_dir().join(softarm_identify::run::MODEL_FILE));
-            let (_, check) =
-                softarm_identify::run::check(&model, &recording, &map, &arm, physical)?;
+            let check =
+                train::recording::check(&config.layout(), &recording, columns.columns()?, &model)?;
             if json {
                 println!("{}", check.json());
             } else {

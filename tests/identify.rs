@@ -89,6 +89,26 @@ fn a_real_arm_calibrated_on_some_motions_predicts_others_it_never_saw() {
     for family in ["all3_same", "all3_scurve", "all3_spiral"] {
         assert!(held_out.contains(&format!("\"{family}\":{{")), "{held_out}");
     }
+    // Beside it, the physical model alone and the bundle's data-driven models, each checked.
+    for model in ["physical", "rbf_network", "polynomial"] {
+        assert!(
+            held_out.contains(&format!("\"{model}\":{{\"all\":{{")),
+            "{held_out}"
+        );
+    }
+    // The bundle is one the stack reads for this arm.
+    let arm_text = std::fs::read_to_string(root().join(ARM)).unwrap();
+    let layout = softarm_config::arms::check(&arm_text, ARM)
+        .unwrap()
+        .layout()
+        .unwrap();
+    let bundle = softarm_model::bundle::Model::<9>::read_for_arm(&out, &layout.identity())
+        .expect("the bundle reads back for its arm");
+    assert_eq!(
+        bundle.actuation.len(),
+        3,
+        "a primitive per class: pair, seg, tendon"
+    );
     // The twin is an arm the sim runs.
     let twin = out.join("twin-arm.toml");
     let text = std::fs::read_to_string(&twin).unwrap();

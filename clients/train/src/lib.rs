@@ -4,6 +4,8 @@
 //! model and pre-trains the learner against the forward model; the bundle is written
 //! (atomically) where the controller and learner pick it up.
 
+pub mod recording;
+
 use std::io::IsTerminal;
 use std::time::{Duration, Instant};
 

@@ -116,6 +116,8 @@ pub struct Row {
 pub struct Recording {
     pub path: PathBuf,
     pub rows: Vec<Row>,
+    /// Each actuator's length (m) where its value is 0: a pull p puts it at zero − p.
+    pub zero_length_m: Vec<f64>,
     family_words: usize,
 }
 
@@ -123,6 +125,14 @@ impl Recording {
     /// The family of a motion: its first words after a repetition word (`rep1_`).
     pub fn family_of(&self, motion: &str) -> String {
         family(motion, self.family_words)
+    }
+
+    /// The class of a motion, for its primitive: its first word without digits (`seg2_dir90`
+    /// → `seg`), after a repetition word.
+    pub fn class_of(&self, motion: &str) -> String {
+        let first = family(motion, 1);
+        let word: String = first.chars().filter(|c| !c.is_ascii_digit()).collect();
+        if word.is_empty() { first } else { word }
     }
 
     /// The motions, each once, sorted.
@@ -412,6 +422,7 @@ pub fn read(path: &Path, columns: &Columns, arm: &Layout) -> Result<Recording, R
     Ok(Recording {
         path: path.into(),
         rows,
+        zero_length_m: strokes.iter().map(|s| s.2).collect(),
         family_words: columns.family_words,
     })
 }
@@ -485,6 +496,9 @@ mod tests {
         assert_eq!(r.family_of("rep1_seg1_dir0"), "seg1_dir0");
         assert_eq!(r.family_of("rep12_all3_spiral_dir90"), "all3_spiral");
         assert_eq!(r.family_of("circle"), "circle");
+        assert_eq!(r.class_of("rep1_seg12_dir0"), "seg");
+        assert_eq!(r.class_of("rep1_7"), "7");
+        assert!((r.zero_length_m[3] - 0.2).abs() < 1e-12);
     }
 
     fn error(text: &str) -> RecordingError {

@@ -46,24 +46,24 @@ fn bar(len: u64, what: &str) -> ProgressBar {
     b
 }
 
-/// What `train --from` made.
+/// What `train --from` fitted, before anything is written.
 #[derive(Debug, Clone)]
-pub struct Trained {
+pub struct Identification {
     pub model: Identified,
-    pub model_path: PathBuf,
-    pub twin_path: PathBuf,
+    pub recording: Recording,
+    /// The calibrated arm as an `[arm]` file.
+    pub twin: String,
     /// The model on the recording it was fitted to.
     pub check: Check,
 }
 
-/// Reads `recording` through `columns` onto `arm`, calibrates the physical model to it and
-/// writes the model and the twin into `out`. Nothing is written unless all of it succeeded.
-pub fn train(
+/// Reads `recording_path` through the map at `columns_path` onto `arm` and calibrates the
+/// physical model and its residual to it. Writes nothing.
+pub fn identify(
     recording_path: &Path,
     columns_path: &Path,
     arm: &Layout,
-    out: &Path,
-) -> Result<Trained, Error> {
+) -> Result<Identification, Error> {
     let columns = Columns::load(columns_path)?;
     let recording = recording::read(recording_path, &columns, arm)?;
     let structure = Structure::of(arm);
@@ -128,61 +128,33 @@ pub fn train(
         residual: learnt,
     };
     let check = check_model(&model, arm, &recording, false);
-    let model_path = out.join(MODEL_FILE);
-    let twin_path = out.join(TWIN_FILE);
-    let write = |path: &Path, bytes: &[u8]| {
-        softarm_runtime::file::write_atomic(path, bytes, None).map_err(|e| Error::Write {
-            path: path.into(),
-            message: e.to_string(),
-        })
-    };
-    write(
-        &twin_path,
-        file::twin(arm, &model.theta, &source).as_bytes(),
-    )?;
-    model.write(&model_path).map_err(|e| Error::Write {
-        path: model_path.clone(),
-        message: e.to_string(),
-    })?;
-    Ok(Trained {
+    let twin = file::twin(arm, &model.theta, &source);
+    Ok(Identification {
         model,
-        model_path,
-        twin_path,
+        recording,
+        twin,
         check,
     })
 }
 
-fn check_model(
-    model: &Identified,
-    arm: &Layout,
-    recording: &Recording,
-    physical_only: bool,
-) -> Check {
-    let structure = Structure::of(arm);
-    let predict = model.predictor(&structure, physical_only);
-    let progress = bar(recording.len() as u64, "checking");
-    let c = check::check(recording, predict, &mut || progress.inc(1));
-    progress.finish_and_clear();
-    c
-}
+impl Identification {
+    /// Writes the model and the twin into `out` ([`MODEL_FILE`], [`TWIN_FILE`]), each
+    /// atomically; the paths written.
+    pub fn write(&self, out: &Path) -> Result<(PathBuf, PathBuf), Error> {
+        let model_path = out.join(MODEL_FILE);
+        let twin_path = out.join(TWIN_FILE);
+        fn failed(path: &Path) -> impl FnOnce(std::io::Error) -> Error + '_ {
+            move |e| Error::Write {
+                path: path.into(),
+                message: e.to_string(),
+            }
+        }
+        softarm_runtime::file::write_atomic(&twin_path, self.twin.as_bytes(), None)
+            .map_err(failed(&twin_path))?;
+        self.model.write(&model_path).map_err(failed(&model_path))?;
+        Ok((model_path, twin_path))
+    }
 
-/// `softarm model check`: the model at `model_path` against the recording; `physical_only`:
-/// without its residual.
-pub fn check(
-    model_path: &Path,
-    recording_path: &Path,
-    columns_path: &Path,
-    arm: &Layout,
-    physical_only: bool,
-) -> Result<(Identified, Check), Error> {
-    let model = Identified::read(model_path, arm)?;
-    let columns = Columns::load(columns_path)?;
-    let recording = recording::read(recording_path, &columns, arm)?;
-    let c = check_model(&model, arm, &recording, physical_only);
-    Ok((model, c))
-}
-
-impl Trained {
     /// What was fitted and chosen, in a few lines for the user.
     pub fn summary(&self) -> String {
         let m = &self.model;
@@ -203,7 +175,7 @@ impl Trained {
             "calibrated the arm's physical model to {} ({} rows); the prior's strength {} \
              chosen by cross-validation over held-out motions ({}); its residual: {chosen} \
              (width/ridge: {}); on the recording itself {:.2} mm RMS, {:.2} mm with the mean \
-             offset removed\nmodel: {}\ntwin arm: {}",
+             offset removed",
             m.recording,
             m.rows,
             m.strength,
@@ -211,8 +183,31 @@ impl Trained {
             residuals.join(", "),
             self.check.all.rms_mm,
             self.check.all.offset_removed_rms_mm,
-            self.model_path.display(),
-            self.twin_path.display()
         )
     }
+}
+
+/// The model on every row of `recording`; `physical_only`: without its residual.
+pub fn check_model(
+    model: &Identified,
+    arm: &Layout,
+    recording: &Recording,
+    physical_only: bool,
+) -> Check {
+    let structure = Structure::of(arm);
+    let predict = model.predictor(&structure, physical_only);
+    let progress = bar(recording.len() as u64, "checking");
+    let c = check::check(recording, predict, &mut || progress.inc(1));
+    progress.finish_and_clear();
+    c
+}
+
+/// Reads `recording_path` through the map at `columns_path` onto `arm`.
+pub fn read_recording(
+    recording_path: &Path,
+    columns_path: &Path,
+    arm: &Layout,
+) -> Result<Recording, Error> {
+    let columns = Columns::load(columns_path)?;
+    Ok(recording::read(recording_path, &columns, arm)?)
 }
