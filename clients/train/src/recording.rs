@@ -250,7 +250,7 @@ fn bundle<const N: usize>(
     let (kinematics_config, kinematics_tried) = choose(
         &poly_candidates,
         |c| format!("degree {}, ridge {:e}", c.degree, c.ridge),
-        |a, p, c| Polynomial::fit(a, p, c),
+        Polynomial::fit,
         &acts,
         &positions,
         &motion,
