@@ -182,9 +182,10 @@ enum Command {
         #[arg(long, default_value_t = 1, allow_negative_numbers = true)]
         seed: u64,
         /// A recording of the arm (CSV: actuator commands beside a tracked tip, a row per
-        /// settled pose): calibrates the arm to it instead, and writes the model and the
-        /// calibrated arm (the twin, an [arm] file) into --output.
-        #[arg(long, value_name = "FILE", requires = "columns")]
+        /// settled pose, with --columns; or softarm's own, .mcap): calibrates the arm to it
+        /// instead, and writes the model, the calibrated arm (the twin, an [arm] file) and a
+        /// model bundle into --output.
+        #[arg(long, value_name = "FILE")]
         from: Option<PathBuf>,
         #[command(flatten)]
         recording: RecordingArgs,
@@ -308,7 +309,7 @@ enum Command {
 /// A recording's column map, and the arm it is of.
 #[derive(clap::Args, Clone)]
 struct RecordingArgs {
-    /// How the recording's columns map onto the arm (TOML; e.g.
+    /// How a CSV recording's columns map onto the arm (TOML; e.g.
     /// config/recordings/opencr-tdcr/columns.toml).
     #[arg(long, value_name = "FILE")]
     columns: Option<PathBuf>,
@@ -340,10 +341,8 @@ impl RecordingArgs {
         Ok(c)
     }
 
-    fn columns(&self) -> anyhow::Result<&Path> {
-        self.columns
-            .as_deref()
-            .context("give the recording's column map: --columns FILE")
+    fn columns(&self) -> Option<&Path> {
+        self.columns.as_deref()
     }
 }
 
@@ -352,7 +351,7 @@ enum ModelCommand {
     /// How well a model predicts a recording it was not trained on: RMS, mean, RMS with the
     /// mean offset removed, p95 and max of the tip's miss (mm), overall and per motion family.
     Check {
-        /// The recording (CSV).
+        /// The recording (CSV with --columns, or softarm's own .mcap).
         recording: PathBuf,
         #[command(flatten)]
         columns: RecordingArgs,
@@ -487,7 +486,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         } => {
             let config = recording.config(&stack)?;
             let out = output.unwrap_or_else(|| config.model_dir());
-            let trained = train::recording::train_from(&config, &from, recording.columns()?, &out)?;
+            let trained = train::recording::train_from(&config, &from, recording.columns(), &out)?;
             println!("{}", trained.summary());
         }
         Command::Model {
@@ -504,7 +503,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             let model =
                 model.unwrap_or_else(|| config.model_dir().join(softarm_identify::run::MODEL_FILE));
             let check =
-                train::recording::check(&config.layout(), &recording, columns.columns()?, &model)?;
+                train::recording::check(&config.layout(), &recording, columns.columns(), &model)?;
             if json {
                 println!("{}", check.json());
             } else {

@@ -86,16 +86,30 @@ impl FromRecording {
     }
 }
 
+/// Reads a recording of `arm`: softarm's own (`.mcap`), else CSV through the column map.
+pub fn read(recording: &Path, columns: Option<&Path>, arm: &Layout) -> Result<Rows> {
+    if recording.extension().is_some_and(|e| e == "mcap") {
+        return crate::mcap::read(recording, arm);
+    }
+    let columns = columns.with_context(|| {
+        format!(
+            "{}: a CSV recording needs its column map: --columns FILE",
+            recording.display()
+        )
+    })?;
+    Ok(identify::read_recording(recording, columns, arm)?)
+}
+
 /// The whole of `train --from` for the config's arm; writes into `out` only once everything
 /// was fitted.
 pub fn train_from(
     config: &Config,
     recording: &Path,
-    columns: &Path,
+    columns: Option<&Path>,
     out: &Path,
 ) -> Result<FromRecording> {
     let arm = config.layout();
-    let identification = identify::identify(recording, columns, &arm)?;
+    let identification = identify::identify_recording(read(recording, columns, &arm)?, &arm)?;
     let n = arm.actuators().len();
     let (built, model_id, (model_path, twin_path)) = softarm_method::space::with_actuators!(
         n,
@@ -380,11 +394,11 @@ pub struct Compared {
 pub fn check(
     arm: &Layout,
     recording: &Path,
-    columns: &Path,
+    columns: Option<&Path>,
     model_file: &Path,
 ) -> Result<Compared> {
     let model = Identified::read(model_file, arm)?;
-    let rows = identify::read_recording(recording, columns, arm)?;
+    let rows = read(recording, columns, arm)?;
     let identified = identify::check_model(&model, arm, &rows, false);
     let physical = identify::check_model(&model, arm, &rows, true);
     let dir = model_file.parent().unwrap_or(Path::new("."));

@@ -122,6 +122,22 @@ pub struct Recording {
 }
 
 impl Recording {
+    /// A recording of `rows` read some other way: `zero_length_m` as [`Recording::zero_length_m`],
+    /// families of `family_words` words.
+    pub fn new(
+        path: PathBuf,
+        rows: Vec<Row>,
+        zero_length_m: Vec<f64>,
+        family_words: usize,
+    ) -> Self {
+        Self {
+            path,
+            rows,
+            zero_length_m,
+            family_words,
+        }
+    }
+
     /// The family of a motion: its first words after a repetition word (`rep1_`).
     pub fn family_of(&self, motion: &str) -> String {
         family(motion, self.family_words)

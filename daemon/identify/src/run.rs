@@ -64,8 +64,13 @@ pub fn identify(
     columns_path: &Path,
     arm: &Layout,
 ) -> Result<Identification, Error> {
-    let columns = Columns::load(columns_path)?;
-    let recording = recording::read(recording_path, &columns, arm)?;
+    identify_recording(read_recording(recording_path, columns_path, arm)?, arm)
+}
+
+/// [`identify`] on a recording already read.
+pub fn identify_recording(recording: Recording, arm: &Layout) -> Result<Identification, Error> {
+    let recording_path = recording.path.clone();
+    let recording_path = recording_path.as_path();
     let structure = Structure::of(arm);
     let needed = ROWS_PER_PARAMETER * structure.slots.count();
     if recording.len() < needed {

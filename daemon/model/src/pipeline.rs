@@ -246,7 +246,10 @@ fn held_out_fit<const N: usize, M: ForwardModel<N>, E>(
         .map(|(a, p)| distance(&model.position(a), p))
         .collect();
     let fitted_mean_m = fitted.iter().sum::<f64>() / fitted.len().max(1) as f64;
-    let fitted_sd_m = (fitted.iter().map(|e| (e - fitted_mean_m).powi(2)).sum::<f64>()
+    let fitted_sd_m = (fitted
+        .iter()
+        .map(|e| (e - fitted_mean_m).powi(2))
+        .sum::<f64>()
         / fitted.len().max(1) as f64)
         .sqrt();
     let held_out = HeldOut {
