@@ -22,6 +22,21 @@ fn folder(name: &str) -> PathBuf {
     dir
 }
 
+/// `softarm train --from RECORDING` of the OpenCR arm with its columns, into `out`.
+fn train_opencr(recording: &Path, out: &Path) -> std::process::Output {
+    softarm(&[
+        "train",
+        "--from",
+        recording.to_str().unwrap(),
+        "--columns",
+        COLUMNS,
+        "--arm",
+        ARM,
+        "--output",
+        out.to_str().unwrap(),
+    ])
+}
+
 fn softarm(args: &[&str]) -> std::process::Output {
     Command::new(BIN)
         .args(args)
@@ -41,17 +56,7 @@ fn figure(json: &str, key: &str) -> f64 {
 #[test]
 fn a_real_arm_calibrated_on_some_motions_predicts_others_it_never_saw() {
     let out = folder("identify");
-    let trained = softarm(&[
-        "train",
-        "--from",
-        "tests/data/real-arm/train.csv",
-        "--columns",
-        COLUMNS,
-        "--arm",
-        ARM,
-        "--output",
-        out.to_str().unwrap(),
-    ]);
+    let trained = train_opencr(&root().join("tests/data/real-arm/train.csv"), &out);
     let said = String::from_utf8_lossy(&trained.stdout);
     assert!(
         trained.status.success(),
@@ -155,17 +160,7 @@ fn a_bad_recording_is_refused_where_it_is_bad_and_nothing_is_written() {
         let path = dir.join(format!("bad{k}.csv"));
         std::fs::write(&path, text.join("\n")).unwrap();
         let out = dir.join(format!("out{k}"));
-        let r = softarm(&[
-            "train",
-            "--from",
-            path.to_str().unwrap(),
-            "--columns",
-            COLUMNS,
-            "--arm",
-            ARM,
-            "--output",
-            out.to_str().unwrap(),
-        ]);
+        let r = train_opencr(&path, &out);
         let said = String::from_utf8_lossy(&r.stderr);
         assert!(!r.status.success(), "case {k}");
         assert!(said.contains(&format!("bad{k}.csv:3")), "case {k}: {said}");
@@ -175,17 +170,7 @@ fn a_bad_recording_is_refused_where_it_is_bad_and_nothing_is_written() {
     // Too few rows for the arm's parameters.
     let path = dir.join("short.csv");
     std::fs::write(&path, lines[..40].join("\n")).unwrap();
-    let r = softarm(&[
-        "train",
-        "--from",
-        path.to_str().unwrap(),
-        "--columns",
-        COLUMNS,
-        "--arm",
-        ARM,
-        "--output",
-        dir.join("short").to_str().unwrap(),
-    ]);
+    let r = train_opencr(&path, &dir.join("short"));
     let said = String::from_utf8_lossy(&r.stderr);
     assert!(said.contains("39 rows; calibrating this arm's"), "{said}");
     assert!(!dir.join("short").exists());

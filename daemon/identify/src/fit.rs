@@ -393,20 +393,7 @@ mod tests {
     use super::*;
 
     fn arm() -> softarm_arm::Layout {
-        let d: softarm_arm::Description = toml::from_str(
-            r#"
-            routing = "coupled"
-            tool_m = 0.01
-            [[modules]]
-            backbone_m = 0.1
-            tendons = { count = 3, radius_m = 0.0045, length_m = [0.0875, 0.1125] }
-            [[modules]]
-            backbone_m = 0.1
-            tendons = { count = 3, radius_m = 0.0045, length_m = [0.1875, 0.2125] }
-            "#,
-        )
-        .unwrap();
-        softarm_arm::Layout::new(&d).unwrap()
+        crate::test_arm()
     }
 
     /// Pulls of one tendon at a time and pairs, as a lab's babbling: deterministic.

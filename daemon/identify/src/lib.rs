@@ -19,3 +19,23 @@ pub mod recording;
 pub mod residual;
 pub mod run;
 pub mod tendon;
+
+/// What the tests of this crate share: two modules of three tendons, coupled, 100 mm each,
+/// strokes of ±12.5 mm about the straight arm, a 10 mm tool.
+#[cfg(test)]
+pub(crate) fn test_arm() -> softarm_arm::Layout {
+    let d: softarm_arm::Description = toml::from_str(
+        r#"
+        routing = "coupled"
+        tool_m = 0.01
+        [[modules]]
+        backbone_m = 0.1
+        tendons = { count = 3, radius_m = 0.0045, length_m = [0.0875, 0.1125] }
+        [[modules]]
+        backbone_m = 0.1
+        tendons = { count = 3, radius_m = 0.0045, length_m = [0.1875, 0.2125] }
+        "#,
+    )
+    .unwrap();
+    softarm_arm::Layout::new(&d).unwrap()
+}

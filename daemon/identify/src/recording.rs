@@ -446,23 +446,9 @@ pub fn read(path: &Path, columns: &Columns, arm: &Layout) -> Result<Recording, R
 #[cfg(test)]
 mod tests {
     use super::*;
-    use softarm_arm::Description;
 
-    /// Two modules of three tendons, coupled, 100 mm each: strokes ±12.5 mm about straight.
-    pub(crate) fn arm() -> Layout {
-        let d: Description = toml::from_str(
-            r#"
-            routing = "coupled"
-            [[modules]]
-            backbone_m = 0.1
-            tendons = { count = 3, radius_m = 0.0045, length_m = [0.0875, 0.1125] }
-            [[modules]]
-            backbone_m = 0.1
-            tendons = { count = 3, radius_m = 0.0045, length_m = [0.1875, 0.2125] }
-            "#,
-        )
-        .unwrap();
-        Layout::new(&d).unwrap()
+    fn arm() -> softarm_arm::Layout {
+        crate::test_arm()
     }
 
     fn columns() -> Columns {

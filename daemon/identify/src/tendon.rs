@@ -279,23 +279,9 @@ fn rot_z(a: f64) -> Matrix3<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use softarm_arm::Description;
 
-    pub(crate) fn arm() -> Layout {
-        let d: Description = toml::from_str(
-            r#"
-            routing = "coupled"
-            tool_m = 0.01
-            [[modules]]
-            backbone_m = 0.1
-            tendons = { count = 3, radius_m = 0.0045, length_m = [0.0875, 0.1125] }
-            [[modules]]
-            backbone_m = 0.1
-            tendons = { count = 3, radius_m = 0.0045, length_m = [0.1875, 0.2125] }
-            "#,
-        )
-        .unwrap();
-        Layout::new(&d).unwrap()
+    fn arm() -> softarm_arm::Layout {
+        crate::test_arm()
     }
 
     #[test]
