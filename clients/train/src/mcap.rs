@@ -21,7 +21,7 @@ const STILL_S: f64 = 0.2;
 /// The motors' state paired with a tracker sample: at most this far apart in time (s).
 const PAIRED_S: f64 = 0.05;
 /// At most a row every this many seconds.
-const EVERY_S: f64 = 0.5;
+const EVERY_S: f64 = 0.2;
 /// A motion, for cross-validation: this many seconds of the recording.
 const BLOCK_S: f64 = 10.0;
 
@@ -180,9 +180,9 @@ mod tests {
         let path = std::env::temp_dir().join(format!("softarm-mcap-{}.mcap", std::process::id()));
         recording(&path, 9, 40.0);
         let r = read(&path, &arm()).unwrap();
-        // Six of every eight seconds standing, a row every half second: never while moving
-        // faster than a tenth of the stroke a second (the ramp's first 80 ms are slower).
-        assert!((55..=65).contains(&r.len()), "{}", r.len());
+        // Six of every eight seconds standing, a row every 0.2 s: never while moving faster
+        // than a tenth of the stroke a second (the ramp's first 80 ms are slower).
+        assert!((140..=160).contains(&r.len()), "{}", r.len());
         let a = arm();
         for row in &r.rows {
             let x = row.tip_m[0];

@@ -237,17 +237,19 @@ fn bundle<const N: usize>(
         .into_iter()
         .filter(|c| c + N + 1 < rows.len() * (FOLDS - 1) / FOLDS)
         .flat_map(|centres| {
-            [1e-8, 1e-5, 1e-3].map(|ridge| NetworkConfig {
-                centres,
-                ridge,
-                ..train.forward
+            [1.5, 3.0].into_iter().flat_map(move |width_factor| {
+                [1e-8, 1e-5, 1e-3].map(|ridge| NetworkConfig {
+                    centres,
+                    width_factor,
+                    ridge,
+                })
             })
         })
         .collect();
     let progress = bar((rbf_candidates.len() * FOLDS) as u64, "RBF network");
     let (forward_config, forward_tried) = choose(
         &rbf_candidates,
-        |c| format!("{} centres, ridge {:e}", c.centres, c.ridge),
+        describe_rbf,
         |a, p, c| RbfNetwork::fit(a, p, c).map_err(|e| e.to_string()),
         &acts,
         &positions,
@@ -326,7 +328,10 @@ fn bundle<const N: usize>(
 }
 
 fn describe_rbf(c: &NetworkConfig) -> String {
-    format!("{} centres, ridge {:e}", c.centres, c.ridge)
+    format!(
+        "{} centres, width {}, ridge {:e}",
+        c.centres, c.width_factor, c.ridge
+    )
 }
 
 /// The candidate whose fits on four fifths of the motions miss the fifth least (RMS over
