@@ -341,8 +341,23 @@ impl RecordingArgs {
         Ok(c)
     }
 
-    fn columns(&self) -> Option<&Path> {
-        self.columns.as_deref()
+    /// The recording at `path` of `arm`: softarm's own (`.mcap`), else a CSV through
+    /// `--columns`.
+    fn read(
+        &self,
+        path: &Path,
+        arm: &softarm_arm::Layout,
+    ) -> anyhow::Result<softarm_identify::recording::Recording> {
+        if path.extension().is_some_and(|e| e == "mcap") {
+            return softarm_record::poses::read(path, arm);
+        }
+        let columns = self.columns.as_deref().with_context(|| {
+            format!(
+                "{}: a CSV recording needs its column map: --columns FILE",
+                path.display()
+            )
+        })?;
+        Ok(softarm_identify::run::read_recording(path, columns, arm)?)
     }
 }
 
@@ -486,7 +501,8 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         } => {
             let config = recording.config(&stack)?;
             let out = output.unwrap_or_else(|| config.model_dir());
-            let trained = train::recording::train_from(&config, &from, recording.columns(), &out)?;
+            let rows = recording.read(&from, &config.layout())?;
+            let trained = train::recording::train_from(&config, rows, &out)?;
             println!("{}", trained.summary());
         }
         Command::Model {
@@ -502,8 +518,9 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             let config = columns.config(&stack)?;
             let model =
                 model.unwrap_or_else(|| config.model_dir().join(softarm_identify::run::MODEL_FILE));
-            let check =
-                train::recording::check(&config.layout(), &recording, columns.columns(), &model)?;
+            let arm = config.layout();
+            let rows = columns.read(&recording, &arm)?;
+            let check = train::recording::check(&arm, &rows, &model)?;
             if json {
                 println!("{}", check.json());
             } else {

@@ -3,9 +3,12 @@
 //! ([`record::replay`]) and the paper's Fig. 4 ([`plot`]). The channels and the scene the file
 //! holds are `softarm-channels`'; the statistics' formats `softarm stats`'.
 //!
-//! [`plot`] takes from [`record`] (the file's messages), never the other way.
+//! [`plot`] takes from [`record`] (the file's messages), never the other way; so does
+//! [`poses`], the still poses of a recording, which `softarm train --from` identifies the arm
+//! from.
 
 pub mod plot;
+pub mod poses;
 pub mod record;
 
 /// Refuses an output path no file can be written at, before the work that would produce it:

@@ -4,7 +4,6 @@
 //! model and pre-trains the learner against the forward model; the bundle is written
 //! (atomically) where the controller and learner pick it up.
 
-pub mod mcap;
 pub mod recording;
 
 use std::io::IsTerminal;

@@ -86,30 +86,12 @@ impl FromRecording {
     }
 }
 
-/// Reads a recording of `arm`: softarm's own (`.mcap`), else CSV through the column map.
-pub fn read(recording: &Path, columns: Option<&Path>, arm: &Layout) -> Result<Rows> {
-    if recording.extension().is_some_and(|e| e == "mcap") {
-        return crate::mcap::read(recording, arm);
-    }
-    let columns = columns.with_context(|| {
-        format!(
-            "{}: a CSV recording needs its column map: --columns FILE",
-            recording.display()
-        )
-    })?;
-    Ok(identify::read_recording(recording, columns, arm)?)
-}
-
-/// The whole of `train --from` for the config's arm; writes into `out` only once everything
-/// was fitted.
-pub fn train_from(
-    config: &Config,
-    recording: &Path,
-    columns: Option<&Path>,
-    out: &Path,
-) -> Result<FromRecording> {
+/// The whole of `train --from` for the config's arm, on `recording` (read by the caller:
+/// a CSV through its column map, `softarm_identify::run::read_recording`, or softarm's own);
+/// writes into `out` only once everything was fitted.
+pub fn train_from(config: &Config, recording: Rows, out: &Path) -> Result<FromRecording> {
     let arm = config.layout();
-    let identification = identify::identify_recording(read(recording, columns, &arm)?, &arm)?;
+    let identification = identify::identify_recording(recording, &arm)?;
     let n = arm.actuators().len();
     let (built, model_id, (model_path, twin_path)) = softarm_method::space::with_actuators!(
         n,
@@ -395,20 +377,14 @@ pub struct Compared {
 }
 
 /// `softarm model check`: the identified model at `model_file` and the bundle beside it,
-/// against `recording`.
-pub fn check(
-    arm: &Layout,
-    recording: &Path,
-    columns: Option<&Path>,
-    model_file: &Path,
-) -> Result<Compared> {
+/// against the recording `rows`.
+pub fn check(arm: &Layout, rows: &Rows, model_file: &Path) -> Result<Compared> {
     let model = Identified::read(model_file, arm)?;
-    let rows = read(recording, columns, arm)?;
-    let identified = identify::check_model(&model, arm, &rows, false);
-    let physical = identify::check_model(&model, arm, &rows, true);
+    let identified = identify::check_model(&model, arm, rows, false);
+    let physical = identify::check_model(&model, arm, rows, true);
     let dir = model_file.parent().unwrap_or(Path::new("."));
     let n = arm.actuators().len();
-    let (rbf_network, polynomial) = softarm_method::space::with_actuators!(n, N => bundle_checks::<N>(arm, &rows, dir), _n => (None, None));
+    let (rbf_network, polynomial) = softarm_method::space::with_actuators!(n, N => bundle_checks::<N>(arm, rows, dir), _n => (None, None));
     Ok(Compared {
         identified,
         physical,

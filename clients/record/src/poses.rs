@@ -1,5 +1,6 @@
-//! softarm's own recordings (`softarm record`, MCAP) as a recording to identify the arm from:
-//! the tracker's samples beside the motors' state, where the arm stood still.
+//! softarm's own recordings (`softarm record`, MCAP) as a recording to identify the arm from
+//! (`softarm train --from run.mcap`): the tracker's samples beside the motors' state, where the
+//! arm stood still.
 //!
 //! A recording of the stack is a trajectory, not a row per settled pose: a tracker sample is
 //! kept where every motor moved less than [`STILL`] (normalised) over the [`STILL_S`] before
@@ -32,7 +33,7 @@ fn numbers(v: &Value) -> Option<Vec<f64>> {
 /// Reads `path` (an MCAP recording of a stack) for `arm`.
 pub fn read(path: &Path, arm: &Layout) -> Result<Recording> {
     let n = arm.actuators().len();
-    let messages = softarm_record::record::read(path)?;
+    let messages = crate::record::read(path)?;
     let mut motors: Vec<(f64, Vec<f64>)> = Vec::new();
     let mut tracker: Vec<(f64, [f64; 3])> = Vec::new();
     for (k, m) in messages.iter().enumerate() {
