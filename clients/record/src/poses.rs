@@ -6,14 +6,15 @@
 //! kept where every motor moved less than [`STILL`] (normalised) over the [`STILL_S`] before
 //! it (slowly enough that the tip is where the motors put it), paired with the motors' state
 //! nearest it in time within [`PAIRED_S`], and no closer than [`EVERY_S`] to the last kept.
-//! Such a recording has no labels: its motions are its [`BLOCK_S`]-long stretches.
+//! Such a recording has no labels: its motions are its stretches of time, as an unlabelled
+//! CSV's ([`softarm_identify::recording::stretch`]).
 
 use std::path::Path;
 
 use anyhow::{Context, Result, bail};
 use serde_json::Value;
 use softarm_arm::Layout;
-use softarm_identify::recording::{Recording, Row};
+use softarm_identify::recording::{Recording, Row, stretch};
 
 /// How still the motors must have been (normalised actuation) over [`STILL_S`] seconds: a
 /// tenth of the stroke a second.
@@ -23,8 +24,6 @@ const STILL_S: f64 = 0.2;
 const PAIRED_S: f64 = 0.05;
 /// At most a row every this many seconds.
 const EVERY_S: f64 = 0.2;
-/// A motion, for cross-validation: this many seconds of the recording.
-const BLOCK_S: f64 = 10.0;
 
 fn numbers(v: &Value) -> Option<Vec<f64>> {
     v.as_array()?.iter().map(Value::as_f64).collect()
@@ -110,7 +109,7 @@ pub fn read(path: &Path, arm: &Layout) -> Result<Recording> {
                 .map(|i| zero[i] - arm.actuators()[i].length_of(now.1[i]))
                 .collect(),
             tip_m: position,
-            motion: format!("t{:05.0}", ((t - start) / BLOCK_S).floor() * BLOCK_S),
+            motion: stretch(t - start),
             hold: false,
         });
     }
@@ -195,7 +194,7 @@ mod tests {
             let actuation = a.actuators()[0].actuation_of(length);
             assert!((actuation - x).abs() < 1e-9, "{row:?}");
         }
-        assert_eq!(r.motions()[0], "t00000");
+        assert_eq!(r.motions()[..2], ["t000000", "t000030"]);
         let e = read(
             &path,
             &softarm_config::Config::default_sim(".".into()).layout(),

@@ -183,8 +183,8 @@ pub fn rms_m(structure: &Structure, theta: &[f64], samples: &[&Sample]) -> f64 {
 
 /// The configured arm's angles turned by one of twelve angles and read either way round
 /// (the recording's frame turned about the axis, the tendons numbered the other way): the
-/// start that fits `samples` best. A local fit from the wrong one of these does not find
-/// its way out.
+/// start that fits `samples` best, its base moved by the mean miss (the recording's origin
+/// off the base). A local fit from the wrong one of these does not find its way out.
 pub fn orient(structure: &Structure, nominal: &[f64], samples: &[&Sample]) -> Vec<f64> {
     let s = structure.slots;
     let mut best = (f64::INFINITY, nominal.to_vec());
@@ -204,7 +204,22 @@ pub fn orient(structure: &Structure, nominal: &[f64], samples: &[&Sample]) -> Ve
             }
         }
     }
-    best.1
+    // The base where the recording's frame puts it: the mean miss taken up by its position.
+    let mut theta = best.1;
+    let model = Model::new(structure, &theta);
+    let mut mean = [0.0; 3];
+    for sample in samples {
+        let p = model.predict(&sample.pull_m);
+        for k in 0..3 {
+            mean[k] += (sample.tip_m[k] - p[k]) / samples.len().max(1) as f64;
+        }
+    }
+    for k in 0..3 {
+        if mean[k].is_finite() {
+            theta[s.base_position(k)] += mean[k];
+        }
+    }
+    theta
 }
 
 /// The prior strengths cross-validation chooses from.

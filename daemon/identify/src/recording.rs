@@ -29,7 +29,8 @@ pub struct Columns {
     /// The time of each row; it may not go backwards.
     pub time: TimeColumn,
     /// The motion each row belongs to (e.g. `rep1_seg2_dir90`): cross-validation holds out
-    /// whole motions, and the check reports per family of them.
+    /// whole motions, and the check reports per family of them. Without one, each 30 s of
+    /// the recording is a motion.
     #[serde(default)]
     pub label: Option<String>,
     /// A label ending in this marks a row held at the end of its motion (same motion).
@@ -177,6 +178,14 @@ fn family(motion: &str, words: usize) -> String {
     }
     parts.truncate(words.max(1));
     parts.join("_")
+}
+
+/// Seconds of an unlabelled recording that make one motion, for cross-validation.
+pub const STRETCH_S: f64 = 30.0;
+
+/// The motion of an unlabelled row `since_s` after the first: its [`STRETCH_S`] stretch.
+pub fn stretch(since_s: f64) -> String {
+    format!("t{:06.0}", (since_s / STRETCH_S).floor() * STRETCH_S)
 }
 
 fn length_unit(unit: &str) -> Option<f64> {
@@ -363,6 +372,7 @@ pub fn read(path: &Path, columns: &Columns, arm: &Layout) -> Result<Recording, R
 
     let mut rows = Vec::new();
     let mut last_time = f64::NEG_INFINITY;
+    let mut first_time = None;
     for record in reader.records() {
         let record = record.map_err(|e| {
             let line = e.position().map(|p| p.line());
@@ -419,19 +429,22 @@ pub fn read(path: &Path, columns: &Columns, arm: &Layout) -> Result<Recording, R
         for (k, f) in tip.iter().enumerate() {
             tip_m[k] = number(f)?;
         }
-        let raw = label.and_then(|i| record.get(i)).unwrap_or("");
-        let hold = !columns.hold_suffix.is_empty() && raw.ends_with(&columns.hold_suffix);
-        let motion = if hold {
-            &raw[..raw.len() - columns.hold_suffix.len()]
-        } else {
-            raw
+        let first_time = *first_time.get_or_insert(time_s);
+        let (motion, hold) = match label.and_then(|i| record.get(i)) {
+            Some(raw) => {
+                let hold = !columns.hold_suffix.is_empty() && raw.ends_with(&columns.hold_suffix);
+                let end = raw.len() - if hold { columns.hold_suffix.len() } else { 0 };
+                (raw[..end].to_string(), hold)
+            }
+            // Unlabelled: its stretches of time are its motions.
+            None => (stretch(time_s - first_time), false),
         };
         rows.push(Row {
             line,
             time_s,
             pull_m,
             tip_m,
-            motion: motion.to_string(),
+            motion,
             hold,
         });
     }
@@ -498,6 +511,19 @@ mod tests {
         assert_eq!(r.family_of("rep1_seg1_dir0"), "seg1_dir0");
         assert_eq!(r.family_of("rep12_all3_spiral_dir90"), "all3_spiral");
         assert_eq!(r.family_of("circle"), "circle");
+        // Without labels: 30 s stretches.
+        let mut c = columns();
+        c.label = None;
+        let dir = std::env::temp_dir();
+        let path = dir.join(format!("softarm-unlabelled-{}.csv", std::process::id()));
+        let rows: String = (0..4)
+            .map(|k| format!("{},m,0,0,0,0,0,0,0,0,200\n", 100.0 + 20.0 * k as f64))
+            .collect();
+        std::fs::write(&path, format!("{HEADER}{rows}")).unwrap();
+        let u = read(&path, &c, &arm()).unwrap();
+        std::fs::remove_file(&path).unwrap();
+        let motions: Vec<&str> = u.rows.iter().map(|r| r.motion.as_str()).collect();
+        assert_eq!(motions, ["t000000", "t000000", "t000030", "t000060"]);
         assert_eq!(r.class_of("rep1_seg12_dir0"), "seg");
         assert_eq!(r.class_of("rep1_7"), "7");
         assert!((r.zero_length_m[3] - 0.2).abs() < 1e-12);
