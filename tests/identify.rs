@@ -118,7 +118,16 @@ fn a_real_arm_calibrated_on_some_motions_predicts_others_it_never_saw() {
     let twin = out.join("twin-arm.toml");
     let text = std::fs::read_to_string(&twin).unwrap();
     softarm_config::arms::check(&text, "twin-arm.toml").expect("the twin is an [arm]");
-    // Checked against another arm, the model is refused by name.
+    // Checked against another arm (the same but for its first module's names), the model is
+    // refused by name.
+    let renamed = arm_text.replacen(
+        "length_m = [0.087, 0.113] }",
+        "length_m = [0.087, 0.113], names = [\"b1\", \"b2\", \"b3\"] }",
+        1,
+    );
+    assert_ne!(renamed, arm_text);
+    let other_arm = out.join("renamed-arm.toml");
+    std::fs::write(&other_arm, renamed).unwrap();
     let other = softarm(&[
         "model",
         "check",
@@ -126,7 +135,7 @@ fn a_real_arm_calibrated_on_some_motions_predicts_others_it_never_saw() {
         "--columns",
         COLUMNS,
         "--arm",
-        "paper",
+        other_arm.to_str().unwrap(),
         "--model",
         model.to_str().unwrap(),
     ]);
