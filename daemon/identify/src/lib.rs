@@ -24,18 +24,25 @@ pub mod tendon;
 /// strokes of ±12.5 mm about the straight arm, a 10 mm tool.
 #[cfg(test)]
 pub(crate) fn test_arm() -> softarm_arm::Layout {
-    let d: softarm_arm::Description = toml::from_str(
+    test_arm_mounted("standing")
+}
+
+/// [`test_arm`] on another mount.
+#[cfg(test)]
+pub(crate) fn test_arm_mounted(mount: &str) -> softarm_arm::Layout {
+    let d: softarm_arm::Description = toml::from_str(&format!(
         r#"
         routing = "coupled"
+        mount = "{mount}"
         tool_m = 0.01
         [[modules]]
         backbone_m = 0.1
-        tendons = { count = 3, radius_m = 0.0045, length_m = [0.0875, 0.1125] }
+        tendons = {{ count = 3, radius_m = 0.0045, length_m = [0.0875, 0.1125] }}
         [[modules]]
         backbone_m = 0.1
-        tendons = { count = 3, radius_m = 0.0045, length_m = [0.1875, 0.2125] }
-        "#,
-    )
+        tendons = {{ count = 3, radius_m = 0.0045, length_m = [0.1875, 0.2125] }}
+        "#
+    ))
     .unwrap();
     softarm_arm::Layout::new(&d).unwrap()
 }

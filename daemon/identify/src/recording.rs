@@ -87,14 +87,27 @@ pub struct TipColumns {
     pub columns: [String; 3],
     /// `m`, `cm` or `mm`.
     pub unit: String,
-    /// The frame the positions are in: `base`, the arm's base frame (z along the straight
-    /// backbone, away from the mount) up to the small tilt and offset calibration finds.
-    #[serde(default = "base")]
-    pub frame: String,
+    /// Where the arm's base is in the recording's frame (m, in `unit`s' frame): positions are
+    /// taken to the base frame softarm's tracker reports in (z up; a standing arm points along
+    /// +z, a hanging one along −z). The calibration finds what is left: a few degrees of tilt,
+    /// centimetres of offset.
+    #[serde(default)]
+    pub base_origin_m: [f64; 3],
+    /// How the base frame is turned in the recording's frame (degrees about x, then y, then
+    /// z, each about the fixed axes).
+    #[serde(default)]
+    pub base_rotation_deg: [f64; 3],
 }
 
-fn base() -> String {
-    "base".into()
+impl TipColumns {
+    /// A recorded position (m) in the base frame.
+    fn to_base(&self, p: [f64; 3]) -> [f64; 3] {
+        let [rx, ry, rz] = self.base_rotation_deg.map(f64::to_radians);
+        let r = nalgebra::Rotation3::from_euler_angles(rx, ry, rz);
+        let o = nalgebra::Vector3::from(self.base_origin_m);
+        let b = r.inverse() * (nalgebra::Vector3::from(p) - o);
+        [b.x, b.y, b.z]
+    }
 }
 
 /// One row: a settled pose.
@@ -241,7 +254,7 @@ struct Field {
 /// Reads `path` (CSV, a header line first) as `columns` maps it onto `arm`. Refused, naming
 /// the file, line and column: a column the file lacks, a unit that does not parse, fewer or
 /// more actuators than the arm, a value that is not a finite number, time going backwards,
-/// an actuator outside its stroke, a frame other than `base`, an arm with chambers.
+/// an actuator outside its stroke, an arm with chambers.
 pub fn read(path: &Path, columns: &Columns, arm: &Layout) -> Result<Recording, RecordingError> {
     let at = |line: Option<u64>, column: Option<&str>, message: String| RecordingError {
         file: path.into(),
@@ -273,14 +286,14 @@ pub fn read(path: &Path, columns: &Columns, arm: &Layout) -> Result<Recording, R
             ),
         ));
     }
-    if columns.tip.frame != "base" {
+    if let Some(v) = (columns.tip.base_origin_m.iter())
+        .chain(&columns.tip.base_rotation_deg)
+        .find(|v| !v.is_finite())
+    {
         return Err(at(
             None,
             None,
-            format!(
-                "tip.frame = \"{}\": positions are read in the arm's base frame, `base`",
-                columns.tip.frame
-            ),
+            format!("tip.base_origin_m and tip.base_rotation_deg are numbers, not {v}"),
         ));
     }
     let mut reader = csv::ReaderBuilder::new()
@@ -425,10 +438,11 @@ pub fn read(path: &Path, columns: &Columns, arm: &Layout) -> Result<Recording, R
             }
             pull_m.push(pull);
         }
-        let mut tip_m = [0.0; 3];
+        let mut recorded = [0.0; 3];
         for (k, f) in tip.iter().enumerate() {
-            tip_m[k] = number(f)?;
+            recorded[k] = number(f)?;
         }
+        let tip_m = columns.tip.to_base(recorded);
         let first_time = *first_time.get_or_insert(time_s);
         let (motion, hold) = match label.and_then(|i| record.get(i)) {
             Some(raw) => {
@@ -507,6 +521,16 @@ mod tests {
         assert!((r.rows[1].pull_m[5] + 0.010).abs() < 1e-15);
         assert_eq!(r.rows[0].tip_m, [0.01, 0.02, 0.2]);
         assert!(r.rows[1].hold && !r.rows[0].hold);
+        // The recording's frame with the base 1 m up and turned upside down about x.
+        let mut c = columns();
+        c.tip.base_origin_m = [0.0, 0.0, 1.0];
+        c.tip.base_rotation_deg = [180.0, 0.0, 0.0];
+        let p = c.tip.to_base([0.01, 0.02, 0.8]);
+        assert!(
+            (p[0] - 0.01).abs() < 1e-12 && (p[1] + 0.02).abs() < 1e-12,
+            "{p:?}"
+        );
+        assert!((p[2] - 0.2).abs() < 1e-12, "{p:?}");
         assert_eq!(r.motions(), vec!["rep1_seg1_dir0".to_string()]);
         assert_eq!(r.family_of("rep1_seg1_dir0"), "seg1_dir0");
         assert_eq!(r.family_of("rep12_all3_spiral_dir90"), "all3_spiral");

@@ -12,7 +12,7 @@
 //! active set of taut tendons. Pure math, no I/O.
 
 use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
-use softarm_arm::Layout;
+use softarm_arm::{Layout, Mount};
 
 /// Where each parameter sits in the vector a calibration fits, for M modules and n tendons.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -80,6 +80,9 @@ pub struct Structure {
     pub passes: Vec<Vec<bool>>,
     pub owner: Vec<usize>,
     pub connector_m: f64,
+    /// The mount's turn from the backbone's frame (z along the straight backbone) to the
+    /// stack's base frame, where positions are given: a hanging arm's is diag(1, −1, −1).
+    pub mount: Matrix3<f64>,
 }
 
 impl Structure {
@@ -93,6 +96,10 @@ impl Structure {
                 .collect(),
             owner: arm.actuators().iter().map(|a| a.module).collect(),
             connector_m: arm.connector_m,
+            mount: match arm.mount {
+                Mount::Hanging => Matrix3::from_diagonal(&Vector3::new(1.0, -1.0, -1.0)),
+                Mount::Standing => Matrix3::identity(),
+            },
         }
     }
 
@@ -221,7 +228,8 @@ impl<'a> Model<'a> {
     pub fn marker(&self, shape: &Shape) -> [f64; 3] {
         let s = self.structure.slots;
         let t = self.theta;
-        let mut rotation = rot_z(t[s.base_rotation(2)])
+        let mut rotation = self.structure.mount
+            * rot_z(t[s.base_rotation(2)])
             * rot_y(t[s.base_rotation(1)])
             * rot_x(t[s.base_rotation(0)]);
         let mut position = Vector3::new(
@@ -313,6 +321,18 @@ mod tests {
         assert!((s4 - 0.003).abs() < 2e-5, "{s4}");
         let p = model.marker(&shape);
         assert!(p[0] > 0.02 && p[2] < 0.21, "{p:?}");
+    }
+
+    #[test]
+    fn a_hanging_arm_points_down_in_the_stacks_frame() {
+        let hanging = crate::test_arm_mounted("hanging");
+        let s = Structure::of(&hanging);
+        let theta = s.nominal(&hanging);
+        let model = Model::new(&s, &theta);
+        assert!((model.predict(&[0.0; 6])[2] + 0.21).abs() < 1e-12);
+        // Pulled towards +x, it swings to +x as it does standing: diag(1, −1, −1) keeps x.
+        let p = model.predict(&[0.003, -0.005, -0.005, 0.0, -0.005, -0.005]);
+        assert!(p[0] > 0.01, "{p:?}");
     }
 
     #[test]
