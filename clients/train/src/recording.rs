@@ -11,6 +11,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result, bail};
 use softarm_arm::Layout;
 use softarm_config::Config;
+use softarm_config::activation::MAX_PRIMITIVES;
 use softarm_config::forward_model::NetworkConfig;
 use softarm_config::kinematics::PolynomialConfig;
 use softarm_identify::check::{self, Check};
@@ -171,45 +172,44 @@ fn bundle<const N: usize>(
         .map(|r| motions.binary_search(&r.motion).unwrap_or(0))
         .collect();
 
-    // The primitives: a demonstration per motion of enough rows, its class its first word.
-    let mut classes: Vec<String> = Vec::new();
-    let mut demonstrations = Vec::new();
-    for (m, name) in motions.iter().enumerate() {
-        let mine: Vec<usize> = (0..rows.len()).filter(|j| motion[*j] == m).collect();
-        if mine.len() < MIN_ROWS {
-            continue;
-        }
-        let class_name = rows.class_of(name);
-        let class = match classes.iter().position(|c| *c == class_name) {
-            Some(c) => c,
-            None => {
-                classes.push(class_name);
-                classes.len() - 1
-            }
-        };
-        let t0 = rows.rows[mine[0]].time_s;
-        let span = (rows.rows[mine[mine.len() - 1]].time_s - t0).max(1e-9);
-        demonstrations.push(Recording {
-            class,
-            // Each motion on the config's demonstration duration: a primitive is a shape in
-            // phase, the set's times place it.
-            times: (mine.iter())
-                .map(|j| (rows.rows[*j].time_s - t0) / span * config.demonstrations.duration_s)
-                .collect(),
-            actuation: mine.iter().map(|j| acts[*j]).collect(),
-            position: mine.iter().map(|j| positions[*j]).collect(),
-        });
-    }
-    if classes.len() > softarm_config::activation::MAX_PRIMITIVES {
+    // The primitives: a demonstration per motion of enough rows, its class its first word;
+    // past the most softarm blends, the classes of fewest motions become one, `other`.
+    let long: Vec<(usize, Vec<usize>)> = (0..motions.len())
+        .map(|m| {
+            (
+                m,
+                (0..rows.len())
+                    .filter(|j| motion[*j] == m)
+                    .collect::<Vec<_>>(),
+            )
+        })
+        .filter(|(_, mine)| mine.len() >= MIN_ROWS)
+        .collect();
+    if long.is_empty() {
         bail!(
-            "{}: {} classes of motions ({}); softarm blends at most {}: label the motions \
-             with fewer first words",
-            rows.path.display(),
-            classes.len(),
-            classes.join(", "),
-            softarm_config::activation::MAX_PRIMITIVES
+            "{}: no motion has {MIN_ROWS} rows or more: a primitive needs motions, not single \
+             poses",
+            rows.path.display()
         );
     }
+    let classes = classes_of(long.iter().map(|(m, _)| rows.class_of(&motions[*m])));
+    let demonstrations: Vec<Recording<N>> = (long.iter().zip(&classes.of))
+        .map(|((_, mine), class)| {
+            let t0 = rows.rows[mine[0]].time_s;
+            let span = (rows.rows[mine[mine.len() - 1]].time_s - t0).max(1e-9);
+            Recording {
+                class: *class,
+                // Each motion on the config's demonstration duration: a primitive is a shape
+                // in phase, the set's times place it.
+                times: (mine.iter())
+                    .map(|j| (rows.rows[*j].time_s - t0) / span * config.demonstrations.duration_s)
+                    .collect(),
+                actuation: mine.iter().map(|j| acts[*j]).collect(),
+                position: mine.iter().map(|j| positions[*j]).collect(),
+            }
+        })
+        .collect();
+    let classes = classes.names;
     let mut train = training(config);
     let (actuation, task) = pipeline::primitives(&demonstrations, train.basis_functions)
         .context("the primitives from the recording's motions")?;
@@ -309,6 +309,57 @@ fn bundle<const N: usize>(
     ))
 }
 
+/// Classes numbered by first appearance, and each motion's.
+struct Classes {
+    names: Vec<String>,
+    of: Vec<usize>,
+}
+
+/// The class of each motion by its name; past [`MAX_PRIMITIVES`], the classes of fewest
+/// motions are one, `other`.
+fn classes_of(names: impl Iterator<Item = String>) -> Classes {
+    let names: Vec<String> = names.collect();
+    let mut count: Vec<(String, usize)> = Vec::new();
+    for n in &names {
+        match count.iter_mut().find(|(c, _)| c == n) {
+            Some((_, k)) => *k += 1,
+            None => count.push((n.clone(), 1)),
+        }
+    }
+    let keep: Vec<String> = if count.len() <= MAX_PRIMITIVES {
+        count.into_iter().map(|(c, _)| c).collect()
+    } else {
+        let mut by_size = count.clone();
+        by_size.sort_by(|a, b| b.1.cmp(&a.1));
+        let kept: Vec<&String> = by_size[..MAX_PRIMITIVES - 1]
+            .iter()
+            .map(|(c, _)| c)
+            .collect();
+        (count.iter())
+            .filter(|(c, _)| kept.contains(&c))
+            .map(|(c, _)| c.clone())
+            .collect()
+    };
+    let mut classes = Classes {
+        names: keep,
+        of: Vec::with_capacity(names.len()),
+    };
+    for n in &names {
+        let class = match classes.names.iter().position(|c| c == n) {
+            Some(c) => c,
+            None => match classes.names.iter().position(|c| c == "other") {
+                Some(c) => c,
+                None => {
+                    classes.names.push("other".into());
+                    classes.names.len() - 1
+                }
+            },
+        };
+        classes.of.push(class);
+    }
+    classes
+}
+
 fn describe_rbf(c: &NetworkConfig) -> String {
     format!(
         "{} centres, width {}, ridge {:e}",
@@ -366,6 +417,27 @@ fn choose<const N: usize, C: Copy, M: ForwardModel<N>>(
 }
 
 /// Every model `train --from` made, against one recording.
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn classes_past_the_most_blended_become_other() {
+        let few = classes_of(["seg", "pair", "seg"].map(String::from).into_iter());
+        assert_eq!(few.names, ["seg", "pair"]);
+        assert_eq!(few.of, [0, 1, 0]);
+        // Ten kinds, the first of three motions, the rest of one each.
+        let names = ["a", "a", "a", "b", "c", "d", "e", "f", "g", "h", "i", "j"];
+        let many = classes_of(names.map(String::from).into_iter());
+        assert_eq!(many.names.len(), MAX_PRIMITIVES);
+        assert_eq!(many.names[0], "a");
+        assert_eq!(many.names.last().unwrap(), "other");
+        let other = MAX_PRIMITIVES - 1;
+        assert_eq!(many.of.iter().filter(|c| **c == other).count(), 3);
+        assert!(many.of.iter().all(|c| *c < MAX_PRIMITIVES));
+    }
+}
+
 #[derive(Debug, Clone)]
 pub struct Compared {
     /// The calibrated physical model with its residual: the identified model.

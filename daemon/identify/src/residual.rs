@@ -25,6 +25,10 @@ pub struct Residual {
     pub weights: Vec<[f64; 3]>,
 }
 
+/// Most centres a residual has: a longer recording is fitted on every k-th row, so that a
+/// fit stays a linear solve of at most this size (its cost grows with the cube).
+pub const MAX_CENTERS: usize = 1500;
+
 /// The widths (in strokes) and ridges cross-validation chooses from.
 pub const WIDTHS: [f64; 4] = [0.05, 0.1, 0.2, 0.4];
 pub const RIDGES: [f64; 3] = [0.1, 1.0, 10.0];
@@ -48,7 +52,10 @@ impl Residual {
         width: f64,
         ridge: f64,
     ) -> Option<Self> {
-        let centers: Vec<Vec<f64>> = pull_m.iter().map(|p| scaled(p, scale_m)).collect();
+        let stride = pull_m.len().div_ceil(MAX_CENTERS).max(1);
+        let kept: Vec<usize> = (0..pull_m.len()).step_by(stride).collect();
+        let centers: Vec<Vec<f64>> = (kept.iter()).map(|j| scaled(pull_m[*j], scale_m)).collect();
+        let miss_m: Vec<[f64; 3]> = kept.iter().map(|j| miss_m[*j]).collect();
         let n = centers.len();
         let mut k = DMatrix::from_fn(n, n, |i, j| kernel(&centers[i], &centers[j], width));
         for i in 0..n {
@@ -117,5 +124,12 @@ mod tests {
         let far = r.correction(&[0.0, 0.02]);
         assert!(far.iter().all(|v| v.abs() < 1e-6), "{far:?}");
         assert!(r.is_valid(2) && !r.is_valid(3));
+        // A long recording: at most MAX_CENTERS of its rows, spread over all of it.
+        let pulls: Vec<Vec<f64>> = (0..4000).map(|k| vec![k as f64 * 5e-6, 0.0]).collect();
+        let refs: Vec<&[f64]> = pulls.iter().map(|p| p.as_slice()).collect();
+        let miss = vec![[0.001, 0.0, 0.0]; 4000];
+        let r = Residual::fit(&refs, &miss, &[0.02, 0.02], 0.1, 0.01).unwrap();
+        assert!(r.centers.len() <= MAX_CENTERS && r.centers.len() > MAX_CENTERS / 2);
+        assert!(r.centers.last().unwrap()[0] > 0.9 * 4000.0 * 5e-6 / 0.02);
     }
 }
