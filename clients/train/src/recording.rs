@@ -330,7 +330,7 @@ fn classes_of(names: impl Iterator<Item = String>) -> Classes {
         count.into_iter().map(|(c, _)| c).collect()
     } else {
         let mut by_size = count.clone();
-        by_size.sort_by(|a, b| b.1.cmp(&a.1));
+        by_size.sort_by_key(|c| std::cmp::Reverse(c.1));
         let kept: Vec<&String> = by_size[..MAX_PRIMITIVES - 1]
             .iter()
             .map(|(c, _)| c)
