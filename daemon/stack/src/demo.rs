@@ -217,31 +217,40 @@ fn check(args: &Args) -> anyhow::Result<Option<Scenario>> {
     Ok(scenario)
 }
 
-/// The model folder: `--model-dir`, else one in the cache per arm and seed (an arm file's by
-/// a hash of its text, so an edited arm is trained again).
+/// The model folder: `--model-dir`, else [`model_cache`].
 fn model_dir(args: &Args) -> PathBuf {
-    args.model_dir.clone().unwrap_or_else(|| {
-        let arm = match args.arm.as_deref() {
-            None | Some("paper") => String::new(),
-            Some(name)
-                if softarm_config::arms::SHIPPED
-                    .iter()
-                    .any(|(n, _)| *n == name) =>
-            {
-                format!("{name}-")
-            }
-            Some(file) => {
-                let text = softarm_config::arms::resolve(file).unwrap_or_default();
-                format!("arm{:016x}-", softarm_model::bundle::fnv64(text.as_bytes()))
-            }
-        };
-        sandbox::cache_dir().join(format!("demo-model-{arm}seed{}", args.seed))
-    })
+    (args.model_dir.clone()).unwrap_or_else(|| model_cache(args.arm.as_deref(), args.seed))
+}
+
+/// The demo's model folder in the cache, one per arm and seed (an arm file's by a hash of its
+/// text, so an edited arm is trained again): what `softarm soak --arm` uses too.
+pub fn model_cache(arm: Option<&str>, seed: u64) -> PathBuf {
+    let arm = match arm {
+        None | Some("paper") => String::new(),
+        Some(name)
+            if softarm_config::arms::SHIPPED
+                .iter()
+                .any(|(n, _)| *n == name) =>
+        {
+            format!("{name}-")
+        }
+        Some(file) => {
+            let text = softarm_config::arms::resolve(file).unwrap_or_default();
+            format!("arm{:016x}-", softarm_model::bundle::fnv64(text.as_bytes()))
+        }
+    };
+    sandbox::cache_dir().join(format!("demo-model-{arm}seed{seed}"))
 }
 
 /// The embedded default config, with `--arm`'s arm in it.
 fn config_text(args: &Args) -> anyhow::Result<String> {
-    match args.arm.as_deref() {
+    with_arm(args.arm.as_deref())
+}
+
+/// The embedded default config with `arm` (a shipped arm's name or an arm file) in it, and
+/// the boxes its reach bounds; the default itself without one.
+pub fn with_arm(arm: Option<&str>) -> anyhow::Result<String> {
+    match arm {
         None => Ok(DEFAULT.to_string()),
         Some(arm) => {
             let text = softarm_config::arms::resolve(arm)?;

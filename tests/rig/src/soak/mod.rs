@@ -28,7 +28,6 @@ use nix::unistd::Pid;
 use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
 use softarm_clients::{stats, status, submit};
-use softarm_config::DEFAULT;
 use softarm_config::scenario::Scenario;
 use softarm_config::waypoints::WaypointFile;
 use softarm_ipc::{ControllerStatus, Node, Sub, TrackerSample};
@@ -70,8 +69,13 @@ pub struct Args {
     /// Soaks the stack this config describes instead of the simulated arm: its drivers, devices
     /// and model (e.g. the config `softarm emulate --write-config` wrote, for the real arm's
     /// code path against emulated devices). Without a sim there are no scenario changes.
-    #[arg(long, value_name = "FILE")]
+    #[arg(long, value_name = "FILE", conflicts_with = "arm")]
     config: Option<PathBuf>,
+    /// The arm the sim runs: a shipped arm (paper, hybrid, tdcr) or an arm file, such as the
+    /// twin `softarm train --from` writes; its model the demo's for that arm, its sets on its
+    /// own demonstrations, its scenarios by default those of any arm (tool-change, nominal).
+    #[arg(long, value_name = "NAME|FILE")]
+    arm: Option<String>,
     /// After `--minutes`, go on (without kills or changes of the arm) until this many
     /// executions have finished and one after the last change of the arm, for at most as long
     /// again (at least 5 minutes): a slow machine gets through what a soak is run to see,
@@ -103,6 +107,8 @@ fn seconds(s: &str) -> Result<f64, String> {
 const PROCESSES: [&str; 2] = ["controller", "learner"];
 /// The scenarios the sim goes through, in turn.
 const SCENARIOS: [&str; 5] = ["tool-change", "creep", "twist", "stiffer", "nominal"];
+/// ...on another arm (`--arm`): the shipped scenarios that change any arm.
+const ANY_ARM_SCENARIOS: [&str; 2] = ["tool-change", "nominal"];
 /// How far a process may grow from the start to the end of a soak (KiB).
 const RSS_BOUND_KIB: u64 = 16 * 1024;
 /// A killed process must be back, and an execution finished after it, within this.
@@ -213,15 +219,13 @@ fn sandbox_for(args: &Args) -> anyhow::Result<Sandbox> {
                 .with_context(|| format!("reading the config {}", path.display()))?,
             Some(softarm_config::Config::load(path)?),
         ),
-        None => (DEFAULT.to_string(), None),
+        None => (softarm_stack::demo::with_arm(args.arm.as_deref())?, None),
     };
     // The copy lives in the soak's folder: a relative model folder must not move with it.
     let model_dir = match (&args.model_dir, &own) {
         (Some(dir), _) => dir.clone(),
         (None, Some(c)) => c.model_dir(),
-        (None, None) => {
-            softarm_stack::sandbox::cache_dir().join(format!("demo-model-seed{}", args.seed))
-        }
+        (None, None) => softarm_stack::demo::model_cache(args.arm.as_deref(), args.seed),
     };
     let mut overrides = vec![
         ("learner.seed", seed.into()),
@@ -236,10 +240,10 @@ fn sandbox_for(args: &Args) -> anyhow::Result<Sandbox> {
 /// The scenarios the sim goes through (what the sim is given, resolved), refused before
 /// anything starts if one is not there.
 fn rotation(args: &Args) -> anyhow::Result<Vec<(String, Scenario)>> {
-    let names: Vec<String> = if args.scenarios.is_empty() {
-        SCENARIOS.map(String::from).to_vec()
-    } else {
-        args.scenarios.clone()
+    let names: Vec<String> = match (args.scenarios.is_empty(), args.arm.as_deref()) {
+        (false, _) => args.scenarios.clone(),
+        (true, None | Some("paper")) => SCENARIOS.map(String::from).to_vec(),
+        (true, Some(_)) => ANY_ARM_SCENARIOS.map(String::from).to_vec(),
     };
     names
         .into_iter()
@@ -307,9 +311,7 @@ impl<'a> Soak<'a> {
         rotation: Vec<(String, Scenario)>,
     ) -> anyhow::Result<Self> {
         let ns = &sandbox.namespace;
-        let demo_set = WaypointFile::parse(softarm_stack::sandbox::DEMO_WAYPOINTS)
-            .map_err(anyhow::Error::msg)
-            .context("the demo way-points")?;
+        let demo_set = softarm_stack::demo::demo_set(&sandbox.config)?;
         // Subscribed before the first set: nothing is missed.
         let watch = Watch::start(ns, Limits::from_config(&sandbox.config))?;
         let follower = stats::Stats::open(ns)?;
@@ -773,6 +775,39 @@ mod tests {
         assert!(
             format!("{e:#}").contains("nowhere: no such scenario"),
             "{e:#}"
+        );
+    }
+
+    #[test]
+    fn another_arm_soaks_on_its_own_config_model_and_scenarios() {
+        let tdcr = args(&["--arm", "tdcr"]);
+        let names: Vec<String> = rotation(&tdcr)
+            .unwrap()
+            .into_iter()
+            .map(|(n, _)| n)
+            .collect();
+        assert_eq!(names, ANY_ARM_SCENARIOS);
+        let sandbox = sandbox_for(&tdcr).unwrap();
+        assert_eq!(sandbox.config.layout().actuators().len(), 9);
+        assert_eq!(
+            sandbox.config.model_dir(),
+            softarm_stack::demo::model_cache(Some("tdcr"), 1)
+        );
+        let set = softarm_stack::demo::demo_set(&sandbox.config).unwrap();
+        assert_eq!(set.point.len(), 5);
+        use clap::Parser;
+        let both = [
+            "soak",
+            "--minutes",
+            "1",
+            "--arm",
+            "tdcr",
+            "--config",
+            "x.toml",
+        ];
+        assert!(
+            Soak::try_parse_from(both).is_err(),
+            "--arm and --config together"
         );
     }
 
