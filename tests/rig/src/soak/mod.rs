@@ -31,7 +31,7 @@ use softarm_clients::{stats, status, submit};
 use softarm_config::scenario::Scenario;
 use softarm_config::waypoints::WaypointFile;
 use softarm_ipc::{ControllerStatus, Node, Sub, TrackerSample};
-use softarm_model::bundle::{Model, read_checkpoint};
+use softarm_model::bundle::{Model, read_checkpoint_of};
 use softarm_runtime::now_ns;
 use softarm_watch::{Limits, Watch};
 
@@ -165,9 +165,7 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<bool> {
         ),
     );
     sandbox.ready_with_model(&mut sup, stop, args.seed, &|line| say(args.json, line))?;
-    let lattice_start = Model::read(&model_dir)
-        .map(|m| (m.learner.actor.len(), m.learner.critic.len()))
-        .unwrap_or_default();
+    let lattice_start = lattices(&sandbox.config, &model_dir);
     let mut soak = Soak::start(args, stop, &sandbox, sup, roles, lattice_start, rotation)?;
     let minutes = Duration::from_secs_f64(args.minutes * 60.0);
     let end = soak.started + minutes;
@@ -237,6 +235,17 @@ fn sandbox_for(args: &Args) -> anyhow::Result<Sandbox> {
     Sandbox::for_command("soak", &text, &overrides)
 }
 
+/// The learner's stored lattice weights (actor, critic) in the bundle at `model_dir`, for the
+/// config's arm; (0, 0) if there is none.
+fn lattices(config: &softarm_config::Config, model_dir: &std::path::Path) -> (usize, usize) {
+    let n = config.layout().actuators().len();
+    softarm_ipc::with_actuators!(n,
+        N => Model::<N>::read_of(model_dir)
+            .map(|m| (m.learner.actor.len(), m.learner.critic.len()))
+            .unwrap_or_default(),
+        _n => (0, 0))
+}
+
 /// The scenarios the sim goes through (what the sim is given, resolved), refused before
 /// anything starts if one is not there.
 fn rotation(args: &Args) -> anyhow::Result<Vec<(String, Scenario)>> {
@@ -273,6 +282,9 @@ struct Soak<'a> {
     /// What runs and may be killed: the drivers first, then controller and learner.
     roles: Vec<&'static str>,
     demo_set: WaypointFile,
+    /// How far a variation moves a point: [`sets::MOVE_M`] on the paper's arm, less on a
+    /// smaller one.
+    move_m: f64,
     watch: Watch,
     follower: stats::Stats,
     statuses: Sub<ControllerStatus>,
@@ -332,6 +344,12 @@ impl<'a> Soak<'a> {
             sandbox,
             sup,
             demo_set,
+            move_m: sets::move_for(
+                sandbox.config.waypoints.reach_m,
+                softarm_config::Config::default_sim(".".into())
+                    .waypoints
+                    .reach_m,
+            ),
             watch,
             follower,
             statuses,
@@ -559,8 +577,12 @@ impl<'a> Soak<'a> {
         if self.running.is_some() || !self.pending.as_ref().is_none_or(|p| p.back) {
             return Ok(());
         }
-        let (file, executions) =
-            sets::nth(self.report.sets_submitted, &self.demo_set, &mut self.rng);
+        let (file, executions) = sets::nth(
+            self.report.sets_submitted,
+            &self.demo_set,
+            self.move_m,
+            &mut self.rng,
+        );
         let set = file.to_set(executions).map_err(anyhow::Error::msg)?;
         match submit::submit(&self.sandbox.namespace, set, Duration::from_secs(5)) {
             submit::Outcome::Accepted { set_id } => {
@@ -665,9 +687,14 @@ impl<'a> Soak<'a> {
         }
         let mut report = self.report;
         report.invariants = self.watch.finish();
-        report.lattice_end = read_checkpoint(&self.sandbox.config.state_dir())
-            .map(|c| (c.state.actor.len(), c.state.critic.len()))
-            .unwrap_or(report.lattice_start);
+        let n = self.sandbox.config.layout().actuators().len();
+        let state_dir = self.sandbox.config.state_dir();
+        report.lattice_end = softarm_ipc::with_actuators!(n,
+            N => read_checkpoint_of::<N>(&state_dir)
+                .map(|c| (c.state.actor.len(), c.state.critic.len()))
+                .ok(),
+            _n => None)
+        .unwrap_or(report.lattice_start);
         if let Some(s) = self.last_status {
             report.tick = s.latency;
             report.overruns = s.overruns;
