@@ -6,7 +6,7 @@
 //! a `seg`). `softarm model check`: every one of those models against a recording.
 
 use std::path::{Path, PathBuf};
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use softarm_arm::Layout;
@@ -16,6 +16,7 @@ use softarm_config::forward_model::NetworkConfig;
 use softarm_config::kinematics::PolynomialConfig;
 use softarm_identify::check::{self, Check};
 use softarm_identify::file::Identified;
+use softarm_identify::fit::FOLDS;
 use softarm_identify::recording::Recording as Rows;
 use softarm_identify::run::{self as identify, Identification};
 use softarm_identify::tendon::Structure;
@@ -28,9 +29,6 @@ use softarm_model::bundle::Model;
 use softarm_model::pipeline;
 
 use crate::{bar, budget, training};
-
-/// Cross-validation folds: whole motions held out, as for the physical model.
-const FOLDS: usize = 5;
 
 /// A motion becomes a demonstration of its class when it has at least this many rows.
 const MIN_ROWS: usize = 4;
@@ -92,7 +90,7 @@ impl FromRecording {
 /// writes into `out` only once everything was fitted.
 pub fn train_from(config: &Config, recording: Rows, out: &Path) -> Result<FromRecording> {
     let arm = config.layout();
-    let identification = identify::identify_recording(recording, &arm)?;
+    let identification = identify::identify(recording, &arm)?;
     let n = arm.actuators().len();
     let (built, model_id, (model_path, twin_path)) = softarm_method::space::with_actuators!(
         n,
@@ -131,15 +129,16 @@ struct Built {
     pretrain_updates: u64,
 }
 
-/// Each row's normalised actuation: its tendons' lengths on their strokes.
+/// The normalised actuation of pulls `pull_m` (m, from the recording's zero lengths
+/// `zero_length_m`): each tendon's length on its stroke. [`Calibrated`] goes the other way.
+fn actuation_of<const N: usize>(arm: &Layout, zero_length_m: &[f64], pull_m: &[f64]) -> [f64; N] {
+    std::array::from_fn(|i| arm.actuators()[i].actuation_of(zero_length_m[i] - pull_m[i]))
+}
+
+/// Each row's normalised actuation.
 fn actuations<const N: usize>(arm: &Layout, rows: &Rows) -> Vec<[f64; N]> {
     (rows.rows.iter())
-        .map(|r| {
-            std::array::from_fn(|i| {
-                let length = rows.zero_length_m[i] - r.pull_m[i];
-                arm.actuators()[i].actuation_of(length)
-            })
-        })
+        .map(|r| actuation_of(arm, &rows.zero_length_m, &r.pull_m))
         .collect()
 }
 
@@ -228,14 +227,17 @@ fn bundle<const N: usize>(
             })
         })
         .collect();
+    let data = Data {
+        acts: &acts,
+        positions: &positions,
+        motion: &motion,
+    };
     let progress = bar((rbf_candidates.len() * FOLDS) as u64, "RBF network");
     let (forward_config, forward_tried) = choose(
         &rbf_candidates,
         describe_rbf,
         |a, p, c| RbfNetwork::fit(a, p, c).map_err(|e| e.to_string()),
-        &acts,
-        &positions,
-        &motion,
+        &data,
         &mut || progress.inc(1),
     )?;
     progress.finish_and_clear();
@@ -249,9 +251,7 @@ fn bundle<const N: usize>(
         &poly_candidates,
         |c| format!("degree {}, ridge {:e}", c.degree, c.ridge),
         Polynomial::fit,
-        &acts,
-        &positions,
-        &motion,
+        &data,
         &mut || progress.inc(1),
     )?;
     progress.finish_and_clear();
@@ -275,7 +275,7 @@ fn bundle<const N: usize>(
         let (start, progress) =
             started.get_or_insert_with(|| (Instant::now(), bar(limit.as_secs(), "pre-training s")));
         progress.set_position(start.elapsed().as_secs());
-        start.elapsed() < limit.min(Duration::from_secs(3600))
+        start.elapsed() < limit
     })
     .context("pre-training the learner against the calibrated arm")?;
     if let Some((_, progress)) = started {
@@ -367,17 +367,27 @@ fn describe_rbf(c: &NetworkConfig) -> String {
     )
 }
 
+/// The rows the data-driven models are fitted to: actuation, tip, and each row's motion.
+struct Data<'a, const N: usize> {
+    acts: &'a [[f64; N]],
+    positions: &'a [Position],
+    motion: &'a [usize],
+}
+
 /// The candidate whose fits on four fifths of the motions miss the fifth least (RMS over
 /// every held-out row), and what each measured.
 fn choose<const N: usize, C: Copy, M: ForwardModel<N>>(
     candidates: &[C],
     name: impl Fn(&C) -> String,
     fit: impl Fn(&[[f64; N]], &[Position], &C) -> std::result::Result<M, String>,
-    acts: &[[f64; N]],
-    positions: &[Position],
-    motion: &[usize],
+    data: &Data<N>,
     tick: &mut dyn FnMut(),
 ) -> Result<(C, Vec<Tried>)> {
+    let Data {
+        acts,
+        positions,
+        motion,
+    } = *data;
     let mut tried = Vec::new();
     let mut best: Option<(f64, C)> = None;
     for c in candidates {
@@ -417,27 +427,6 @@ fn choose<const N: usize, C: Copy, M: ForwardModel<N>>(
 }
 
 /// Every model `train --from` made, against one recording.
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn classes_past_the_most_blended_become_other() {
-        let few = classes_of(["seg", "pair", "seg"].map(String::from).into_iter());
-        assert_eq!(few.names, ["seg", "pair"]);
-        assert_eq!(few.of, [0, 1, 0]);
-        // Ten kinds, the first of three motions, the rest of one each.
-        let names = ["a", "a", "a", "b", "c", "d", "e", "f", "g", "h", "i", "j"];
-        let many = classes_of(names.map(String::from).into_iter());
-        assert_eq!(many.names.len(), MAX_PRIMITIVES);
-        assert_eq!(many.names[0], "a");
-        assert_eq!(many.names.last().unwrap(), "other");
-        let other = MAX_PRIMITIVES - 1;
-        assert_eq!(many.of.iter().filter(|c| **c == other).count(), 3);
-        assert!(many.of.iter().all(|c| *c < MAX_PRIMITIVES));
-    }
-}
-
 #[derive(Debug, Clone)]
 pub struct Compared {
     /// The calibrated physical model with its residual: the identified model.
@@ -476,12 +465,7 @@ fn bundle_checks<const N: usize>(
     let on = |m: &dyn Fn(&[f64; N]) -> Position| {
         check::check(
             rows,
-            |pulls| {
-                let a: [f64; N] = std::array::from_fn(|i| {
-                    arm.actuators()[i].actuation_of(rows.zero_length_m[i] - pulls[i])
-                });
-                m(&a)
-            },
+            |pulls| m(&actuation_of(arm, &rows.zero_length_m, pulls)),
             &mut || {},
         )
     };
@@ -531,5 +515,26 @@ impl Compared {
             &identified[..identified.len() - 1],
             rest.join(",")
         )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn classes_past_the_most_blended_become_other() {
+        let few = classes_of(["seg", "pair", "seg"].map(String::from).into_iter());
+        assert_eq!(few.names, ["seg", "pair"]);
+        assert_eq!(few.of, [0, 1, 0]);
+        // Ten kinds, the first of three motions, the rest of one each.
+        let names = ["a", "a", "a", "b", "c", "d", "e", "f", "g", "h", "i", "j"];
+        let many = classes_of(names.map(String::from).into_iter());
+        assert_eq!(many.names.len(), MAX_PRIMITIVES);
+        assert_eq!(many.names[0], "a");
+        assert_eq!(many.names.last().unwrap(), "other");
+        let other = MAX_PRIMITIVES - 1;
+        assert_eq!(many.of.iter().filter(|c| **c == other).count(), 3);
+        assert!(many.of.iter().all(|c| *c < MAX_PRIMITIVES));
     }
 }

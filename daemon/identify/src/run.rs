@@ -57,25 +57,14 @@ pub struct Identification {
     pub check: Check,
 }
 
-/// Reads `recording_path` through the map at `columns_path` onto `arm` and calibrates the
-/// physical model and its residual to it. Writes nothing.
-pub fn identify(
-    recording_path: &Path,
-    columns_path: &Path,
-    arm: &Layout,
-) -> Result<Identification, Error> {
-    identify_recording(read_recording(recording_path, columns_path, arm)?, arm)
-}
-
-/// [`identify`] on a recording already read.
-pub fn identify_recording(recording: Recording, arm: &Layout) -> Result<Identification, Error> {
-    let recording_path = recording.path.clone();
-    let recording_path = recording_path.as_path();
+/// Calibrates the physical model and its residual to `recording` of `arm` (read by
+/// [`read_recording`], or as softarm's own recordings are). Writes nothing.
+pub fn identify(recording: Recording, arm: &Layout) -> Result<Identification, Error> {
     let structure = Structure::of(arm);
     let needed = ROWS_PER_PARAMETER * structure.slots.count();
     if recording.len() < needed {
         return Err(RecordingError {
-            file: recording_path.into(),
+            file: recording.path.clone(),
             line: None,
             column: None,
             message: format!(
@@ -108,8 +97,8 @@ pub fn identify_recording(recording: Recording, arm: &Layout) -> Result<Identifi
         progress.inc(1)
     });
     progress.finish_and_clear();
-    let source = recording_path.file_name().map_or_else(
-        || recording_path.display().to_string(),
+    let source = (recording.path.file_name()).map_or_else(
+        || recording.path.display().to_string(),
         |n| n.to_string_lossy().into(),
     );
     let model = Identified {
