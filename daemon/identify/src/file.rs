@@ -191,12 +191,9 @@ fn routing_name(arm: &Layout) -> &'static str {
     }
 }
 
-fn mount_name(arm: &Layout) -> String {
-    let text = toml::to_string(&Wrap { mount: arm.mount }).unwrap_or_default();
-    text.split('"').nth(1).unwrap_or("standing").to_string()
-}
-
-#[derive(Serialize)]
-struct Wrap {
-    mount: softarm_arm::Mount,
+fn mount_name(arm: &Layout) -> &'static str {
+    match arm.mount {
+        softarm_arm::Mount::Hanging => "hanging",
+        softarm_arm::Mount::Standing => "standing",
+    }
 }
