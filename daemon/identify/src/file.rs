@@ -197,3 +197,49 @@ fn mount_name(arm: &Layout) -> &'static str {
         softarm_arm::Mount::Standing => "standing",
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn model(arm: &Layout) -> Identified {
+        Identified {
+            format: FORMAT,
+            arm: arm.identity(),
+            recording: "r.csv".into(),
+            rows: 100,
+            strength: 1.0,
+            validated: vec![[1.0, 2.0]],
+            fitted_rms_mm: 1.0,
+            theta: Structure::of(arm).nominal(arm),
+            residual_validated: vec![],
+            residual: None,
+        }
+    }
+
+    #[test]
+    fn a_model_file_reads_back_and_a_bad_one_is_refused_saying_why() {
+        let arm = crate::test_arm();
+        let dir = std::env::temp_dir().join(format!("softarm-identified-{}", std::process::id()));
+        let path = dir.join("identified.toml");
+        model(&arm).write(&path).unwrap();
+        assert_eq!(Identified::read(&path, &arm).unwrap(), model(&arm));
+        let refused = |text: &str| {
+            std::fs::write(&path, text).unwrap();
+            Identified::read(&path, &arm).unwrap_err().to_string()
+        };
+        let good = std::fs::read_to_string(&path).unwrap();
+        let e = refused("theta = 3\n");
+        assert!(e.contains("identified.toml: line 1"), "{e}");
+        let e = refused(&good.replace("format = 1", "format = 9"));
+        assert!(e.contains("format 9; this softarm reads format 1"), "{e}");
+        let e = refused(&good.replacen("theta = [", "theta = [nan, ", 1));
+        assert!(e.contains("parameters; this arm's model has"), "{e}");
+        let e = refused(&good.replacen("theta = [0.1", "theta = [nan", 1));
+        assert!(e.contains("parameter 0 is not a finite number"), "{e}");
+        let other = crate::test_arm_mounted("hanging");
+        std::fs::write(&path, &good).unwrap();
+        assert_eq!(Identified::read(&path, &other).unwrap().arm, arm.identity());
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}
