@@ -370,8 +370,9 @@ enum ModelCommand {
         recording: PathBuf,
         #[command(flatten)]
         columns: RecordingArgs,
-        /// The model (default: identified.toml in the config's model folder).
-        #[arg(long, value_name = "FILE")]
+        /// The model: identified.toml, or the folder `train --from` wrote it in (default: the
+        /// config's model folder).
+        #[arg(long, value_name = "FILE|DIR")]
         model: Option<PathBuf>,
         /// One JSON object.
         #[arg(long)]
@@ -516,8 +517,11 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 },
         } => {
             let config = columns.config(&stack)?;
-            let model =
-                model.unwrap_or_else(|| config.model_dir().join(softarm_identify::run::MODEL_FILE));
+            let model = model.unwrap_or_else(|| config.model_dir());
+            let model = match model.is_dir() {
+                true => model.join(softarm_identify::run::MODEL_FILE),
+                false => model,
+            };
             let arm = config.layout();
             let rows = columns.read(&recording, &arm)?;
             let check = train::recording::check(&arm, &rows, &model)?;

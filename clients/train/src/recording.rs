@@ -33,6 +33,10 @@ use crate::{bar, budget, training};
 /// A motion becomes a demonstration of its class when it has at least this many rows.
 const MIN_ROWS: usize = 4;
 
+/// The ridges cross-validation tries for the RBF network and the polynomial: from none to
+/// one that holds a model near its mean.
+const MODEL_RIDGES: [f64; 5] = [1e-8, 1e-5, 1e-3, 1e-1, 10.0];
+
 /// What a model size and ridge measured on held-out motions.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Tried {
@@ -57,22 +61,21 @@ pub struct FromRecording {
 
 impl FromRecording {
     pub fn summary(&self) -> String {
-        let tried = |t: &[Tried]| {
-            (t.iter())
-                .map(|t| format!("{}: {:.2} mm", t.what, t.held_out_rms_mm))
-                .collect::<Vec<_>>()
-                .join(", ")
+        let tried = |what: &str, t: &[Tried]| {
+            let t: Vec<(String, f64)> = (t.iter())
+                .map(|t| (t.what.clone(), t.held_out_rms_mm))
+                .collect();
+            softarm_identify::run::tried_table(what, &t)
         };
         format!(
-            "{}\nthe RBF forward model: {} (held-out motions: {})\nthe polynomial kinematics: \
-             {} (held-out motions: {})\nprimitives: {} classes ({}) from {} motions; the \
-             learner pre-trained against the calibrated arm, {} updates\nmodel: {}\ntwin arm: \
-             {}\nbundle {} in {}",
+            "{}the RBF forward model: {}\n{}the polynomial kinematics: {}\n{}primitives: {} \
+             classes ({}) from {} motions; the learner pre-trained against the calibrated arm, \
+             {} updates\nmodel: {}\ntwin arm: {}\nbundle {} in {}",
             self.identification.summary(),
             self.forward.0,
-            tried(&self.forward.1),
+            tried("centres/width/ridge", &self.forward.1),
             self.kinematics.0,
-            tried(&self.kinematics.1),
+            tried("degree/ridge", &self.kinematics.1),
             self.classes.len(),
             self.classes.join(", "),
             self.demonstrations,
@@ -219,7 +222,7 @@ fn bundle<const N: usize>(
         .filter(|c| c + N + 1 < rows.len() * (FOLDS - 1) / FOLDS)
         .flat_map(|centres| {
             [1.5, 3.0].into_iter().flat_map(move |width_factor| {
-                [1e-8, 1e-5, 1e-3].map(|ridge| NetworkConfig {
+                MODEL_RIDGES.map(|ridge| NetworkConfig {
                     centres,
                     width_factor,
                     ridge,
@@ -244,12 +247,12 @@ fn bundle<const N: usize>(
     let terms = |degree: usize| (1..=degree).fold(1usize, |t, d| t * (N + d) / d);
     let poly_candidates: Vec<PolynomialConfig> = (1..=4)
         .filter(|d| terms(*d) < rows.len() / 2)
-        .flat_map(|degree| [1e-8, 1e-5, 1e-3].map(|ridge| PolynomialConfig { degree, ridge }))
+        .flat_map(|degree| MODEL_RIDGES.map(|ridge| PolynomialConfig { degree, ridge }))
         .collect();
     let progress = bar((poly_candidates.len() * FOLDS) as u64, "polynomial");
     let (kinematics_config, kinematics_tried) = choose(
         &poly_candidates,
-        |c| format!("degree {}, ridge {:e}", c.degree, c.ridge),
+        |c| format!("{}/{:e}", c.degree, c.ridge),
         Polynomial::fit,
         &data,
         &mut || progress.inc(1),
@@ -296,7 +299,13 @@ fn bundle<const N: usize>(
         Built {
             classes,
             demonstrations: demonstrations.len(),
-            forward: (describe_rbf(&train.forward), forward_tried),
+            forward: (
+                format!(
+                    "{} centres, width {}, ridge {:e}",
+                    train.forward.centres, train.forward.width_factor, train.forward.ridge
+                ),
+                forward_tried,
+            ),
             kinematics: (
                 format!(
                     "degree {}, ridge {:e}",
@@ -361,10 +370,7 @@ fn classes_of(names: impl Iterator<Item = String>) -> Classes {
 }
 
 fn describe_rbf(c: &NetworkConfig) -> String {
-    format!(
-        "{} centres, width {}, ridge {:e}",
-        c.centres, c.width_factor, c.ridge
-    )
+    format!("{}/{}/{:e}", c.centres, c.width_factor, c.ridge)
 }
 
 /// The rows the data-driven models are fitted to: actuation, tip, and each row's motion.

@@ -128,8 +128,8 @@ impl Problem<'_> {
                 let rk = self.residuals(&zk, samples, &mut shapes, false);
                 jac.set_column(k, &((rk - &r) / h));
             }
-            let jtj = jac.transpose() * &jac;
-            let jtr = jac.transpose() * &r;
+            let jtj = jac.tr_mul(&jac);
+            let jtr = jac.tr_mul(&r);
             let mut improved = false;
             for _ in 0..16 {
                 let mut a = jtj.clone();
@@ -252,10 +252,54 @@ pub fn held_out(sample: &Sample, fold: usize) -> bool {
     sample.group % FOLDS == fold
 }
 
+/// Most rows a physical fit is given: a longer recording is fitted on every k-th row (each
+/// fit's cost grows with its rows; a few thousand tell the model's few dozen parameters).
+pub const MAX_FIT_ROWS: usize = 2000;
+
+/// Every k-th of `samples`, at most [`MAX_FIT_ROWS`] of them.
+fn thinned<'a>(samples: &[&'a Sample]) -> Vec<&'a Sample> {
+    let stride = samples.len().div_ceil(MAX_FIT_ROWS).max(1);
+    samples.iter().step_by(stride).copied().collect()
+}
+
+/// `work(0..jobs)` on every core, in order; `tick` called (on this thread) as each ends.
+fn on_every_core<T: Send>(
+    jobs: usize,
+    work: impl Fn(usize) -> T + Sync,
+    tick: &mut dyn FnMut(),
+) -> Vec<T> {
+    let workers = std::thread::available_parallelism()
+        .map_or(1, |n| n.get())
+        .min(jobs);
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let (done, ended) = std::sync::mpsc::channel();
+    let mut out: Vec<Option<T>> = (0..jobs).map(|_| None).collect();
+    std::thread::scope(|scope| {
+        for _ in 0..workers {
+            let (done, next, work) = (done.clone(), &next, &work);
+            scope.spawn(move || {
+                loop {
+                    let job = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                    if job >= jobs || done.send((job, work(job))).is_err() {
+                        break;
+                    }
+                }
+            });
+        }
+        drop(done);
+        for (job, result) in ended {
+            out[job] = Some(result);
+            tick();
+        }
+    });
+    // Every job sent its result, or its worker panicked and the scope passed that on.
+    out.into_iter().flatten().collect()
+}
+
 /// The calibration of `structure` to `samples`: oriented, then for each of [`STRENGTHS`]
 /// fitted [`FOLDS`] times with a fifth of the motions held out; the strength whose held-out
-/// RMS is least, fitted to all. `tick` is called after each fit: [`STRENGTHS`] × [`FOLDS`]
-/// + 1 in all.
+/// RMS is least, fitted to all. The fits run on every core. `tick` is called after each fit:
+/// [`STRENGTHS`] × [`FOLDS`] + 1 in all.
 pub fn calibrate(
     structure: &Structure,
     nominal: &[f64],
@@ -263,39 +307,47 @@ pub fn calibrate(
     tick: &mut dyn FnMut(),
 ) -> Calibration {
     let all: Vec<&Sample> = samples.iter().collect();
-    let center = orient(structure, nominal, &all);
+    let center = orient(structure, nominal, &thinned(&all));
     let sd = prior_sd(structure.slots, nominal);
-    let mut validated = Vec::new();
-    let mut folds_of = Vec::new();
-    for strength in STRENGTHS {
-        let problem = Problem {
-            structure,
-            center: &center,
-            sd: &sd,
-            strength,
-        };
-        let (mut sum, mut count) = (0.0, 0usize);
-        let mut folds = Vec::new();
-        for fold in 0..FOLDS {
+    let problem = |strength| Problem {
+        structure,
+        center: &center,
+        sd: &sd,
+        strength,
+    };
+    // Job j: strength j / FOLDS without fold j % FOLDS; its fit and its held-out squared miss.
+    let fits = on_every_core(
+        STRENGTHS.len() * FOLDS,
+        |job| {
+            let (strength, fold) = (STRENGTHS[job / FOLDS], job % FOLDS);
             let (held, train): (Vec<&Sample>, Vec<&Sample>) =
                 all.iter().partition(|s| held_out(s, fold));
             let fitted = if train.is_empty() {
                 center.clone()
             } else {
-                problem.fit(&center, &train).theta
+                problem(strength).fit(&center, &thinned(&train)).theta
             };
-            tick();
-            if !held.is_empty() {
-                sum += rms_m(structure, &fitted, &held).powi(2) * held.len() as f64;
-                count += held.len();
-            }
-            folds.push(fitted);
-        }
+            let missed = rms_m(structure, &fitted, &held).powi(2) * held.len() as f64;
+            (
+                fitted,
+                if held.is_empty() { 0.0 } else { missed },
+                held.len(),
+            )
+        },
+        tick,
+    );
+    let mut fits = fits.into_iter();
+    let mut validated = Vec::new();
+    let mut folds_of = Vec::new();
+    for strength in STRENGTHS {
+        let mine: Vec<_> = fits.by_ref().take(FOLDS).collect();
+        let sum: f64 = mine.iter().map(|f| f.1).sum();
+        let count: usize = mine.iter().map(|f| f.2).sum();
         validated.push(Validated {
             strength,
             held_out_rms_m: (sum / count.max(1) as f64).sqrt(),
         });
-        folds_of.push(folds);
+        folds_of.push(mine.into_iter().map(|f| f.0).collect::<Vec<_>>());
     }
     let best = (0..validated.len())
         .min_by(|a, b| {
@@ -304,13 +356,8 @@ pub fn calibrate(
                 .total_cmp(&validated[*b].held_out_rms_m)
         })
         .unwrap_or(0);
-    let problem = Problem {
-        structure,
-        center: &center,
-        sd: &sd,
-        strength: validated[best].strength,
-    };
-    let fitted = problem.fit(&center, &all);
+    let mut fitted = problem(validated[best].strength).fit(&center, &thinned(&all));
+    fitted.rms_m = rms_m(structure, &fitted.theta, &all);
     tick();
     Calibration {
         fitted,
@@ -354,40 +401,44 @@ pub fn residual(
             .find(|v| v.strength == calibration.strength)
             .map_or(f64::INFINITY, |v| v.held_out_rms_m),
     }];
-    for width in WIDTHS {
-        for ridge in RIDGES {
+    let candidates: Vec<(f64, f64)> = (WIDTHS.iter())
+        .flat_map(|w| RIDGES.iter().map(move |r| (*w, *r)))
+        .collect();
+    // Job j: candidate j / FOLDS learnt without fold j % FOLDS; its held-out squared miss.
+    let held_out_misses = on_every_core(
+        candidates.len() * FOLDS,
+        |job| {
+            let ((width, ridge), fold) = (candidates[job / FOLDS], job % FOLDS);
+            let predicted = &predicted[fold];
+            let seen: Vec<usize> = (0..samples.len())
+                .filter(|j| !held_out(&samples[*j], fold))
+                .collect();
+            let pulls: Vec<&[f64]> = seen.iter().map(|j| samples[*j].pull_m.as_slice()).collect();
+            let misses: Vec<[f64; 3]> = (seen.iter())
+                .map(|j| miss(&predicted[*j], &samples[*j]))
+                .collect();
+            let Some(r) = Residual::fit(&pulls, &misses, scale_m, width, ridge) else {
+                return (f64::INFINITY, 0);
+            };
+            let held = (samples.iter().enumerate()).filter(|(_, s)| held_out(s, fold));
             let (mut sum, mut count) = (0.0, 0usize);
-            for (fold, predicted) in predicted.iter().enumerate() {
-                tick();
-                let seen: Vec<usize> = (0..samples.len())
-                    .filter(|j| !held_out(&samples[*j], fold))
-                    .collect();
-                let pulls: Vec<&[f64]> =
-                    seen.iter().map(|j| samples[*j].pull_m.as_slice()).collect();
-                let misses: Vec<[f64; 3]> = seen
-                    .iter()
-                    .map(|j| miss(&predicted[*j], &samples[*j]))
-                    .collect();
-                let Some(r) = Residual::fit(&pulls, &misses, scale_m, width, ridge) else {
-                    sum = f64::INFINITY;
-                    continue;
-                };
-                for (j, s) in samples
-                    .iter()
-                    .enumerate()
-                    .filter(|(_, s)| held_out(s, fold))
-                {
-                    let c = r.correction(&s.pull_m);
-                    let m = miss(&predicted[j], s);
-                    sum += (0..3).map(|k| (m[k] - c[k]).powi(2)).sum::<f64>();
-                    count += 1;
-                }
+            for (j, s) in held {
+                let c = r.correction(&s.pull_m);
+                let m = miss(&predicted[j], s);
+                sum += (0..3).map(|k| (m[k] - c[k]).powi(2)).sum::<f64>();
+                count += 1;
             }
-            tried.push(ResidualValidated {
-                width_ridge: Some((width, ridge)),
-                held_out_rms_m: (sum / count.max(1) as f64).sqrt(),
-            });
-        }
+            (sum, count)
+        },
+        tick,
+    );
+    for (candidate, folds) in candidates.iter().zip(held_out_misses.chunks(FOLDS)) {
+        let sum: f64 = folds.iter().map(|f| f.0).sum();
+        let count: usize = folds.iter().map(|f| f.1).sum();
+        tried.push(ResidualValidated {
+            width_ridge: Some(*candidate),
+            held_out_rms_m: (sum / count.max(1) as f64).sqrt(),
+        });
     }
     let best = (tried.iter())
         .min_by(|a, b| a.held_out_rms_m.total_cmp(&b.held_out_rms_m))

@@ -152,13 +152,13 @@ impl Identification {
     /// What was fitted and chosen, in a few lines for the user.
     pub fn summary(&self) -> String {
         let m = &self.model;
-        let tried: Vec<String> = (m.validated.iter())
-            .map(|[s, rms]| format!("{s}: {rms:.2} mm"))
+        let strengths: Vec<(String, f64)> = (m.validated.iter())
+            .map(|[s, rms]| (format!("{s}"), *rms))
             .collect();
-        let residuals: Vec<String> = (m.residual_validated.iter())
+        let residuals: Vec<(String, f64)> = (m.residual_validated.iter())
             .map(|t| match (t.width, t.ridge) {
-                (Some(w), Some(r)) => format!("{w}/{r}: {:.2} mm", t.held_out_rms_mm),
-                _ => format!("none: {:.2} mm", t.held_out_rms_mm),
+                (Some(w), Some(r)) => (format!("{w}/{r}"), t.held_out_rms_mm),
+                _ => ("none".into(), t.held_out_rms_mm),
             })
             .collect();
         let chosen = match &m.residual {
@@ -166,19 +166,30 @@ impl Identification {
             None => "none".into(),
         };
         format!(
-            "calibrated the arm's physical model to {} ({} rows); the prior's strength {} \
-             chosen by cross-validation over held-out motions ({}); its residual: {chosen} \
-             (width/ridge: {}); on the recording itself {:.2} mm RMS, {:.2} mm with the mean \
-             offset removed",
+            "calibrated the arm's physical model to {} ({} rows): on it {:.2} mm RMS, {:.2} mm \
+             with the mean offset removed\nthe prior's strength: {}\n{}the residual: {chosen}\n{}",
             m.recording,
             m.rows,
-            m.strength,
-            tried.join(", "),
-            residuals.join(", "),
             self.check.all.rms_mm,
             self.check.all.offset_removed_rms_mm,
+            m.strength,
+            tried_table("strength", &strengths),
+            tried_table("width/ridge", &residuals),
         )
     }
+}
+
+/// Candidates and their RMS over held-out motions (mm), as indented lines of as many as fit
+/// in 100 columns: what `train --from` prints of each choice it made.
+pub fn tried_table(what: &str, tried: &[(String, f64)]) -> String {
+    let cell = |(name, rms): &(String, f64)| format!("{name}: {rms:.2}");
+    let width = tried.iter().map(|t| cell(t).len()).max().unwrap_or(0);
+    let mut out = format!("  {what}, RMS mm over held-out motions:\n");
+    for row in tried.chunks((96 / (width + 3)).max(1)) {
+        let cells: Vec<String> = row.iter().map(|t| format!("{:<width$}", cell(t))).collect();
+        out += &format!("    {}\n", cells.join("   ").trim_end());
+    }
+    out
 }
 
 /// The model on every row of `recording`; `physical_only`: without its residual.
