@@ -34,6 +34,9 @@ pub struct Trained {
     /// The RBF forward model's error on the samples it was fitted to (m): mean, standard
     /// deviation; the paper's figure is of this kind.
     pub forward_fitted_m: (f64, f64),
+    /// The forward model's width (× the mean nearest-centre distance), as chosen on
+    /// demonstrations other than the held-out ones.
+    pub forward_width_factor: f64,
     pub pretrain_s: f64,
     pub pretrain_updates: u64,
     pub model_id: String,
@@ -43,13 +46,14 @@ impl Trained {
     /// What was made and how good it is, in one sentence for the user.
     pub fn summary(&self) -> String {
         format!(
-            "{} demonstrations ({} samples, {:.1} s); the RBF forward model is off by {:.2} ± \
-             {:.2} mm on the samples it was fitted to (the paper reports 3.7 ± 1.6 mm so), on \
-             held-out demonstrations by {:.2} mm mean, {:.2} mm max, the polynomial kinematics \
-             by {:.2} mm mean, {:.2} mm max; pre-training {:.1} s, {} updates",
+            "{} demonstrations ({} samples, {:.1} s); the RBF forward model (width {}) is off by \
+             {:.2} ± {:.2} mm on the samples it was fitted to (the paper reports 3.7 ± 1.6 mm \
+             so), on held-out demonstrations by {:.2} mm mean, {:.2} mm max, the polynomial \
+             kinematics by {:.2} mm mean, {:.2} mm max; pre-training {:.1} s, {} updates",
             self.demos,
             self.samples,
             self.demonstrate_s,
+            self.forward_width_factor,
             self.forward_fitted_m.0 * 1e3,
             self.forward_fitted_m.1 * 1e3,
             self.forward_error_m.0 * 1e3,
@@ -376,6 +380,7 @@ fn train_for<const N: usize>(config: &Config, namespace: &Namespace, seed: u64) 
         samples: samples.len(),
         demonstrate_s,
         forward_error_m: (report.forward_error.mean_m, report.forward_error.max_m),
+        forward_width_factor: report.forward_width_factor,
         forward_fitted_m: (
             report.forward_error.fitted_mean_m,
             report.forward_error.fitted_sd_m,

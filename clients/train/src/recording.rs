@@ -226,6 +226,7 @@ fn bundle<const N: usize>(
                     centres,
                     width_factor,
                     ridge,
+                    widths: 1,
                 })
             })
         })

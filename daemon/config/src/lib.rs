@@ -612,6 +612,7 @@ impl Config {
             "",
         )?;
         within("forward_model.ridge", f.ridge, Closed(0.0), 1.0, "")?;
+        count("forward_model.widths", f.widths, 1, 4)?;
         let k = &self.kinematics;
         count("kinematics.degree", k.degree, 1, MAX_DEGREE)?;
         within("kinematics.ridge", k.ridge, Closed(0.0), 1.0, "")?;
@@ -1289,6 +1290,7 @@ mod tests {
                 "(0, 100]",
             ),
             ("forward_model", "ridge", "ridge = nan", "[0, 1]"),
+            ("forward_model", "widths", "widths = 0", "1 to 4"),
             (
                 "learner",
                 "critic_spacing_m",

@@ -66,7 +66,7 @@ fn main() -> anyhow::Result<()> {
     let held_out = TrainingData::from_plant(&arm, &recipe, seed.wrapping_add(1000))?;
 
     let t = Instant::now();
-    let (net, fifth) = forward_model(acts, positions, &data.demo, &NetworkConfig::default())?;
+    let (net, fifth, _) = forward_model(acts, positions, &data.demo, &NetworkConfig::default())?;
     println!(
         "forward model: {} centres, fitted on {} samples in {:.2?} (with the held-out fit); every 5th demonstration held out: mean {:.2} mm, max {:.2} mm",
         net.centres(),

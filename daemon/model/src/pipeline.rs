@@ -154,6 +154,8 @@ pub struct TrainReport {
     /// Samples of D_fwd.
     pub samples: usize,
     pub forward_error: HeldOut,
+    /// The forward model's width, as [`forward_model`] chose it.
+    pub forward_width_factor: f64,
     pub kinematics_error: HeldOut,
     pub pretrain: PretrainReport,
 }
@@ -262,20 +264,68 @@ fn held_out_fit<const N: usize, M: ForwardModel<N>, E>(
     Ok((model, held_out))
 }
 
-/// The RBF forward model on D_fwd, with its error on held-out demonstrations.
+/// The RBF forward model on D_fwd at the width [`chosen_width`] gives, with its error on
+/// held-out demonstrations and that width.
 pub fn forward_model<const N: usize>(
     actuations: &[[f64; N]],
     positions: &[Position],
     demo: &[usize],
     config: &NetworkConfig,
-) -> Result<(RbfNetwork<N>, HeldOut), PipelineError> {
-    held_out_fit(
+) -> Result<(RbfNetwork<N>, HeldOut, f64), PipelineError> {
+    same_length(actuations, positions)?;
+    same_demos(actuations, demo)?;
+    let width_factor = chosen_width(actuations, positions, demo, config);
+    let config = NetworkConfig {
+        width_factor,
+        widths: 1,
+        ..*config
+    };
+    let (model, held_out) = held_out_fit(
         actuations,
         positions,
         demo,
-        |a, p| RbfNetwork::fit(a, p, config),
+        |a, p| RbfNetwork::fit(a, p, &config),
         |stage, error| PipelineError::Forward { stage, error },
-    )
+    )?;
+    Ok((model, held_out, width_factor))
+}
+
+/// Which of `config.widths` widths (`width_factor` × 1, 2, 4, …) the forward model fits with:
+/// the one least wrong on the demonstrations just after each held-out one, fitted without
+/// them and without the held-out ones, so that the choice never sees the demonstrations its
+/// error is reported on. Too few demonstrations to judge, or no width that fits: the first.
+fn chosen_width<const N: usize>(
+    actuations: &[[f64; N]],
+    positions: &[Position],
+    demo: &[usize],
+    config: &NetworkConfig,
+) -> f64 {
+    let role = |i: usize| demo[i] % HOLD_OUT_EVERY;
+    let fitted: Vec<usize> = (0..actuations.len()).filter(|i| role(*i) > 1).collect();
+    let judged: Vec<usize> = (0..actuations.len()).filter(|i| role(*i) == 1).collect();
+    let widths = (0..config.widths).map(|k| config.width_factor * f64::from(1u32 << k));
+    if config.widths <= 1 || fitted.is_empty() || judged.is_empty() {
+        return config.width_factor;
+    }
+    let a: Vec<[f64; N]> = fitted.iter().map(|i| actuations[*i]).collect();
+    let p: Vec<Position> = fitted.iter().map(|i| positions[*i]).collect();
+    let error = |width_factor: f64| {
+        let config = NetworkConfig {
+            width_factor,
+            widths: 1,
+            ..*config
+        };
+        RbfNetwork::fit(&a, &p, &config).map_or(f64::INFINITY, |net| {
+            (judged.iter())
+                .map(|i| distance(&net.position(&actuations[*i]), &positions[*i]))
+                .sum::<f64>()
+        })
+    };
+    widths
+        .map(|w| (error(w), w))
+        .filter(|(e, _)| e.is_finite())
+        .min_by(|a, b| a.0.total_cmp(&b.0))
+        .map_or(config.width_factor, |(_, w)| w)
 }
 
 /// The polynomial kinematics on D_fwd (whose Jacobian steers the online corrections), with its
@@ -342,7 +392,7 @@ pub fn train<const N: usize>(
     keep_going: impl FnMut(&PretrainReport) -> bool,
 ) -> Result<(Model<N>, TrainReport), PipelineError> {
     let (actuation, task) = primitives(&data.recordings, training.basis_functions)?;
-    let (forward, forward_error) = forward_model(
+    let (forward, forward_error, forward_width_factor) = forward_model(
         &data.actuations,
         &data.positions,
         &data.demo,
@@ -377,6 +427,7 @@ pub fn train<const N: usize>(
             recordings: data.recordings.len(),
             samples: data.actuations.len(),
             forward_error,
+            forward_width_factor,
             kinematics_error,
             pretrain,
         },
@@ -483,11 +534,16 @@ mod tests {
         let arm = ArmGeometry::default();
         let data = TrainingData::from_plant(&arm, &recipe(), 5).unwrap();
         let config = quick().forward;
-        let (net, held) =
+        let (net, held, width_factor) =
             forward_model(&data.actuations, &data.positions, &data.demo, &config).unwrap();
+        let chosen = NetworkConfig {
+            width_factor,
+            widths: 1,
+            ..config
+        };
         assert_eq!(
             net,
-            RbfNetwork::fit(&data.actuations, &data.positions, &config).unwrap()
+            RbfNetwork::fit(&data.actuations, &data.positions, &chosen).unwrap()
         );
         let held_out: Vec<usize> = (0..data.actuations.len())
             .filter(|i| data.demo[*i].is_multiple_of(HOLD_OUT_EVERY))
@@ -504,10 +560,39 @@ mod tests {
     }
 
     #[test]
+    fn the_width_is_chosen_without_the_demonstrations_its_error_is_reported_on() {
+        let arm = ArmGeometry::default();
+        let data = TrainingData::from_plant(&arm, &recipe(), 5).unwrap();
+        let config = quick().forward;
+        let width = |positions: &[Position], config: &NetworkConfig| {
+            forward_model(&data.actuations, positions, &data.demo, config)
+                .unwrap()
+                .2
+        };
+        let chosen = width(&data.positions, &config);
+        let tried = [config.width_factor, 2.0 * config.width_factor];
+        assert!(tried.contains(&chosen), "{chosen}");
+        // The held-out demonstrations 10 cm off: the choice is the same.
+        let mut off = data.positions.clone();
+        for (i, p) in off.iter_mut().enumerate() {
+            if data.demo[i].is_multiple_of(HOLD_OUT_EVERY) {
+                p[2] += 0.1;
+            }
+        }
+        assert_eq!(width(&off, &config), chosen);
+        // One width: the configured one.
+        let one = NetworkConfig {
+            widths: 1,
+            ..config
+        };
+        assert_eq!(width(&data.positions, &one), config.width_factor);
+    }
+
+    #[test]
     fn pretraining_lowers_the_error_of_imitation_alone() {
         let arm = ArmGeometry::default();
         let data = TrainingData::from_plant(&arm, &recipe(), 7).unwrap();
-        let (net, _) = forward_model(
+        let (net, _, _) = forward_model(
             &data.actuations,
             &data.positions,
             &data.demo,

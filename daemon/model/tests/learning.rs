@@ -27,7 +27,7 @@ fn pretraining_on_the_forward_model_reaches_held_out_targets_on_the_plant() {
     let recipe = DemoRecipe::default();
     let data = TrainingData::from_plant(&arm, &recipe, 1).unwrap();
     let (acts, positions) = (&data.actuations, &data.positions);
-    let (net, fit) = forward_model(
+    let (net, fit, _) = forward_model(
         acts,
         positions,
         &data.demo,
