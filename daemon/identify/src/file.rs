@@ -144,9 +144,9 @@ pub fn twin(arm: &Layout, theta: &[f64], source: &str) -> String {
     let s: Slots = structure.slots;
     let mut out = format!(
         "# The arm calibrated from {source} by softarm train --from: its geometry as the sim\n\
-         # runs it. Not in an [arm] file, so not in the twin: tendon slack and offsets, the\n\
-         # modules' stiffnesses and compression, the marker off the axis ({:.1}, {:.1} mm), the\n\
-         # base's tilt and position.\n",
+         # runs it (the base's turn about its axis in the tendons' angles). Not in an [arm]\n\
+         # file, so not in the twin: tendon slack and offsets, the modules' stiffnesses and\n\
+         # compression, the marker off the axis ({:.1}, {:.1} mm), the base's tilt and position.\n",
         theta[s.marker(0)] * 1e3,
         theta[s.marker(1)] * 1e3
     );
@@ -157,12 +157,16 @@ pub fn twin(arm: &Layout, theta: &[f64], source: &str) -> String {
         arm.connector_m,
         theta[s.marker(2)].max(0.0)
     ));
+    // A turn of the base about the backbone's axis turns every tendon with it: the same arm
+    // as every tendon's angle turned by it (the fit cannot tell the two apart, and an [arm]
+    // has no base pose).
+    let base_turn = theta[s.base_rotation(2)];
     for (m, module) in arm.modules().iter().enumerate() {
         let own = module.actuators.clone();
         let radius = own.clone().map(|i| theta[s.radius(i)].abs()).sum::<f64>() / own.len() as f64;
         let angles: Vec<String> = (own.clone())
             .map(|i| {
-                let deg = (theta[s.angle(i)] + theta[s.rotation(m)]).to_degrees();
+                let deg = (theta[s.angle(i)] + theta[s.rotation(m)] + base_turn).to_degrees();
                 format!("{:.2}", deg.rem_euclid(360.0))
             })
             .collect();
