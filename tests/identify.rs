@@ -187,6 +187,57 @@ fn a_bad_recording_is_refused_where_it_is_bad_and_nothing_is_written() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// How far a twin is from the arm that made its recording: the worst backbone, radius and
+/// angle, and the tool (each printed).
+#[derive(Debug)]
+struct Off {
+    length_m: f64,
+    radius_m: f64,
+    angle_rad: f64,
+    tool_m: f64,
+}
+
+/// The twin at `path` against `truth` (an `[arm]`'s text): the same mount and actuator count,
+/// and how far off.
+fn twin_against(path: &Path, truth: &str) -> Off {
+    let twin = std::fs::read_to_string(path).unwrap();
+    let layout = |text: &str, name: &str| {
+        softarm_config::arms::check(text, name)
+            .unwrap()
+            .layout()
+            .unwrap()
+    };
+    let (found, truth) = (layout(&twin, "twin"), layout(truth, "truth"));
+    assert_eq!(found.mount, truth.mount);
+    assert_eq!(found.actuators().len(), truth.actuators().len());
+    let mut off = Off {
+        length_m: 0.0,
+        radius_m: 0.0,
+        angle_rad: 0.0,
+        tool_m: (found.tool_m - truth.tool_m).abs(),
+    };
+    for (f, t) in found.modules().iter().zip(truth.modules()) {
+        let e = (f.backbone_m.unwrap() - t.backbone_m.unwrap()).abs();
+        println!("backbone {:.2} mm off", e * 1e3);
+        off.length_m = off.length_m.max(e);
+    }
+    for (f, t) in found.actuators().iter().zip(truth.actuators()) {
+        let da = (f.angle_rad - t.angle_rad + std::f64::consts::PI)
+            .rem_euclid(std::f64::consts::TAU)
+            - std::f64::consts::PI;
+        println!(
+            "{}: radius {:.3} mm off, angle {:.2} deg off",
+            f.name,
+            (f.radius_m - t.radius_m) * 1e3,
+            da.to_degrees()
+        );
+        off.radius_m = off.radius_m.max((f.radius_m - t.radius_m).abs());
+        off.angle_rad = off.angle_rad.max(da.abs());
+    }
+    println!("tool {:.2} mm off", off.tool_m * 1e3);
+    off
+}
+
 /// The nine-tendon TDCR of `config/arms/tdcr.toml` as it really is in this test: other
 /// backbones, radii, module rotations and tool. The sim runs it; the calibration is told
 /// only the shipped TDCR.
@@ -373,43 +424,15 @@ fn a_recording_made_in_the_sim_gives_back_the_arm_that_made_it() {
     println!("held out: {json}");
 
     // The geometry it found, against the arm that made the recording.
-    let twin = std::fs::read_to_string(dir.join("model/twin-arm.toml")).unwrap();
-    let found = softarm_config::arms::check(&twin, "twin")
-        .unwrap()
-        .layout()
-        .unwrap();
-    let truth = softarm_config::arms::check(TRUE_TDCR, "truth")
-        .unwrap()
-        .layout()
-        .unwrap();
-    let (mut worst_length, mut worst_radius, mut worst_angle) = (0.0f64, 0.0f64, 0.0f64);
-    for (f, t) in found.modules().iter().zip(truth.modules()) {
-        let e = (f.backbone_m.unwrap() - t.backbone_m.unwrap()).abs();
-        println!("backbone {:.2} mm off", e * 1e3);
-        worst_length = worst_length.max(e);
-    }
-    for (f, t) in found.actuators().iter().zip(truth.actuators()) {
-        let da = (f.angle_rad - t.angle_rad + std::f64::consts::PI)
-            .rem_euclid(std::f64::consts::TAU)
-            - std::f64::consts::PI;
-        println!(
-            "{}: radius {:.3} mm off, angle {:.2} deg off",
-            f.name,
-            (f.radius_m - t.radius_m) * 1e3,
-            da.to_degrees()
-        );
-        worst_radius = worst_radius.max((f.radius_m - t.radius_m).abs());
-        worst_angle = worst_angle.max(da.abs());
-    }
-    println!("tool {:.2} mm off", (found.tool_m - truth.tool_m) * 1e3);
+    let off = twin_against(&dir.join("model/twin-arm.toml"), TRUE_TDCR);
     // The sim's tracker alone is 0.5 mm per axis, 0.87 mm over three.
     let rms = figure(&json, "rms_mm");
     assert!(rms < 1.5, "{json}");
     // How the length splits between modules shows only in how the tip turns: the loosest.
-    assert!(worst_length < 0.004, "{worst_length}");
-    assert!(worst_radius < 0.0005, "{worst_radius}");
-    assert!(worst_angle < 3f64.to_radians(), "{worst_angle}");
-    assert!((found.tool_m - truth.tool_m).abs() < 0.003);
+    assert!(off.length_m < 0.004, "{off:?}");
+    assert!(off.radius_m < 0.0005, "{off:?}");
+    assert!(off.angle_rad < 3f64.to_radians(), "{off:?}");
+    assert!(off.tool_m < 0.003, "{off:?}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
@@ -556,33 +579,10 @@ fn a_recording_of_another_arm_logged_another_way_is_read_and_fitted() {
     assert!(rms < 2.0, "{json}");
     // The twin: a hanging arm of eight tendons, each module turned as the true one is (the
     // base's turn the fit found in the tendons' angles: an [arm] has no base pose).
-    let twin = std::fs::read_to_string(dir.join("model/twin-arm.toml")).unwrap();
-    let found = softarm_config::arms::check(&twin, "twin")
-        .unwrap()
-        .layout()
-        .unwrap();
-    let truth = softarm_config::arms::check(TRUE_HANGING, "truth")
-        .unwrap()
-        .layout()
-        .unwrap();
-    assert_eq!(found.actuators().len(), 8);
-    assert_eq!(found.mount, truth.mount);
-    let mut worst_angle = 0.0f64;
-    for (f, t) in found.actuators().iter().zip(truth.actuators()) {
-        let da = (f.angle_rad - t.angle_rad + std::f64::consts::PI)
-            .rem_euclid(std::f64::consts::TAU)
-            - std::f64::consts::PI;
-        println!(
-            "{}: radius {:.3} mm off, angle {:.2} deg off",
-            f.name,
-            (f.radius_m - t.radius_m) * 1e3,
-            da.to_degrees()
-        );
-        worst_angle = worst_angle.max(da.abs());
-        assert!((f.radius_m - t.radius_m).abs() < 0.0005, "{}", f.name);
-    }
+    let off = twin_against(&dir.join("model/twin-arm.toml"), TRUE_HANGING);
+    assert!(off.radius_m < 0.0005, "{off:?}");
     // Four tendons a module: one of each opposite pair is slack in most poses, and its angle
     // shows only in the few that pull it.
-    assert!(worst_angle < 6f64.to_radians(), "{worst_angle}");
+    assert!(off.angle_rad < 6f64.to_radians(), "{off:?}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
