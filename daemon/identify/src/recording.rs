@@ -309,10 +309,14 @@ pub fn read(path: &Path, columns: &Columns, arm: &Layout) -> Result<Recording, R
             at(
                 Some(1),
                 Some(name),
-                format!(
-                    "the recording has no such column; it has: {}",
-                    header.iter().collect::<Vec<_>>().join(", ")
-                ),
+                match header.is_empty() {
+                    true => "the recording has no such column: it has no header (is it empty?)"
+                        .to_string(),
+                    false => format!(
+                        "the recording has no such column; it has: {}",
+                        header.iter().collect::<Vec<_>>().join(", ")
+                    ),
+                },
             )
         })?;
         let scale = unit.ok_or_else(|| {
@@ -604,6 +608,8 @@ mod tests {
             "{e}"
         );
         std::fs::remove_file(&path).unwrap();
+        let e = read_text("").unwrap_err();
+        assert!(e.message.contains("it has no header (is it empty?)"), "{e}");
         let e = Columns::parse(Path::new("map.toml"), "time = 3\n").unwrap_err();
         assert_eq!(e.line, Some(1), "{e}");
     }
