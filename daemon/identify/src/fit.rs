@@ -480,6 +480,16 @@ mod tests {
     }
 
     #[test]
+    fn jobs_on_every_core_come_back_in_order_each_ticked_once() {
+        let mut ticks = 0;
+        let out = on_every_core(37, |j| j * j, &mut || ticks += 1);
+        assert_eq!(out, (0..37).map(|j| j * j).collect::<Vec<_>>());
+        assert_eq!(ticks, 37);
+        assert!(on_every_core(0, |j| j, &mut || ticks += 1).is_empty());
+        assert_eq!(ticks, 37);
+    }
+
+    #[test]
     fn a_calibration_finds_an_arm_it_was_not_told() {
         let arm = arm();
         let structure = Structure::of(&arm);
