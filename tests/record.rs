@@ -112,6 +112,31 @@ fn a_recorded_run_replays_and_plots_with_the_same_counts_everywhere() {
         "{text}"
     );
 
+    // As a recording to identify the arm from, read through its still moments: two
+    // executions give too few rows for the paper's arm's parameters and it says so, naming
+    // the file and writing nothing (a loaded machine that kept the arm standing long before
+    // the set may give enough, of one pose: then whatever it says of them names the file).
+    let model = s.dir.join("identified");
+    let from = output(
+        s.command()
+            .args(["train", "--from"])
+            .arg(&run)
+            .arg("--output")
+            .arg(&model)
+            .arg("--config")
+            .arg(&s.config),
+    );
+    let said = String::from_utf8_lossy(&from.stderr);
+    eprintln!("train --from run.mcap: {said}");
+    if from.status.success() {
+        let out = String::from_utf8_lossy(&from.stdout);
+        assert!(out.contains("to run.mcap"), "{out}");
+        assert!(model.join("identified.toml").exists());
+    } else {
+        assert!(said.contains("run.mcap"), "{said}");
+        assert!(!model.exists(), "{said}");
+    }
+
     // The mcap Python package.
     if python_mcap() {
         // Every message JSON but the scene's, which the schema in the file decodes.
