@@ -517,10 +517,10 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 },
         } => {
             let config = columns.config(&stack)?;
-            let model = model.unwrap_or_else(|| config.model_dir());
-            let model = match model.is_dir() {
-                true => model.join(softarm_identify::run::MODEL_FILE),
-                false => model,
+            let model = match model {
+                Some(dir) if dir.is_dir() => dir.join(softarm_identify::run::MODEL_FILE),
+                Some(file) => file,
+                None => config.model_dir().join(softarm_identify::run::MODEL_FILE),
             };
             let arm = config.layout();
             let rows = columns.read(&recording, &arm)?;

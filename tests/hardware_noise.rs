@@ -557,9 +557,9 @@ fn lost_replies_bad_crcs_and_garbage_are_counted_once_each() {
     let driver = s.spawn(&["tendon"]);
     // Samples before FOLLOWING that no driver could have followed in: data older than the
     // controller's time-out (a loaded machine holds a pty's bytes), no fresh setpoint that
-    // cycle (a loaded machine holds this test's sends too), or replies lost in the driver's
-    // window (on this clean bus, only replies a loaded machine delivered after the read gave
-    // up: DEGRADED). The driver must say FOLLOWING as soon as it may.
+    // cycle (a loaded machine holds this test's sends too), or DEGRADED for replies lost (on
+    // this clean bus, only replies a loaded machine delivered after the read gave up). The
+    // driver must say FOLLOWING as soon as it may.
     let fresh = (c.controller.tracker_timeout_ms / 1000.0 * RATE_HZ).floor() as u16;
     let (mut stale, mut unsent, mut lossy, mut followed) = (0, 0, 0, 0);
     let first = eventually("following", LIMIT, || {
@@ -571,7 +571,7 @@ fn lost_replies_bad_crcs_and_garbage_are_counted_once_each() {
             }
             stale += u64::from(m.age_cycles >= fresh);
             unsent += u64::from(m.setpoint_cycles == followed);
-            lossy += u64::from(m.loss_permille > 0);
+            lossy += u64::from(m.driver_state() == Some(DriverState::Degraded));
             followed = m.setpoint_cycles;
         }
         None

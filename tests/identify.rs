@@ -195,6 +195,8 @@ struct Off {
     radius_m: f64,
     angle_rad: f64,
     tool_m: f64,
+    /// Each tendon's angle off, least first.
+    angles_rad: Vec<f64>,
 }
 
 /// The twin at `path` against `truth` (an `[arm]`'s text): the same mount and actuator count,
@@ -215,6 +217,7 @@ fn twin_against(path: &Path, truth: &str) -> Off {
         radius_m: 0.0,
         angle_rad: 0.0,
         tool_m: (found.tool_m - truth.tool_m).abs(),
+        angles_rad: Vec::new(),
     };
     for (f, t) in found.modules().iter().zip(truth.modules()) {
         let e = (f.backbone_m.unwrap() - t.backbone_m.unwrap()).abs();
@@ -233,7 +236,9 @@ fn twin_against(path: &Path, truth: &str) -> Off {
         );
         off.radius_m = off.radius_m.max((f.radius_m - t.radius_m).abs());
         off.angle_rad = off.angle_rad.max(da.abs());
+        off.angles_rad.push(da.abs());
     }
+    off.angles_rad.sort_by(f64::total_cmp);
     println!("tool {:.2} mm off", off.tool_m * 1e3);
     off
 }
@@ -582,7 +587,9 @@ fn a_recording_of_another_arm_logged_another_way_is_read_and_fitted() {
     let off = twin_against(&dir.join("model/twin-arm.toml"), TRUE_HANGING);
     assert!(off.radius_m < 0.0005, "{off:?}");
     // Four tendons a module: one of each opposite pair is slack in most poses, and its angle
-    // shows only in the few that pull it.
+    // shows only in the few that pull it; the rest within a degree and a half.
     assert!(off.angle_rad < 6f64.to_radians(), "{off:?}");
+    assert!(off.angles_rad[6] < 1.5f64.to_radians(), "{off:?}");
+    assert!(off.length_m < 0.006 && off.tool_m < 0.006, "{off:?}");
     std::fs::remove_dir_all(&dir).unwrap();
 }

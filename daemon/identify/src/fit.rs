@@ -238,7 +238,8 @@ pub struct Validated {
 /// What [`calibrate`] found.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Calibration {
-    /// Fitted to every sample at the chosen strength.
+    /// Fitted to every sample (at most [`MAX_FIT_ROWS`] of them) at the chosen strength; its
+    /// RMS over every sample.
     pub fitted: Fitted,
     pub strength: f64,
     pub validated: Vec<Validated>,
@@ -256,10 +257,17 @@ pub fn held_out(sample: &Sample, fold: usize) -> bool {
 /// fit's cost grows with its rows; a few thousand tell the model's few dozen parameters).
 pub const MAX_FIT_ROWS: usize = 2000;
 
-/// Every k-th of `samples`, at most [`MAX_FIT_ROWS`] of them.
+/// `samples`, or [`MAX_FIT_ROWS`] of them evenly spread over all of it: the folds' fits and
+/// the final one of a long recording then see as many rows each, so that the prior's
+/// strength, which does not grow with the rows, weighs the same in both.
 fn thinned<'a>(samples: &[&'a Sample]) -> Vec<&'a Sample> {
-    let stride = samples.len().div_ceil(MAX_FIT_ROWS).max(1);
-    samples.iter().step_by(stride).copied().collect()
+    let n = samples.len();
+    if n <= MAX_FIT_ROWS {
+        return samples.to_vec();
+    }
+    (0..MAX_FIT_ROWS)
+        .map(|k| samples[(k * n + n / 2) / MAX_FIT_ROWS])
+        .collect()
 }
 
 /// `work(0..jobs)` on every core, in order; `tick` called (on this thread) as each ends.
@@ -298,7 +306,8 @@ fn on_every_core<T: Send>(
 
 /// The calibration of `structure` to `samples`: oriented, then for each of [`STRENGTHS`]
 /// fitted [`FOLDS`] times with a fifth of the motions held out; the strength whose held-out
-/// RMS is least, fitted to all. The fits run on every core. `tick` is called after each fit:
+/// RMS is least, fitted to all (each fit on at most [`MAX_FIT_ROWS`] rows). The fits run on
+/// every core. `tick` is called after each fit:
 /// [`STRENGTHS`] × [`FOLDS`] + 1 in all.
 pub fn calibrate(
     structure: &Structure,
@@ -482,11 +491,38 @@ mod tests {
     #[test]
     fn jobs_on_every_core_come_back_in_order_each_ticked_once() {
         let mut ticks = 0;
-        let out = on_every_core(37, |j| j * j, &mut || ticks += 1);
+        // The first jobs the slowest: on two cores or more they end out of order.
+        let slow_first = |j: usize| {
+            std::thread::sleep(std::time::Duration::from_micros((37 - j as u64) * 300));
+            j * j
+        };
+        let out = on_every_core(37, slow_first, &mut || ticks += 1);
         assert_eq!(out, (0..37).map(|j| j * j).collect::<Vec<_>>());
         assert_eq!(ticks, 37);
         assert!(on_every_core(0, |j| j, &mut || ticks += 1).is_empty());
         assert_eq!(ticks, 37);
+    }
+
+    #[test]
+    fn a_long_recording_is_thinned_evenly_to_its_cap() {
+        let samples: Vec<Sample> = (0..5 * MAX_FIT_ROWS / 2)
+            .map(|j| Sample {
+                pull_m: vec![j as f64],
+                tip_m: [0.0; 3],
+                group: 0,
+            })
+            .collect();
+        let refs: Vec<&Sample> = samples.iter().collect();
+        let kept = thinned(&refs);
+        assert_eq!(kept.len(), MAX_FIT_ROWS);
+        let at: Vec<f64> = kept.iter().map(|s| s.pull_m[0]).collect();
+        // 2.5 rows a kept one: every gap 2 or 3.
+        assert!(
+            at.windows(2)
+                .all(|w| w[1] - w[0] >= 2.0 && w[1] - w[0] <= 3.0)
+        );
+        assert!(at[0] <= 2.0 && *at.last().unwrap() >= samples.len() as f64 - 3.0);
+        assert_eq!(thinned(&refs[..10]).len(), 10);
     }
 
     #[test]
