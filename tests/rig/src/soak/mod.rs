@@ -581,6 +581,7 @@ impl<'a> Soak<'a> {
             self.report.sets_submitted,
             &self.demo_set,
             self.move_m,
+            self.sandbox.config.waypoints.reach_m,
             &mut self.rng,
         );
         let set = file.to_set(executions).map_err(anyhow::Error::msg)?;
