@@ -93,8 +93,13 @@ fn main() -> anyhow::Result<()> {
             next += 1;
             next_change_s += every_s;
         }
-        let (set, executions) =
-            softarm_rig::soak::sets::nth(sets, &demo, softarm_rig::soak::sets::MOVE_M, &mut rng);
+        let (set, executions) = softarm_rig::soak::sets::nth(
+            sets,
+            &demo,
+            softarm_rig::soak::sets::MOVE_M,
+            config.waypoints.reach_m,
+            &mut rng,
+        );
         // A fresh learner beside the same controller: the lag it had measured.
         let lag = r.lag().clone();
         let stats = r.rehearse(&set, executions)?;
