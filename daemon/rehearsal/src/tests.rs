@@ -451,8 +451,13 @@ fn every_set_of_a_soak_of_changing_arms_ends_within_2_5_mm() {
             rehearsal.change_arm(arm).unwrap();
             scenario += 1;
         }
-        let (set, executions) =
-            softarm_rig::soak::sets::nth(n, &demo, softarm_rig::soak::sets::MOVE_M, &mut rng);
+        let (set, executions) = softarm_rig::soak::sets::nth(
+            n,
+            &demo,
+            softarm_rig::soak::sets::MOVE_M,
+            config.waypoints.reach_m,
+            &mut rng,
+        );
         let means: Vec<f64> = rehearsal
             .rehearse(&set, executions)
             .unwrap()
