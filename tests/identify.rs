@@ -593,3 +593,40 @@ fn a_recording_of_another_arm_logged_another_way_is_read_and_fitted() {
     assert!(off.length_m < 0.006 && off.tool_m < 0.006, "{off:?}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// A map that parses but reads the recording wrong (the tip in cm where the file has mm): the
+/// fit is made, and the output says it misses by far more than a fit should and what to check.
+#[test]
+fn a_map_that_reads_a_recording_wrong_is_warned_of() {
+    let dir = folder("identify-warned");
+    let text = std::fs::read_to_string(root().join("tests/data/real-arm/train.csv")).unwrap();
+    let rows: Vec<&str> = text.lines().take(201).collect();
+    std::fs::write(dir.join("some.csv"), rows.join("\n")).unwrap();
+    let map = std::fs::read_to_string(root().join(COLUMNS)).unwrap();
+    let wrong = map.replace(
+        "tip = { columns = [\"tip_x\", \"tip_y\", \"tip_z\"], unit = \"mm\" }",
+        "tip = { columns = [\"tip_x\", \"tip_y\", \"tip_z\"], unit = \"cm\" }",
+    );
+    assert_ne!(wrong, map);
+    std::fs::write(dir.join("cm.toml"), wrong).unwrap();
+    let path = |name: &str| dir.join(name).to_str().unwrap().to_string();
+    let trained = softarm(&[
+        "train",
+        "--from",
+        &path("some.csv"),
+        "--columns",
+        &path("cm.toml"),
+        "--arm",
+        ARM,
+        "--output",
+        &path("model"),
+    ]);
+    let said = String::from_utf8_lossy(&trained.stdout);
+    assert!(trained.status.success(), "{said}");
+    assert!(
+        said.contains("warning: the physical model misses the rows it was fitted to")
+            && said.contains("check the column map's units and signs"),
+        "{said}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -280,7 +280,7 @@ pub fn read(path: &Path, columns: &Columns, arm: &Layout) -> Result<Recording, R
             None,
             format!(
                 "the column map names {} actuators; the arm has {n} ({}): one column each, in \
-                 the arm's order",
+                 the arm's order (is it the recording's arm? give it with --arm)",
                 columns.actuators.len(),
                 names.join(", ")
             ),
@@ -434,7 +434,8 @@ pub fn read(path: &Path, columns: &Columns, arm: &Layout) -> Result<Recording, R
                     Some(&f.name),
                     format!(
                         "{:.4} mm puts actuator {} at {length:.5} m, outside its stroke, {lo} \
-                         to {hi} m (`[arm]`'s length_m)",
+                         to {hi} m (`[arm]`'s length_m): check the column's unit, sign and \
+                         zero_length_m, and the arm's strokes",
                         pull * 1e3,
                         arm.actuators()[i].name
                     ),

@@ -55,6 +55,8 @@ pub struct Identification {
     pub twin: String,
     /// The model on the recording it was fitted to.
     pub check: Check,
+    /// The configured arm's length, base to tip (m): what a fit's miss is judged against.
+    pub arm_length_m: f64,
 }
 
 /// Calibrates the physical model and its residual to `recording` of `arm` (read by
@@ -123,11 +125,18 @@ pub fn identify(recording: Recording, arm: &Layout) -> Result<Identification, Er
     };
     let check = check_model(&model, arm, &recording, false);
     let twin = file::twin(arm, &model.theta, &source);
+    let slots = structure.slots;
+    let arm_length_m = (0..slots.modules)
+        .map(|m| nominal[slots.length(m)])
+        .sum::<f64>()
+        + arm.connector_m * slots.modules.saturating_sub(1) as f64
+        + arm.tool_m;
     Ok(Identification {
         model,
         recording,
         twin,
         check,
+        arm_length_m,
     })
 }
 
@@ -165,11 +174,25 @@ impl Identification {
             Some(r) => format!("width {} strokes, ridge {}", r.width, r.ridge),
             None => "none".into(),
         };
+        // A fit this far off its own rows is a map that reads the recording wrong, most often.
+        let warning = if m.fitted_rms_mm > 100.0 * self.arm_length_m {
+            format!(
+                "warning: the physical model misses the rows it was fitted to by {:.0} mm RMS, a \
+                 tenth of the arm's length or more: check the column map's units and signs, \
+                 zero_length_m, and where the base is (tip.base_origin_m, base_rotation_deg)\n",
+                m.fitted_rms_mm
+            )
+        } else {
+            String::new()
+        };
         format!(
-            "calibrated the arm's physical model to {} ({} rows): on it {:.2} mm RMS, {:.2} mm \
-             with the mean offset removed\nthe prior's strength: {}\n{}the residual: {chosen}\n{}",
+            "calibrated the arm's physical model to {} ({} rows): on those rows it misses by \
+             {:.2} mm RMS, with its residual by {:.2} mm ({:.2} with the mean offset removed)\n\
+             {warning}the prior's strength: {}\n{}the residual (a kernel correction over the \
+             pulls; none: the physical model alone): {chosen}\n{}",
             m.recording,
             m.rows,
+            m.fitted_rms_mm,
             self.check.all.rms_mm,
             self.check.all.offset_removed_rms_mm,
             m.strength,
