@@ -6,12 +6,12 @@
 
 pub mod recording;
 
-use std::io::IsTerminal;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, anyhow, bail, ensure};
-use indicatif::{ProgressBar, ProgressStyle};
+use indicatif::ProgressBar;
 use softarm_config::Config;
+use softarm_identify::run::bar;
 use softarm_ipc::{
     Client, ControllerState, DemonstrateReply, DemonstrateRequest, MotorState, Namespace, Node,
     Setpoint, Sub, TrackerSample,
@@ -64,20 +64,6 @@ impl Trained {
             self.pretrain_updates
         )
     }
-}
-
-fn bar(len: u64, msg: &str) -> ProgressBar {
-    if !std::io::stderr().is_terminal() {
-        return ProgressBar::hidden();
-    }
-    let b = ProgressBar::new(len);
-    b.set_style(
-        ProgressStyle::with_template("{msg:>16} [{bar:40}] {pos}/{len} ({elapsed})")
-            .expect("a valid template")
-            .progress_chars("=> "),
-    );
-    b.set_message(msg.to_string());
-    b
 }
 
 struct Sample<const N: usize> {

@@ -54,7 +54,6 @@ pub struct Fitted {
     pub theta: Vec<f64>,
     /// RMS of the tip's miss over the samples fitted (m).
     pub rms_m: f64,
-    pub iterations: usize,
 }
 
 /// Levenberg-Marquardt iterations at most.
@@ -117,9 +116,7 @@ impl Problem<'_> {
         let mut r = self.residuals(&z, samples, &mut shapes, true);
         let mut cost = r.norm_squared();
         let mut damping = 1.0;
-        let mut iterations = 0;
         for _ in 0..ITERATIONS {
-            iterations += 1;
             let h = 1e-6;
             let mut jac = DMatrix::zeros(r.len(), p);
             for k in 0..p {
@@ -164,7 +161,6 @@ impl Problem<'_> {
         Fitted {
             theta: self.theta(&z),
             rms_m: (misses / samples.len().max(1) as f64).sqrt(),
-            iterations,
         }
     }
 }

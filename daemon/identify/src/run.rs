@@ -32,13 +32,15 @@ pub const TWIN_FILE: &str = "twin-arm.toml";
 /// Rows a fit needs at least, per parameter: each row gives three numbers.
 const ROWS_PER_PARAMETER: usize = 2;
 
-fn bar(len: u64, what: &str) -> ProgressBar {
+/// A progress bar on a terminal (hidden elsewhere): what `train` and `train --from` show of
+/// anything over a few seconds.
+pub fn bar(len: u64, what: &str) -> ProgressBar {
     if !std::io::stderr().is_terminal() {
         return ProgressBar::hidden();
     }
     let b = ProgressBar::new(len);
     b.set_style(
-        ProgressStyle::with_template("{msg:>12} [{bar:40}] {pos}/{len} ({elapsed})")
+        ProgressStyle::with_template("{msg:>16} [{bar:40}] {pos}/{len} ({elapsed})")
             .expect("a valid template")
             .progress_chars("=> "),
     );
