@@ -8,6 +8,7 @@ use anyhow::Context;
 use clap::{Parser, Subcommand};
 use softarm_channels::scene;
 use softarm_clients::{estop, stats, status, submit};
+use softarm_config::files::FileKind;
 use softarm_config::scenario::{OnArm, Scenario};
 use softarm_config::{Config, ConfigError};
 #[cfg(feature = "rig")]
@@ -62,11 +63,9 @@ impl Stack {
         Ok(self.load_reading(|| ())?.0)
     }
 
-    /// [`Stack::load`], running `as_caller` with the rights of the person who ran the command,
-    /// before this process becomes the stack's user: for the files they name.
-    fn load_reading<R>(&self, as_caller: impl FnOnce() -> R) -> anyhow::Result<(Config, R)> {
-        let path = self.path();
-        let mut c = match &path {
+    /// The config as read, without joining the stack: for what only looks at it.
+    fn read(&self) -> anyhow::Result<Config> {
+        let mut c = match &self.path() {
             Some(p) => {
                 if let Some(refused) = softarm_runtime::identity::config_unreadable(p) {
                     return Err(refused.into());
@@ -84,6 +83,14 @@ impl Stack {
             Namespace::new(ns).context("--namespace")?;
             c.robot.namespace = Some(ns.clone());
         }
+        Ok(c)
+    }
+
+    /// [`Stack::load`], running `as_caller` with the rights of the person who ran the command,
+    /// before this process becomes the stack's user: for the files they name.
+    fn load_reading<R>(&self, as_caller: impl FnOnce() -> R) -> anyhow::Result<(Config, R)> {
+        let path = self.path();
+        let c = self.read()?;
         let (Some(user), Some(group)) = (&c.host.user, &c.host.group) else {
             return Ok((c, as_caller()));
         };
@@ -215,7 +222,7 @@ enum Command {
         /// Keep printing new executions.
         #[arg(long)]
         follow: bool,
-        /// One JSON object per execution and line.
+        /// JSON: one array of the executions; with --follow, one object per execution and line.
         #[arg(long)]
         json: bool,
         #[command(flatten)]
@@ -306,6 +313,26 @@ enum Command {
     Uninstall(install::UninstallArgs),
 }
 
+/// `loaded` with `arm`'s arm in it (a shipped arm's name or an arm file), and the boxes its
+/// reach bounds; as loaded without one.
+fn with_arm(loaded: Config, arm: Option<&str>, stack: &Stack) -> anyhow::Result<Config> {
+    let Some(arm) = arm else {
+        return Ok(loaded);
+    };
+    let (text, origin) = match stack.path() {
+        Some(p) => (std::fs::read_to_string(&p)?, p.display().to_string()),
+        None => (
+            softarm_config::DEFAULT.to_string(),
+            "embedded default config".into(),
+        ),
+    };
+    let text = softarm_config::arms::with_arm(&text, &softarm_config::arms::resolve(arm)?, arm)?;
+    let mut c = Config::parse(&text, &origin, loaded.base_dir.clone())?;
+    c.state.dir = loaded.state.dir;
+    c.robot.namespace = loaded.robot.namespace;
+    Ok(c)
+}
+
 /// A recording's column map, and the arm it is of.
 #[derive(clap::Args, Clone)]
 struct RecordingArgs {
@@ -322,23 +349,7 @@ struct RecordingArgs {
 impl RecordingArgs {
     /// The config with `--arm`'s arm in it (and the boxes its reach bounds), else as loaded.
     fn config(&self, stack: &Stack) -> anyhow::Result<Config> {
-        let loaded = stack.load()?;
-        let Some(arm) = &self.arm else {
-            return Ok(loaded);
-        };
-        let (text, origin) = match stack.path() {
-            Some(p) => (std::fs::read_to_string(&p)?, p.display().to_string()),
-            None => (
-                softarm_config::DEFAULT.to_string(),
-                "embedded default config".into(),
-            ),
-        };
-        let text =
-            softarm_config::arms::with_arm(&text, &softarm_config::arms::resolve(arm)?, arm)?;
-        let mut c = Config::parse(&text, &origin, loaded.base_dir.clone())?;
-        c.state.dir = loaded.state.dir;
-        c.robot.namespace = loaded.robot.namespace;
-        Ok(c)
+        with_arm(stack.load()?, self.arm.as_deref(), stack)
     }
 
     /// The recording at `path` of `arm`: softarm's own (`.mcap`), else a CSV through
@@ -384,8 +395,21 @@ enum ModelCommand {
 
 #[derive(Subcommand)]
 enum ConfigCommand {
-    /// Checks a config file; prints the first error with its key and line.
-    Check { file: PathBuf },
+    /// Checks a file softarm reads: a config, an [arm] file, a way-point set, a scenario or a
+    /// recording's column map (told apart by its keys); prints what it took the file for, or
+    /// the first error with its key and line.
+    Check {
+        file: PathBuf,
+        /// What the file is, when its keys do not say.
+        #[arg(long = "as", value_enum)]
+        kind: Option<FileKindArg>,
+        /// The arm a column map, way-point set or scenario is checked on (a shipped arm's name
+        /// or an [arm] file; default the config's).
+        #[arg(long, value_name = "NAME|FILE")]
+        arm: Option<String>,
+        #[command(flatten)]
+        stack: Stack,
+    },
     /// Prints the embedded default config.
     Default,
     /// Prints the reference of every config key (Markdown: docs/config.md).
@@ -582,10 +606,12 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             estop::run(&stack.load()?, reset, timeout)?
         }
         Command::Config { command } => match command {
-            ConfigCommand::Check { file } => {
-                let c = Config::load(&file)?;
-                println!("{}: ok (namespace {})", file.display(), c.namespace());
-            }
+            ConfigCommand::Check {
+                file,
+                kind,
+                arm,
+                stack,
+            } => check_file(&file, kind.map(FileKind::from), arm.as_deref(), &stack)?,
             ConfigCommand::Default => print!("{}", softarm_config::DEFAULT),
             ConfigCommand::Reference => print!("{}", softarm_config::reference::markdown()),
         },
@@ -635,6 +661,68 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Uninstall(args) => install::uninstall(&args)?,
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// `softarm config check FILE`: the file taken for what its keys say (or `kind`), checked as
+/// softarm reads it, against the config's arm and limits (or `arm`'s).
+fn check_file(
+    file: &Path,
+    kind: Option<FileKind>,
+    arm: Option<&str>,
+    stack: &Stack,
+) -> anyhow::Result<()> {
+    let origin = file.display().to_string();
+    let text = std::fs::read_to_string(file).map_err(|e| ConfigError {
+        origin: origin.clone(),
+        line: None,
+        message: format!("cannot read the file: {e}"),
+    })?;
+    let (kind, taken) = match kind {
+        Some(k) => (k, "checked as"),
+        None => (FileKind::of(&text, &origin)?, "taken for"),
+    };
+    // A whole config is checked on its own; the rest on the config they would be used with
+    // (which an outsider to an installed stack may not read: not asked for one).
+    let config = match kind {
+        FileKind::Config => Config::default_sim(PathBuf::from(".")),
+        _ => with_arm(stack.read()?, arm, stack)?,
+    };
+    let found = match kind {
+        FileKind::ColumnMap => {
+            let columns = softarm_identify::recording::Columns::parse(file, &text)?;
+            columns.check(file, &config.layout())?;
+            format!(
+                "{} actuator columns, for arm {}",
+                columns.actuators.len(),
+                config.arm_identity()
+            )
+        }
+        k => softarm_config::files::check(k, &text, file, &config)?,
+    };
+    println!("{origin}: ok, {taken} {}: {found}", kind.name());
+    Ok(())
+}
+
+/// `--as`: what `softarm config check` checks a file as.
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum FileKindArg {
+    Config,
+    Arm,
+    Waypoints,
+    Scenario,
+    Columns,
+}
+
+impl From<FileKindArg> for FileKind {
+    fn from(k: FileKindArg) -> Self {
+        match k {
+            FileKindArg::Config => Self::Config,
+            FileKindArg::Arm => Self::Arm,
+            FileKindArg::Waypoints => Self::WaypointSet,
+            FileKindArg::Scenario => Self::Scenario,
+            FileKindArg::Columns => Self::ColumnMap,
+        }
+    }
 }
 
 /// The demo's and the soak's own output is their table.

@@ -157,9 +157,17 @@ const CASES: &[Case] = &[
     case("ros2 with ros2.domain_id beyond 232", &["ros2", "--config", "domain.toml"], CONFIG, &["domain.toml:", ": ros2.domain_id: must be 0 to 232"]),
     case("up with ros2.domain_id beyond 232", &["up", "--config", "domain.toml"], CONFIG, &["domain.toml:", ": ros2.domain_id: must be 0 to 232"]),
     case("bench --config garbage", &["bench", "--config", "garbage.toml"], CONFIG, &["garbage.toml:1:"]),
-    case("config check missing", &["config", "check", "missing.toml"], CONFIG, &["missing.toml: cannot read the config"]),
+    case("config check missing", &["config", "check", "missing.toml"], CONFIG, &["missing.toml: cannot read the file"]),
     case("config check garbage", &["config", "check", "garbage.toml"], CONFIG, &["garbage.toml:1: key with no value"]),
-    case("config check a directory", &["config", "check", "folder"], CONFIG, &["folder: cannot read the config: Is a directory"]),
+    case("config check a directory", &["config", "check", "folder"], CONFIG, &["folder: cannot read the file: Is a directory"]),
+    case("config check a file of no kind", &["config", "check", "colour.toml"], CONFIG, &["colour.toml: cannot tell what this file is from its top-level keys (colour, shape): give `--as"]),
+    case("config check a set beyond the workspace", &["config", "check", "far.toml", "--config", "sim.toml"], CONFIG, &["far.toml: against the config's limits: "]),
+    case("config check a set past its duration", &["config", "check", "late.toml"], CONFIG, &["late.toml: ", "point"]),
+    case("config check a bad arm file", &["config", "check", "arm-bad.toml"], CONFIG, &["arm-bad.toml:4: arm.modules[0].tendons"]),
+    case("config check a set --as arm", &["config", "check", "set.toml", "--as", "arm"], CONFIG, &["set.toml:4: arm: unknown field `duration_s`"]),
+    case("config check a column map of another arm", &["config", "check", "columns.toml"], FAILED, &["columns.toml: the column map names 3 actuators; the arm has 6"]),
+    case("config check a column map with a bad unit", &["config", "check", "columns.toml", "--arm", "arm-three.toml"], FAILED, &["columns.toml", "unit `furlong` does not parse: give m, cm or mm"]),
+    case("config check a scenario for another arm", &["config", "check", "scenario-bad.toml"], CONFIG, &["scenario-bad.toml", "arm.actuator_offset_m"]),
     case("sim --scenario unknown", &["sim", "--config", "sim.toml", "--scenario", "nowhere"], CONFIG, &["nowhere: no such scenario file, nor a shipped scenario"]),
     case("up --scenario unknown", &["up", "--config", "sim.toml", "--scenario", "nowhere"], CONFIG, &["nowhere: no such scenario"]),
     case("demo --scenario unknown", &["demo", "--scenario", "nowhere"], CONFIG, &["nowhere: no such scenario"]),
@@ -220,6 +228,28 @@ const CASES: &[Case] = &[
 fn fixtures(dir: &Path, namespace: &str, recording: &[u8]) {
     let write = |name: &str, bytes: &[u8]| std::fs::write(dir.join(name), bytes).unwrap();
     write("garbage.toml", b"garbage\n");
+    write("colour.toml", b"colour = 3\n[shape]\nsides = 4\n");
+    write(
+        "arm-bad.toml",
+        b"routing = \"coupled\"\n[[modules]]\nbackbone_m = 0.06\n\
+          tendons = { count = 3, radius_m = -0.0045, length_m = [0.05, 0.07] }\n",
+    );
+    write(
+        "arm-three.toml",
+        b"[[modules]]\nbackbone_m = 0.06\n\
+          tendons = { count = 3, radius_m = 0.0045, length_m = [0.05, 0.07] }\n",
+    );
+    write(
+        "columns.toml",
+        b"time = { column = \"t\", unit = \"s\" }\n\
+          tip = { columns = [\"x\", \"y\", \"z\"], unit = \"furlong\" }\n\
+          [[actuators]]\ncolumn = \"a\"\nunit = \"mm\"\n[[actuators]]\ncolumn = \"b\"\nunit = \"mm\"\n\
+          [[actuators]]\ncolumn = \"c\"\nunit = \"mm\"\n",
+    );
+    write(
+        "scenario-bad.toml",
+        b"[arm]\nactuator_offset_m = [0.0, 0.0, 0.001]\n",
+    );
     write("sim.toml", config_text(dir, namespace).as_bytes());
     let remote = [("view.listen", "0.0.0.0:8765".into())];
     write(
@@ -517,4 +547,48 @@ fn estop_without_a_stack_latches_and_says_that_no_process_heard_it() {
         assert_eq!(std::fs::read_to_string(&latch).unwrap().trim(), word);
     }
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// `softarm config check` takes every file softarm ships for what it is and passes it (an arm
+/// file was refused as a config with "unknown field connector_m").
+#[test]
+fn config_check_takes_every_shipped_file_for_what_it_is() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut files: Vec<(PathBuf, &str, Vec<&str>)> = Vec::new();
+    for (folder, kind) in [
+        ("config/arms", "an [arm] file"),
+        ("config/scenarios", "a scenario"),
+        ("config/waypoints", "a way-point set"),
+    ] {
+        for e in std::fs::read_dir(root.join(folder)).unwrap().flatten() {
+            files.push((e.path(), kind, vec![]));
+        }
+    }
+    files.push((root.join("config/softarm.toml"), "a config", vec![]));
+    files.push((root.join("config/hardware.toml"), "a config", vec![]));
+    let recording = root.join("config/recordings/opencr-tdcr");
+    let arm = recording.join("arm.toml");
+    files.push((
+        recording.join("columns.toml"),
+        "a recording's column map",
+        vec!["--arm", arm.to_str().unwrap()],
+    ));
+    files.push((arm.clone(), "an [arm] file", vec![]));
+    for (file, kind, extra) in &files {
+        let out = output(
+            Command::new(BIN)
+                .args(["config", "check"])
+                .arg(file)
+                .args(extra)
+                .env("SOFTARM_CONFIG", root.join("config/softarm.toml")),
+        );
+        let stdout = String::from_utf8_lossy(&out.stdout);
+        assert!(
+            out.status.success() && stdout.contains(&format!(": ok, taken for {kind}: ")),
+            "{}: {stdout}{}",
+            file.display(),
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+    assert!(files.len() >= 20, "{} files", files.len());
 }

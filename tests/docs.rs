@@ -293,3 +293,31 @@ fn every_command_line_of_readme_and_the_guide_parses() {
         wrong.join("\n")
     );
 }
+
+/// An installed stack has no model until it is trained: wherever the docs enable the stack,
+/// the next softarm command they give is `softarm train` (an operator following them from
+/// enable to submit was refused every set).
+#[test]
+fn where_the_docs_start_the_installed_stack_they_train_it_next() {
+    let root = Path::new(ROOT);
+    let mut enabled = 0;
+    for doc in documents() {
+        let text = std::fs::read_to_string(&doc).unwrap();
+        let commands: Vec<(usize, String)> = command_lines(&text);
+        for (i, line) in text.lines().enumerate() {
+            if !line.contains("systemctl enable --now softarm.target") {
+                continue;
+            }
+            enabled += 1;
+            let next = commands.iter().find(|(at, _)| *at > i + 1);
+            assert!(
+                next.is_some_and(|(_, args)| args.starts_with("train")),
+                "{}:{}: the stack is enabled, then `softarm {}` comes before `softarm train`",
+                doc.strip_prefix(root).unwrap().display(),
+                i + 1,
+                next.map_or("(nothing)", |(_, a)| a.as_str())
+            );
+        }
+    }
+    assert!(enabled >= 2, "only {enabled} places enable the stack");
+}

@@ -14,6 +14,16 @@ const BIN: &str = env!("CARGO_BIN_EXE_softarm");
 fn a_set_is_executed_and_stats_arrive_for_every_execution() {
     let mut s = TestStack::new(BIN, "execute", true);
     s.up();
+    // Before any execution: an answer, not silence (text), and a valid empty one (JSON).
+    let none = s.run(&["stats"]);
+    let text = String::from_utf8_lossy(&none.stdout);
+    assert!(
+        none.status.success() && text.starts_with("no executions yet in namespace"),
+        "{text}"
+    );
+    let none = s.run(&["stats", "--json"]);
+    let json: serde_json::Value = serde_json::from_slice(&none.stdout).unwrap();
+    assert_eq!(json, serde_json::json!([]));
     let (code, out, err) = s.submit(Path::new(DEMO_WAYPOINTS), 2);
     assert_eq!(code, 0, "{out}{err}");
     let id = set_id(&out);
@@ -23,6 +33,11 @@ fn a_set_is_executed_and_stats_arrive_for_every_execution() {
         .map(|v| v["execution"].as_u64().unwrap())
         .collect();
     assert_eq!(executions, vec![1, 2]);
+    let text = String::from_utf8_lossy(&s.run(&["stats"]).stdout).to_string();
+    assert!(
+        text.starts_with(" exec") && !text.contains("no executions"),
+        "{text}"
+    );
     for v in &stats {
         let errors = v["errors_mm"].as_array().unwrap();
         assert_eq!(errors.len(), 5, "{v}");

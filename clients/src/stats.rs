@@ -121,8 +121,20 @@ impl Stats {
     }
 }
 
+/// What `softarm stats` says when the controller holds no execution: an answer, not silence,
+/// so that "nothing has run yet" reads apart from "broken".
+pub fn none_yet(namespace: &Namespace) -> String {
+    format!(
+        "no executions yet in namespace {:?}: `softarm submit FILE` runs a set (the controller \
+         keeps its last 64 executions)",
+        namespace.as_str()
+    )
+}
+
 /// `softarm stats [--follow] [--json]`: the executions' stats the controller still holds (the
 /// last 64), then with `follow` every new one; an error when no controller runs there.
+/// `--json` alone prints one JSON array (`[]` when nothing has run); with `--follow`, one
+/// JSON object per execution and line, as they finish.
 pub fn show(namespace: &Namespace, follow: bool, json: bool) -> anyhow::Result<()> {
     let f = Stats::open(namespace)?;
     if !f.controller_running() {
@@ -134,24 +146,43 @@ pub fn show(namespace: &Namespace, follow: bool, json: bool) -> anyhow::Result<(
             namespace.as_str()
         );
     }
+    // The history the controller keeps arrives at once; 500 ms is ample on a loaded machine.
+    let held: Vec<ExecutionStats> =
+        std::iter::from_fn(|| f.next(Duration::from_millis(500))).collect();
+    if json && !follow {
+        println!("{}", json_array(&held));
+        return Ok(());
+    }
+    if held.is_empty() && !json {
+        println!("{}", none_yet(namespace));
+    }
     let mut header = None;
-    let wait = if follow {
-        Duration::from_secs(3600 * 24 * 365)
-    } else {
-        Duration::from_millis(500)
-    };
-    while let Some(s) = f.next(wait) {
+    let mut print = |s: &ExecutionStats| {
         if json {
-            println!("{}", json_line(&s));
+            println!("{}", json_line(s));
         } else {
             if header != Some(s.count) {
                 println!("{}", table_header(s.count as usize));
                 header = Some(s.count);
             }
-            println!("{}", table_row(&s));
+            println!("{}", table_row(s));
+        }
+    };
+    held.iter().for_each(&mut print);
+    if !follow {
+        return Ok(());
+    }
+    loop {
+        if let Some(s) = f.next(Duration::from_secs(3600)) {
+            print(&s);
         }
     }
-    Ok(())
+}
+
+/// The executions as one JSON array of [`json_line`]'s objects.
+pub fn json_array(stats: &[ExecutionStats]) -> String {
+    let lines: Vec<String> = stats.iter().map(json_line).collect();
+    format!("[{}]", lines.join(","))
 }
 
 #[cfg(test)]
@@ -178,6 +209,25 @@ mod tests {
         assert_eq!(j["late_estimates"], 3);
         assert!(table_row(&s(3, 1)).ends_with("    3      0"));
         assert!(table_header(4).ends_with(" late unseen"));
+    }
+
+    #[test]
+    fn no_execution_is_an_empty_array_and_executions_one_object_each() {
+        let empty: serde_json::Value = serde_json::from_str(&json_array(&[])).unwrap();
+        assert_eq!(empty, serde_json::json!([]));
+        let s = |execution| ExecutionStats {
+            execution,
+            count: 2,
+            ..Default::default()
+        };
+        let two: serde_json::Value = serde_json::from_str(&json_array(&[s(1), s(2)])).unwrap();
+        let executions: Vec<_> = two
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| &v["execution"])
+            .collect();
+        assert_eq!(executions, [1, 2]);
     }
 
     #[test]

@@ -36,7 +36,7 @@ import softarm_ipc as sa  # noqa: E402
 
 
 def stats_dict(s: sa.ExecutionStats) -> dict:
-    """An execution's stats as ``softarm stats --json`` prints them (mm)."""
+    """An execution's stats as ``softarm stats --json`` prints each (mm)."""
     return {
         "set_id": s.set_id,
         "execution": s.execution,

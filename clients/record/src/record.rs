@@ -256,7 +256,7 @@ pub fn counts(messages: &[Message]) -> BTreeMap<String, u64> {
 pub struct Replay {
     pub seconds: f64,
     pub counts: BTreeMap<String, u64>,
-    /// One per finished execution, as `softarm stats --json` prints it.
+    /// One per finished execution, as `softarm stats --follow --json` prints it.
     pub executions: Vec<Value>,
     /// Setpoint intervals (µs): p50, p99, max, and how many were more than 1.5 periods.
     pub setpoint_interval_us: Option<Value>,

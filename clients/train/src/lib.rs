@@ -4,6 +4,7 @@
 //! model and pre-trains the learner against the forward model; the bundle is written
 //! (atomically) where the controller and learner pick it up.
 
+pub mod recipe;
 pub mod recording;
 
 use std::time::{Duration, Instant};
@@ -361,6 +362,8 @@ fn train_for<const N: usize>(config: &Config, namespace: &Namespace, seed: u64) 
     let model_id = model
         .write(&config.model_dir())
         .context("writing the model bundle")?;
+    recipe::write(&config.model_dir(), &recipe::of(config, seed))
+        .context("writing the model's recipe beside its bundle")?;
     Ok(Trained {
         demos,
         samples: samples.len(),

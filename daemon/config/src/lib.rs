@@ -34,6 +34,7 @@ use crate::sim::SimConfig;
 pub const EXIT_CONFIG: u8 = 78;
 
 pub mod arms;
+pub mod files;
 pub mod hardware;
 pub mod host;
 pub mod reference;

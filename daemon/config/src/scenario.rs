@@ -234,6 +234,11 @@ impl Scenario {
         Ok(s)
     }
 
+    /// The arm the scenario is for (`for_arm`), `None` for any arm it fits.
+    pub fn for_arm(&self) -> Option<&ArmConfig> {
+        self.for_arm.as_ref()
+    }
+
     /// Checks the scenario on `config`'s arm, as the sim will apply it: what refuses it before
     /// anything starts.
     pub fn check_on(&self, config: &crate::Config) -> Result<(), ConfigError> {

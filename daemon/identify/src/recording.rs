@@ -232,6 +232,109 @@ impl Columns {
         Self::parse(path, &text)
     }
 
+    /// What can be checked of the map without the recording, on the arm it is for: one column
+    /// per actuator, a tendon each, units that parse, signs of 1 or -1, zeros inside the
+    /// strokes. `softarm config check` runs it alone; [`read`] first.
+    pub fn check(&self, path: &Path, arm: &Layout) -> Result<(), RecordingError> {
+        let at = |column: Option<&str>, message: String| RecordingError {
+            file: path.into(),
+            line: None,
+            column: column.map(str::to_string),
+            message,
+        };
+        let n = arm.actuators().len();
+        if let Some(a) = arm.actuators().iter().find(|a| a.kind != Kind::Tendon) {
+            return Err(at(
+                None,
+                format!(
+                    "actuator {} is a chamber: identification from a recording models tendon arms",
+                    a.name
+                ),
+            ));
+        }
+        if self.actuators.len() != n {
+            let names: Vec<&str> = arm.names().collect();
+            return Err(at(
+                None,
+                format!(
+                    "the column map names {} actuators; the arm has {n} ({}): one column each, in \
+                 the arm's order (is it the recording's arm? give it with --arm)",
+                    self.actuators.len(),
+                    names.join(", ")
+                ),
+            ));
+        }
+        if let Some(v) = (self.tip.base_origin_m.iter())
+            .chain(&self.tip.base_rotation_deg)
+            .find(|v| !v.is_finite())
+        {
+            return Err(at(
+                None,
+                format!("tip.base_origin_m and tip.base_rotation_deg are numbers, not {v}"),
+            ));
+        }
+        let units = std::iter::once((
+            &self.time.column,
+            &self.time.unit,
+            time_unit as fn(&str) -> Option<f64>,
+            "s, ms, us or ns",
+        ))
+        .chain(self.actuators.iter().map(|a| {
+            (
+                &a.column,
+                &a.unit,
+                length_unit as fn(&str) -> Option<f64>,
+                "m, cm or mm",
+            )
+        }))
+        .chain(self.tip.columns.iter().map(|c| {
+            (
+                c,
+                &self.tip.unit,
+                length_unit as fn(&str) -> Option<f64>,
+                "m, cm or mm",
+            )
+        }));
+        for (column, unit, parse, give) in units {
+            if parse(unit).is_none() {
+                return Err(at(
+                    Some(column),
+                    format!("unit `{unit}` does not parse: give {give}"),
+                ));
+            }
+        }
+        let strokes = self.strokes(arm);
+        for (i, c) in self.actuators.iter().enumerate() {
+            if !(c.sign == 1.0 || c.sign == -1.0) {
+                return Err(at(
+                    Some(&c.column),
+                    format!("sign = {}: give 1 or -1", c.sign),
+                ));
+            }
+            let (lo, hi, zero) = strokes[i];
+            if !(lo..=hi).contains(&zero) {
+                return Err(at(
+                    Some(&c.column),
+                    format!(
+                        "zero_length_m = {zero} is outside actuator {}'s stroke, {lo} to {hi} m",
+                        arm.actuators()[i].name
+                    ),
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// Each actuator's stroke, as lengths (m), and its length at the recording's zero.
+    fn strokes(&self, arm: &Layout) -> Vec<(f64, f64, f64)> {
+        (arm.actuators().iter().zip(&self.actuators))
+            .map(|(a, c)| {
+                let (lo, hi) = (a.min_m.min(a.max_m), a.min_m.max(a.max_m));
+                (lo, hi, c.zero_length_m.unwrap_or(0.5 * (lo + hi)))
+            })
+            .collect()
+    }
+
     pub fn parse(path: &Path, text: &str) -> Result<Self, RecordingError> {
         toml::from_str(text).map_err(|e| RecordingError {
             file: path.into(),
@@ -262,40 +365,7 @@ pub fn read(path: &Path, columns: &Columns, arm: &Layout) -> Result<Recording, R
         column: column.map(str::to_string),
         message,
     };
-    let n = arm.actuators().len();
-    if let Some(a) = arm.actuators().iter().find(|a| a.kind != Kind::Tendon) {
-        return Err(at(
-            None,
-            None,
-            format!(
-                "actuator {} is a chamber: identification from a recording models tendon arms",
-                a.name
-            ),
-        ));
-    }
-    if columns.actuators.len() != n {
-        let names: Vec<&str> = arm.names().collect();
-        return Err(at(
-            None,
-            None,
-            format!(
-                "the column map names {} actuators; the arm has {n} ({}): one column each, in \
-                 the arm's order (is it the recording's arm? give it with --arm)",
-                columns.actuators.len(),
-                names.join(", ")
-            ),
-        ));
-    }
-    if let Some(v) = (columns.tip.base_origin_m.iter())
-        .chain(&columns.tip.base_rotation_deg)
-        .find(|v| !v.is_finite())
-    {
-        return Err(at(
-            None,
-            None,
-            format!("tip.base_origin_m and tip.base_rotation_deg are numbers, not {v}"),
-        ));
-    }
+    columns.check(path, arm)?;
     let mut reader = csv::ReaderBuilder::new()
         .trim(csv::Trim::All)
         .from_path(path)
@@ -359,33 +429,7 @@ pub fn read(path: &Path, columns: &Columns, arm: &Layout) -> Result<Recording, R
         Some(l) => Some(find(l, Some(1.0), "").map(|f| f.index)?),
         None => None,
     };
-    // Each actuator's stroke, as lengths (m), and the length at the recording's zero.
-    let strokes: Vec<(f64, f64, f64)> = (arm.actuators().iter().zip(&columns.actuators))
-        .map(|(a, c)| {
-            let (lo, hi) = (a.min_m.min(a.max_m), a.min_m.max(a.max_m));
-            (lo, hi, c.zero_length_m.unwrap_or(0.5 * (lo + hi)))
-        })
-        .collect();
-    for (i, c) in columns.actuators.iter().enumerate() {
-        if !(c.sign == 1.0 || c.sign == -1.0) {
-            return Err(at(
-                None,
-                Some(&c.column),
-                format!("sign = {}: give 1 or -1", c.sign),
-            ));
-        }
-        let (lo, hi, zero) = strokes[i];
-        if !(lo..=hi).contains(&zero) {
-            return Err(at(
-                None,
-                Some(&c.column),
-                format!(
-                    "zero_length_m = {zero} is outside actuator {}'s stroke, {lo} to {hi} m",
-                    arm.actuators()[i].name
-                ),
-            ));
-        }
-    }
+    let strokes = columns.strokes(arm);
 
     let mut rows = Vec::new();
     let mut last_time = f64::NEG_INFINITY;
@@ -423,7 +467,7 @@ pub fn read(path: &Path, columns: &Columns, arm: &Layout) -> Result<Recording, R
             ));
         }
         last_time = time_s;
-        let mut pull_m = Vec::with_capacity(n);
+        let mut pull_m = Vec::with_capacity(actuators.len());
         for (i, f) in actuators.iter().enumerate() {
             let pull = columns.actuators[i].sign * number(f)?;
             let (lo, hi, zero) = strokes[i];

@@ -27,7 +27,7 @@ use softarm_sections::arm::ArmGeometry;
 use softarm_sections::learner::LearnerConfig;
 
 /// 2: the polynomial kinematics (`kinematics.weights`) joined the model.
-const FORMAT: u32 = 2;
+pub const FORMAT: u32 = 2;
 
 #[derive(Debug, thiserror::Error)]
 pub enum BundleError {

@@ -18,7 +18,7 @@ use softarm_config::{Config, DEFAULT};
 use softarm_ipc::{ExecutionStats, Namespace, Node, Sub, TrackerSample};
 use softarm_record::{plot, record};
 
-use crate::sandbox::{self, Sandbox};
+use crate::sandbox::{self, ModelFolder, Sandbox};
 use crate::supervisor::{self, Supervisor};
 
 #[derive(clap::Args)]
@@ -29,7 +29,7 @@ pub struct Args {
     /// Seeds the demonstrations, the plant and the learner.
     #[arg(long, default_value_t = 1, allow_negative_numbers = true)]
     seed: u64,
-    /// One JSON object per execution on stdout (as `softarm stats --json`), nothing else.
+    /// One JSON object per execution on stdout (as `softarm stats --follow --json`), nothing else.
     #[arg(long)]
     json: bool,
     /// Where the trained model is kept between runs (default: the user's cache folder).
@@ -136,7 +136,11 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
         args.json,
         &format!("softarm demo: stack up in namespace {}", ns.as_str()),
     );
-    sandbox.ready_with_model(&mut sup, stop, args.seed, &|line| {
+    let folder = match args.model_dir {
+        Some(_) => ModelFolder::Given,
+        None => ModelFolder::Cache,
+    };
+    sandbox.ready_with_model(&mut sup, stop, args.seed, folder, &|line| {
         say(args.json, &format!("softarm demo: {line}"))
     })?;
     if let Some(s) = scenario.as_ref().filter(|s| !s.is_nominal()) {

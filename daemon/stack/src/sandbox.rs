@@ -128,13 +128,16 @@ impl Sandbox {
     }
 
     /// Waits for the controller; trains a model into the config's model folder if none there
-    /// is usable (through this stack, as `softarm train` does), and waits until it is loaded.
-    /// `say` tells the user what happens.
+    /// is usable (through this stack, as `softarm train` does), or, in softarm's own cache, if
+    /// the one there was trained by other settings or another softarm (its recipe,
+    /// `softarm_train::recipe`), and waits until it is loaded. `say` tells the user what
+    /// happens and why.
     pub fn ready_with_model(
         &self,
         sup: &mut Supervisor,
         stop: &AtomicBool,
         seed: u64,
+        folder: ModelFolder,
         say: &dyn Fn(&str),
     ) -> anyhow::Result<()> {
         self.wait_for(
@@ -153,13 +156,14 @@ impl Sandbox {
         let readable = softarm_ipc::with_actuators!(self.config.layout().actuators().len(),
             N => Model::<N>::read_for_arm(&model_dir, &arm).map(drop),
             n => unreachable!("a loaded config's arm has 3 to 16 actuators, not {n}"));
-        let train_because = match readable {
-            Ok(()) => None,
-            Err(_) if !model_dir.join("model.toml").exists() => {
-                Some(format!("no model in {}", model_dir.display()))
-            }
-            Err(e) => Some(format!("the model is not usable ({e})")),
-        };
+        let recipe = train::recipe::of(&self.config, seed);
+        let train_because = why_train(
+            readable.map_err(|e| e.to_string()),
+            &model_dir,
+            &recipe,
+            folder,
+            say,
+        );
         if let Some(why) = train_because {
             say(&format!(
                 "{why}: training (demonstrations, ProMPs, forward models, CACLA-MTL pre-training)"
@@ -183,6 +187,45 @@ impl Sandbox {
             },
         )
     }
+}
+
+/// Why the model in `dir` is to be trained before a run, `None` when it runs as it is:
+/// `readable` says whether a bundle for the arm reads there; one in softarm's cache is
+/// trained again when its recipe is not `recipe`, one the user gave is only said to differ.
+fn why_train(
+    readable: Result<(), String>,
+    dir: &Path,
+    recipe: &train::recipe::Recipe,
+    folder: ModelFolder,
+    say: &dyn Fn(&str),
+) -> Option<String> {
+    match readable {
+        Ok(()) => {
+            let differs = train::recipe::differs(dir, recipe);
+            match (folder, differs) {
+                (ModelFolder::Cache, differs) => differs,
+                (ModelFolder::Given, Some(why)) => {
+                    // The user's own folder is theirs: said, never trained over.
+                    say(&format!("{why}; used as it is (train it again to match)"));
+                    None
+                }
+                (ModelFolder::Given, None) => None,
+            }
+        }
+        Err(_) if !dir.join("model.toml").exists() => {
+            Some(format!("no model in {}", dir.display()))
+        }
+        Err(e) => Some(format!("the model is not usable ({e})")),
+    }
+}
+
+/// Whose model folder a sandbox runs on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ModelFolder {
+    /// softarm's own cache: a model trained by other settings is trained again.
+    Cache,
+    /// One the user named: used as it is, whatever trained it (a difference is said).
+    Given,
 }
 
 /// A sandbox's folder, removed when dropped unless kept.
@@ -221,4 +264,51 @@ pub fn cache_dir() -> PathBuf {
         return PathBuf::from(h).join(".cache/softarm");
     }
     std::env::temp_dir().join("softarm-cache")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_cached_model_of_another_recipe_is_trained_again_and_a_given_one_is_not() {
+        let dir = std::env::temp_dir().join(format!("softarm-why-train-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let config = Config::default_sim(PathBuf::from("."));
+        let recipe = train::recipe::of(&config, 1);
+        train::recipe::write(&dir, &recipe).unwrap();
+        let said = std::cell::RefCell::new(Vec::new());
+        let say = |l: &str| said.borrow_mut().push(l.to_string());
+        let why = |readable, recipe, folder| why_train(readable, &dir, recipe, folder, &say);
+
+        assert_eq!(
+            why(Ok(()), &recipe, ModelFolder::Cache),
+            None,
+            "the same recipe"
+        );
+        assert_eq!(why(Ok(()), &recipe, ModelFolder::Given), None);
+        let mut other = config.clone();
+        other.forward_model.centres += 1;
+        let other = train::recipe::of(&other, 1);
+        let again = why(Ok(()), &other, ModelFolder::Cache).unwrap();
+        assert!(again.contains("[forward_model] differ"), "{again}");
+        assert!(said.borrow().is_empty());
+        assert_eq!(
+            why(Ok(()), &other, ModelFolder::Given),
+            None,
+            "never over the user's"
+        );
+        assert!(
+            said.borrow()[0].contains("used as it is"),
+            "{:?}",
+            said.borrow()
+        );
+
+        let unreadable = why(Err("format 1".into()), &recipe, ModelFolder::Given).unwrap();
+        assert!(unreadable.starts_with("no model in"), "{unreadable}");
+        std::fs::write(dir.join("model.toml"), "").unwrap();
+        let unreadable = why(Err("format 1".into()), &recipe, ModelFolder::Given).unwrap();
+        assert!(unreadable.contains("not usable (format 1)"), "{unreadable}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }

@@ -239,14 +239,15 @@ impl TestStack {
         }
     }
 
-    /// Stats lines (JSON) of set `set_id` seen so far.
+    /// The executions (JSON) of set `set_id` seen so far.
     pub fn stats(&self, set_id: u64) -> Vec<serde_json::Value> {
         let out = self.run(&["stats", "--json"]);
-        String::from_utf8_lossy(&out.stdout)
-            .lines()
-            .filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())
-            .filter(|v| v["set_id"] == set_id)
-            .collect()
+        match serde_json::from_slice::<serde_json::Value>(&out.stdout) {
+            Ok(serde_json::Value::Array(all)) => {
+                all.into_iter().filter(|v| v["set_id"] == set_id).collect()
+            }
+            _ => Vec::new(),
+        }
     }
 
     pub fn wait_stats(

@@ -35,7 +35,7 @@ use softarm_model::bundle::{Model, read_checkpoint_of};
 use softarm_runtime::now_ns;
 use softarm_watch::{Limits, Watch};
 
-use softarm_stack::sandbox::Sandbox;
+use softarm_stack::sandbox::{ModelFolder, Sandbox};
 
 mod report;
 pub mod sets;
@@ -164,7 +164,13 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<bool> {
             }
         ),
     );
-    sandbox.ready_with_model(&mut sup, stop, args.seed, &|line| say(args.json, line))?;
+    let folder = match (&args.model_dir, &args.config) {
+        (None, None) => ModelFolder::Cache,
+        _ => ModelFolder::Given,
+    };
+    sandbox.ready_with_model(&mut sup, stop, args.seed, folder, &|line| {
+        say(args.json, line)
+    })?;
     let lattice_start = lattices(&sandbox.config, &model_dir);
     let mut soak = Soak::start(args, stop, &sandbox, sup, roles, lattice_start, rotation)?;
     let minutes = Duration::from_secs_f64(args.minutes * 60.0);
