@@ -36,7 +36,7 @@ pub mod wire;
 
 use health::{Bus, Health};
 use link::{Ask, Counts, Fault, Link, Reading};
-use timing::{Cycle, LATENCY_MARGIN, RETURN_DELAY};
+use timing::{Cycle, RETURN_DELAY};
 
 /// Runs the tendon driver until `stop` is set.
 pub fn run(config: &Config, namespace: Namespace, stop: &AtomicBool) -> anyhow::Result<()> {
@@ -562,7 +562,8 @@ impl<'a> Driver<'a> {
     }
 
     /// Waits for the replies of the read just sent until the bus has had the time for them
-    /// (the line's, after what went out before the read, and [`LATENCY_MARGIN`]), then asks the
+    /// (the line's, after what went out before the read, and the host's and the adapter's:
+    /// [`timing::LATENCY_MARGIN`], or more while replies come later, [`timing::Lateness`]), then asks the
     /// motors that did not answer once more, if their replies are on the line before the next
     /// cycle's start (`now` is this cycle's): taken then. Asking sooner would be answered by the
     /// replies still coming, and on a half-duplex bus collide with them; asking when the
@@ -571,7 +572,7 @@ impl<'a> Driver<'a> {
         let Some(l) = self.link.as_mut() else {
             return Ok(());
         };
-        let margin = LATENCY_MARGIN.as_nanos() as u64;
+        let margin = l.lateness.margin_ns();
         let next_cycle = now + (1e9 / self.t.rate_hz) as u64;
         let Some(due) = l.read_due_ns().map(|d| d + margin) else {
             return Ok(());

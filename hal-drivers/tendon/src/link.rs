@@ -12,7 +12,7 @@ use softarm_ipc::MAX_ACTUATORS;
 use softarm_runtime::now_ns;
 
 use crate::table;
-use crate::timing::{Line, RETURN_DELAY};
+use crate::timing::{Lateness, Line, RETURN_DELAY};
 use crate::wire::{Arrival, BROADCAST_ID, Status, Wire, instruction, is_timeout};
 
 /// A failed exchange on the bus.
@@ -267,6 +267,8 @@ pub(crate) struct Link {
     line: Line,
     /// When the line is done with what the driver sent, and the replies it asked for (ns).
     busy_until_ns: u64,
+    /// How late after their time on the line the replies have come lately.
+    pub lateness: Lateness,
 }
 
 /// At start every motor gets this long to answer a write, three times: a loaded machine may
@@ -430,6 +432,7 @@ impl Link {
             delays: [0; MAX_ACTUATORS],
             line: Line::new(t.baud),
             busy_until_ns: now,
+            lateness: Lateness::default(),
         })
     }
 
@@ -872,21 +875,21 @@ impl Link {
             match arrival {
                 None => return Ok(false),
                 Some(Arrival::PortError(e)) => return Err(Fault::Port(e)),
-                Some(Arrival::Status(s, _)) => {
+                Some(Arrival::Status(s, at)) => {
                     self.last_reply_ns = now_ns();
                     let ids = &self.ids[..self.n];
                     let (torque, alert) = (&mut self.torque, &mut self.alert);
                     if let Some(p) = self.pending.as_mut()
                         && take(p, ids, &s, reading, torque, alert)
                     {
+                        self.lateness.heard(at, p.due_ns);
                         continue;
                     }
                     // Late: for the oldest closed read still missing this motor's answer.
-                    if self
-                        .closed
-                        .iter_mut()
-                        .any(|p| take(p, ids, &s, reading, torque, alert))
-                    {
+                    let late = (self.closed.iter_mut())
+                        .find_map(|p| take(p, ids, &s, reading, torque, alert).then_some(p.due_ns));
+                    if let Some(due_ns) = late {
+                        self.lateness.heard(at, due_ns);
                         counts.late += 1;
                         counts.answered += 1;
                     } else {

@@ -21,6 +21,44 @@ const RETURN_DELAY_UNIT_NS: u64 = 2_000;
 /// 16 ms every reply waits that long in the adapter).
 pub const LATENCY_MARGIN: Duration = Duration::from_millis(4);
 
+/// How late after their time on the line the replies have come, over the last
+/// [`LATENESS_KEPT_S`] seconds: the host's and the adapter's share of an exchange as this
+/// computer has it now. A loaded computer wakes the driver's threads milliseconds late, again
+/// and again while the load lasts; a read asked again before its replies could arrive is a
+/// time-out counted for nothing, and on a real bus a collision.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Lateness {
+    /// The latest of each of the last seconds, this one's last (ns).
+    latest: [u64; LATENESS_KEPT_S],
+    /// When this second began.
+    began_ns: u64,
+}
+
+/// Seconds a late reply widens the wait for.
+pub const LATENESS_KEPT_S: usize = 5;
+
+impl Lateness {
+    /// A reply that was due on the line at `due_ns` arrived at `at_ns`.
+    pub fn heard(&mut self, at_ns: u64, due_ns: u64) {
+        let seconds = at_ns.saturating_sub(self.began_ns) / 1_000_000_000;
+        if seconds > 0 {
+            let shift = (seconds as usize).min(LATENESS_KEPT_S);
+            self.latest.rotate_left(shift);
+            self.latest[LATENESS_KEPT_S - shift..].fill(0);
+            self.began_ns = at_ns;
+        }
+        let late = at_ns.saturating_sub(due_ns);
+        self.latest[LATENESS_KEPT_S - 1] = self.latest[LATENESS_KEPT_S - 1].max(late);
+    }
+
+    /// The wait for replies beyond their time on the line: [`LATENCY_MARGIN`], or half as much
+    /// again as the latest lateness seen lately, whichever is longer (ns).
+    pub fn margin_ns(&self) -> u64 {
+        let seen = self.latest.iter().copied().max().unwrap_or(0);
+        (LATENCY_MARGIN.as_nanos() as u64).max(seen + seen / 2)
+    }
+}
+
 /// Bytes of a packet besides its parameters: header 4, id, length 2, instruction, CRC 2.
 const PACKET_BYTES: usize = 10;
 /// Bytes of a status packet besides its data: the above and the error byte.
@@ -145,6 +183,26 @@ mod tests {
         assert_eq!(line.sync_read_ns(4, [250; 9]), 230_000 + 9 * 650_000);
         // Nine goals: 14 + 9 × 5 bytes.
         assert_eq!(line.sync_write_ns(4, 9), 590_000);
+    }
+
+    #[test]
+    fn the_margin_follows_the_latest_lateness_of_the_last_seconds() {
+        const MS: u64 = 1_000_000;
+        let mut l = Lateness::default();
+        assert_eq!(l.margin_ns(), 4 * MS, "at least the adapter's");
+        l.heard(1000 * MS, 999 * MS);
+        assert_eq!(l.margin_ns(), 4 * MS);
+        l.heard(1100 * MS, 1092 * MS);
+        assert_eq!(l.margin_ns(), 12 * MS, "8 ms late and a half");
+        // An early reply (the line model long) is not late.
+        l.heard(1200 * MS, 1300 * MS);
+        l.heard(5050 * MS, 5049 * MS);
+        assert_eq!(l.margin_ns(), 12 * MS, "kept for 5 s");
+        l.heard(6100 * MS, 6099 * MS);
+        assert_eq!(l.margin_ns(), 4 * MS, "forgotten after them");
+        l.heard(6200 * MS, 6194 * MS);
+        l.heard(60_000 * MS, 59_999 * MS);
+        assert_eq!(l.margin_ns(), 4 * MS, "a long silence forgets too");
     }
 
     #[test]
