@@ -307,4 +307,7 @@ fn factory_bus_figures() {
         warned("replies are being lost"),
         warned("motor bus failing"),
     );
+    for l in log.lines().filter(|l| l.contains("motor bus failing")) {
+        println!("{l}");
+    }
 }
