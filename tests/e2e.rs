@@ -19,6 +19,7 @@ mod docs;
 mod estop;
 mod faults;
 mod hardware;
+mod hardware_bus;
 mod hardware_faults;
 mod hardware_noise;
 mod identify;

@@ -33,7 +33,7 @@ thread_local! {
 }
 
 /// The waits of this test thread discount what `rig`'s canary sees the kernel hold.
-fn watch(rig: &Rig) {
+pub(crate) fn watch(rig: &Rig) {
     LINE.with(|l| *l.borrow_mut() = Some(rig.canary.watch()));
 }
 
@@ -55,7 +55,7 @@ fn relink(link: &Path, target: &Path) {
     std::os::unix::fs::symlink(target, link).unwrap();
 }
 
-fn node(s: &TestStack) -> Node {
+pub(crate) fn node(s: &TestStack) -> Node {
     Node::open(Namespace::new(&s.namespace).unwrap(), "test").unwrap()
 }
 
@@ -64,7 +64,7 @@ fn node(s: &TestStack) -> Node {
 /// loaded machine holds every pty for seconds (the kernel's flip-buffer work left without a
 /// CPU, `softarm_emulate::canary`), and no driver or device can answer meanwhile; what a test
 /// bounds is how long the driver takes on a line that works.
-fn eventually<T>(what: &str, mut f: impl FnMut() -> Option<T>) -> T {
+pub(crate) fn eventually<T>(what: &str, mut f: impl FnMut() -> Option<T>) -> T {
     let (start, from) = (Instant::now(), now_ns());
     loop {
         if let Some(v) = f() {
@@ -87,7 +87,7 @@ fn eventually<T>(what: &str, mut f: impl FnMut() -> Option<T>) -> T {
 }
 
 /// The newest motor state that arrived, if any.
-fn newest<T: Copy + std::fmt::Debug + ZeroCopySend>(sub: &Sub<T>) -> Option<T> {
+pub(crate) fn newest<T: Copy + std::fmt::Debug + ZeroCopySend>(sub: &Sub<T>) -> Option<T> {
     let mut last = None;
     while let Ok(Some(m)) = sub.receive() {
         last = Some(*m);
@@ -967,7 +967,7 @@ fn tdcr(text: String) -> String {
 }
 
 /// A setpoint of `values`, stamped now.
-fn send_each(setpoints: &Pub<Setpoint>, values: &[f64]) {
+pub(crate) fn send_each(setpoints: &Pub<Setpoint>, values: &[f64]) {
     setpoints
         .send_copy(Setpoint {
             stamp_ns: now_ns(),

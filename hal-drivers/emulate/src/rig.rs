@@ -52,7 +52,8 @@ pub struct Rig {
 
 impl Rig {
     /// Starts both devices for `config`'s `[tendon]` and `[tracker]`, the motors standing at
-    /// `initial` (normalised actuation), torque off.
+    /// `initial` (normalised actuation), torque off, at their factory settings (a Return Delay
+    /// Time of 500 µs), on lines at `tendon.baud`.
     pub fn start(config: &Config, initial: f64) -> anyhow::Result<Self> {
         let tendon = config
             .tendon
@@ -78,7 +79,9 @@ impl Rig {
             for (&i, &id) in b.actuators.iter().zip(&b.tendon.ids) {
                 motor_of[i] = (k, id);
             }
-            let bus = Arc::new(Mutex::new(dynamixel::Bus::with_motors(motors)));
+            let mut bus = dynamixel::Bus::with_motors(motors);
+            bus.set_baud(b.tendon.baud);
+            let bus = Arc::new(Mutex::new(bus));
             let pty = Pty::open().context("opening a pseudo-terminal for a motor bus")?;
             tendon_paths.push(pty.path().to_path_buf());
             let (served, stop) = (bus.clone(), stop.clone());

@@ -31,10 +31,12 @@ mod fuzz;
 mod health;
 mod link;
 pub mod table;
+mod timing;
 pub mod wire;
 
 use health::{Bus, Health};
 use link::{Ask, Counts, Fault, Link, Reading};
+use timing::{Cycle, RETURN_DELAY};
 
 /// Runs the tendon driver until `stop` is set.
 pub fn run(config: &Config, namespace: Namespace, stop: &AtomicBool) -> anyhow::Result<()> {
@@ -219,9 +221,9 @@ fn silent(c: &link::Closed, motors: usize, heard_late: bool) -> bool {
 /// position alone in the others.
 const DATA_EVERY: u64 = 4;
 
-/// The share of a period the first read of a cycle gets before the motors that did not answer
-/// are asked again.
-const RETRY_AFTER: f64 = 0.4;
+/// The share of a period a cycle of the survey waits for the motors' answers (those that come
+/// later are taken in the next cycles).
+const SURVEY_WAIT: f64 = 0.4;
 
 /// A bus silent this long has its device checked (gone, or another one behind the name).
 const CHECK_DEVICE_AFTER_NS: u64 = 500_000_000;
@@ -229,14 +231,51 @@ const CHECK_DEVICE_AFTER_NS: u64 = 500_000_000;
 /// How long the survey's first exchange, before the loop, waits for the motors' answers.
 const START_SURVEY_WAIT: Duration = Duration::from_millis(100);
 
-/// Says that every motor answered the survey.
-fn said_ready(t: &TendonConfig) {
+/// Says that every motor answered the survey and is configured, and what the bus can do per
+/// cycle with the motors' Return Delay Times as read back: a warning when every motor cannot
+/// be read within a period.
+fn said_ready(t: &TendonConfig, link: &Link) {
     tracing::info!(
         port = %t.port.display(),
         baud = t.baud,
         ids = ?t.ids,
         "every motor answered; the torque comes on with the first setpoint where they stand"
     );
+    let cycle = Cycle::of(t, link.delays());
+    if cycle.fits() {
+        tracing::info!(port = %t.port.display(), "motor bus: {}", cycle.describe());
+    } else {
+        tracing::warn!(
+            port = %t.port.display(),
+            "motor bus: {}: the motors' replies do not all fit in a period, so their data is a \
+             period late or more and, on a real bus, the next cycle's goals collide with them; \
+             set the motors' Return Delay Time to {RETURN_DELAY} or lower tendon.rate_hz",
+            cycle.describe()
+        );
+    }
+}
+
+/// Refuses a bus that cannot read all its motors within a period of `tendon.rate_hz` even
+/// when they answer at once (Return Delay Time [`RETURN_DELAY`]): the config asks for more
+/// than the line carries. A config error (exit 78): starting the driver again cannot help.
+fn check_rate(t: &TendonConfig) -> anyhow::Result<()> {
+    let cycle = Cycle::of(t, &vec![RETURN_DELAY; t.ids.len()]);
+    if cycle.fits() {
+        return Ok(());
+    }
+    Err(softarm_config::ConfigError {
+        origin: "[tendon]".into(),
+        line: None,
+        message: format!(
+            "rate_hz: the motor bus {} cannot carry tendon.rate_hz: {}. Lower tendon.rate_hz to \
+             {:.0} Hz or less, raise tendon.baud (and the motors' Baud Rate), or move some \
+             motors to a [[tendon.extra_bus]]",
+            t.port.display(),
+            cycle.describe(),
+            cycle.max_rate_hz().floor()
+        ),
+    }
+    .into())
 }
 
 impl<'a> Driver<'a> {
@@ -248,13 +287,14 @@ impl<'a> Driver<'a> {
             hold_after_ns: ms(t.hold_after_ms),
             off_after_ns: ms(t.torque_off_after_ms),
         };
+        check_rate(t)?;
         let mut counts = Counts::default();
         let mut link = Link::open(t)?;
         // The first exchange of the survey before the loop, as long as a motor gets to answer:
         // on a clean bus every motor has answered when it ends. A bus that has not (a stall,
         // noise, a motor missing) is asked again in the loop, which hears the e-stop meanwhile.
         match link.survey(t, &mut counts, START_SURVEY_WAIT) {
-            Ok(true) => said_ready(t),
+            Ok(true) => said_ready(t, &link),
             Ok(false) | Err(Fault::Bus(_)) => {}
             Err(Fault::Port(m)) => anyhow::bail!(
                 "asking the motors on {} for their settings: {m}",
@@ -351,16 +391,16 @@ impl<'a> Driver<'a> {
     }
 
     /// A link still surveying asks the motors that have not answered and takes their
-    /// settings, waiting up to [`RETRY_AFTER`] of a period; it is ready once every motor has
+    /// settings, waiting up to [`SURVEY_WAIT`] of a period; it is ready once every motor has
     /// answered and is configured. However long the bus stalls, the motors that answer late
     /// are taken, and none is engaged before then.
     fn survey(&mut self) {
         let Some(l) = self.link.as_mut().filter(|l| !l.ready()) else {
             return;
         };
-        let wait = Duration::from_secs_f64(RETRY_AFTER / self.t.rate_hz);
+        let wait = Duration::from_secs_f64(SURVEY_WAIT / self.t.rate_hz);
         match l.survey(self.t, &mut self.counts, wait) {
-            Ok(true) => said_ready(self.t),
+            Ok(true) => said_ready(self.t, l),
             Ok(false) => {}
             Err(Fault::Port(m)) => self.close(&format!("surveying: {m}")),
             Err(f @ Fault::Bus(_)) => {
@@ -491,8 +531,9 @@ impl<'a> Driver<'a> {
     /// Sends this cycle's read, when the read back-off allows: the status when due or after
     /// an alert bit, present current and position every [`DATA_EVERY`] cycles, else the
     /// position alone. The goals are out already, so the rest of the cycle is the reads': the
-    /// motors whose position did not come within [`RETRY_AFTER`] of the period are asked once
-    /// more, so a noisy line costs a motor's data a cycle only when both replies are lost.
+    /// motors whose position did not come in the time the bus needs for the replies are asked
+    /// once more ([`Driver::ask_again`]), so a noisy line costs a motor's data a cycle only when
+    /// both replies are lost.
     fn ask(&mut self, now: u64) {
         let Some(l) = self.link.as_mut().filter(|l| l.ready()) else {
             return;
@@ -510,7 +551,7 @@ impl<'a> Driver<'a> {
         };
         let mut sent = l.ask(ask, self.cycle, None);
         if sent.is_ok() && ask != Ask::Status {
-            sent = self.ask_again();
+            sent = self.ask_again(now);
         }
         if let Err(f) = sent {
             match f {
@@ -520,14 +561,27 @@ impl<'a> Driver<'a> {
         }
     }
 
-    /// Waits [`RETRY_AFTER`] of a period for the positions asked, then asks the motors that
-    /// did not answer once more (their replies are taken next cycle).
-    fn ask_again(&mut self) -> Result<(), Fault> {
+    /// Waits for the replies of the read just sent until the bus has had the time for them
+    /// (the line's, after what went out before the read, and the host's and the adapter's:
+    /// [`timing::LATENCY_MARGIN`], or more while replies come later, [`timing::Lateness`]), then asks the
+    /// motors that did not answer once more, if their replies are on the line before the next
+    /// cycle's start (`now` is this cycle's): taken then. Asking sooner would be answered by the
+    /// replies still coming, and on a half-duplex bus collide with them; asking when the
+    /// replies cannot be in by the next cycle would collide with its goals.
+    fn ask_again(&mut self, now: u64) -> Result<(), Fault> {
         let Some(l) = self.link.as_mut() else {
             return Ok(());
         };
+        let margin = l.lateness.margin_ns();
+        let next_cycle = now + (1e9 / self.t.rate_hz) as u64;
+        let Some(due) = l.read_due_ns().map(|d| d + margin) else {
+            return Ok(());
+        };
+        if due >= next_cycle {
+            return Ok(());
+        }
         let deadline =
-            std::time::Instant::now() + Duration::from_secs_f64(RETRY_AFTER / self.t.rate_hz);
+            std::time::Instant::now() + Duration::from_nanos(due.saturating_sub(now_ns()));
         loop {
             let left = deadline.saturating_duration_since(std::time::Instant::now());
             let late = self.counts.late;
@@ -545,8 +599,11 @@ impl<'a> Driver<'a> {
         };
         self.health.add(c.missing, c.asked);
         match c.missing_motors {
-            Some(missing) => l.ask(Ask::Position, self.cycle, Some(missing)),
-            None => Ok(()),
+            // On the line before the next goals go out; the host takes them at the next collect.
+            Some(missing) if now_ns() + l.read_ns(Ask::Position, &missing) < next_cycle => {
+                l.ask(Ask::Position, self.cycle, Some(missing))
+            }
+            _ => Ok(()),
         }
     }
 

@@ -12,6 +12,7 @@ use softarm_ipc::MAX_ACTUATORS;
 use softarm_runtime::now_ns;
 
 use crate::table;
+use crate::timing::{Lateness, Line, RETURN_DELAY};
 use crate::wire::{Arrival, BROADCAST_ID, Status, Wire, instruction, is_timeout};
 
 /// A failed exchange on the bus.
@@ -165,6 +166,38 @@ fn name_missing(t: &TendonConfig, ids: &[u8], waited_s: u64) {
     );
 }
 
+/// Says that motor `id` (the bus's `i`th) keeps Return Delay Time `delay` (unit 2 µs) although
+/// the driver wrote [`RETURN_DELAY`] (`refused`: the write's error, if it failed), and what to
+/// do.
+fn say_delay_kept(t: &TendonConfig, id: u8, i: usize, delay: u8, refused: Option<anyhow::Error>) {
+    let refused = refused.map_or(String::new(), |e| format!(" ({e:#})"));
+    tracing::error!(
+        "motor id {id} (actuator {}) on {} kept its Return Delay Time of {} µs where the driver \
+         wrote {} µs{refused}: every read of the bus waits that long for its reply. Set its \
+         Return Delay Time (control table address 9) to {RETURN_DELAY} with DYNAMIXEL Wizard, \
+         torque off, or replace the motor; the driver goes on, its reads sized to the delay",
+        i + 1,
+        t.port.display(),
+        u32::from(delay) * 2,
+        u32::from(RETURN_DELAY) * 2,
+    );
+}
+
+/// Says that motor `id` (the bus's `i`th), found holding with its torque on, keeps Return Delay
+/// Time `delay` (unit 2 µs) until a start that finds its torque off.
+fn say_delay_left(t: &TendonConfig, id: u8, i: usize, delay: u8) {
+    tracing::warn!(
+        "motor id {id} (actuator {}) on {} holds with its torque on and a Return Delay Time of \
+         {} µs: left so, the torque is not turned off under a holding arm; it is set to {} µs \
+         at a start that finds the torque off (a driver that stops turns it off), and every \
+         read of the bus waits that long meanwhile",
+        i + 1,
+        t.port.display(),
+        u32::from(delay) * 2,
+        u32::from(RETURN_DELAY) * 2,
+    );
+}
+
 /// The alert bit (0x80 in a status packet's error field), which a motor raises on every reply
 /// from a hardware error until it is rebooted. A motor's alert is news once: the status read
 /// it triggers reports the error, and after that the motor's replies are read as usual, so one
@@ -198,6 +231,8 @@ struct Pending {
     /// The motors this read asked (all, or those a first read of the cycle missed).
     asked: [bool; MAX_ACTUATORS],
     sent_ns: u64,
+    /// When its last reply is due on the line, after what went out before it (ns).
+    due_ns: u64,
     sent_cycle: u64,
     answered: [bool; MAX_ACTUATORS],
     refused: [bool; MAX_ACTUATORS],
@@ -227,6 +262,13 @@ pub(crate) struct Link {
     /// is configured).
     survey: Option<Survey>,
     configure_faults: u64,
+    /// Per motor, its Return Delay Time (unit 2 µs) as read back once configured.
+    delays: [u8; MAX_ACTUATORS],
+    line: Line,
+    /// When the line is done with what the driver sent, and the replies it asked for (ns).
+    busy_until_ns: u64,
+    /// How late after their time on the line the replies have come lately.
+    pub lateness: Lateness,
 }
 
 /// At start every motor gets this long to answer a write, three times: a loaded machine may
@@ -235,15 +277,44 @@ pub(crate) struct Link {
 const START_REPLY_TIMEOUT: Duration = Duration::from_millis(100);
 const START_ATTEMPTS: usize = 3;
 /// A survey this old with motors missing names them in the log, and again every
-/// [`NAME_EVERY_NS`] while it lasts. Its replies are the longest the driver asks for (65 bytes):
+/// [`NAME_EVERY_NS`] while it lasts. Its replies are the longest the driver asks for (67 bytes):
 /// with 2 % of the bytes garbled only about a quarter arrive whole, and 2 s of tries (about
 /// twenty) miss one of six 1 time in 300, so a noisy bus is not said to miss a motor.
 const SURVEY_BUDGET_NS: u64 = 2_000_000_000;
 const NAME_EVERY_NS: u64 = 10_000_000_000;
 
-/// The settings read at start: Operating Mode (11) .. Torque Enable (64).
-const SURVEY_FROM: u16 = table::OPERATING_MODE;
-const SURVEY_LEN: u16 = table::TORQUE_ENABLE - table::OPERATING_MODE + 1;
+/// The settings read at start: Return Delay Time (9) .. Torque Enable (64).
+const SURVEY_FROM: u16 = table::RETURN_DELAY_TIME;
+const SURVEY_LEN: u16 = table::TORQUE_ENABLE - SURVEY_FROM + 1;
+
+/// What the survey, or a read back, found of a motor's settings.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Found {
+    /// Return Delay Time (unit 2 µs).
+    delay: u8,
+    mode: u8,
+    /// Max and Min Position Limit.
+    limits: [u32; 2],
+    torque: bool,
+}
+
+impl Found {
+    /// The settings in `s`, the bytes from [`SURVEY_FROM`] on.
+    fn of(s: &[u8]) -> Self {
+        use table::*;
+        let at = |address: u16| usize::from(address - SURVEY_FROM);
+        let u32_at = |address: u16| {
+            let a = at(address);
+            u32::from_le_bytes([s[a], s[a + 1], s[a + 2], s[a + 3]])
+        };
+        Self {
+            delay: s[at(RETURN_DELAY_TIME)],
+            mode: s[at(OPERATING_MODE)],
+            limits: [u32_at(MAX_POSITION_LIMIT), u32_at(MIN_POSITION_LIMIT)],
+            torque: s[at(TORQUE_ENABLE)] != 0,
+        }
+    }
+}
 
 /// What a status packet was to the survey.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -358,7 +429,28 @@ impl Link {
             last_reply_ns: now,
             survey: Some(Survey::new(now, n)),
             configure_faults: 0,
+            delays: [0; MAX_ACTUATORS],
+            line: Line::new(t.baud),
+            busy_until_ns: now,
+            lateness: Lateness::default(),
         })
+    }
+
+    /// The motors' Return Delay Times as read back once configured (unit 2 µs).
+    pub fn delays(&self) -> &[u8] {
+        &self.delays[..self.n]
+    }
+
+    /// When the open read's last reply is due on the line (ns), if a read is open.
+    pub fn read_due_ns(&self) -> Option<u64> {
+        self.pending.map(|p| p.due_ns)
+    }
+
+    /// `ns` more on the line from now or from when it is free, whichever is later: returns
+    /// when the line is free again.
+    fn on_line(&mut self, ns: u64) -> u64 {
+        self.busy_until_ns = self.busy_until_ns.max(now_ns()) + ns;
+        self.busy_until_ns
     }
 
     /// Every motor has answered the survey and is configured: the link reads and drives.
@@ -366,11 +458,12 @@ impl Link {
         self.survey.is_none()
     }
 
-    /// One step of the survey: the sync read of Operating Mode .. Torque Enable sent to the
+    /// One step of the survey: the sync read of Return Delay Time .. Torque Enable sent to the
     /// motors that have not answered whole, when due, and their answers taken, waiting at most
-    /// `wait`. Once every motor has answered: position control and the limits written where
-    /// they differ, the profile velocity, and the link is ready (true: it just became ready).
-    /// On a clean bus that is one exchange, not five per motor.
+    /// `wait`. Once every motor has answered: position control, the limits and the Return
+    /// Delay Time written where they differ and read back ([`Link::configure`]), the profile
+    /// velocity, and the link is ready (true: it just became ready). On a clean bus of motors
+    /// set before, that is one exchange, not five per motor.
     pub fn survey(
         &mut self,
         t: &TendonConfig,
@@ -476,10 +569,12 @@ impl Link {
         Ok(true)
     }
 
-    /// Writes position control and the limits where they differ from the config (they live in
-    /// EEPROM, which wears, and can be written only with the torque off). Returns whether the
-    /// motor's torque is on: a driver restarted beside a running controller leaves a holding
-    /// motor holding, so the arm does not drop.
+    /// Writes position control, the limits and the Return Delay Time where they differ from
+    /// what the driver needs (they live in EEPROM, which wears, and can be written only with the
+    /// torque off), then reads them back. Returns whether the motor's torque is on: a driver
+    /// restarted beside a running controller leaves a holding motor holding, so the arm does not
+    /// drop. A delay the motor does not keep is said ([`say_delay_kept`]), and the reads are
+    /// sized to it; wrong mode or limits read back are an error (the motor is asked again).
     fn configure(
         &mut self,
         t: &TendonConfig,
@@ -488,30 +583,56 @@ impl Link {
         counts: &mut Counts,
     ) -> anyhow::Result<bool> {
         use table::*;
-        let at = |address: u16| usize::from(address - SURVEY_FROM);
-        let u32_at = |address: u16| {
-            let a = at(address);
-            u32::from_le_bytes([s[a], s[a + 1], s[a + 2], s[a + 3]])
-        };
-        let limits = [
-            (MAX_POSITION_LIMIT, t.max_ticks[i] as u32),
-            (MIN_POSITION_LIMIT, t.min_ticks[i] as u32),
-        ];
-        let mode_ok = s[at(OPERATING_MODE)] == POSITION_CONTROL;
-        let limits_ok = limits.map(|(address, value)| u32_at(address) == value);
-        if mode_ok && limits_ok == [true; 2] {
-            return Ok(s[at(TORQUE_ENABLE)] != 0);
-        }
+        let found = Found::of(s);
+        self.delays[i] = found.delay;
+        let limits = [t.max_ticks[i] as u32, t.min_ticks[i] as u32];
+        let eeprom_ok = found.mode == POSITION_CONTROL && found.limits == limits;
+        let delay_ok = found.delay == RETURN_DELAY;
         let id = self.ids[i];
-        tracing::info!(id, "writing operating mode and limits (torque off)");
+        if eeprom_ok && !delay_ok && found.torque {
+            say_delay_left(t, id, i, found.delay);
+        }
+        if eeprom_ok && (delay_ok || found.torque) {
+            return Ok(found.torque);
+        }
+        tracing::info!(
+            id,
+            "writing operating mode, limits and return delay time (torque off)"
+        );
+        // EEPROM needs the torque off. This is the start, before this driver turned any torque
+        // on: a motor found holding the arm (a driver restarted beside a running controller)
+        // is turned off only for a wrong mode or limits, which must not be driven, never for
+        // the delay alone (above).
         self.write(id, TORQUE_ENABLE, &[0], counts)?;
-        if !mode_ok {
+        if found.mode != POSITION_CONTROL {
             self.write(id, OPERATING_MODE, &[POSITION_CONTROL], counts)?;
         }
-        for (ok, (address, value)) in limits_ok.into_iter().zip(limits) {
-            if !ok {
-                self.write(id, address, &value.to_le_bytes(), counts)?;
+        for (k, address) in [MAX_POSITION_LIMIT, MIN_POSITION_LIMIT]
+            .into_iter()
+            .enumerate()
+        {
+            if found.limits[k] != limits[k] {
+                self.write(id, address, &limits[k].to_le_bytes(), counts)?;
             }
+        }
+        let refused = match delay_ok {
+            true => None,
+            false => self
+                .write(id, RETURN_DELAY_TIME, &[RETURN_DELAY], counts)
+                .err(),
+        };
+        let back = Found::of(&self.read(id, SURVEY_FROM, SURVEY_LEN, counts)?);
+        if back.mode != POSITION_CONTROL || back.limits != limits {
+            bail!(
+                "it reads back operating mode {} and position limits {:?} (max, min) after they \
+                 were written as {POSITION_CONTROL} and {limits:?}",
+                back.mode,
+                back.limits
+            );
+        }
+        self.delays[i] = back.delay;
+        if back.delay != RETURN_DELAY {
+            say_delay_kept(t, id, i, back.delay, refused);
         }
         Ok(false)
     }
@@ -526,24 +647,63 @@ impl Link {
     ) -> anyhow::Result<()> {
         let mut params = address.to_le_bytes().to_vec();
         params.extend_from_slice(data);
+        let what = format!("a write at address {address}");
+        self.exchange(id, instruction::WRITE, &params, 0, &what, counts)
+            .map(drop)
+    }
+
+    /// A READ of `len` bytes from `address`, its reply awaited (start only), tried
+    /// [`START_ATTEMPTS`] times.
+    fn read(
+        &mut self,
+        id: u8,
+        address: u16,
+        len: u16,
+        counts: &mut Counts,
+    ) -> anyhow::Result<Vec<u8>> {
+        let mut params = address.to_le_bytes().to_vec();
+        params.extend(len.to_le_bytes());
+        let what = format!("a read of {len} bytes from address {address}");
+        self.exchange(
+            id,
+            instruction::READ,
+            &params,
+            usize::from(len),
+            &what,
+            counts,
+        )
+    }
+
+    /// Instruction `inst` to motor `id` and its reply of `reply_len` bytes awaited, tried
+    /// [`START_ATTEMPTS`] times: the reply's parameters. `what` names it in errors.
+    fn exchange(
+        &mut self,
+        id: u8,
+        inst: u8,
+        params: &[u8],
+        reply_len: usize,
+        what: &str,
+        counts: &mut Counts,
+    ) -> anyhow::Result<Vec<u8>> {
         for _ in 0..START_ATTEMPTS {
             self.wire
-                .send(id, instruction::WRITE, &params)
-                .with_context(|| format!("writing address {address}"))?;
+                .send(id, inst, params)
+                .with_context(|| format!("sending {what}"))?;
             counts.asked += 1;
             let deadline = std::time::Instant::now() + START_REPLY_TIMEOUT;
             loop {
                 let left = deadline.saturating_duration_since(std::time::Instant::now());
                 match self.wire.receive(left) {
-                    Some(Arrival::Status(s, _)) if s.id == id && s.params.is_empty() => {
+                    Some(Arrival::Status(s, _))
+                        if s.id == id
+                            && (s.params.len() == reply_len
+                                || (s.params.is_empty() && s.error & 0x7F != 0)) =>
+                    {
                         counts.answered += 1;
                         if s.error & 0x7F != 0 {
-                            bail!(
-                                "the motor refused a write at address {address}: error {:#04x}",
-                                s.error
-                            );
+                            bail!("the motor refused {what}: error {:#04x}", s.error);
                         }
-                        return Ok(());
+                        return Ok(s.params);
                     }
                     Some(Arrival::Status(..)) => counts.stray += 1,
                     Some(Arrival::PortError(e)) => bail!("reading the motor bus: {e}"),
@@ -552,7 +712,7 @@ impl Link {
             }
             counts.timeouts += 1;
         }
-        bail!("no answer to a write at address {address}")
+        bail!("no answer to {what}")
     }
 
     /// Sync-write parameters for the motors `value` gives a value for.
@@ -582,7 +742,9 @@ impl Link {
         }
         self.wire
             .send(BROADCAST_ID, instruction::SYNC_WRITE, &params)
-            .map_err(write_fault)
+            .map_err(write_fault)?;
+        self.on_line(self.line.sync_write_ns(N, data.len()));
+        Ok(())
     }
 
     /// Motor `i` (without a hardware error) was found with its torque off after the driver
@@ -658,6 +820,14 @@ impl Link {
         }
     }
 
+    /// The time read `ask` of the motors `asked` takes on the line: its instruction and every
+    /// reply, each after its motor's Return Delay Time (ns).
+    pub fn read_ns(&self, ask: Ask, asked: &[bool; MAX_ACTUATORS]) -> u64 {
+        let delays = (0..self.n).filter(|&i| asked[i]).map(|i| self.delays[i]);
+        self.line
+            .sync_read_ns(usize::from(ask.address_len().1), delays)
+    }
+
     /// Sends a sync read to the motors `only` names (all when `None`) in driver cycle `cycle`;
     /// its replies are taken by [`Link::take_replies`].
     pub fn ask(
@@ -674,9 +844,11 @@ impl Link {
         self.wire
             .send(BROADCAST_ID, instruction::SYNC_READ, &params)
             .map_err(write_fault)?;
+        let read_ns = self.read_ns(ask, &asked);
         self.pending = Some(Pending {
             ask,
             asked,
+            due_ns: self.on_line(read_ns),
             sent_ns: now_ns(),
             sent_cycle: cycle,
             answered: [false; MAX_ACTUATORS],
@@ -703,21 +875,21 @@ impl Link {
             match arrival {
                 None => return Ok(false),
                 Some(Arrival::PortError(e)) => return Err(Fault::Port(e)),
-                Some(Arrival::Status(s, _)) => {
+                Some(Arrival::Status(s, at)) => {
                     self.last_reply_ns = now_ns();
                     let ids = &self.ids[..self.n];
                     let (torque, alert) = (&mut self.torque, &mut self.alert);
                     if let Some(p) = self.pending.as_mut()
                         && take(p, ids, &s, reading, torque, alert)
                     {
+                        self.lateness.heard(at, p.due_ns);
                         continue;
                     }
                     // Late: for the oldest closed read still missing this motor's answer.
-                    if self
-                        .closed
-                        .iter_mut()
-                        .any(|p| take(p, ids, &s, reading, torque, alert))
-                    {
+                    let late = (self.closed.iter_mut())
+                        .find_map(|p| take(p, ids, &s, reading, torque, alert).then_some(p.due_ns));
+                    if let Some(due_ns) = late {
+                        self.lateness.heard(at, due_ns);
                         counts.late += 1;
                         counts.answered += 1;
                     } else {
@@ -865,6 +1037,7 @@ mod tests {
             ask: Ask::Status,
             asked: std::array::from_fn(|i| i < 6),
             sent_ns: 50,
+            due_ns: 50,
             sent_cycle: 1,
             answered: [false; MAX_ACTUATORS],
             refused: [false; MAX_ACTUATORS],

@@ -1,6 +1,8 @@
 //! The X-series control table (ROBOTIS e-Manual, e.g. XM430-W350, Protocol 2.0): the items the
 //! driver reads and writes. EEPROM items (below 64) are writable only with the torque off.
 
+/// 1 byte, unit 2 µs (factory 250, 500 µs): how long a motor waits before each reply.
+pub const RETURN_DELAY_TIME: u16 = 9;
 pub const OPERATING_MODE: u16 = 11;
 /// Operating Mode's value for position control (one turn, within the position limits).
 pub const POSITION_CONTROL: u8 = 3;

@@ -1,6 +1,7 @@
 //! The bus: parses the instruction packets out of the master's byte stream, dispatches them to
 //! the motors, injects faults, and serves it all on a pseudo-terminal.
 
+use std::collections::VecDeque;
 use std::io;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
@@ -12,7 +13,8 @@ use super::motor::{Motor, TICKS_PER_REV};
 use super::packet::{BROADCAST_ID, HEADER, MAX_PACKET_LENGTH, status_packet, unstuff};
 use super::table::{
     FIRMWARE_VERSION, GOAL_POSITION, HARDWARE_ERROR_STATUS, HOMING_OFFSET, MODEL_NUMBER, MOVING,
-    PRESENT_POSITION, REGISTERED_INSTRUCTION, SHUTDOWN, TORQUE_ENABLE, error, instruction,
+    PRESENT_POSITION, REGISTERED_INSTRUCTION, RETURN_DELAY_TIME, SHUTDOWN, TORQUE_ENABLE, error,
+    instruction,
 };
 use crate::pty::Pty;
 
@@ -42,6 +44,10 @@ pub struct BusFaults {
     /// This motor sends no status packet (it still executes every instruction, as with its
     /// own return line broken): the driver never hears it, the motor hears the driver.
     pub mute_id: Option<u8>,
+    /// Motor `.0` refuses every write to address `.1` (WRITE, REG WRITE, SYNC WRITE, BULK
+    /// WRITE): nothing is written and a WRITE is answered with an Access Error, as by a motor
+    /// whose item is locked.
+    pub refuse_write: Option<(u8, u16)>,
 }
 
 /// What the bus has done so far.
@@ -77,7 +83,19 @@ pub struct BusCounters {
     /// Error Status: what a driver keeps reading.
     pub position_reads: u64,
     pub hardware_error_reads: u64,
+    /// Instruction packets that came while status packets were still due on the line: on a
+    /// real half-duplex bus they collide with those replies (here both go through, the
+    /// replies first).
+    pub collisions: u64,
 }
+
+/// The bus's line as it times a packet: 10 bits a byte (start, 8 data, stop) at `baud`.
+fn packet_s(bytes: usize, baud: u32) -> f64 {
+    bytes as f64 * 10.0 / f64::from(baud)
+}
+
+/// A Return Delay Time's unit: 2 µs.
+const RETURN_DELAY_UNIT_S: f64 = 2e-6;
 
 /// A bus of motors: feed it the bytes the master wrote, it appends the status packets the
 /// motors send back.
@@ -96,6 +114,16 @@ pub struct Bus {
     goal_write_times: Option<Vec<f64>>,
     /// The line is stalled until this time of the bus clock ([`Bus::stall`]).
     stalled_until_s: f64,
+    /// The line's rate in bits per second (the shipped 1 Mbps unless [`Bus::set_baud`]).
+    baud: u32,
+    /// When the line is free again (bus clock): the end of the last packet on it, the master's
+    /// or a motor's.
+    line_free_s: f64,
+    /// When the last status packet scheduled is out (bus clock).
+    replies_until_s: f64,
+    /// Status packets waiting for their time on the line: when their last byte is out (bus
+    /// clock), and their bytes.
+    queued: VecDeque<(f64, Vec<u8>)>,
 }
 
 impl Bus {
@@ -121,7 +149,17 @@ impl Bus {
             clock_s: 0.0,
             goal_write_times: None,
             stalled_until_s: 0.0,
+            baud: 1_000_000,
+            line_free_s: 0.0,
+            replies_until_s: 0.0,
+            queued: VecDeque::new(),
         }
+    }
+
+    /// Sets the line's rate (bits per second, as `tendon.baud`): a packet takes 10 bits a byte
+    /// on it. The motors' Baud Rate item is not consulted (a pseudo-terminal has no rate).
+    pub fn set_baud(&mut self, baud: u32) {
+        self.baud = baud.max(1);
     }
 
     /// The first motor with this id.
@@ -262,10 +300,39 @@ impl Bus {
         }
     }
 
+    /// [`Bus::hear`], then every status packet queued appended to `out` at once, whatever its
+    /// time on the line (no line to wait for: tests and a caller of its own).
+    pub fn receive(&mut self, bytes: &[u8], out: &mut Vec<u8>) {
+        self.hear(bytes);
+        for (_, mut packet) in self.queued.drain(..) {
+            out.append(&mut packet);
+        }
+    }
+
+    /// Appends to `out` the status packets whose last byte is out on the line by now (bus
+    /// clock), in order.
+    pub fn take_due(&mut self, out: &mut Vec<u8>) {
+        while let Some((due, _)) = self.queued.front()
+            && *due <= self.clock_s
+        {
+            let (_, mut packet) = self.queued.pop_front().expect("a front");
+            out.append(&mut packet);
+        }
+    }
+
+    /// Seconds of bus clock until the next status packet queued is due, if any.
+    pub fn next_due_in(&self) -> Option<f64> {
+        (self.queued.front()).map(|(due, _)| (due - self.clock_s).max(0.0))
+    }
+
     /// Parses instruction packets out of a byte stream (split anywhere, possibly with garbage
     /// between packets; a packet with a bad CRC is ignored, as a real motor does), executes
-    /// them, appends the status packets to `out`.
-    pub fn receive(&mut self, bytes: &[u8], out: &mut Vec<u8>) {
+    /// them, and queues the status packets on the line as a real bus times them: each packet
+    /// takes its bytes at the baud rate, and a motor answers its Return Delay Time (address 9,
+    /// unit 2 µs; factory 250, 500 µs) after the packet before its answer ends (the
+    /// instruction's, or the previous motor's in a SYNC or BULK READ, which the motors answer
+    /// one after another in the order the instruction lists them).
+    pub fn hear(&mut self, bytes: &[u8]) {
         if bytes.is_empty() {
             return;
         }
@@ -308,7 +375,11 @@ impl Bus {
             let body = unstuff(&self.rx[7..total - 2]);
             self.rx.drain(..total);
             self.counters.instructions += 1;
-            self.execute(id, body[0], &body[1..], out);
+            if self.clock_s < self.replies_until_s {
+                self.counters.collisions += 1;
+            }
+            self.line_free_s = self.line_free_s.max(self.clock_s) + packet_s(total, self.baud);
+            self.execute(id, body[0], &body[1..]);
         }
     }
 
@@ -326,7 +397,7 @@ impl Bus {
         self.motors.iter().position(|m| m.id() == id)
     }
 
-    fn execute(&mut self, id: u8, inst: u8, params: &[u8], out: &mut Vec<u8>) {
+    fn execute(&mut self, id: u8, inst: u8, params: &[u8]) {
         use instruction::*;
         let broadcast = id == BROADCAST_ID;
         let addr_len = |p: &[u8]| {
@@ -341,7 +412,7 @@ impl Bus {
                     let m = &self.motors[i];
                     let mut data = m.bytes::<2>(MODEL_NUMBER).to_vec();
                     data.push(m.u8_at(FIRMWARE_VERSION));
-                    self.answer(out, i, m.id(), Ok(data), 0);
+                    self.answer(i, m.id(), Ok(data), 0);
                 }
             }
             READ if !broadcast => {
@@ -352,7 +423,7 @@ impl Bus {
                     } else {
                         Err(error::DATA_LENGTH)
                     };
-                    self.answer(out, i, id, result, 1);
+                    self.answer(i, id, result, 1);
                 }
             }
             WRITE | REG_WRITE => {
@@ -361,32 +432,31 @@ impl Bus {
                         Err(error::DATA_LENGTH)
                     } else {
                         let address = u16::from_le_bytes([params[0], params[1]]);
-                        let m = &mut self.motors[i];
                         if inst == WRITE {
-                            m.write_checked(address, &params[2..])
+                            self.write_item(i, address, &params[2..])
                         } else {
+                            let m = &mut self.motors[i];
                             m.registered = Some((address, params[2..].to_vec()));
                             m.table[usize::from(REGISTERED_INSTRUCTION)] = 1;
                             Ok(())
                         }
                     };
                     if !broadcast {
-                        self.answer(out, i, id, result.map(|()| Vec::new()), 2);
+                        self.answer(i, id, result.map(|()| Vec::new()), 2);
                     }
                 }
             }
             ACTION => {
                 for i in self.targets(id) {
-                    let m = &mut self.motors[i];
-                    let result = match m.registered.take() {
+                    let result = match self.motors[i].registered.take() {
                         Some((address, data)) => {
-                            m.table[usize::from(REGISTERED_INSTRUCTION)] = 0;
-                            m.write_checked(address, &data)
+                            self.motors[i].table[usize::from(REGISTERED_INSTRUCTION)] = 0;
+                            self.write_item(i, address, &data)
                         }
                         None => Err(error::INSTRUCTION),
                     };
                     if !broadcast {
-                        self.answer(out, i, id, result.map(|()| Vec::new()), 2);
+                        self.answer(i, id, result.map(|()| Vec::new()), 2);
                     }
                 }
             }
@@ -403,7 +473,7 @@ impl Bus {
                     };
                     let ok = result.is_ok();
                     if !broadcast {
-                        self.answer(out, i, id, result, 2);
+                        self.answer(i, id, result, 2);
                     }
                     if let (true, Some(option)) = (ok, option) {
                         self.motors[i].factory_reset(option);
@@ -413,7 +483,7 @@ impl Bus {
             REBOOT => {
                 for i in self.targets(id) {
                     if !broadcast {
-                        self.answer(out, i, id, Ok(Vec::new()), 2);
+                        self.answer(i, id, Ok(Vec::new()), 2);
                     }
                     self.motors[i].reboot();
                 }
@@ -438,7 +508,7 @@ impl Bus {
                         Ok(Vec::new())
                     };
                     if !broadcast {
-                        self.answer(out, i, id, result, 2);
+                        self.answer(i, id, result, 2);
                     }
                 }
             }
@@ -454,7 +524,7 @@ impl Bus {
                 for &target in &params[4..] {
                     if let Some(i) = self.first_with_id(target) {
                         let result = self.motors[i].read_checked(address, len);
-                        self.answer(out, i, target, result, 1);
+                        self.answer(i, target, result, 1);
                     }
                 }
             }
@@ -478,7 +548,7 @@ impl Bus {
                 for chunk in data.chunks(len + 1) {
                     if let Some(i) = self.first_with_id(chunk[0]) {
                         // No status packet: a refused write goes unnoticed, as on the real bus.
-                        let _ = self.motors[i].write_checked(address, &chunk[1..]);
+                        let _ = self.write_item(i, address, &chunk[1..]);
                     }
                 }
             }
@@ -491,7 +561,7 @@ impl Bus {
                     if let Some(i) = self.first_with_id(chunk[0]) {
                         let (address, len) = addr_len(&chunk[1..]);
                         let result = self.motors[i].read_checked(address, len);
-                        self.answer(out, i, chunk[0], result, 1);
+                        self.answer(i, chunk[0], result, 1);
                     }
                 }
             }
@@ -514,30 +584,33 @@ impl Bus {
                 }
                 for (target, address, data) in writes {
                     if let Some(i) = self.first_with_id(target) {
-                        let _ = self.motors[i].write_checked(address, data);
+                        let _ = self.write_item(i, address, data);
                     }
                 }
             }
             STATUS => {} // Another device's answer: not for us.
             _ if !broadcast => {
                 for i in self.targets(id) {
-                    self.answer(out, i, id, Err(error::INSTRUCTION), 2);
+                    self.answer(i, id, Err(error::INSTRUCTION), 2);
                 }
             }
             _ => {}
         }
     }
 
-    /// Sends motor `i`'s status packet (as `id`) if its Status Return Level allows: `level` is
-    /// 0 for PING (always answered), 1 for the reads, 2 for everything else.
-    fn answer(
-        &mut self,
-        out: &mut Vec<u8>,
-        i: usize,
-        id: u8,
-        result: Result<Vec<u8>, u8>,
-        level: u8,
-    ) {
+    /// Motor `i` writes `data` at `address` as the device does, unless
+    /// [`BusFaults::refuse_write`] locks that item.
+    fn write_item(&mut self, i: usize, address: u16, data: &[u8]) -> Result<(), u8> {
+        if self.faults.refuse_write == Some((self.motors[i].id(), address)) {
+            return Err(error::ACCESS);
+        }
+        self.motors[i].write_checked(address, data)
+    }
+
+    /// Queues motor `i`'s status packet (as `id`) if its Status Return Level allows: `level`
+    /// is 0 for PING (always answered), 1 for the reads, 2 for everything else. It goes out
+    /// the motor's Return Delay Time after the line is free.
+    fn answer(&mut self, i: usize, id: u8, result: Result<Vec<u8>, u8>, level: u8) {
         let m = &self.motors[i];
         if m.status_return_level() < level {
             return;
@@ -551,7 +624,14 @@ impl Bus {
             Err(e) => (e, Vec::new()),
         };
         let packet = status_packet(id, error | m.alert(), &params);
-        self.emit(packet, out);
+        let delay_s = f64::from(m.u8_at(RETURN_DELAY_TIME)) * RETURN_DELAY_UNIT_S;
+        let mut out = Vec::new();
+        self.emit(packet, &mut out);
+        if !out.is_empty() {
+            self.line_free_s += delay_s + packet_s(out.len(), self.baud);
+            self.replies_until_s = self.line_free_s;
+            self.queued.push_back((self.line_free_s, out));
+        }
     }
 
     fn emit(&mut self, mut packet: Vec<u8>, out: &mut Vec<u8>) {
@@ -643,12 +723,19 @@ fn serve_until(pty: &mut Pty, bus: &Mutex<Bus>, stop: &AtomicBool) -> io::Result
     let mut last = Instant::now();
     while !stop.load(Ordering::Relaxed) {
         if lock(bus).stalled() {
-            std::thread::sleep(Duration::from_millis(2));
-            step(bus, &mut last, &[], Duration::from_millis(2), &mut out);
+            std::thread::sleep(POLL);
+            step(bus, &mut last, &[], POLL, &mut out);
             continue;
         }
+        // Until the next reply is due on the line, or a poll's length.
+        let due = lock(bus).next_due_in().map(Duration::from_secs_f64);
+        let wait = due.map_or(POLL, |d| d.min(POLL));
         let polled = Instant::now();
-        let n = match pty.read_timeout(&mut buf, Duration::from_millis(2)) {
+        if wait < Duration::from_millis(1) {
+            // The pty's poll counts whole milliseconds: a reply due sooner waits here.
+            std::thread::sleep(wait);
+        }
+        let n = match pty.read_timeout(&mut buf, wait) {
             Ok(n) => n,
             // A signal to the process is no reason to stop serving.
             Err(e) if e.kind() == io::ErrorKind::Interrupted => 0,
@@ -674,10 +761,14 @@ fn serve_until(pty: &mut Pty, bus: &Mutex<Bus>, stop: &AtomicBool) -> io::Result
     Ok(())
 }
 
+/// How long the serving loop waits for the master's bytes at most, between replies due.
+const POLL: Duration = Duration::from_millis(2);
+
 /// The time since `last` passes on the bus, in which the line brought `bytes`, or nothing in a
-/// wait of `waited`. Only a wait that saw nothing counts towards a partial packet's receive
-/// timeout: bytes that waited in the pty while this thread did not run (no CPU, or the bus's
-/// lock held) came in time on a real wire, so a host slow to read never splits an instruction.
+/// wait of `waited`; the replies due by then go to `out` (none while the line is stalled).
+/// Only a wait that saw nothing counts towards a partial packet's receive timeout: bytes that
+/// waited in the pty while this thread did not run (no CPU, or the bus's lock held) came in
+/// time on a real wire, so a host slow to read never splits an instruction.
 fn step(bus: &Mutex<Bus>, last: &mut Instant, bytes: &[u8], waited: Duration, out: &mut Vec<u8>) {
     let mut bus = lock(bus);
     let now = Instant::now();
@@ -686,7 +777,10 @@ fn step(bus: &Mutex<Bus>, last: &mut Instant, bytes: &[u8], waited: Duration, ou
     if bytes.is_empty() {
         bus.line_silent(waited.as_secs_f64());
     } else {
-        bus.receive(bytes, out);
+        bus.hear(bytes);
+    }
+    if !bus.stalled() {
+        bus.take_due(out);
     }
 }
 
@@ -917,6 +1011,105 @@ mod tests {
         s.extend(instruction_packet(1, instruction::PING, &[]));
         assert_eq!(parse_status(&answer(&mut bus, &s)).len(), 1);
         assert_eq!(bus.counters().malformed, 2);
+    }
+
+    /// A SYNC READ of Present Position from `ids`, as the driver sends it.
+    fn sync_read_position(ids: &[u8]) -> Vec<u8> {
+        let mut p = PRESENT_POSITION.to_le_bytes().to_vec();
+        p.extend(4u16.to_le_bytes());
+        p.extend(ids);
+        instruction_packet(BROADCAST_ID, instruction::SYNC_READ, &p)
+    }
+
+    /// When each status packet is out on the line after `input` is heard at bus time 0, in
+    /// µs, stepping the bus clock by 1 µs.
+    fn reply_times_us(bus: &mut Bus, input: &[u8]) -> Vec<u64> {
+        bus.hear(input);
+        let mut times = Vec::new();
+        for us in 0..100_000 {
+            let mut out = Vec::new();
+            bus.take_due(&mut out);
+            times.extend(std::iter::repeat_n(us, parse_status(&out).len()));
+            if bus.next_due_in().is_none() {
+                return times;
+            }
+            bus.advance(1e-6);
+        }
+        panic!("replies still queued after 100 ms: {times:?}");
+    }
+
+    #[test]
+    fn replies_take_their_return_delay_and_their_bytes_one_after_another() {
+        let ids = [1, 2, 3, 4, 5, 6, 7, 8, 9];
+        let mut bus = Bus::new(&ids, 2048);
+        bus.set_baud(1_000_000);
+        // Factory settings: 500 µs before each reply of 15 bytes (150 µs at 1 Mbps), after the
+        // instruction's 23 bytes (230 µs).
+        let times = reply_times_us(&mut bus, &sync_read_position(&ids));
+        let expected: Vec<u64> = (1..=9).map(|k| 230 + 650 * k).collect();
+        let near = |a: &[u64], b: &[u64]| a.iter().zip(b).all(|(x, y)| x.abs_diff(*y) <= 1);
+        assert!(
+            times.len() == 9 && near(&times, &expected),
+            "{times:?} vs {expected:?}"
+        );
+        // Return Delay Time 0: the nine replies follow each other at once.
+        for id in ids {
+            bus.motor_mut(id).unwrap().table[usize::from(RETURN_DELAY_TIME)] = 0;
+        }
+        let times = reply_times_us(&mut bus, &sync_read_position(&ids));
+        let expected: Vec<u64> = (1..=9).map(|k| 230 + 150 * k).collect();
+        assert!(near(&times, &expected), "{times:?} vs {expected:?}");
+        // At 57600 baud a byte takes 174 µs.
+        bus.set_baud(57_600);
+        let times = reply_times_us(&mut bus, &sync_read_position(&[1]));
+        assert!(
+            near(&times, &[(15 + 15) * 10_000_000 / 57_600]),
+            "{times:?}"
+        );
+        assert_eq!(
+            bus.counters().collisions,
+            0,
+            "each read was answered whole first"
+        );
+    }
+
+    #[test]
+    fn an_instruction_while_replies_are_due_is_a_collision() {
+        let ids = [1, 2, 3];
+        let mut bus = Bus::new(&ids, 2048);
+        bus.hear(&sync_read_position(&ids));
+        bus.advance(0.001);
+        // Asked again 1 ms later: the third reply (after 3 × 650 µs) is still to come.
+        bus.hear(&sync_read_position(&ids));
+        assert_eq!(bus.counters().collisions, 1);
+        let mut out = Vec::new();
+        bus.receive(&[], &mut out);
+        assert_eq!(parse_status(&out).len(), 6, "both reads answered, in order");
+    }
+
+    #[test]
+    fn a_motor_can_refuse_a_write_to_one_item() {
+        let mut bus = Bus::new(&[1, 2], 0);
+        bus.set_faults(BusFaults {
+            refuse_write: Some((2, RETURN_DELAY_TIME)),
+            ..Default::default()
+        });
+        assert_eq!(write(&mut bus, 2, RETURN_DELAY_TIME, &[0]), error::ACCESS);
+        assert_eq!(write(&mut bus, 1, RETURN_DELAY_TIME, &[0]), 0);
+        assert_eq!(
+            write(&mut bus, 2, LED, &[1]),
+            0,
+            "its other items are written"
+        );
+        let mut sync = RETURN_DELAY_TIME.to_le_bytes().to_vec();
+        sync.extend(1u16.to_le_bytes());
+        sync.extend([1, 7, 2, 7]);
+        answer(
+            &mut bus,
+            &instruction_packet(BROADCAST_ID, instruction::SYNC_WRITE, &sync),
+        );
+        let delay = |id| bus.motor(id).unwrap().u8_at(RETURN_DELAY_TIME);
+        assert_eq!((delay(1), delay(2)), (7, 250));
     }
 
     #[test]

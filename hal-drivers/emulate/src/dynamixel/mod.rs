@@ -13,11 +13,20 @@
 //!   SYNC WRITE, BULK READ and BULK WRITE, and appends the (stuffed) status packets.
 //! - Each [`Motor`] keeps the X-series control table (EEPROM and RAM areas, access rights, ranges
 //!   and limits) and a small physics model advanced by [`Bus::step`].
-//! - [`BusFaults`] injects silence, corrupt CRCs and garbage; [`Bus::inject_raw`] sends arbitrary
-//!   bytes (e.g. a malformed status packet) before the next status packet.
-//! - [`serve`] runs a bus on a pseudo-terminal for a driver that opens the slave's path.
+//! - The line's timing ([`Bus::hear`]): each packet takes 10 bits a byte at the bus's baud rate
+//!   ([`Bus::set_baud`]), and each motor answers its Return Delay Time (factory 500 µs) after
+//!   the packet before its answer, the motors of a SYNC or BULK READ one after another, so a bus
+//!   of motors at their factory settings is as slow as a real one. An instruction that comes
+//!   while replies are still due is counted ([`BusCounters::collisions`]: on a real half-duplex
+//!   bus it collides with them).
+//! - [`BusFaults`] injects silence, corrupt CRCs and garbage, and motors that refuse a write;
+//!   [`Bus::inject_raw`] sends arbitrary bytes (e.g. a malformed status packet) before the next
+//!   status packet.
+//! - [`serve`] runs a bus on a pseudo-terminal for a driver that opens the slave's path, sending
+//!   each status packet when its last byte would be out on the wire.
 //!
-//! Not emulated: baud rate and return delay time (the pty has neither), indirect addresses
+//! Not emulated: the Baud Rate item (the pty has no rate; the bus has one), collisions
+//! themselves (a pseudo-terminal carries both ways at once), indirect addresses
 //! (the table ends at Present Temperature, 146), secondary ID, bus watchdog, drive mode
 //! (direction and time-based profile), profile acceleration, the input voltage and temperature
 //! limits (inputs are constant 12.0 V and 36 °C).

@@ -14,9 +14,11 @@ pub const MODEL_INFORMATION: u16 = 2;
 pub const FIRMWARE_VERSION: u16 = 6;
 /// ID (1 byte, RW, 0 to 252).
 pub const ID: u16 = 7;
-/// Baud Rate (1 byte, RW, 0 to 7; 1 = 57600 bps, 3 = 1 Mbps). Stored only.
+/// Baud Rate (1 byte, RW, 0 to 7; 1 = 57600 bps, 3 = 1 Mbps). Stored only: the line's rate is
+/// the bus's (`Bus::set_baud`).
 pub const BAUD_RATE: u16 = 8;
-/// Return Delay Time (1 byte, RW, unit 2 µs). Stored only.
+/// Return Delay Time (1 byte, RW, unit 2 µs, factory 250 = 500 µs): how long the motor waits
+/// before each status packet (`Bus::hear`).
 pub const RETURN_DELAY_TIME: u16 = 9;
 /// Drive Mode (1 byte, RW). Stored only.
 pub const DRIVE_MODE: u16 = 10;
