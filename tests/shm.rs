@@ -55,9 +55,9 @@ attack() {
 tries=0
 "#;
 
-/// The stack's files in /dev/shm and its iceoryx2 root go when the test ends, pass or fail
-/// (declared before the stack, so dropped after it stopped).
-struct Cleanup(Option<PathBuf>);
+/// The files in /dev/shm and the iceoryx2 root of a stack of its own root go when the test
+/// ends, pass or fail (declared before the stack, so dropped after it stopped).
+pub(crate) struct Cleanup(pub(crate) Option<PathBuf>);
 
 impl Drop for Cleanup {
     fn drop(&mut self) {
