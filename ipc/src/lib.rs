@@ -984,7 +984,7 @@ mod tests {
                 .collect()
         };
         let ls = own::Leftovers::of(&dir).unwrap();
-        assert_eq!(counters(&ls), [counter.clone()]);
+        assert_eq!(counters(&ls), std::slice::from_ref(&counter));
         assert_eq!(ls.alive, ["softarm/shm-test/a"]);
         assert!(ls.remove().unwrap_err().0.contains("still runs"));
 

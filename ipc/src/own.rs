@@ -101,39 +101,43 @@ fn taken(path: &Path, uid: u32) -> Error {
 /// appears half-made or open to others. Refuses one another user made first, naming it.
 pub fn make_counter(prefix: &str) -> Result<(), Error> {
     let path = counter_path(prefix);
-    let io = |what: &str, e: std::io::Error| Error(format!("{what} {}: {e}", path.display()));
-    let mut state = found(&path)?;
     let mut tmp = None;
-    // Twice at most: a link that finds the counter made meanwhile looks again.
-    for _ in 0..2 {
-        match state {
-            Found::Ready => break,
-            Found::Taken(uid) => {
-                remove_tmp(tmp.as_deref());
-                return Err(taken(&path, uid));
-            }
-            Found::Missing | Found::Replace => {}
-        }
-        let t = match &tmp {
-            Some(t) => t,
-            None => tmp.insert(write_tmp(&path).map_err(|e| io("making a counter beside", e))?),
+    let placed = place(&path, &mut tmp);
+    remove_tmp(tmp.as_deref());
+    placed
+}
+
+/// [`make_counter`]'s work; the file beside `path` it wrote, if any, is left in `tmp`.
+fn place(path: &Path, tmp: &mut Option<PathBuf>) -> Result<(), Error> {
+    let io = |what: &str, e: std::io::Error| Error(format!("{what} {}: {e}", path.display()));
+    // A link that finds the counter made meanwhile (another process of the stack) looks again.
+    for _ in 0..3 {
+        let replace = match found(path)? {
+            Found::Ready => return Ok(()),
+            Found::Taken(uid) => return Err(taken(path, uid)),
+            Found::Missing => false,
+            Found::Replace => true,
         };
-        let done = if matches!(state, Found::Missing) {
-            std::fs::hard_link(t.as_path(), &path)
+        let t = match tmp {
+            Some(t) => t,
+            None => tmp.insert(write_tmp(path).map_err(|e| io("making a counter beside", e))?),
+        };
+        let done = if replace {
+            std::fs::rename(t.as_path(), path)
         } else {
-            std::fs::rename(t.as_path(), &path)
+            std::fs::hard_link(t.as_path(), path)
         };
         match done {
-            Ok(()) => break,
-            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => state = found(&path)?,
-            Err(e) => {
-                remove_tmp(tmp.as_deref());
-                return Err(io("putting in place", e));
-            }
+            Ok(()) => return Ok(()),
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
+            Err(e) => return Err(io("putting in place", e)),
         }
     }
-    remove_tmp(tmp.as_deref());
-    Ok(())
+    Err(Error(format!(
+        "{} kept appearing and going while it was made: stop whatever removes it, and start \
+         again",
+        path.display()
+    )))
 }
 
 fn remove_tmp(tmp: Option<&Path>) {
