@@ -33,6 +33,7 @@ mod python;
 mod record;
 mod restart;
 mod ros2;
+mod shm;
 mod soak;
 mod stack;
 mod tick_allocates_nothing;

@@ -113,14 +113,59 @@ fn install_stages_binary_config_state_and_units_and_keeps_an_edited_config() {
     assert!(upgraded.contains("user = \"softarm\"") && upgraded.contains("rate_hz = 250.0"));
     std::fs::write(&config, &edited).unwrap();
 
-    // Uninstall: units and binary go; config and state stay.
+    // Uninstall: units, binary, the gate and its folder go; config and state stay.
     softarm(&["uninstall"], &root);
     assert!(!bin.exists());
     assert!(!gate.exists());
+    assert!(!root.join("usr/local/libexec/softarm").exists());
     assert!(!root.join("etc/tmpfiles.d/softarm.conf").exists());
     assert!(!units.join("softarm.target").exists());
     assert_eq!(std::fs::read_to_string(&config).unwrap(), edited);
     assert!(root.join("var/lib/softarm").is_dir());
+    std::fs::remove_dir_all(&root).unwrap();
+}
+
+/// What the stack leaves while it runs, in its iceoryx2 root (`/run/softarm/iceoryx2`, staged)
+/// and in /dev/shm (its node counter, its services), stays while a process of it is alive (the
+/// uninstall says so) and goes with the next uninstall once none is: nothing of it is left.
+#[test]
+fn uninstall_removes_the_stacks_runtime_files_once_it_stopped() {
+    use softarm_ipc::own::Leftovers;
+    use softarm_ipc::{Namespace, Node};
+    let root = std::env::temp_dir().join(format!("softarm-install-run-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&root);
+    softarm(&["install"], &root);
+    let run = root.join("run/softarm");
+    let ipc = run.join("iceoryx2");
+    // A process of the stack, with a service: as the installed stack's, under its root.
+    let ns = Namespace::new("softarm/install-run")
+        .unwrap()
+        .under(&ipc)
+        .unwrap();
+    let node = Node::open(ns, "controller").unwrap();
+    let status = node.status().unwrap();
+    let shm = Leftovers::of(&ipc).unwrap().shm;
+    assert!(shm.len() >= 2, "{shm:?}");
+
+    let out = softarm(&["uninstall"], &root);
+    let said = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        said.contains("kept: the stack still runs (softarm/install-run/controller)"),
+        "{said}"
+    );
+    assert!(ipc.join("nodes").is_dir());
+    assert!(shm.iter().all(|f| f.exists()), "{shm:?}");
+    drop((status, node));
+
+    let out = softarm(&["uninstall"], &root);
+    let said = String::from_utf8_lossy(&out.stdout);
+    assert!(said.contains("files in /dev/shm"), "{said}");
+    let left = Leftovers::of(&ipc).unwrap();
+    assert!(left.shm.is_empty(), "{:?}", left.shm);
+    assert!(!run.exists() && !root.join("usr/local/libexec/softarm").exists());
+    assert!(
+        root.join("etc/softarm/softarm.toml").exists() && root.join("var/lib/softarm").is_dir()
+    );
     std::fs::remove_dir_all(&root).unwrap();
 }
 

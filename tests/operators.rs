@@ -10,6 +10,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 use std::time::Duration;
 
+use softarm_ipc::own::{Leftovers, counter_path};
 use softarm_test_support::{DEMO_WAYPOINTS, Guard, TestStack, config_text, output, with_overrides};
 
 const BIN: &str = env!("CARGO_BIN_EXE_softarm");
@@ -205,8 +206,10 @@ fn root_and_operators_stop_and_release_the_arm_and_anyone_else_is_refused() {
         return;
     }
     let users = Users::create();
+    let mut shm = crate::shm::Cleanup(None);
     let mut s = TestStack::new(BIN, "operators", true);
     let ipc = host(&mut s, &users);
+    shm.0 = Some(ipc.join("iceoryx2"));
     let (service_uid, _) = Users::uid(&users.service);
     up_as_service(&mut s, &users);
     for (role, pid) in s.children() {
@@ -301,6 +304,23 @@ fn root_and_operators_stop_and_release_the_arm_and_anyone_else_is_refused() {
     assert_eq!(states(&s).0, "IDLE");
     let wrong = all_owned_by(&ipc, service_uid);
     assert!(wrong.is_empty(), "not the stack's user's: {wrong:?}");
+    // Nor can they write iceoryx2's node counter: the stack's user's alone.
+    let prefix = Leftovers::of(&ipc.join("iceoryx2")).unwrap().prefix;
+    let counter = counter_path(&prefix);
+    let meta = std::fs::metadata(&counter).unwrap();
+    assert_eq!((meta.uid(), meta.mode() & 0o777), (service_uid, 0o600));
+    let out = output(
+        Command::new("runuser")
+            .args(["-u", &users.outsider, "--", "sh", "-c"])
+            .arg("printf garbage | dd of=\"$1\" conv=notrunc,nocreat status=none")
+            .arg("sh")
+            .arg(&counter),
+    );
+    assert!(
+        !out.status.success() && text(&out).contains("Permission denied"),
+        "{}",
+        text(&out)
+    );
     // What the operator wrote through the gate is the stack's, group and all, for its group.
     let latch = std::fs::metadata(&latch).unwrap();
     assert_eq!((latch.uid(), latch.gid()), Users::uid(&users.service));

@@ -24,6 +24,7 @@ pub use iceoryx2;
 
 pub mod drivers;
 pub use drivers::{DRIVERS, Driver};
+pub mod own;
 pub use softarm_space::{
     ACTUATORS, Actuation, MAX_ACTUATORS, MAX_WAYPOINTS, MIN_ACTUATORS, Position, with_actuators,
 };
@@ -462,11 +463,14 @@ pub struct EstopState {
 /// Which stack on this host: the namespace every service name starts with (`softarm/<robot-id>`
 /// unless configured), and the iceoryx2 root folder its services live under (iceoryx2's own,
 /// `/tmp/iceoryx2/`, unless the config names one: an installed stack has a folder of its own, so
-/// nobody else's use of iceoryx2 can take its place).
+/// nobody else's use of iceoryx2 can take its place). A stack of its own root also has its own
+/// files in /dev/shm, its node counter included ([`own`]).
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Namespace {
     name: String,
     root: Option<PathBuf>,
+    /// iceoryx2's `global.prefix` for a stack of its own root ([`own::prefix`]).
+    prefix: Option<String>,
     /// The arm this process drives (`softarm_arm::Layout::identity`), when it knows it.
     arm: Option<String>,
 }
@@ -485,6 +489,7 @@ impl Namespace {
             Ok(Self {
                 name: name.to_string(),
                 root: None,
+                prefix: None,
                 arm: None,
             })
         } else {
@@ -495,7 +500,8 @@ impl Namespace {
         }
     }
 
-    /// The same namespace under the iceoryx2 root folder `root` (an absolute path).
+    /// The same namespace under the iceoryx2 root folder `root` (an absolute path), with the
+    /// files in /dev/shm of its own that go with it ([`own::prefix`]).
     pub fn under(mut self, root: &Path) -> Result<Self, Error> {
         let text = root
             .to_str()
@@ -514,6 +520,7 @@ impl Namespace {
                 root.display()
             ))
         })?;
+        self.prefix = Some(own::prefix(&dir));
         self.root = Some(PathBuf::from(dir));
         Ok(self)
     }
@@ -542,6 +549,12 @@ impl Namespace {
         self.root.as_deref()
     }
 
+    /// iceoryx2's `global.prefix` for this stack; `None`: iceoryx2's default (`iox2_`), or
+    /// whatever an iceoryx2 config file names.
+    pub fn prefix(&self) -> Option<&str> {
+        self.prefix.as_deref()
+    }
+
     /// iceoryx2's config for a node of this stack.
     fn iceoryx2_config(&self) -> Config {
         let mut config = Config::global_config().clone();
@@ -550,6 +563,10 @@ impl Namespace {
             let text = root.to_str().expect("checked by Namespace::under");
             let path = IoxPath::new(text.as_bytes()).expect("checked by Namespace::under");
             config.global.set_root_path(&path);
+        }
+        if let Some(prefix) = &self.prefix {
+            config.global.prefix =
+                FileName::new(prefix.as_bytes()).expect("softarm_, hex digits, _");
         }
         config
     }
@@ -635,6 +652,10 @@ impl Node {
     pub fn open(namespace: Namespace, role: &str) -> Result<Self, Error> {
         // iceoryx2 warns on stderr that it runs on its built-in defaults, which is intended.
         set_log_level(LogLevel::Error);
+        // Before iceoryx2 would make the counter world-writable.
+        if let Some(prefix) = namespace.prefix() {
+            own::make_counter(prefix)?;
+        }
         let name = node_name(&namespace, role);
         let node_name =
             NodeName::new(&name).map_err(|e| Error(format!("node name {name:?}: {e:?}")))?;
@@ -925,7 +946,77 @@ mod tests {
         let same = Node::open(own, "c").unwrap();
         assert_eq!(same.alive_nodes().unwrap(), ["a", "c"]);
         drop((p, a, same, elsewhere));
-        let _ = std::fs::remove_dir_all(&dir);
+        own::Leftovers::of(&dir).unwrap().remove().unwrap();
+    }
+
+    /// The files in /dev/shm of a stack of its own root: every one's name starts with the
+    /// root's prefix, and iceoryx2's node counter among them is the one made here, the user's
+    /// alone (0600), which iceoryx2 counts its nodes in. One iceoryx2 would have made (0666),
+    /// or one cut short, is replaced; one another user made first is refused, naming it.
+    #[test]
+    fn a_stack_of_its_own_root_has_its_own_node_counter() {
+        use std::os::unix::fs::{MetadataExt, PermissionsExt};
+        let dir = std::env::temp_dir().join(format!("softarm-ipc-shm-{}", std::process::id()));
+        let ns = Namespace::new("softarm/shm-test")
+            .unwrap()
+            .under(&dir)
+            .unwrap();
+        let prefix = ns.prefix().unwrap().to_string();
+        assert!(
+            prefix.starts_with("softarm_") && prefix.ends_with('_'),
+            "{prefix}"
+        );
+        let counter = own::counter_path(&prefix);
+        let _ = std::fs::remove_file(&counter);
+        let count =
+            || u32::from_ne_bytes(std::fs::read(&counter).unwrap()[8..12].try_into().unwrap());
+        let a = Node::open(ns.clone(), "a").unwrap();
+        let m = std::fs::metadata(&counter).unwrap();
+        assert_eq!(m.mode() & 0o7777, 0o600);
+        assert_eq!(m.uid(), nix::unistd::geteuid().as_raw());
+        // iceoryx2 counted the node in this file: it is the one iceoryx2 uses.
+        assert_eq!(count(), 1);
+        let counters = |ls: &own::Leftovers| -> Vec<PathBuf> {
+            ls.shm
+                .iter()
+                .filter(|p| p.to_string_lossy().ends_with(".global_mgmt"))
+                .cloned()
+                .collect()
+        };
+        let ls = own::Leftovers::of(&dir).unwrap();
+        assert_eq!(counters(&ls), std::slice::from_ref(&counter));
+        assert_eq!(ls.alive, ["softarm/shm-test/a"]);
+        assert!(ls.remove().unwrap_err().0.contains("still runs"));
+
+        std::fs::set_permissions(&counter, std::fs::Permissions::from_mode(0o666)).unwrap();
+        let b = Node::open(ns.clone(), "b").unwrap();
+        assert_eq!(std::fs::metadata(&counter).unwrap().mode() & 0o7777, 0o600);
+        std::fs::File::create(&counter).unwrap();
+        let c = Node::open(ns.clone(), "c").unwrap();
+        assert_eq!(std::fs::metadata(&counter).unwrap().len(), 16);
+        assert_eq!(count(), 1, "a fresh counter, counted in");
+        drop((a, b, c));
+
+        if nix::unistd::geteuid().is_root() {
+            std::os::unix::fs::chown(&counter, Some(65534), Some(65534)).unwrap();
+            let e = Node::open(ns.clone(), "d").err().unwrap().0;
+            assert!(
+                e.contains(&counter.display().to_string())
+                    && e.contains("uid 65534")
+                    && e.contains("rm "),
+                "{e}"
+            );
+            assert_eq!(
+                std::fs::metadata(&counter).unwrap().uid(),
+                65534,
+                "left as it was"
+            );
+        }
+        let ls = own::Leftovers::of(&dir).unwrap();
+        assert!(ls.alive.is_empty(), "{:?}", ls.alive);
+        assert_eq!(ls.remove().unwrap(), ls.shm.len());
+        let ls = own::Leftovers::of(&dir).unwrap();
+        assert!(ls.shm.is_empty() && !dir.exists(), "{ls:?}");
     }
 
     /// Services carry the arm of the process that made them: a process of another arm

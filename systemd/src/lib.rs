@@ -17,6 +17,8 @@ const STATE: &str = "var/lib/softarm";
 /// iceoryx2's folder for the installed stack (`host.ipc_root` is `RUN/iceoryx2`): the stack's
 /// own, so nobody else's use of iceoryx2 on the computer can own it first.
 const RUN: &str = "run/softarm";
+/// iceoryx2's root folder in RUN: the config's `host.ipc_root`.
+const IPC_ROOT: &str = "run/softarm/iceoryx2";
 /// Recreates RUN at every boot (/run is a tmpfs).
 const TMPFILES: &str = "etc/tmpfiles.d/softarm.conf";
 const UNITS: &str = "etc/systemd/system";
@@ -127,6 +129,14 @@ enum Step {
         gate: PathBuf,
     },
     Remove(PathBuf),
+    /// A folder of ours, if nothing else is in it.
+    RemoveDirIfEmpty(PathBuf),
+    /// The stack's runtime files: RUN, with iceoryx2's root `ipc_root` in it, and the stack's
+    /// files in /dev/shm; kept, saying so, while a process of the stack still runs.
+    RemoveRuntime {
+        run: PathBuf,
+        ipc_root: PathBuf,
+    },
     Systemctl(&'static [&'static str]),
     /// A systemctl call whose failure is reported, not fatal (stopping what may not run).
     SystemctlIfAny(&'static [&'static str]),
@@ -154,6 +164,15 @@ impl Step {
                 path.display()
             ),
             Step::Remove(p) => format!("remove {}", p.display()),
+            Step::RemoveDirIfEmpty(p) => format!("remove the folder {} if empty", p.display()),
+            Step::RemoveRuntime { run, ipc_root } => format!(
+                "remove {} (iceoryx2's folder {} in it) and the stack's files in {} (prefix {}) \
+                 unless a process of the stack still runs",
+                run.display(),
+                ipc_root.display(),
+                softarm_ipc::own::SHM_DIR,
+                shm_prefix(ipc_root)
+            ),
             Step::Systemctl(args) | Step::SystemctlIfAny(args) => {
                 format!("systemctl {}", args.join(" "))
             }
@@ -269,6 +288,15 @@ impl Step {
                 Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok("not there".into()),
                 Err(e) => Err(e).with_context(|| format!("removing {}", p.display())),
             },
+            Step::RemoveDirIfEmpty(p) => match std::fs::remove_dir(p) {
+                Ok(()) => Ok("done".into()),
+                Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok("not there".into()),
+                Err(e) if e.kind() == std::io::ErrorKind::DirectoryNotEmpty => {
+                    Ok("kept: other files are in it".into())
+                }
+                Err(e) => Err(e).with_context(|| format!("removing {}", p.display())),
+            },
+            Step::RemoveRuntime { run, ipc_root } => remove_runtime(run, ipc_root),
             Step::Systemctl(args) => {
                 run_command("systemctl", args)?;
                 Ok("done".into())
@@ -321,6 +349,37 @@ fn chown_to(path: &Path, owner: &str, group: &str) -> anyhow::Result<()> {
 fn write_atomic(path: &Path, bytes: &[u8], mode: u32) -> anyhow::Result<()> {
     softarm_runtime::file::write_atomic(path, bytes, Some(mode))
         .with_context(|| format!("writing {}", path.display()))
+}
+
+/// The prefix of the stack's files in /dev/shm for iceoryx2 root `ipc_root`.
+fn shm_prefix(ipc_root: &Path) -> String {
+    softarm_ipc::Namespace::new(USER)
+        .and_then(|ns| ns.under(ipc_root))
+        .ok()
+        .and_then(|ns| ns.prefix().map(str::to_string))
+        .unwrap_or_else(|| "?".into())
+}
+
+/// [`Step::RemoveRuntime`]: what the stack left, once it stopped. A process still running keeps
+/// it all, said with what to do (not an error: the rest of the uninstall is done).
+fn remove_runtime(run: &Path, ipc_root: &Path) -> anyhow::Result<String> {
+    let left = softarm_ipc::own::Leftovers::of(ipc_root).map_err(anyhow::Error::msg)?;
+    if !left.alive.is_empty() {
+        return Ok(format!(
+            "kept: the stack still runs ({}); stop it and run `softarm uninstall` again",
+            left.alive.join(", ")
+        ));
+    }
+    let shm = left.remove().map_err(anyhow::Error::msg)?;
+    match std::fs::remove_dir_all(run) {
+        Ok(()) => {}
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+        Err(e) => return Err(e).with_context(|| format!("removing {}", run.display())),
+    }
+    Ok(format!(
+        "done ({shm} files in {})",
+        softarm_ipc::own::SHM_DIR
+    ))
 }
 
 /// `path` (absolute, as on the target system) under `root`.
@@ -382,7 +441,7 @@ fn with_host(text: &str, group: &str, gate: &Path) -> Result<String, String> {
         &[
             ("host.user", USER.into()),
             ("host.group", group.into()),
-            ("host.ipc_root", format!("/{RUN}/iceoryx2").into()),
+            ("host.ipc_root", format!("/{IPC_ROOT}").into()),
             ("host.gate", gate.display().to_string().into()),
         ],
     )
@@ -503,13 +562,22 @@ pub fn uninstall(args: &UninstallArgs) -> anyhow::Result<()> {
             &Path::new("/").join(UNITS).join(name),
         )));
     }
+    let gate = args.target.prefix.join(GATE);
     for path in [
         args.target.prefix.join("bin/softarm"),
-        args.target.prefix.join(GATE),
+        gate.clone(),
         Path::new("/").join(TMPFILES),
     ] {
         steps.push(Step::Remove(under(&root, &path)));
     }
+    if let Some(dir) = gate.parent() {
+        steps.push(Step::RemoveDirIfEmpty(under(&root, dir)));
+    }
+    // Stopped above: what the stack left in /run (until the next boot) and /dev/shm.
+    steps.push(Step::RemoveRuntime {
+        run: under(&root, &Path::new("/").join(RUN)),
+        ipc_root: under(&root, &Path::new("/").join(IPC_ROOT)),
+    });
     steps.push(if system {
         Step::Systemctl(&["daemon-reload"])
     } else {
