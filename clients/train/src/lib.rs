@@ -9,15 +9,16 @@ pub mod recording;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, anyhow, bail, ensure};
-use indicatif::ProgressBar;
 use softarm_config::Config;
-use softarm_identify::run::bar;
+/// Where training's progress goes: `softarm train` the log's, the demo its own lines.
+pub use softarm_identify::run::Output;
+use softarm_identify::run::{Bar, bar_to};
 use softarm_ipc::{
     Client, ControllerState, DemonstrateReply, DemonstrateRequest, MotorState, Namespace, Node,
     Setpoint, Sub, TrackerSample,
 };
 use softarm_method::skill::Recording;
-use softarm_model::pipeline::{self, IMITATION_PASSES, Training, TrainingData};
+use softarm_model::pipeline::{self, IMITATION_PASSES, Step, Training, TrainingData};
 use softarm_runtime::now_ns;
 
 /// What `softarm train` made and measured, for the user.
@@ -31,6 +32,8 @@ pub struct Trained {
     pub forward_error_m: (f64, f64),
     /// The same for the polynomial kinematics.
     pub kinematics_error_m: (f64, f64),
+    /// The polynomial's degree, as chosen on demonstrations other than the held-out ones.
+    pub kinematics_degree: usize,
     /// The RBF forward model's error on the samples it was fitted to (m): mean, standard
     /// deviation; the paper's figure is of this kind.
     pub forward_fitted_m: (f64, f64),
@@ -49,7 +52,8 @@ impl Trained {
             "{} demonstrations ({} samples, {:.1} s); the RBF forward model (width {}) is off by \
              {:.2} ± {:.2} mm on the samples it was fitted to (the paper reports 3.7 ± 1.6 mm \
              so), on held-out demonstrations by {:.2} mm mean, {:.2} mm max, the polynomial \
-             kinematics by {:.2} mm mean, {:.2} mm max; pre-training {:.1} s, {} updates",
+             kinematics (degree {}) by {:.2} mm mean, {:.2} mm max; pre-training {:.1} s, {} \
+             updates",
             self.demos,
             self.samples,
             self.demonstrate_s,
@@ -58,6 +62,7 @@ impl Trained {
             self.forward_fitted_m.1 * 1e3,
             self.forward_error_m.0 * 1e3,
             self.forward_error_m.1 * 1e3,
+            self.kinematics_degree,
             self.kinematics_error_m.0 * 1e3,
             self.kinematics_error_m.1 * 1e3,
             self.pretrain_s,
@@ -80,6 +85,7 @@ struct Sample<const N: usize> {
 fn record<const N: usize>(
     namespace: &Namespace,
     seed: u64,
+    out: Output,
 ) -> Result<(Vec<Sample<N>>, usize, f64)> {
     let mut r = Recorder::<N>::open(namespace)?;
     let (demos, deadline) = r.request(namespace, seed)?;
@@ -87,7 +93,7 @@ fn record<const N: usize>(
         "recording {demos} demonstrations through the stack (giving up after {:.0} s)",
         deadline.as_secs_f64()
     );
-    let progress = bar(demos as u64, "demonstrations");
+    let progress = bar_to(demos as u64, "demonstrations", out);
     let start = Instant::now();
     loop {
         std::thread::sleep(Duration::from_millis(1));
@@ -199,7 +205,7 @@ impl<const N: usize> Recorder<N> {
 
     /// A sample per tracker sample while a demonstration plays, with the latest setpoint and
     /// motor state.
-    fn take_tracker_samples(&mut self, demos: usize, progress: &ProgressBar) {
+    fn take_tracker_samples(&mut self, demos: usize, progress: &Bar) {
         while let Ok(Some(t)) = self.tracker.receive() {
             if let (Some(sp), Some(m)) = (self.setpoint, self.measured)
                 && let Some(commanded) = sp.actuation.fixed()
@@ -296,6 +302,50 @@ fn recordings<const N: usize>(samples: &[Sample<N>], demos: usize) -> Result<Vec
     Ok(recordings)
 }
 
+/// The pipeline's steps as bars, one at a time: a step's bar ends as the next one starts.
+struct Steps<'a> {
+    out: Output<'a>,
+    now: Option<(Step, Bar<'a>, u64)>,
+}
+
+/// Past this, a step's units (rows × terms² for the kinematics) show as a percentage.
+const MAX_SHOWN: u64 = 1000;
+
+impl<'a> Steps<'a> {
+    fn show(&mut self, step: Step, done: u64, total: u64) {
+        // Counted in percent past MAX_SHOWN units.
+        let scale = |v: u64| {
+            if total > MAX_SHOWN {
+                (u128::from(v) * 100 / u128::from(total)) as u64
+            } else {
+                v
+            }
+        };
+        if self.now.as_ref().is_none_or(|(s, _, _)| *s != step) {
+            self.end();
+            let what = if total > MAX_SHOWN {
+                format!("{} %", step.name())
+            } else {
+                step.name().to_string()
+            };
+            self.now = Some((step, bar_to(scale(total), &what, self.out), total));
+        }
+        if let Some((_, bar, was)) = &mut self.now {
+            if *was != total {
+                *was = total;
+                bar.set_length(scale(total));
+            }
+            bar.set_position(scale(done));
+        }
+    }
+
+    fn end(&mut self) {
+        if let Some((_, bar, _)) = self.now.take() {
+            bar.finish_and_clear();
+        }
+    }
+}
+
 /// `softarm train`'s settings: the config's sections the pipeline reads.
 pub fn training(config: &Config) -> Training {
     Training {
@@ -309,23 +359,28 @@ pub fn training(config: &Config) -> Training {
 }
 
 /// Runs the whole training against the stack in `namespace`, for the config's arm, and writes
-/// the bundle.
-pub fn train(config: &Config, namespace: &Namespace, seed: u64) -> Result<Trained> {
+/// the bundle; each step's progress to `out`.
+pub fn train(config: &Config, namespace: &Namespace, seed: u64, out: Output) -> Result<Trained> {
     let n = config.layout().actuators().len();
-    softarm_ipc::with_actuators!(n, N => train_for::<N>(config, namespace, seed), n => {
+    softarm_ipc::with_actuators!(n, N => train_for::<N>(config, namespace, seed, out), n => {
         unreachable!("a loaded config's arm has 3 to 16 actuators, not {n}")
     })
 }
 
 /// [`train`] for an arm of `N` actuators.
-fn train_for<const N: usize>(config: &Config, namespace: &Namespace, seed: u64) -> Result<Trained> {
+fn train_for<const N: usize>(
+    config: &Config,
+    namespace: &Namespace,
+    seed: u64,
+    out: Output,
+) -> Result<Trained> {
     let budget = budget(config.pretrain.budget_s)?;
-    let (samples, demos, demonstrate_s) = record::<N>(namespace, seed)?;
-    tracing::info!(
+    let (samples, demos, demonstrate_s) = record::<N>(namespace, seed, out)?;
+    (out.lines)(&format!(
         "{demos} demonstrations recorded in {demonstrate_s:.1} s ({} samples): fitting the \
          primitives, the forward model and the kinematics",
         samples.len()
-    );
+    ));
     let data = TrainingData {
         recordings: recordings(&samples, demos)?,
         duration_s: config.demonstrations.duration_s,
@@ -334,19 +389,30 @@ fn train_for<const N: usize>(config: &Config, namespace: &Namespace, seed: u64) 
         positions: samples.iter().map(|s| s.position).collect(),
         demo: samples.iter().map(|s| s.demo as usize).collect(),
     };
-    // The budget and the progress bar start with the pre-training, after the fits.
-    let mut started: Option<(Instant, ProgressBar)> = None;
-    let trained = pipeline::train(&data, &training(config), |_| {
-        let (start, progress) = started.get_or_insert_with(|| {
-            tracing::info!(
-                "fitted: pre-training the learner for up to {:.1} s",
-                budget.as_secs_f64()
-            );
-            (Instant::now(), bar(budget.as_secs(), "pre-training s"))
-        });
-        progress.set_position(start.elapsed().as_secs());
-        start.elapsed() < budget
-    });
+    let steps = std::cell::RefCell::new(Steps { out, now: None });
+    // The budget and its progress bar start with the pre-training, after the fits.
+    let mut started: Option<(Instant, Bar)> = None;
+    let trained = pipeline::train_showing(
+        &data,
+        &training(config),
+        &mut |step, done, total| steps.borrow_mut().show(step, done, total),
+        |_| {
+            let (start, progress) = started.get_or_insert_with(|| {
+                steps.borrow_mut().end();
+                (out.lines)(&format!(
+                    "fitted: pre-training the learner for up to {:.1} s",
+                    budget.as_secs_f64()
+                ));
+                (
+                    Instant::now(),
+                    bar_to(budget.as_secs(), "pre-training s", out),
+                )
+            });
+            progress.set_position(start.elapsed().as_secs());
+            start.elapsed() < budget
+        },
+    );
+    steps.borrow_mut().end();
     let pretrain_s = started.map_or(0.0, |(start, progress)| {
         progress.finish_and_clear();
         start.elapsed().as_secs_f64()
@@ -375,6 +441,7 @@ fn train_for<const N: usize>(config: &Config, namespace: &Namespace, seed: u64) 
             report.kinematics_error.mean_m,
             report.kinematics_error.max_m,
         ),
+        kinematics_degree: report.kinematics_degree,
         pretrain_s,
         pretrain_updates: report.pretrain.updates,
         model_id,
