@@ -18,7 +18,10 @@ use softarm_ipc::{
     Setpoint, Sub, TrackerSample,
 };
 use softarm_method::skill::Recording;
-use softarm_model::pipeline::{self, IMITATION_PASSES, Step, Training, TrainingData};
+use softarm_model::bundle::Model;
+use softarm_model::pipeline::{
+    self, IMITATION_PASSES, PipelineError, Step, TrainReport, Training, TrainingData,
+};
 use softarm_runtime::now_ns;
 
 /// What `softarm train` made and measured, for the user.
@@ -302,6 +305,48 @@ fn recordings<const N: usize>(samples: &[Sample<N>], demos: usize) -> Result<Vec
     Ok(recordings)
 }
 
+/// The pipeline on `data`, each step's progress to `out`, pre-training for at most `budget`:
+/// the model and what training measured, and the seconds pre-training took.
+fn fit<const N: usize>(
+    data: &TrainingData<N>,
+    training: &Training,
+    budget: Duration,
+    out: Output,
+) -> (
+    std::result::Result<(Model<N>, TrainReport), PipelineError>,
+    f64,
+) {
+    let steps = std::cell::RefCell::new(Steps { out, now: None });
+    // The budget and its progress bar start with the pre-training, after the fits.
+    let mut started: Option<(Instant, Bar)> = None;
+    let trained = pipeline::train_showing(
+        data,
+        training,
+        &mut |step, done, total| steps.borrow_mut().show(step, done, total),
+        |_| {
+            let (start, progress) = started.get_or_insert_with(|| {
+                steps.borrow_mut().end();
+                (out.lines)(&format!(
+                    "fitted: pre-training the learner for up to {:.1} s",
+                    budget.as_secs_f64()
+                ));
+                (
+                    Instant::now(),
+                    bar_to(budget.as_secs(), "pre-training s", out),
+                )
+            });
+            progress.set_position(start.elapsed().as_secs());
+            start.elapsed() < budget
+        },
+    );
+    steps.borrow_mut().end();
+    let pretrain_s = started.map_or(0.0, |(start, progress)| {
+        progress.finish_and_clear();
+        start.elapsed().as_secs_f64()
+    });
+    (trained, pretrain_s)
+}
+
 /// The pipeline's steps as bars, one at a time: a step's bar ends as the next one starts.
 struct Steps<'a> {
     out: Output<'a>,
@@ -389,34 +434,7 @@ fn train_for<const N: usize>(
         positions: samples.iter().map(|s| s.position).collect(),
         demo: samples.iter().map(|s| s.demo as usize).collect(),
     };
-    let steps = std::cell::RefCell::new(Steps { out, now: None });
-    // The budget and its progress bar start with the pre-training, after the fits.
-    let mut started: Option<(Instant, Bar)> = None;
-    let trained = pipeline::train_showing(
-        &data,
-        &training(config),
-        &mut |step, done, total| steps.borrow_mut().show(step, done, total),
-        |_| {
-            let (start, progress) = started.get_or_insert_with(|| {
-                steps.borrow_mut().end();
-                (out.lines)(&format!(
-                    "fitted: pre-training the learner for up to {:.1} s",
-                    budget.as_secs_f64()
-                ));
-                (
-                    Instant::now(),
-                    bar_to(budget.as_secs(), "pre-training s", out),
-                )
-            });
-            progress.set_position(start.elapsed().as_secs());
-            start.elapsed() < budget
-        },
-    );
-    steps.borrow_mut().end();
-    let pretrain_s = started.map_or(0.0, |(start, progress)| {
-        progress.finish_and_clear();
-        start.elapsed().as_secs_f64()
-    });
+    let (trained, pretrain_s) = fit(&data, &training(config), budget, out);
     let (mut model, report) =
         trained.context("training on the demonstrations; nothing was written")?;
     model.arm = config.arm_identity();
@@ -509,6 +527,64 @@ mod tests {
         let e = recordings(&samples, 4).unwrap_err().to_string();
         assert!(e.contains("demonstration 3 has only 0 samples"), "{e}");
         assert!(recordings(&samples, 3).is_ok());
+    }
+
+    /// Not on a terminal (a log, this test), every step of training says what it does and how
+    /// far, in lines whose counts only grow, and each ends with the time it took.
+    #[test]
+    fn off_a_terminal_each_step_of_training_is_shown_as_lines() {
+        let mut config = softarm_config::Config::default_sim(std::path::PathBuf::from("/tmp/x"));
+        config.demonstrations.demos_per_class = 4;
+        config.forward_model.centres = 60;
+        let layout = config.layout();
+        let arm = softarm_kinematics::pcc::Arm::of_config(&config.arm).unwrap();
+        let data = TrainingData::<6>::of_arm(&layout, &arm, &config.demonstrations, 3).unwrap();
+        let lines = std::cell::RefCell::new(Vec::<String>::new());
+        let say = |l: &str| lines.borrow_mut().push(l.to_string());
+        let out = Output {
+            terminal: false,
+            lines: &say,
+        };
+        let (trained, _) = fit(&data, &training(&config), Duration::ZERO, out);
+        trained.unwrap();
+        let lines = lines.into_inner();
+        let mut steps = Vec::new();
+        for what in ["primitives", "forward model", "kinematics %", "imitation"] {
+            // "what: done/total ...": counts never going back, the last one done.
+            let counts: Vec<(u64, u64)> = (lines.iter())
+                .filter_map(|l| l.strip_prefix(&format!("{what}: ")))
+                .filter_map(|rest| {
+                    let (done, total) = rest
+                        .split_once(' ')
+                        .unwrap_or((rest, ""))
+                        .0
+                        .split_once('/')?;
+                    Some((done.parse().ok()?, total.parse().ok()?))
+                })
+                .collect();
+            assert!(counts.len() >= 2, "{what}: {lines:#?}");
+            assert!(
+                counts.windows(2).all(|w| w[0].0 <= w[1].0),
+                "{what}: {counts:?}"
+            );
+            let (done, total) = counts[counts.len() - 1];
+            assert_eq!(done, total, "{what}: {lines:#?}");
+            steps.push(lines.iter().position(|l| l.starts_with(what)).unwrap());
+        }
+        // In the pipeline's order, each ended before the next began, then pre-training.
+        assert!(steps.windows(2).all(|w| w[0] < w[1]), "{lines:#?}");
+        for what in ["primitives", "forward model", "kinematics %", "imitation"] {
+            assert!(
+                lines
+                    .iter()
+                    .any(|l| l.starts_with(what) && l.contains("done in")),
+                "{what}"
+            );
+        }
+        assert!(
+            lines.iter().any(|l| l.starts_with("fitted: pre-training")),
+            "{lines:#?}"
+        );
     }
 
     #[test]

@@ -372,3 +372,52 @@ pub fn read_recording(
     let columns = Columns::load(columns_path)?;
     Ok(recording::read(recording_path, &columns, arm)?)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Off a terminal a bar is lines: named, at the start, at each tenth of the way (never
+    /// going back, a new length taken as it comes) and at the end.
+    #[test]
+    fn off_a_terminal_a_bar_is_lines_at_each_tenth() {
+        let lines = RefCell::new(Vec::<String>::new());
+        let say = |l: &str| lines.borrow_mut().push(l.to_string());
+        let out = Output {
+            terminal: false,
+            lines: &say,
+        };
+        let b = bar_to(40, "calibrating", out);
+        for _ in 0..20 {
+            b.inc(1);
+        }
+        // Half-way, it learns it is shorter: at three quarters now.
+        b.set_length(27);
+        b.set_position(27);
+        b.finish_and_clear();
+        let lines = lines.into_inner();
+        assert!(
+            lines.iter().all(|l| l.starts_with("calibrating: ")),
+            "{lines:#?}"
+        );
+        assert_eq!(lines[0], "calibrating: 0/40");
+        let done: Vec<u64> = (lines.iter())
+            .map(|l| {
+                l["calibrating: ".len()..]
+                    .split('/')
+                    .next()
+                    .unwrap()
+                    .parse()
+                    .unwrap()
+            })
+            .collect();
+        assert_eq!(done, [0, 4, 8, 12, 16, 20, 27, 27], "{lines:#?}");
+        assert!(lines[1].contains("(10 %), about"), "{}", lines[1]);
+        assert!(
+            lines[6].starts_with("calibrating: 27/27 (100 %)"),
+            "{}",
+            lines[6]
+        );
+        assert!(lines[7].contains("done in"), "{}", lines[7]);
+    }
+}

@@ -500,11 +500,11 @@ fn chosen_degree<const N: usize>(
                     .map(|(a, p)| distance(&poly.position(a), p))
                     .sum::<f64>()
             });
-        match &best {
-            Some((e, _, _)) if !(error < *e) => break,
-            _ if !error.is_finite() => break,
-            _ => best = Some((error, degree, normal)),
+        // Not finite: singular, or more terms than samples, as every higher degree would be.
+        if !error.is_finite() || best.as_ref().is_some_and(|(e, _, _)| error >= *e) {
+            break;
         }
+        best = Some((error, degree, normal));
     }
     match best {
         Some((_, degree, normal)) => (degree, Some(normal)),
@@ -848,6 +848,80 @@ mod tests {
             ..config
         };
         assert_eq!(width(&data.positions, &one), config.width_factor);
+    }
+
+    /// Noisy samples of a linear map, ten demonstrations of 60: a polynomial of degree 4 (210
+    /// terms) fits the noise of the few it is fitted to.
+    fn linear_and_noisy() -> (Vec<[f64; 6]>, Vec<Position>, Vec<usize>) {
+        use rand::{RngExt, SeedableRng};
+        let mut rng = rand::rngs::StdRng::seed_from_u64(11);
+        let (mut a, mut p, mut demo) = (Vec::new(), Vec::new(), Vec::new());
+        for d in 0..10 {
+            for _ in 0..60 {
+                let x: [f64; 6] = std::array::from_fn(|_| rng.random_range(0.2..0.8));
+                let noise = |rng: &mut rand::rngs::StdRng| rng.random_range(-0.005..0.005);
+                a.push(x);
+                p.push([
+                    0.1 * x[0] - 0.05 * x[3] + noise(&mut rng),
+                    0.08 * x[1] + 0.02 * x[4] + noise(&mut rng),
+                    -0.4 + 0.05 * x[2] + 0.05 * x[5] + noise(&mut rng),
+                ]);
+                demo.push(d);
+            }
+        }
+        (a, p, demo)
+    }
+
+    #[test]
+    fn the_degree_is_chosen_without_the_demonstrations_its_error_is_reported_on() {
+        let (a, p, demo) = linear_and_noisy();
+        let config = PolynomialConfig::default();
+        assert_eq!(config.degree, 4);
+        let (poly, held) = kinematics(&a, &p, &demo, &config).unwrap();
+        assert!(poly.degree() < 4, "degree {}", poly.degree());
+        // The reported error is of the chosen degree fitted without the held-out demonstrations.
+        let fitted: Vec<usize> = (0..a.len())
+            .filter(|i| demo[*i] % HOLD_OUT_EVERY != 0)
+            .collect();
+        let (fa, fp): (Vec<_>, Vec<_>) = fitted.iter().map(|i| (a[*i], p[*i])).unzip();
+        let chosen = PolynomialConfig {
+            degree: poly.degree(),
+            ..config
+        };
+        let partial = Polynomial::fit(&fa, &fp, &chosen).unwrap();
+        let on_held: Vec<f64> = (0..a.len())
+            .filter(|i| demo[*i] % HOLD_OUT_EVERY == 0)
+            .map(|i| distance(&partial.position(&a[i]), &p[i]))
+            .collect();
+        assert_eq!(held.samples, on_held.len());
+        assert!((held.mean_m - mean(&on_held)).abs() < 1e-9, "{held:?}");
+        // The held-out demonstrations 10 cm off: the same degree, a larger error.
+        let mut off = p.clone();
+        for (i, q) in off.iter_mut().enumerate() {
+            if demo[i].is_multiple_of(HOLD_OUT_EVERY) {
+                q[2] += 0.1;
+            }
+        }
+        let (moved, held_off) = kinematics(&a, &off, &demo, &config).unwrap();
+        assert_eq!(moved.degree(), poly.degree());
+        assert!(held_off.mean_m > 0.05, "{held_off:?}");
+        // The final fit is on every sample, at the chosen degree (its sums in another order).
+        let all = Polynomial::fit(&a, &p, &chosen).unwrap();
+        for x in &a {
+            assert!(distance(&poly.position(x), &all.position(x)) < 1e-9);
+        }
+        // Too few demonstrations to judge (only the held-out one and the one after): the
+        // configured degree.
+        let two: Vec<usize> = (0..a.len()).filter(|i| demo[*i] < 2).collect();
+        let pick = |v: &[[f64; 6]]| two.iter().map(|i| v[*i]).collect::<Vec<_>>();
+        let pick_p = |v: &[Position]| two.iter().map(|i| v[*i]).collect::<Vec<_>>();
+        let d2: Vec<usize> = two.iter().map(|i| demo[*i]).collect();
+        let lower = PolynomialConfig {
+            degree: 2,
+            ..config
+        };
+        let (configured, _) = kinematics(&pick(&a), &pick_p(&p), &d2, &lower).unwrap();
+        assert_eq!(configured.degree(), 2);
     }
 
     #[test]
