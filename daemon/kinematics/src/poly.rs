@@ -1,8 +1,9 @@
 //! A polynomial forward model: every monomial of degree ≤ d in the `N` (centred) actuations,
 //! fitted by ridge least squares on D_fwd. The RBF network fits positions to about a millimetre
 //! but its gradients between the demonstrations are poor; the arm's kinematics are smooth, so a
-//! degree-4 polynomial (210 terms) fits them as well and its Jacobian is good enough to steer
-//! the corrections of [`crate::online`] by (docs/ARCHITECTURE.md, "Adaptation").
+//! polynomial of low degree fits them as well (on the paper's arm degree 4, 210 terms; training
+//! chooses the degree on held-out demonstrations) and its Jacobian is good enough to steer the
+//! corrections of the online learner by (docs/ARCHITECTURE.md, "Adaptation").
 
 pub use softarm_sections::kinematics::MAX_DEGREE;
 use softarm_sections::kinematics::PolynomialConfig;
