@@ -476,9 +476,8 @@ fn fit_kinematics<const N: usize>(
 /// on the `judged` samples (the demonstrations just after each held-out one) when fitted to the
 /// `fitted` ones (neither those nor the held-out ones), as the forward model's width
 /// ([`chosen_width`]): the choice never sees the demonstrations its error is reported on.
-/// Degrees are tried upwards until one is more wrong than the one before: past what the data
-/// supports a polynomial only overfits more, and its next degree costs the most (4 845 terms at
-/// degree 4 on sixteen actuators, against 969 at 3). Too few samples to judge: `config.degree`.
+/// Every degree is tried: the error need not rise and fall once (on a sixteen-tendon arm's
+/// demonstrations degree 2 was more wrong than 1). Too few samples to judge: `config.degree`.
 /// With the degree, the fitted samples' equations at it, when it was chosen.
 fn chosen_degree<const N: usize>(
     fit_a: &[[f64; N]],
@@ -500,11 +499,13 @@ fn chosen_degree<const N: usize>(
                     .map(|(a, p)| distance(&poly.position(a), p))
                     .sum::<f64>()
             });
-        // Not finite: singular, or more terms than samples, as every higher degree would be.
-        if !error.is_finite() || best.as_ref().is_some_and(|(e, _, _)| error >= *e) {
+        // Not finite: more terms than samples, as every higher degree would have.
+        if !error.is_finite() {
             break;
         }
-        best = Some((error, degree, normal));
+        if best.as_ref().is_none_or(|(e, _, _)| error < *e) {
+            best = Some((error, degree, normal));
+        }
     }
     match best {
         Some((_, degree, normal)) => (degree, Some(normal)),
