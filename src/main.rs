@@ -557,7 +557,8 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         }
         Command::Train { stack, seed, .. } => {
             let config = stack.load()?;
-            let r = train::train(&config, &stack.namespace()?, seed)?;
+            let out = softarm_identify::run::Output::log();
+            let r = train::train(&config, &stack.namespace()?, seed, out)?;
             println!(
                 "trained model {} in {}: {}",
                 r.model_id,

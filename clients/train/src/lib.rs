@@ -10,15 +10,19 @@ pub mod recording;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, anyhow, bail, ensure};
-use indicatif::ProgressBar;
 use softarm_config::Config;
-use softarm_identify::run::bar;
+/// Where training's progress goes: `softarm train` the log's, the demo its own lines.
+pub use softarm_identify::run::Output;
+use softarm_identify::run::{Bar, bar_to};
 use softarm_ipc::{
     Client, ControllerState, DemonstrateReply, DemonstrateRequest, MotorState, Namespace, Node,
     Setpoint, Sub, TrackerSample,
 };
 use softarm_method::skill::Recording;
-use softarm_model::pipeline::{self, IMITATION_PASSES, Training, TrainingData};
+use softarm_model::bundle::Model;
+use softarm_model::pipeline::{
+    self, IMITATION_PASSES, PipelineError, Step, TrainReport, Training, TrainingData,
+};
 use softarm_runtime::now_ns;
 
 /// What `softarm train` made and measured, for the user.
@@ -32,6 +36,8 @@ pub struct Trained {
     pub forward_error_m: (f64, f64),
     /// The same for the polynomial kinematics.
     pub kinematics_error_m: (f64, f64),
+    /// The polynomial's degree, as chosen on demonstrations other than the held-out ones.
+    pub kinematics_degree: usize,
     /// The RBF forward model's error on the samples it was fitted to (m): mean, standard
     /// deviation; the paper's figure is of this kind.
     pub forward_fitted_m: (f64, f64),
@@ -50,7 +56,8 @@ impl Trained {
             "{} demonstrations ({} samples, {:.1} s); the RBF forward model (width {}) is off by \
              {:.2} ± {:.2} mm on the samples it was fitted to (the paper reports 3.7 ± 1.6 mm \
              so), on held-out demonstrations by {:.2} mm mean, {:.2} mm max, the polynomial \
-             kinematics by {:.2} mm mean, {:.2} mm max; pre-training {:.1} s, {} updates",
+             kinematics (degree {}) by {:.2} mm mean, {:.2} mm max; pre-training {:.1} s, {} \
+             updates",
             self.demos,
             self.samples,
             self.demonstrate_s,
@@ -59,6 +66,7 @@ impl Trained {
             self.forward_fitted_m.1 * 1e3,
             self.forward_error_m.0 * 1e3,
             self.forward_error_m.1 * 1e3,
+            self.kinematics_degree,
             self.kinematics_error_m.0 * 1e3,
             self.kinematics_error_m.1 * 1e3,
             self.pretrain_s,
@@ -81,6 +89,7 @@ struct Sample<const N: usize> {
 fn record<const N: usize>(
     namespace: &Namespace,
     seed: u64,
+    out: Output,
 ) -> Result<(Vec<Sample<N>>, usize, f64)> {
     let mut r = Recorder::<N>::open(namespace)?;
     let (demos, deadline) = r.request(namespace, seed)?;
@@ -88,7 +97,7 @@ fn record<const N: usize>(
         "recording {demos} demonstrations through the stack (giving up after {:.0} s)",
         deadline.as_secs_f64()
     );
-    let progress = bar(demos as u64, "demonstrations");
+    let progress = bar_to(demos as u64, "demonstrations", out);
     let start = Instant::now();
     loop {
         std::thread::sleep(Duration::from_millis(1));
@@ -200,7 +209,7 @@ impl<const N: usize> Recorder<N> {
 
     /// A sample per tracker sample while a demonstration plays, with the latest setpoint and
     /// motor state.
-    fn take_tracker_samples(&mut self, demos: usize, progress: &ProgressBar) {
+    fn take_tracker_samples(&mut self, demos: usize, progress: &Bar) {
         while let Ok(Some(t)) = self.tracker.receive() {
             if let (Some(sp), Some(m)) = (self.setpoint, self.measured)
                 && let Some(commanded) = sp.actuation.fixed()
@@ -297,6 +306,92 @@ fn recordings<const N: usize>(samples: &[Sample<N>], demos: usize) -> Result<Vec
     Ok(recordings)
 }
 
+/// The pipeline on `data`, each step's progress to `out`, pre-training for at most `budget`:
+/// the model and what training measured, and the seconds pre-training took.
+fn fit<const N: usize>(
+    data: &TrainingData<N>,
+    training: &Training,
+    budget: Duration,
+    out: Output,
+) -> (
+    std::result::Result<(Model<N>, TrainReport), PipelineError>,
+    f64,
+) {
+    let steps = std::cell::RefCell::new(Steps { out, now: None });
+    // The budget and its progress bar start with the pre-training, after the fits.
+    let mut started: Option<(Instant, Bar)> = None;
+    let trained = pipeline::train_showing(
+        data,
+        training,
+        &mut |step, done, total| steps.borrow_mut().show(step, done, total),
+        |_| {
+            let (start, progress) = started.get_or_insert_with(|| {
+                steps.borrow_mut().end();
+                (out.lines)(&format!(
+                    "fitted: pre-training the learner for up to {:.1} s",
+                    budget.as_secs_f64()
+                ));
+                (
+                    Instant::now(),
+                    bar_to(budget.as_secs(), "pre-training s", out),
+                )
+            });
+            progress.set_position(start.elapsed().as_secs());
+            start.elapsed() < budget
+        },
+    );
+    steps.borrow_mut().end();
+    let pretrain_s = started.map_or(0.0, |(start, progress)| {
+        progress.finish_and_clear();
+        start.elapsed().as_secs_f64()
+    });
+    (trained, pretrain_s)
+}
+
+/// The pipeline's steps as bars, one at a time: a step's bar ends as the next one starts.
+struct Steps<'a> {
+    out: Output<'a>,
+    now: Option<(Step, Bar<'a>, u64)>,
+}
+
+/// Past this, a step's units (rows × terms² for the kinematics) show as a percentage.
+const MAX_SHOWN: u64 = 1000;
+
+impl<'a> Steps<'a> {
+    fn show(&mut self, step: Step, done: u64, total: u64) {
+        // Counted in percent past MAX_SHOWN units.
+        let scale = |v: u64| {
+            if total > MAX_SHOWN {
+                (u128::from(v) * 100 / u128::from(total)) as u64
+            } else {
+                v
+            }
+        };
+        if self.now.as_ref().is_none_or(|(s, _, _)| *s != step) {
+            self.end();
+            let what = if total > MAX_SHOWN {
+                format!("{} %", step.name())
+            } else {
+                step.name().to_string()
+            };
+            self.now = Some((step, bar_to(scale(total), &what, self.out), total));
+        }
+        if let Some((_, bar, was)) = &mut self.now {
+            if *was != total {
+                *was = total;
+                bar.set_length(scale(total));
+            }
+            bar.set_position(scale(done));
+        }
+    }
+
+    fn end(&mut self) {
+        if let Some((_, bar, _)) = self.now.take() {
+            bar.finish_and_clear();
+        }
+    }
+}
+
 /// `softarm train`'s settings: the config's sections the pipeline reads.
 pub fn training(config: &Config) -> Training {
     Training {
@@ -310,23 +405,28 @@ pub fn training(config: &Config) -> Training {
 }
 
 /// Runs the whole training against the stack in `namespace`, for the config's arm, and writes
-/// the bundle.
-pub fn train(config: &Config, namespace: &Namespace, seed: u64) -> Result<Trained> {
+/// the bundle; each step's progress to `out`.
+pub fn train(config: &Config, namespace: &Namespace, seed: u64, out: Output) -> Result<Trained> {
     let n = config.layout().actuators().len();
-    softarm_ipc::with_actuators!(n, N => train_for::<N>(config, namespace, seed), n => {
+    softarm_ipc::with_actuators!(n, N => train_for::<N>(config, namespace, seed, out), n => {
         unreachable!("a loaded config's arm has 3 to 16 actuators, not {n}")
     })
 }
 
 /// [`train`] for an arm of `N` actuators.
-fn train_for<const N: usize>(config: &Config, namespace: &Namespace, seed: u64) -> Result<Trained> {
+fn train_for<const N: usize>(
+    config: &Config,
+    namespace: &Namespace,
+    seed: u64,
+    out: Output,
+) -> Result<Trained> {
     let budget = budget(config.pretrain.budget_s)?;
-    let (samples, demos, demonstrate_s) = record::<N>(namespace, seed)?;
-    tracing::info!(
+    let (samples, demos, demonstrate_s) = record::<N>(namespace, seed, out)?;
+    (out.lines)(&format!(
         "{demos} demonstrations recorded in {demonstrate_s:.1} s ({} samples): fitting the \
          primitives, the forward model and the kinematics",
         samples.len()
-    );
+    ));
     let data = TrainingData {
         recordings: recordings(&samples, demos)?,
         duration_s: config.demonstrations.duration_s,
@@ -335,23 +435,7 @@ fn train_for<const N: usize>(config: &Config, namespace: &Namespace, seed: u64) 
         positions: samples.iter().map(|s| s.position).collect(),
         demo: samples.iter().map(|s| s.demo as usize).collect(),
     };
-    // The budget and the progress bar start with the pre-training, after the fits.
-    let mut started: Option<(Instant, ProgressBar)> = None;
-    let trained = pipeline::train(&data, &training(config), |_| {
-        let (start, progress) = started.get_or_insert_with(|| {
-            tracing::info!(
-                "fitted: pre-training the learner for up to {:.1} s",
-                budget.as_secs_f64()
-            );
-            (Instant::now(), bar(budget.as_secs(), "pre-training s"))
-        });
-        progress.set_position(start.elapsed().as_secs());
-        start.elapsed() < budget
-    });
-    let pretrain_s = started.map_or(0.0, |(start, progress)| {
-        progress.finish_and_clear();
-        start.elapsed().as_secs_f64()
-    });
+    let (trained, pretrain_s) = fit(&data, &training(config), budget, out);
     let (mut model, report) =
         trained.context("training on the demonstrations; nothing was written")?;
     model.arm = config.arm_identity();
@@ -378,6 +462,7 @@ fn train_for<const N: usize>(config: &Config, namespace: &Namespace, seed: u64) 
             report.kinematics_error.mean_m,
             report.kinematics_error.max_m,
         ),
+        kinematics_degree: report.kinematics_degree,
         pretrain_s,
         pretrain_updates: report.pretrain.updates,
         model_id,
@@ -445,6 +530,64 @@ mod tests {
         let e = recordings(&samples, 4).unwrap_err().to_string();
         assert!(e.contains("demonstration 3 has only 0 samples"), "{e}");
         assert!(recordings(&samples, 3).is_ok());
+    }
+
+    /// Not on a terminal (a log, this test), every step of training says what it does and how
+    /// far, in lines whose counts only grow, and each ends with the time it took.
+    #[test]
+    fn off_a_terminal_each_step_of_training_is_shown_as_lines() {
+        let mut config = softarm_config::Config::default_sim(std::path::PathBuf::from("/tmp/x"));
+        config.demonstrations.demos_per_class = 4;
+        config.forward_model.centres = 60;
+        let layout = config.layout();
+        let arm = softarm_kinematics::pcc::Arm::of_config(&config.arm).unwrap();
+        let data = TrainingData::<6>::of_arm(&layout, &arm, &config.demonstrations, 3).unwrap();
+        let lines = std::cell::RefCell::new(Vec::<String>::new());
+        let say = |l: &str| lines.borrow_mut().push(l.to_string());
+        let out = Output {
+            terminal: false,
+            lines: &say,
+        };
+        let (trained, _) = fit(&data, &training(&config), Duration::ZERO, out);
+        trained.unwrap();
+        let lines = lines.into_inner();
+        let mut steps = Vec::new();
+        for what in ["primitives", "forward model", "kinematics %", "imitation"] {
+            // "what: done/total ...": counts never going back, the last one done.
+            let counts: Vec<(u64, u64)> = (lines.iter())
+                .filter_map(|l| l.strip_prefix(&format!("{what}: ")))
+                .filter_map(|rest| {
+                    let (done, total) = rest
+                        .split_once(' ')
+                        .unwrap_or((rest, ""))
+                        .0
+                        .split_once('/')?;
+                    Some((done.parse().ok()?, total.parse().ok()?))
+                })
+                .collect();
+            assert!(counts.len() >= 2, "{what}: {lines:#?}");
+            assert!(
+                counts.windows(2).all(|w| w[0].0 <= w[1].0),
+                "{what}: {counts:?}"
+            );
+            let (done, total) = counts[counts.len() - 1];
+            assert_eq!(done, total, "{what}: {lines:#?}");
+            steps.push(lines.iter().position(|l| l.starts_with(what)).unwrap());
+        }
+        // In the pipeline's order, each ended before the next began, then pre-training.
+        assert!(steps.windows(2).all(|w| w[0] < w[1]), "{lines:#?}");
+        for what in ["primitives", "forward model", "kinematics %", "imitation"] {
+            assert!(
+                lines
+                    .iter()
+                    .any(|l| l.starts_with(what) && l.contains("done in")),
+                "{what}"
+            );
+        }
+        assert!(
+            lines.iter().any(|l| l.starts_with("fitted: pre-training")),
+            "{lines:#?}"
+        );
     }
 
     #[test]

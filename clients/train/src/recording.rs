@@ -28,7 +28,9 @@ use softarm_method::space::Position;
 use softarm_model::bundle::Model;
 use softarm_model::pipeline;
 
-use crate::{bar, budget, training};
+use softarm_identify::run::bar;
+
+use crate::{budget, training};
 
 /// A motion becomes a demonstration of its class when it has at least this many rows.
 const MIN_ROWS: usize = 4;
@@ -274,7 +276,7 @@ fn bundle<const N: usize>(
         zero_length_m: &rows.zero_length_m,
     };
     let limit = budget(config.pretrain.budget_s)?;
-    let mut started: Option<(Instant, indicatif::ProgressBar)> = None;
+    let mut started: Option<(Instant, softarm_identify::run::Bar)> = None;
     let (learner, report) = pipeline::learner(&train, &calibrated, &acts, &positions, |_| {
         let (start, progress) =
             started.get_or_insert_with(|| (Instant::now(), bar(limit.as_secs(), "pre-training s")));

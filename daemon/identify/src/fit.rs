@@ -9,6 +9,7 @@
 //! held-out motions of the training recording decide, never another recording. Pure math.
 
 use nalgebra::{DMatrix, DVector};
+use softarm_kinematics::linalg::on_every_core;
 
 use crate::residual::{RIDGES, Residual, WIDTHS};
 use crate::tendon::{Model, Shape, Slots, Structure};
@@ -266,40 +267,6 @@ fn thinned<'a>(samples: &[&'a Sample]) -> Vec<&'a Sample> {
         .collect()
 }
 
-/// `work(0..jobs)` on every core, in order; `tick` called (on this thread) as each ends.
-fn on_every_core<T: Send>(
-    jobs: usize,
-    work: impl Fn(usize) -> T + Sync,
-    tick: &mut dyn FnMut(),
-) -> Vec<T> {
-    let workers = std::thread::available_parallelism()
-        .map_or(1, |n| n.get())
-        .min(jobs);
-    let next = std::sync::atomic::AtomicUsize::new(0);
-    let (done, ended) = std::sync::mpsc::channel();
-    let mut out: Vec<Option<T>> = (0..jobs).map(|_| None).collect();
-    std::thread::scope(|scope| {
-        for _ in 0..workers {
-            let (done, next, work) = (done.clone(), &next, &work);
-            scope.spawn(move || {
-                loop {
-                    let job = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                    if job >= jobs || done.send((job, work(job))).is_err() {
-                        break;
-                    }
-                }
-            });
-        }
-        drop(done);
-        for (job, result) in ended {
-            out[job] = Some(result);
-            tick();
-        }
-    });
-    // Every job sent its result, or its worker panicked and the scope passed that on.
-    out.into_iter().flatten().collect()
-}
-
 /// The calibration of `structure` to `samples`: oriented, then for each of [`STRENGTHS`]
 /// fitted [`FOLDS`] times with a fifth of the motions held out; the strength whose held-out
 /// RMS is least, fitted to all (each fit on at most [`MAX_FIT_ROWS`] rows). The fits run on
@@ -482,21 +449,6 @@ mod tests {
             }
         }
         out
-    }
-
-    #[test]
-    fn jobs_on_every_core_come_back_in_order_each_ticked_once() {
-        let mut ticks = 0;
-        // The first jobs the slowest: on two cores or more they end out of order.
-        let slow_first = |j: usize| {
-            std::thread::sleep(std::time::Duration::from_micros((37 - j as u64) * 300));
-            j * j
-        };
-        let out = on_every_core(37, slow_first, &mut || ticks += 1);
-        assert_eq!(out, (0..37).map(|j| j * j).collect::<Vec<_>>());
-        assert_eq!(ticks, 37);
-        assert!(on_every_core(0, |j| j, &mut || ticks += 1).is_empty());
-        assert_eq!(ticks, 37);
     }
 
     #[test]

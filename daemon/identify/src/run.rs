@@ -1,8 +1,10 @@
 //! The commands: `softarm train --from` (a recording → an identified model and its twin) and
 //! `softarm model check` (a model against a recording), with progress for people.
 
+use std::cell::RefCell;
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
+use std::time::Instant;
 
 use indicatif::{ProgressBar, ProgressStyle};
 use softarm_arm::Layout;
@@ -32,20 +34,149 @@ pub const TWIN_FILE: &str = "twin-arm.toml";
 /// Rows a fit needs at least, per parameter: each row gives three numbers.
 const ROWS_PER_PARAMETER: usize = 2;
 
-/// A progress bar on a terminal (hidden elsewhere): what `train` and `train --from` show of
-/// anything over a few seconds.
-pub fn bar(len: u64, what: &str) -> ProgressBar {
-    if !std::io::stderr().is_terminal() {
-        return ProgressBar::hidden();
+/// Where progress goes: on a terminal a bar on stderr, elsewhere (a log under systemd, a pipe, a
+/// test) a line at a time to `lines`, which callers on the calling thread only ever call.
+#[derive(Clone, Copy)]
+pub struct Output<'a> {
+    pub terminal: bool,
+    pub lines: &'a dyn Fn(&str),
+}
+
+impl Output<'static> {
+    /// A bar when stderr is a terminal, else lines in the log (at info).
+    pub fn log() -> Self {
+        fn info(line: &str) {
+            tracing::info!("{line}");
+        }
+        Self {
+            terminal: std::io::stderr().is_terminal(),
+            lines: &info,
+        }
+    }
+}
+
+/// The progress of a step that takes more than a few seconds, for people: on a terminal a bar
+/// (what, how far, the time so far and left); elsewhere a line as it starts, at every tenth of
+/// the way and as it ends, each with the count and the time left. What `train` and
+/// `train --from` show of every such step.
+pub struct Bar<'a> {
+    bar: ProgressBar,
+    lines: Option<RefCell<Lines<'a>>>,
+}
+
+/// A [`Bar`] as lines: how far it was at the last line.
+struct Lines<'a> {
+    what: String,
+    len: u64,
+    pos: u64,
+    /// The next tenth of `len` that prints a line.
+    next_tenth: u64,
+    start: Instant,
+    say: &'a dyn Fn(&str),
+}
+
+/// A progress bar of `len` for `what` to the log ([`Output::log`]).
+pub fn bar(len: u64, what: &str) -> Bar<'static> {
+    bar_to(len, what, Output::log())
+}
+
+/// A progress bar of `len` for `what` to `out`.
+pub fn bar_to<'a>(len: u64, what: &str, out: Output<'a>) -> Bar<'a> {
+    if !out.terminal {
+        let lines = Lines {
+            what: what.to_string(),
+            len,
+            pos: 0,
+            next_tenth: 1,
+            start: Instant::now(),
+            say: out.lines,
+        };
+        (lines.say)(&format!("{what}: 0/{len}"));
+        return Bar {
+            bar: ProgressBar::hidden(),
+            lines: Some(RefCell::new(lines)),
+        };
     }
     let b = ProgressBar::new(len);
     b.set_style(
-        ProgressStyle::with_template("{msg:>16} [{bar:40}] {pos}/{len} ({elapsed})")
-            .expect("a valid template")
-            .progress_chars("=> "),
+        ProgressStyle::with_template(
+            "{msg:>16} [{bar:40}] {pos}/{len} ({elapsed}, about {eta} left)",
+        )
+        .expect("a valid template")
+        .progress_chars("=> "),
     );
     b.set_message(what.to_string());
-    b
+    Bar {
+        bar: b,
+        lines: None,
+    }
+}
+
+impl Bar<'_> {
+    pub fn inc(&self, delta: u64) {
+        self.bar.inc(delta);
+        self.moved(|pos| pos.saturating_add(delta));
+    }
+
+    pub fn set_position(&self, pos: u64) {
+        self.bar.set_position(pos);
+        self.moved(|_| pos);
+    }
+
+    /// A new length (a step that learns how long it is as it goes).
+    pub fn set_length(&self, len: u64) {
+        self.bar.set_length(len);
+        if let Some(lines) = &self.lines {
+            let mut l = lines.borrow_mut();
+            l.len = len;
+            l.next_tenth = next_tenth(l.pos, len);
+        }
+    }
+
+    /// Gone from the terminal; in the log, a last line with the time it took.
+    pub fn finish_and_clear(&self) {
+        self.bar.finish_and_clear();
+        if let Some(lines) = &self.lines {
+            let l = lines.borrow();
+            (l.say)(&format!(
+                "{}: {}/{} done in {:.1} s",
+                l.what,
+                l.pos,
+                l.len,
+                l.start.elapsed().as_secs_f64()
+            ));
+        }
+    }
+
+    /// A line at each tenth of the way passed.
+    fn moved(&self, to: impl FnOnce(u64) -> u64) {
+        let Some(lines) = &self.lines else {
+            return;
+        };
+        let mut l = lines.borrow_mut();
+        l.pos = to(l.pos).min(l.len);
+        if l.len == 0 || l.pos * 10 < l.next_tenth * l.len {
+            return;
+        }
+        l.next_tenth = next_tenth(l.pos, l.len);
+        let elapsed = l.start.elapsed().as_secs_f64();
+        let left = elapsed * (l.len - l.pos) as f64 / l.pos.max(1) as f64;
+        (l.say)(&format!(
+            "{}: {}/{} ({} %), about {left:.0} s left",
+            l.what,
+            l.pos,
+            l.len,
+            l.pos * 100 / l.len
+        ));
+    }
+}
+
+/// The first tenth of `len` past `pos`.
+fn next_tenth(pos: u64, len: u64) -> u64 {
+    if len == 0 {
+        return 1;
+    }
+    pos * 10 / len + 1
 }
 
 /// What `train --from` fitted, before anything is written.
@@ -240,4 +371,53 @@ pub fn read_recording(
 ) -> Result<Recording, Error> {
     let columns = Columns::load(columns_path)?;
     Ok(recording::read(recording_path, &columns, arm)?)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Off a terminal a bar is lines: named, at the start, at each tenth of the way (never
+    /// going back, a new length taken as it comes) and at the end.
+    #[test]
+    fn off_a_terminal_a_bar_is_lines_at_each_tenth() {
+        let lines = RefCell::new(Vec::<String>::new());
+        let say = |l: &str| lines.borrow_mut().push(l.to_string());
+        let out = Output {
+            terminal: false,
+            lines: &say,
+        };
+        let b = bar_to(40, "calibrating", out);
+        for _ in 0..20 {
+            b.inc(1);
+        }
+        // Half-way, it learns it is shorter: at three quarters now.
+        b.set_length(27);
+        b.set_position(27);
+        b.finish_and_clear();
+        let lines = lines.into_inner();
+        assert!(
+            lines.iter().all(|l| l.starts_with("calibrating: ")),
+            "{lines:#?}"
+        );
+        assert_eq!(lines[0], "calibrating: 0/40");
+        let done: Vec<u64> = (lines.iter())
+            .map(|l| {
+                l["calibrating: ".len()..]
+                    .split('/')
+                    .next()
+                    .unwrap()
+                    .parse()
+                    .unwrap()
+            })
+            .collect();
+        assert_eq!(done, [0, 4, 8, 12, 16, 20, 27, 27], "{lines:#?}");
+        assert!(lines[1].contains("(10 %), about"), "{}", lines[1]);
+        assert!(
+            lines[6].starts_with("calibrating: 27/27 (100 %)"),
+            "{}",
+            lines[6]
+        );
+        assert!(lines[7].contains("done in"), "{}", lines[7]);
+    }
 }

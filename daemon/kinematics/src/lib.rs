@@ -9,7 +9,8 @@
 //! - [`forward`] — the [`forward::ForwardModel`] trait (the PCC kinematics are one).
 //! - [`poly`] — the polynomial forward model (the learner's kinematics).
 //! - [`rbf`] — RBF lattices (the learner's actor and critic) and the RBF forward-model network.
-//! - [`linalg`] — the symmetric solve the fits share.
+//! - [`linalg`] — the symmetric solve and the normal equations the fits share, summed in blocks
+//!   on every core.
 
 pub mod arcs;
 pub mod forward;

@@ -1,15 +1,16 @@
 //! A polynomial forward model: every monomial of degree ≤ d in the `N` (centred) actuations,
 //! fitted by ridge least squares on D_fwd. The RBF network fits positions to about a millimetre
 //! but its gradients between the demonstrations are poor; the arm's kinematics are smooth, so a
-//! degree-4 polynomial (210 terms) fits them as well and its Jacobian is good enough to steer
-//! the corrections of [`crate::online`] by (docs/ARCHITECTURE.md, "Adaptation").
+//! polynomial of low degree fits them as well (on the paper's arm degree 4, 210 terms; training
+//! chooses the degree on held-out demonstrations) and its Jacobian is good enough to steer the
+//! corrections of the online learner by (docs/ARCHITECTURE.md, "Adaptation").
 
-use nalgebra::DMatrix;
 pub use softarm_sections::kinematics::MAX_DEGREE;
 use softarm_sections::kinematics::PolynomialConfig;
 use softarm_space::{ACTUATORS, Position};
 
 use crate::forward::{ForwardModel, Jacobian};
+use crate::linalg::Normal;
 
 /// Monomials are of a − [`CENTRE`]: the middle of the actuation range keeps them well scaled.
 const CENTRE: f64 = 0.5;
@@ -63,6 +64,11 @@ fn powers<const N: usize>(a: &[f64; N], degree: usize) -> [[f64; MAX_DEGREE + 1]
     p
 }
 
+/// Π_i p_i^{e_i}, of the powers [`powers`] gives.
+fn monomial<const N: usize>(p: &[[f64; MAX_DEGREE + 1]; N], e: &[u8; N]) -> f64 {
+    (0..N).map(|i| p[i][e[i] as usize]).product()
+}
+
 impl<const N: usize> Polynomial<N> {
     /// Fits on (actuation, position) samples.
     pub fn fit(
@@ -70,6 +76,18 @@ impl<const N: usize> Polynomial<N> {
         positions: &[Position],
         config: &PolynomialConfig,
     ) -> Result<Self, String> {
+        Self::check(actuations, positions, config)?;
+        let normal = Self::normal_equations(actuations, positions, config.degree, &mut || {});
+        Self::solve(&normal, config.degree, config.ridge)
+    }
+
+    /// What [`Polynomial::fit`] refuses before fitting: a degree or ridge out of range, as many
+    /// actuations as positions, a value not finite.
+    pub fn check(
+        actuations: &[[f64; N]],
+        positions: &[Position],
+        config: &PolynomialConfig,
+    ) -> Result<(), String> {
         if !(1..=MAX_DEGREE).contains(&config.degree) {
             return Err(format!(
                 "degree must be 1 to {MAX_DEGREE}, got {}",
@@ -86,15 +104,6 @@ impl<const N: usize> Polynomial<N> {
                 positions.len()
             ));
         }
-        let exponents = exponents(config.degree);
-        let terms = exponents.len();
-        if actuations.len() < terms {
-            return Err(format!(
-                "{} samples are too few for the {terms} terms of degree {}",
-                actuations.len(),
-                config.degree
-            ));
-        }
         if actuations
             .iter()
             .flatten()
@@ -103,27 +112,63 @@ impl<const N: usize> Polynomial<N> {
         {
             return Err("the samples contain a non-finite value".into());
         }
-        let mut model = Self {
-            degree: config.degree,
-            exponents,
-            weights: Vec::new(),
-        };
-        let phi = DMatrix::from_fn(actuations.len(), terms, |r, c| {
-            let p = powers(&actuations[r], model.degree);
-            model.term(&p, c)
-        });
-        let mut a = phi.tr_mul(&phi);
-        for i in 0..terms {
-            a[(i, i)] += config.ridge;
+        Ok(())
+    }
+
+    /// The normal equations of a fit of `degree` on (actuation, position) samples, summed in
+    /// blocks of rows on every core; `tick` once a block. Unchecked: [`Polynomial::fit`]
+    /// checks its input first. Two sets of samples' equations add up to those of both, and a
+    /// lower degree's are their leading terms' ([`Normal::leading`]), so a choice of degree on
+    /// held-out samples sums each sample once per degree at most.
+    pub fn normal_equations(
+        actuations: &[[f64; N]],
+        positions: &[Position],
+        degree: usize,
+        tick: &mut dyn FnMut(),
+    ) -> Normal {
+        let exponents = exponents::<N>(degree);
+        Normal::of(
+            actuations.len(),
+            exponents.len(),
+            3,
+            |r, phi, y| {
+                let p = powers(&actuations[r], degree);
+                for (f, e) in phi.iter_mut().zip(&exponents) {
+                    *f = monomial(&p, e);
+                }
+                y.copy_from_slice(&positions[r]);
+            },
+            tick,
+        )
+    }
+
+    /// The polynomial of `degree` that solves `normal` (of that degree or higher) with `ridge`.
+    pub fn solve(normal: &Normal, degree: usize, ridge: f64) -> Result<Self, String> {
+        let exponents = exponents::<N>(degree);
+        let terms = exponents.len();
+        if normal.gram.nrows() < terms {
+            return Err(format!(
+                "equations of {} terms for the {terms} of degree {degree}",
+                normal.gram.nrows()
+            ));
         }
-        let y = DMatrix::from_fn(positions.len(), 3, |r, c| positions[r][c]);
-        let w = crate::linalg::solve_spd(a, phi.tr_mul(&y))
-            .filter(|w| w.iter().all(|v| v.is_finite()))
+        if normal.rows < terms {
+            return Err(format!(
+                "{} samples are too few for the {terms} terms of degree {degree}",
+                normal.rows
+            ));
+        }
+        let w = normal
+            .leading(terms)
+            .solve(ridge)
             .ok_or("the least-squares system is singular: use a ridge > 0")?;
-        model.weights = (0..terms)
-            .map(|i| [w[(i, 0)], w[(i, 1)], w[(i, 2)]])
-            .collect();
-        Ok(model)
+        Ok(Self {
+            degree,
+            exponents,
+            weights: (0..terms)
+                .map(|i| [w[(i, 0)], w[(i, 1)], w[(i, 2)]])
+                .collect(),
+        })
     }
 
     /// A model from saved weights (one row per monomial of `degree`).
@@ -161,8 +206,7 @@ impl<const N: usize> Polynomial<N> {
     }
 
     fn term(&self, p: &[[f64; MAX_DEGREE + 1]; N], m: usize) -> f64 {
-        let e = &self.exponents[m];
-        (0..N).map(|i| p[i][e[i] as usize]).product()
+        monomial(p, &self.exponents[m])
     }
 }
 

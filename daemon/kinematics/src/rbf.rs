@@ -10,7 +10,6 @@
 use std::collections::HashMap;
 use std::hash::{BuildHasherDefault, Hasher};
 
-use nalgebra::DMatrix;
 use serde::{Deserialize, Serialize};
 
 use softarm_sections::forward_model::NetworkConfig;
@@ -485,21 +484,18 @@ impl<const N: usize> RbfNetwork<N> {
             weights: Vec::new(),
         };
         let f = net.centres.len() + linear;
-        let mut phi = DMatrix::zeros(n, f);
-        let mut row = vec![0.0; f];
-        for (r, a) in actuations.iter().enumerate() {
-            net.features(a, &mut row);
-            for (c, v) in row.iter().enumerate() {
-                phi[(r, c)] = *v;
-            }
-        }
-        let mut a = phi.tr_mul(&phi);
-        for i in 0..f {
-            a[(i, i)] += config.ridge;
-        }
-        let y = DMatrix::from_fn(n, 3, |r, c| positions[r][c]);
-        let rhs = phi.tr_mul(&y);
-        let w = crate::linalg::solve_spd(a, rhs)
+        let normal = crate::linalg::Normal::of(
+            n,
+            f,
+            3,
+            |r, phi, y| {
+                net.features(&actuations[r], phi);
+                y.copy_from_slice(&positions[r]);
+            },
+            &mut || {},
+        );
+        let w = normal
+            .solve(config.ridge)
             .ok_or_else(|| RbfError::Network("the least-squares system is singular".into()))?;
         net.weights = (0..f).map(|i| [w[(i, 0)], w[(i, 1)], w[(i, 2)]]).collect();
         Ok(net)

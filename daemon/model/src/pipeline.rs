@@ -12,7 +12,8 @@
 
 use softarm_arm::Layout;
 use softarm_kinematics::forward::ForwardModel;
-use softarm_kinematics::poly::Polynomial;
+use softarm_kinematics::linalg::{BLOCK_ROWS, Normal};
+use softarm_kinematics::poly::{Polynomial, terms};
 use softarm_kinematics::rbf::{RbfError, RbfNetwork};
 use softarm_learning::cacla::{self, CaclaMtl, PretrainReport};
 use softarm_method::activation::MAX_PRIMITIVES;
@@ -35,6 +36,43 @@ pub const IMITATION_PASSES: usize = 3;
 /// first fits to measure their error. Whole demonstrations: a held-out sample between two
 /// fitted neighbours 5 ms apart would measure interpolation, not the model.
 pub const HOLD_OUT_EVERY: usize = 5;
+
+/// The steps of [`train`] that take a while on a large arm, in order, for progress; the
+/// pre-training after them is the caller's to show (its `keep_going` sees every epoch).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Step {
+    /// The ProMPs, a class at a time.
+    Primitives,
+    /// The RBF forward model: each width tried, the held-out fit, the final fit.
+    ForwardModel,
+    /// The polynomial kinematics: each degree tried, the held-out fit, the final fit, in rows
+    /// summed × terms² (what a fit costs), the total shrinking when fewer degrees are tried.
+    Kinematics,
+    /// The imitation warm start, a pass at a time.
+    Imitation,
+}
+
+impl Step {
+    pub const ALL: [Step; 4] = [
+        Step::Primitives,
+        Step::ForwardModel,
+        Step::Kinematics,
+        Step::Imitation,
+    ];
+
+    /// What the step does, for the user.
+    pub fn name(self) -> &'static str {
+        match self {
+            Step::Primitives => "primitives",
+            Step::ForwardModel => "forward model",
+            Step::Kinematics => "kinematics",
+            Step::Imitation => "imitation",
+        }
+    }
+}
+
+/// Told how far a step is: (step, done, total), `done` never past `total` and never back.
+pub type Progress<'a> = &'a mut dyn FnMut(Step, u64, u64);
 
 /// What can go wrong in the pipeline: bad input, never a panic.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -157,6 +195,8 @@ pub struct TrainReport {
     /// The forward model's width, as [`forward_model`] chose it.
     pub forward_width_factor: f64,
     pub kinematics_error: HeldOut,
+    /// The polynomial's degree, as [`kinematics`] chose it.
+    pub kinematics_degree: usize,
     pub pretrain: PretrainReport,
 }
 
@@ -221,29 +261,52 @@ fn same_demos<const N: usize>(
 }
 
 /// Fits `fit` without every [`HOLD_OUT_EVERY`]-th demonstration, measures the error there,
-/// then fits again on every sample.
+/// then fits again on every sample; `tick` after each fit.
 fn held_out_fit<const N: usize, M: ForwardModel<N>, E>(
     actuations: &[[f64; N]],
     positions: &[Position],
     demo: &[usize],
     fit: impl Fn(&[[f64; N]], &[Position]) -> Result<M, E>,
     wrap: impl Fn(&'static str, E) -> PipelineError,
+    tick: &mut dyn FnMut(),
 ) -> Result<(M, HeldOut), PipelineError> {
     same_length(actuations, positions)?;
     same_demos(actuations, demo)?;
     let held = |i: usize| demo[i].is_multiple_of(HOLD_OUT_EVERY);
-    let (mut fit_a, mut fit_p) = (Vec::new(), Vec::new());
-    for i in (0..actuations.len()).filter(|i| !held(*i)) {
-        fit_a.push(actuations[i]);
-        fit_p.push(positions[i]);
-    }
+    let (fit_a, fit_p) = picked(actuations, positions, |i| !held(i));
     let partial =
         fit(&fit_a, &fit_p).map_err(|e| wrap("without the held-out demonstrations", e))?;
+    tick();
+    let model = fit(actuations, positions).map_err(|e| wrap("on every sample", e))?;
+    tick();
+    let held_out = held_out(&partial, &model, actuations, positions, held);
+    Ok((model, held_out))
+}
+
+/// The samples whose index `keep` keeps.
+fn picked<const N: usize>(
+    actuations: &[[f64; N]],
+    positions: &[Position],
+    keep: impl Fn(usize) -> bool,
+) -> (Vec<[f64; N]>, Vec<Position>) {
+    (0..actuations.len())
+        .filter(|i| keep(*i))
+        .map(|i| (actuations[i], positions[i]))
+        .unzip()
+}
+
+/// `partial`'s error on the samples `held` picks, `model`'s on every sample.
+fn held_out<const N: usize>(
+    partial: &impl ForwardModel<N>,
+    model: &impl ForwardModel<N>,
+    actuations: &[[f64; N]],
+    positions: &[Position],
+    held: impl Fn(usize) -> bool,
+) -> HeldOut {
     let errors: Vec<f64> = (0..actuations.len())
         .filter(|i| held(*i))
         .map(|i| distance(&partial.position(&actuations[i]), &positions[i]))
         .collect();
-    let model = fit(actuations, positions).map_err(|e| wrap("on every sample", e))?;
     let fitted: Vec<f64> = (actuations.iter().zip(positions))
         .map(|(a, p)| distance(&model.position(a), p))
         .collect();
@@ -254,14 +317,13 @@ fn held_out_fit<const N: usize, M: ForwardModel<N>, E>(
         .sum::<f64>()
         / fitted.len().max(1) as f64)
         .sqrt();
-    let held_out = HeldOut {
+    HeldOut {
         samples: errors.len(),
         mean_m: errors.iter().sum::<f64>() / errors.len().max(1) as f64,
         max_m: errors.iter().copied().fold(0.0, f64::max),
         fitted_mean_m,
         fitted_sd_m,
-    };
-    Ok((model, held_out))
+    }
 }
 
 /// The RBF forward model on D_fwd at the width [`chosen_width`] gives, with its error on
@@ -272,20 +334,44 @@ pub fn forward_model<const N: usize>(
     demo: &[usize],
     config: &NetworkConfig,
 ) -> Result<(RbfNetwork<N>, HeldOut, f64), PipelineError> {
+    fit_forward(actuations, positions, demo, config, &mut |_, _| {})
+}
+
+/// [`forward_model`], `progress(done, total)` in fits.
+fn fit_forward<const N: usize>(
+    actuations: &[[f64; N]],
+    positions: &[Position],
+    demo: &[usize],
+    config: &NetworkConfig,
+    progress: &mut dyn FnMut(u64, u64),
+) -> Result<(RbfNetwork<N>, HeldOut, f64), PipelineError> {
     same_length(actuations, positions)?;
     same_demos(actuations, demo)?;
-    let width_factor = chosen_width(actuations, positions, demo, config);
+    let total = config.widths.max(1) as u64 + 2;
+    let mut done = 0;
+    progress(done, total);
+    let width_factor = chosen_width(actuations, positions, demo, config, &mut || {
+        done += 1;
+        progress(done, total)
+    });
     let config = NetworkConfig {
         width_factor,
         widths: 1,
         ..*config
     };
+    // Widths not tried (one width, too few demonstrations) are done too.
+    let mut done = total - 2;
+    progress(done, total);
     let (model, held_out) = held_out_fit(
         actuations,
         positions,
         demo,
         |a, p| RbfNetwork::fit(a, p, &config),
         |stage, error| PipelineError::Forward { stage, error },
+        &mut || {
+            done += 1;
+            progress(done, total)
+        },
     )?;
     Ok((model, held_out, width_factor))
 }
@@ -299,6 +385,7 @@ fn chosen_width<const N: usize>(
     positions: &[Position],
     demo: &[usize],
     config: &NetworkConfig,
+    tick: &mut dyn FnMut(),
 ) -> f64 {
     let role = |i: usize| demo[i] % HOLD_OUT_EVERY;
     let fitted: Vec<usize> = (0..actuations.len()).filter(|i| role(*i) > 1).collect();
@@ -322,27 +409,166 @@ fn chosen_width<const N: usize>(
         })
     };
     widths
-        .map(|w| (error(w), w))
+        .map(|w| {
+            let e = error(w);
+            tick();
+            (e, w)
+        })
         .filter(|(e, _)| e.is_finite())
         .min_by(|a, b| a.0.total_cmp(&b.0))
         .map_or(config.width_factor, |(_, w)| w)
 }
 
-/// The polynomial kinematics on D_fwd (whose Jacobian steers the online corrections), with its
-/// error on held-out demonstrations.
+/// The polynomial kinematics on D_fwd (whose Jacobian steers the online corrections), at the
+/// degree [`chosen_degree`] gives, with its error on held-out demonstrations.
 pub fn kinematics<const N: usize>(
     actuations: &[[f64; N]],
     positions: &[Position],
     demo: &[usize],
     config: &PolynomialConfig,
 ) -> Result<(Polynomial<N>, HeldOut), PipelineError> {
-    held_out_fit(
-        actuations,
-        positions,
-        demo,
-        |a, p| Polynomial::fit(a, p, config),
-        |stage, error| PipelineError::Kinematics { stage, error },
-    )
+    fit_kinematics(actuations, positions, demo, config, &mut |_, _| {})
+}
+
+/// [`kinematics`], `progress(done, total)` in rows summed × terms².
+///
+/// Every fit here is one of normal equations, and those of two sets of samples add up to those
+/// of both: the rows the choice fitted are summed once, the held-out fit adds the judged rows to
+/// them, the final fit the held-out ones.
+fn fit_kinematics<const N: usize>(
+    actuations: &[[f64; N]],
+    positions: &[Position],
+    demo: &[usize],
+    config: &PolynomialConfig,
+    progress: &mut dyn FnMut(u64, u64),
+) -> Result<(Polynomial<N>, HeldOut), PipelineError> {
+    same_length(actuations, positions)?;
+    same_demos(actuations, demo)?;
+    let wrap = |stage, error| PipelineError::Kinematics { stage, error };
+    Polynomial::check(actuations, positions, config).map_err(|e| wrap("of the samples", e))?;
+    let role = |i: usize| demo[i] % HOLD_OUT_EVERY;
+    let (held_a, held_p) = picked(actuations, positions, |i| role(i) == 0);
+    let (judged_a, judged_p) = picked(actuations, positions, |i| role(i) == 1);
+    let (fit_a, fit_p) = picked(actuations, positions, |i| role(i) > 1);
+    let rows = [fit_a.len(), judged_a.len(), held_a.len()];
+    let mut meter = Meter::new(progress, N, rows, config.degree);
+    let (degree, fitted) = chosen_degree(&fit_a, &fit_p, &judged_a, &judged_p, config, &mut meter);
+    meter.chosen(degree, fitted.is_some());
+    // Without the held-out demonstrations: the choice's rows and the judged ones.
+    let judged =
+        Polynomial::normal_equations(&judged_a, &judged_p, degree, &mut meter.tick(degree));
+    let partial_normal = match fitted {
+        Some(fitted) => fitted + judged,
+        None => {
+            Polynomial::normal_equations(&fit_a, &fit_p, degree, &mut meter.tick(degree)) + judged
+        }
+    };
+    let partial = Polynomial::solve(&partial_normal, degree, config.ridge)
+        .map_err(|e| wrap("without the held-out demonstrations", e))?;
+    let held = Polynomial::normal_equations(&held_a, &held_p, degree, &mut meter.tick(degree));
+    let model = Polynomial::solve(&(partial_normal + held), degree, config.ridge)
+        .map_err(|e| wrap("on every sample", e))?;
+    let held_out = held_out(&partial, &model, actuations, positions, |i| role(i) == 0);
+    Ok((model, held_out))
+}
+
+/// Which degree of 1 to `config.degree` the polynomial kinematics fit with: the one least wrong
+/// on the `judged` samples (the demonstrations just after each held-out one) when fitted to the
+/// `fitted` ones (neither those nor the held-out ones), as the forward model's width
+/// ([`chosen_width`]): the choice never sees the demonstrations its error is reported on.
+/// Every degree is tried: the error need not rise and fall once (on a sixteen-tendon arm's
+/// demonstrations degree 2 was more wrong than 1). Too few samples to judge: `config.degree`.
+/// With the degree, the fitted samples' equations at it, when it was chosen.
+fn chosen_degree<const N: usize>(
+    fit_a: &[[f64; N]],
+    fit_p: &[Position],
+    judged_a: &[[f64; N]],
+    judged_p: &[Position],
+    config: &PolynomialConfig,
+    meter: &mut Meter,
+) -> (usize, Option<Normal>) {
+    if fit_a.is_empty() || judged_a.is_empty() {
+        return (config.degree, None);
+    }
+    let mut best: Option<(f64, usize, Normal)> = None;
+    for degree in 1..=config.degree {
+        let normal = Polynomial::normal_equations(fit_a, fit_p, degree, &mut meter.tick(degree));
+        let error =
+            Polynomial::<N>::solve(&normal, degree, config.ridge).map_or(f64::INFINITY, |poly| {
+                (judged_a.iter().zip(judged_p))
+                    .map(|(a, p)| distance(&poly.position(a), p))
+                    .sum::<f64>()
+            });
+        // Not finite: more terms than samples, as every higher degree would have.
+        if !error.is_finite() {
+            break;
+        }
+        if best.as_ref().is_none_or(|(e, _, _)| error < *e) {
+            best = Some((error, degree, normal));
+        }
+    }
+    match best {
+        Some((_, degree, normal)) => (degree, Some(normal)),
+        None => (config.degree, None),
+    }
+}
+
+/// The kinematics' progress in rows summed × terms², a block of rows at a time: planned for
+/// every degree up to the highest, then shrunk to the degree chosen.
+struct Meter<'a> {
+    progress: &'a mut dyn FnMut(u64, u64),
+    /// Blocks of the choice's fitted, the judged and the held-out samples.
+    blocks: [u64; 3],
+    inputs: usize,
+    done: u64,
+    total: u64,
+}
+
+impl<'a> Meter<'a> {
+    fn new(
+        progress: &'a mut dyn FnMut(u64, u64),
+        inputs: usize,
+        rows: [usize; 3],
+        max_degree: usize,
+    ) -> Self {
+        let mut meter = Self {
+            progress,
+            blocks: rows.map(|r| r.div_ceil(BLOCK_ROWS) as u64),
+            inputs,
+            done: 0,
+            total: 0,
+        };
+        let [fitted, judged, held] = meter.blocks;
+        meter.total = (1..=max_degree)
+            .map(|d| fitted * meter.cost(d))
+            .sum::<u64>()
+            + (judged + held) * meter.cost(max_degree);
+        (meter.progress)(0, meter.total);
+        meter
+    }
+
+    /// What summing a block of rows costs at `degree`: terms².
+    fn cost(&self, degree: usize) -> u64 {
+        (terms(self.inputs, degree) as u64).pow(2)
+    }
+
+    /// Counts a block summed at `degree`.
+    fn tick(&mut self, degree: usize) -> impl FnMut() + '_ {
+        let cost = self.cost(degree);
+        move || {
+            self.done = (self.done + cost).min(self.total);
+            (self.progress)(self.done, self.total)
+        }
+    }
+
+    /// `degree` chosen: what is left is the judged and the held-out samples at it, and the
+    /// choice's fitted ones unless it summed them at that degree.
+    fn chosen(&mut self, degree: usize, fitted_summed: bool) {
+        let [fitted, judged, held] = self.blocks;
+        let left = judged + held + if fitted_summed { 0 } else { fitted };
+        self.total = self.done + left * self.cost(degree);
+        (self.progress)(self.done, self.total)
+    }
 }
 
 /// The imitation warm start: a new learner whose actor took `passes` supervised passes over
@@ -368,12 +594,32 @@ pub fn learner<const N: usize>(
     positions: &[Position],
     keep_going: impl FnMut(&PretrainReport) -> bool,
 ) -> Result<(CaclaMtl<N>, PretrainReport), PipelineError> {
-    let mut learner = imitation(
-        training.learner,
+    learner_showing(
+        training,
+        model,
         actuations,
         positions,
-        training.imitation_passes,
-    )?;
+        &mut |_, _| {},
+        keep_going,
+    )
+}
+
+/// [`learner`], `imitated(done, total)` in imitation passes.
+fn learner_showing<const N: usize>(
+    training: &Training,
+    model: &impl ForwardModel<N>,
+    actuations: &[[f64; N]],
+    positions: &[Position],
+    imitated: &mut dyn FnMut(u64, u64),
+    keep_going: impl FnMut(&PretrainReport) -> bool,
+) -> Result<(CaclaMtl<N>, PretrainReport), PipelineError> {
+    let passes = training.imitation_passes;
+    let mut learner = imitation(training.learner, actuations, positions, 0)?;
+    imitated(0, passes as u64);
+    for pass in 0..passes {
+        learner.imitate(positions, actuations, 1);
+        imitated(pass as u64 + 1, passes as u64);
+    }
     let report = cacla::pretrain(
         &mut learner,
         model,
@@ -391,26 +637,42 @@ pub fn train<const N: usize>(
     training: &Training,
     keep_going: impl FnMut(&PretrainReport) -> bool,
 ) -> Result<(Model<N>, TrainReport), PipelineError> {
+    train_showing(data, training, &mut |_, _, _| {}, keep_going)
+}
+
+/// [`train`], telling `progress` how far each [`Step`] is as it goes.
+pub fn train_showing<const N: usize>(
+    data: &TrainingData<N>,
+    training: &Training,
+    progress: Progress,
+    keep_going: impl FnMut(&PretrainReport) -> bool,
+) -> Result<(Model<N>, TrainReport), PipelineError> {
+    progress(Step::Primitives, 0, 1);
     let (actuation, task) = primitives(&data.recordings, training.basis_functions)?;
-    let (forward, forward_error, forward_width_factor) = forward_model(
+    progress(Step::Primitives, 1, 1);
+    let (forward, forward_error, forward_width_factor) = fit_forward(
         &data.actuations,
         &data.positions,
         &data.demo,
         &training.forward,
+        &mut |done, total| progress(Step::ForwardModel, done, total),
     )?;
-    let (kinematics, kinematics_error) = kinematics(
+    let (kinematics, kinematics_error) = fit_kinematics(
         &data.actuations,
         &data.positions,
         &data.demo,
         &training.kinematics,
+        &mut |done, total| progress(Step::Kinematics, done, total),
     )?;
-    let (learner, pretrain) = learner(
+    let (learner, pretrain) = learner_showing(
         training,
         &forward,
         &data.actuations,
         &data.positions,
+        &mut |done, total| progress(Step::Imitation, done, total),
         keep_going,
     )?;
+    let kinematics_degree = kinematics.degree();
     let model = Model {
         actuation,
         task,
@@ -429,6 +691,7 @@ pub fn train<const N: usize>(
             forward_error,
             forward_width_factor,
             kinematics_error,
+            kinematics_degree,
             pretrain,
         },
     ))
@@ -586,6 +849,80 @@ mod tests {
             ..config
         };
         assert_eq!(width(&data.positions, &one), config.width_factor);
+    }
+
+    /// Noisy samples of a linear map, ten demonstrations of 60: a polynomial of degree 4 (210
+    /// terms) fits the noise of the few it is fitted to.
+    fn linear_and_noisy() -> (Vec<[f64; 6]>, Vec<Position>, Vec<usize>) {
+        use rand::{RngExt, SeedableRng};
+        let mut rng = rand::rngs::StdRng::seed_from_u64(11);
+        let (mut a, mut p, mut demo) = (Vec::new(), Vec::new(), Vec::new());
+        for d in 0..10 {
+            for _ in 0..60 {
+                let x: [f64; 6] = std::array::from_fn(|_| rng.random_range(0.2..0.8));
+                let noise = |rng: &mut rand::rngs::StdRng| rng.random_range(-0.005..0.005);
+                a.push(x);
+                p.push([
+                    0.1 * x[0] - 0.05 * x[3] + noise(&mut rng),
+                    0.08 * x[1] + 0.02 * x[4] + noise(&mut rng),
+                    -0.4 + 0.05 * x[2] + 0.05 * x[5] + noise(&mut rng),
+                ]);
+                demo.push(d);
+            }
+        }
+        (a, p, demo)
+    }
+
+    #[test]
+    fn the_degree_is_chosen_without_the_demonstrations_its_error_is_reported_on() {
+        let (a, p, demo) = linear_and_noisy();
+        let config = PolynomialConfig::default();
+        assert_eq!(config.degree, 4);
+        let (poly, held) = kinematics(&a, &p, &demo, &config).unwrap();
+        assert!(poly.degree() < 4, "degree {}", poly.degree());
+        // The reported error is of the chosen degree fitted without the held-out demonstrations.
+        let fitted: Vec<usize> = (0..a.len())
+            .filter(|i| demo[*i] % HOLD_OUT_EVERY != 0)
+            .collect();
+        let (fa, fp): (Vec<_>, Vec<_>) = fitted.iter().map(|i| (a[*i], p[*i])).unzip();
+        let chosen = PolynomialConfig {
+            degree: poly.degree(),
+            ..config
+        };
+        let partial = Polynomial::fit(&fa, &fp, &chosen).unwrap();
+        let on_held: Vec<f64> = (0..a.len())
+            .filter(|i| demo[*i] % HOLD_OUT_EVERY == 0)
+            .map(|i| distance(&partial.position(&a[i]), &p[i]))
+            .collect();
+        assert_eq!(held.samples, on_held.len());
+        assert!((held.mean_m - mean(&on_held)).abs() < 1e-9, "{held:?}");
+        // The held-out demonstrations 10 cm off: the same degree, a larger error.
+        let mut off = p.clone();
+        for (i, q) in off.iter_mut().enumerate() {
+            if demo[i].is_multiple_of(HOLD_OUT_EVERY) {
+                q[2] += 0.1;
+            }
+        }
+        let (moved, held_off) = kinematics(&a, &off, &demo, &config).unwrap();
+        assert_eq!(moved.degree(), poly.degree());
+        assert!(held_off.mean_m > 0.05, "{held_off:?}");
+        // The final fit is on every sample, at the chosen degree (its sums in another order).
+        let all = Polynomial::fit(&a, &p, &chosen).unwrap();
+        for x in &a {
+            assert!(distance(&poly.position(x), &all.position(x)) < 1e-9);
+        }
+        // Too few demonstrations to judge (only the held-out one and the one after): the
+        // configured degree.
+        let two: Vec<usize> = (0..a.len()).filter(|i| demo[*i] < 2).collect();
+        let pick = |v: &[[f64; 6]]| two.iter().map(|i| v[*i]).collect::<Vec<_>>();
+        let pick_p = |v: &[Position]| two.iter().map(|i| v[*i]).collect::<Vec<_>>();
+        let d2: Vec<usize> = two.iter().map(|i| demo[*i]).collect();
+        let lower = PolynomialConfig {
+            degree: 2,
+            ..config
+        };
+        let (configured, _) = kinematics(&pick(&a), &pick_p(&p), &d2, &lower).unwrap();
+        assert_eq!(configured.degree(), 2);
     }
 
     #[test]

@@ -169,7 +169,12 @@ impl Sandbox {
                 "{why}: training (demonstrations, ProMPs, forward models, CACLA-MTL pre-training)"
             ));
             let t = Instant::now();
-            let r = train::train(&self.config, &self.namespace, seed)?;
+            // Each step's progress: a bar on a terminal, else lines as `say`'s.
+            let out = train::Output {
+                terminal: std::io::IsTerminal::is_terminal(&std::io::stderr()),
+                lines: say,
+            };
+            let r = train::train(&self.config, &self.namespace, seed, out)?;
             say(&format!(
                 "trained in {:.1} s: {}",
                 t.elapsed().as_secs_f64(),

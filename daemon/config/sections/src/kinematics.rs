@@ -10,7 +10,7 @@ pub const MAX_DEGREE: usize = 5;
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct PolynomialConfig {
-    /// Total degree of the polynomial in the actuations.
+    /// The highest total degree tried; training keeps the degree least wrong on held-out demonstrations.
     pub degree: usize,
     /// Ridge λ of the fit.
     pub ridge: f64,
