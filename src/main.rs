@@ -693,7 +693,7 @@ fn check_file(
             let columns = softarm_identify::recording::Columns::parse(file, &text)?;
             columns.check(file, &config.layout())?;
             format!(
-                "{} actuator columns, for arm {}",
+                "{} actuator columns, for the arm of {}",
                 columns.actuators.len(),
                 config.arm_identity()
             )

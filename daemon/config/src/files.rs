@@ -102,19 +102,17 @@ pub fn check(
                 .map(std::path::Path::to_path_buf)
                 .unwrap_or_default();
             let c = crate::Config::parse(text, &origin, base)?;
-            format!("namespace {}, arm {}", c.namespace(), c.arm_identity())
+            format!(
+                "namespace {}, the arm of {}",
+                c.namespace(),
+                c.arm_identity()
+            )
         }
         FileKind::Arm => {
             // As `--arm FILE` reads it: into a config, where what does not fit the rest shows.
             let with = crate::arms::with_arm(crate::DEFAULT, text, &origin)?;
             let c = crate::Config::parse(&with, &origin, config.base_dir.clone())?;
-            let layout = c.layout();
-            format!(
-                "{} modules, {} actuators (arm {})",
-                layout.modules().len(),
-                layout.actuators().len(),
-                c.arm_identity()
-            )
+            c.arm_identity()
         }
         FileKind::WaypointSet => {
             let file = crate::waypoints::WaypointFile::parse(text).map_err(refused)?;
@@ -142,7 +140,7 @@ pub fn check(
                     config.arm_identity()
                 }
             };
-            format!("on arm {on}: {}", scenario.describe())
+            format!("on the arm of {on}: {}", scenario.describe())
         }
         FileKind::ColumnMap => {
             // Its reader is the recording's (softarm-identify), which this crate does not link.
