@@ -557,6 +557,8 @@ impl Namespace {
 
     /// iceoryx2's config for a node of this stack.
     fn iceoryx2_config(&self) -> Config {
+        // iceoryx2 warns on stderr that it runs on its built-in defaults, which is intended.
+        set_log_level(LogLevel::Error);
         let mut config = Config::global_config().clone();
         config.global.creation_timeout = CREATION_TIMEOUT;
         if let Some(root) = &self.root {

@@ -114,6 +114,8 @@ fn record<const N: usize>(
             );
         }
     }
+    // The bar counts the demonstrations done: the last is done once it has played.
+    progress.set_position(demos as u64);
     progress.finish_and_clear();
     Ok((r.samples, demos, start.elapsed().as_secs_f64()))
 }
@@ -186,7 +188,7 @@ impl<const N: usize> Recorder<N> {
         );
         let demos = reply.demos as usize;
         let expected = reply.duration_s;
-        tracing::info!(demos, seconds = expected, "playing demonstrations");
+        tracing::info!(demos, seconds = %format_args!("{expected:.1}"), "playing demonstrations");
         let deadline = deadline(expected).ok_or_else(|| {
             anyhow!(
                 "the controller announced {demos} demonstrations taking {expected} s, which is no \
