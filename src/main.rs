@@ -237,7 +237,7 @@ enum Command {
         stack: Stack,
     },
     /// Engages the e-stop (latched), or releases it with --reset; exits 0 once the controller
-    /// and the drivers running say they took it, 1 if one did not.
+    /// and the drivers running say they took it, 1 if one did not, 3 if none runs (latched).
     Estop {
         #[arg(long)]
         reset: bool,
@@ -604,7 +604,10 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 .ok()
                 .filter(|t| *t <= Duration::from_secs(600))
                 .context("--timeout: give 0 to 600 seconds")?;
-            estop::run(&stack.load()?, reset, timeout)?
+            if !estop::run(&stack.load()?, reset, timeout)? {
+                // Latched, but no process took it: as `status` says of a stack not running.
+                return Ok(ExitCode::from(status::NOT_RUNNING));
+            }
         }
         Command::Config { command } => match command {
             ConfigCommand::Check {

@@ -208,8 +208,14 @@ impl Estop {
 }
 
 /// `softarm estop [--reset]` for the stack of `config`: sends, then says who confirmed; an error
-/// (exit 1) when a process alive did not.
-pub fn run(config: &softarm_config::Config, reset: bool, timeout: Duration) -> anyhow::Result<()> {
+/// (exit 1) when a process alive did not. Whether any process took it: none running, the latch
+/// alone holds it (what every process starting later reads), which the caller's exit code
+/// says apart from "confirmed" (a config of another stack than the one meant lands here).
+pub fn run(
+    config: &softarm_config::Config,
+    reset: bool,
+    timeout: Duration,
+) -> anyhow::Result<bool> {
     let latch = config.estop_latch();
     let namespace = config.bus()?;
     let estop = Estop::open(&namespace)?;
@@ -231,6 +237,7 @@ pub fn run(config: &softarm_config::Config, reset: bool, timeout: Duration) -> a
             latch.path().display(),
             namespace.as_str(),
         );
+        return Ok(false);
     } else {
         let latch = if reset {
             format!("the latch {} says released", latch.path().display())
@@ -239,7 +246,7 @@ pub fn run(config: &softarm_config::Config, reset: bool, timeout: Duration) -> a
         };
         println!("e-stop {word}: {} ({latch})", c.confirmed.join(", "));
     }
-    Ok(())
+    Ok(true)
 }
 
 #[cfg(test)]
