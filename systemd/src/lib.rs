@@ -371,9 +371,20 @@ fn remove_runtime(run: &Path, ipc_root: &Path) -> anyhow::Result<String> {
         ));
     }
     let shm = left.remove().map_err(anyhow::Error::msg)?;
-    match std::fs::remove_dir_all(run) {
+    // The root checked above, then `run` if nothing else is in it: another root an edited
+    // config put there was not checked for live processes, so it stays.
+    match std::fs::remove_dir_all(ipc_root) {
         Ok(()) => {}
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+        Err(e) => return Err(e).with_context(|| format!("removing {}", ipc_root.display())),
+    }
+    match std::fs::remove_dir(run) {
+        Ok(()) => {}
+        Err(e)
+            if matches!(
+                e.kind(),
+                std::io::ErrorKind::NotFound | std::io::ErrorKind::DirectoryNotEmpty
+            ) => {}
         Err(e) => return Err(e).with_context(|| format!("removing {}", run.display())),
     }
     Ok(format!(
@@ -539,8 +550,24 @@ pub fn install(args: &Args) -> anyhow::Result<()> {
              `softarm status` (as root or a member of the group `{}`).",
             args.group
         );
+        if system && target_active() {
+            // Not restarted here: that stops the arm, which is the operator's call.
+            println!(
+                "the stack runs the softarm installed before: restart it when the arm may stop \
+                 (`systemctl restart softarm.target`). Until then this softarm's commands may \
+                 not reach it (`softarm estop` among them: another version's shared memory)."
+            );
+        }
     }
     Ok(())
+}
+
+/// Whether `softarm.target` is active (a stack running the binary installed before).
+fn target_active() -> bool {
+    std::process::Command::new("systemctl")
+        .args(["is-active", "--quiet", "softarm.target"])
+        .status()
+        .is_ok_and(|s| s.success())
 }
 
 pub fn uninstall(args: &UninstallArgs) -> anyhow::Result<()> {

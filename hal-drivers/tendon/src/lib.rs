@@ -255,12 +255,14 @@ fn said_ready(t: &TendonConfig, link: &Link) {
     }
 }
 
-/// Refuses a bus that cannot read all its motors within a period of `tendon.rate_hz` even
-/// when they answer at once (Return Delay Time [`RETURN_DELAY`]): the config asks for more
-/// than the line carries. A config error (exit 78): starting the driver again cannot help.
+/// Refuses a bus whose line cannot carry the goals and every motor's reply within a period
+/// of `tendon.rate_hz` even when they answer at once (Return Delay Time [`RETURN_DELAY`]): the
+/// config asks for more than the line carries. A config error (exit 78): starting the driver
+/// again cannot help. The host's and the adapter's share is an estimate: a cycle that fits
+/// the line but not with it is warned of once the motors answered ([`said_ready`]).
 fn check_rate(t: &TendonConfig) -> anyhow::Result<()> {
     let cycle = Cycle::of(t, &vec![RETURN_DELAY; t.ids.len()]);
-    if cycle.fits() {
+    if cycle.line_fits() {
         return Ok(());
     }
     Err(softarm_config::ConfigError {
@@ -272,7 +274,7 @@ fn check_rate(t: &TendonConfig) -> anyhow::Result<()> {
              motors to a [[tendon.extra_bus]]",
             t.port.display(),
             cycle.describe(),
-            cycle.max_rate_hz().floor()
+            cycle.line_max_rate_hz().floor()
         ),
     }
     .into())

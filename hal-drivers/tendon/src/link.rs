@@ -536,8 +536,11 @@ impl Link {
         let mut failed = false;
         for (i, found) in settings.into_iter().enumerate().take(self.n) {
             let found = found.expect("every motor answered");
-            match self.configure(t, i, &found, counts) {
-                Ok(on) => torque |= on,
+            let now = match self.configure(t, i, &found, counts) {
+                Ok((on, now)) => {
+                    torque |= on;
+                    now
+                }
                 Err(e) => {
                     failed = true;
                     self.configure_faults += 1;
@@ -552,9 +555,11 @@ impl Link {
                     }
                     continue;
                 }
-            }
+            };
+            // What the motor holds now: asked again (another motor failed), it is not written
+            // again (EEPROM wears).
             if let Some(s) = self.survey.as_mut() {
-                s.settings[i] = Some(found);
+                s.settings[i] = Some(now);
             }
         }
         if failed {
@@ -575,13 +580,14 @@ impl Link {
     /// restarted beside a running controller leaves a holding motor holding, so the arm does not
     /// drop. A delay the motor does not keep is said ([`say_delay_kept`]), and the reads are
     /// sized to it; wrong mode or limits read back are an error (the motor is asked again).
+    /// Also the settings the motor holds now, as the survey reads them.
     fn configure(
         &mut self,
         t: &TendonConfig,
         i: usize,
         s: &[u8],
         counts: &mut Counts,
-    ) -> anyhow::Result<bool> {
+    ) -> anyhow::Result<(bool, Vec<u8>)> {
         use table::*;
         let found = Found::of(s);
         self.delays[i] = found.delay;
@@ -593,7 +599,7 @@ impl Link {
             say_delay_left(t, id, i, found.delay);
         }
         if eeprom_ok && (delay_ok || found.torque) {
-            return Ok(found.torque);
+            return Ok((found.torque, s.to_vec()));
         }
         tracing::info!(
             id,
@@ -621,7 +627,8 @@ impl Link {
                 .write(id, RETURN_DELAY_TIME, &[RETURN_DELAY], counts)
                 .err(),
         };
-        let back = Found::of(&self.read(id, SURVEY_FROM, SURVEY_LEN, counts)?);
+        let now = self.read(id, SURVEY_FROM, SURVEY_LEN, counts)?;
+        let back = Found::of(&now);
         if back.mode != POSITION_CONTROL || back.limits != limits {
             bail!(
                 "it reads back operating mode {} and position limits {:?} (max, min) after they \
@@ -634,7 +641,7 @@ impl Link {
         if back.delay != RETURN_DELAY {
             say_delay_kept(t, id, i, back.delay, refused);
         }
-        Ok(false)
+        Ok((false, now))
     }
 
     /// A WRITE with its reply awaited (start only), tried [`START_ATTEMPTS`] times.

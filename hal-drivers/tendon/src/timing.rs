@@ -147,6 +147,17 @@ impl Cycle {
         1e9 / self.total_ns() as f64
     }
 
+    /// The line alone (the goals' write and the replies, without the host's and the adapter's
+    /// margin, an estimate) carries every motor within a period.
+    pub fn line_fits(&self) -> bool {
+        self.write_ns + self.read_ns <= self.period_ns
+    }
+
+    /// The highest `tendon.rate_hz` the line alone carries.
+    pub fn line_max_rate_hz(&self) -> f64 {
+        1e9 / (self.write_ns + self.read_ns) as f64
+    }
+
     /// The figures, for the log and for errors.
     pub fn describe(&self) -> String {
         let ms = |ns: u64| ns as f64 / 1e6;
