@@ -234,8 +234,8 @@ impl Columns {
 
     /// What can be checked of the map without the recording, on the arm it is for: one column
     /// per actuator, a tendon each, units that parse, signs of 1 or -1, zeros inside the
-    /// strokes. `softarm config check` runs it alone; [`read`] first.
-    pub fn check(&self, path: &Path, arm: &Layout) -> Result<(), RecordingError> {
+    /// strokes. `softarm config check` runs it alone; [`read`] first, for the units' scales.
+    pub fn check(&self, path: &Path, arm: &Layout) -> Result<Scales, RecordingError> {
         let at = |column: Option<&str>, message: String| RecordingError {
             file: path.into(),
             line: None,
@@ -273,36 +273,27 @@ impl Columns {
                 format!("tip.base_origin_m and tip.base_rotation_deg are numbers, not {v}"),
             ));
         }
-        let units = std::iter::once((
-            &self.time.column,
-            &self.time.unit,
-            time_unit as fn(&str) -> Option<f64>,
-            "s, ms, us or ns",
-        ))
-        .chain(self.actuators.iter().map(|a| {
-            (
-                &a.column,
-                &a.unit,
-                length_unit as fn(&str) -> Option<f64>,
-                "m, cm or mm",
-            )
-        }))
-        .chain(self.tip.columns.iter().map(|c| {
-            (
-                c,
-                &self.tip.unit,
-                length_unit as fn(&str) -> Option<f64>,
-                "m, cm or mm",
-            )
-        }));
-        for (column, unit, parse, give) in units {
-            if parse(unit).is_none() {
-                return Err(at(
+        let unit = |column: &str, unit: &str, parse: fn(&str) -> Option<f64>, give: &str| {
+            parse(unit).ok_or_else(|| {
+                at(
                     Some(column),
                     format!("unit `{unit}` does not parse: give {give}"),
-                ));
-            }
-        }
+                )
+            })
+        };
+        let lengths = "m, cm or mm";
+        let scales = Scales {
+            time: unit(
+                &self.time.column,
+                &self.time.unit,
+                time_unit,
+                "s, ms, us or ns",
+            )?,
+            actuators: (self.actuators.iter())
+                .map(|a| unit(&a.column, &a.unit, length_unit, lengths))
+                .collect::<Result<_, _>>()?,
+            tip: unit(&self.tip.columns[0], &self.tip.unit, length_unit, lengths)?,
+        };
         let strokes = self.strokes(arm);
         for (i, c) in self.actuators.iter().enumerate() {
             if !(c.sign == 1.0 || c.sign == -1.0) {
@@ -322,7 +313,7 @@ impl Columns {
                 ));
             }
         }
-        Ok(())
+        Ok(scales)
     }
 
     /// Each actuator's stroke, as lengths (m), and its length at the recording's zero.
@@ -347,6 +338,14 @@ impl Columns {
     }
 }
 
+/// What each unit of a column map multiplies its values by: to seconds, to metres.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Scales {
+    pub time: f64,
+    pub actuators: Vec<f64>,
+    pub tip: f64,
+}
+
 /// A value of a column the map names.
 struct Field {
     index: usize,
@@ -365,7 +364,7 @@ pub fn read(path: &Path, columns: &Columns, arm: &Layout) -> Result<Recording, R
         column: column.map(str::to_string),
         message,
     };
-    columns.check(path, arm)?;
+    let scales = columns.check(path, arm)?;
     let mut reader = csv::ReaderBuilder::new()
         .trim(csv::Trim::All)
         .from_path(path)
@@ -374,7 +373,7 @@ pub fn read(path: &Path, columns: &Columns, arm: &Layout) -> Result<Recording, R
         .headers()
         .map_err(|e| at(Some(1), None, format!("no header line: {e}")))?
         .clone();
-    let find = |name: &str, unit: Option<f64>, unit_text: &str| -> Result<Field, RecordingError> {
+    let find = |name: &str, scale: f64| -> Result<Field, RecordingError> {
         let index = header.iter().position(|h| h == name).ok_or_else(|| {
             at(
                 Some(1),
@@ -389,44 +388,21 @@ pub fn read(path: &Path, columns: &Columns, arm: &Layout) -> Result<Recording, R
                 },
             )
         })?;
-        let scale = unit.ok_or_else(|| {
-            at(
-                None,
-                Some(name),
-                format!("unit `{unit_text}` does not parse"),
-            )
-        })?;
         Ok(Field {
             index,
             name: name.into(),
             scale,
         })
     };
-    let time = find(
-        &columns.time.column,
-        time_unit(&columns.time.unit),
-        &columns.time.unit,
-    )
-    .map_err(|mut e| {
-        if e.message.contains("does not parse") {
-            e.message.push_str(": give s, ms, us or ns");
-        }
-        e
-    })?;
-    let with_lengths = |mut e: RecordingError| {
-        if e.message.contains("does not parse") {
-            e.message.push_str(": give m, cm or mm");
-        }
-        e
-    };
-    let actuators: Vec<Field> = (columns.actuators.iter())
-        .map(|a| find(&a.column, length_unit(&a.unit), &a.unit).map_err(with_lengths))
+    let time = find(&columns.time.column, scales.time)?;
+    let actuators: Vec<Field> = (columns.actuators.iter().zip(&scales.actuators))
+        .map(|(a, scale)| find(&a.column, *scale))
         .collect::<Result<_, _>>()?;
     let tip: Vec<Field> = (columns.tip.columns.iter())
-        .map(|c| find(c, length_unit(&columns.tip.unit), &columns.tip.unit).map_err(with_lengths))
+        .map(|c| find(c, scales.tip))
         .collect::<Result<_, _>>()?;
     let label = match &columns.label {
-        Some(l) => Some(find(l, Some(1.0), "").map(|f| f.index)?),
+        Some(l) => Some(find(l, 1.0).map(|f| f.index)?),
         None => None,
     };
     let strokes = columns.strokes(arm);
