@@ -652,8 +652,6 @@ impl Node {
     /// Creates this process's node and cleans up the nodes of dead processes. Signals are left
     /// to the process (signal-hook), not iceoryx2.
     pub fn open(namespace: Namespace, role: &str) -> Result<Self, Error> {
-        // iceoryx2 warns on stderr that it runs on its built-in defaults, which is intended.
-        set_log_level(LogLevel::Error);
         // Before iceoryx2 would make the counter world-writable.
         if let Some(prefix) = namespace.prefix() {
             own::make_counter(prefix)?;
