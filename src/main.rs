@@ -527,7 +527,8 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             let config = recording.config(&stack)?;
             let out = output.unwrap_or_else(|| config.model_dir());
             let rows = recording.read(&from, &config.layout())?;
-            let trained = train::recording::train_from(&config, rows, &out)?;
+            let trained = train::recording::train_from(&config, rows, &out)
+                .with_context(|| format!("train --from {}", from.display()))?;
             println!("{}", trained.summary());
         }
         Command::Model {

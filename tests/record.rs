@@ -135,7 +135,11 @@ fn a_recorded_run_replays_and_plots_with_the_same_counts_everywhere() {
     } else {
         assert!(said.contains("run.mcap"), "{said}");
         assert!(
-            said.contains("rows; calibrating this arm's") || said.contains("no motion has"),
+            // How many still rows two executions give varies with the machine's load: too few
+            // to calibrate, or enough to calibrate but too few for the data-driven models.
+            said.contains("rows; calibrating this arm's")
+                || said.contains("no motion has")
+                || said.contains("are too few (record more motions)"),
             "{said}"
         );
         assert!(!model.exists(), "{said}");

@@ -431,7 +431,18 @@ fn choose<const N: usize, C: Copy, M: ForwardModel<N>>(
     }
     match best {
         Some((_, c)) => Ok((c, tried)),
-        None => bail!("no candidate model could be fitted to the recording"),
+        None => {
+            let motions = motion
+                .iter()
+                .collect::<std::collections::BTreeSet<_>>()
+                .len();
+            bail!(
+                "no candidate model could be fitted without each fifth of the motions: the \
+                 recording's {} rows of {motions} motions are too few (record more motions); \
+                 nothing was written",
+                acts.len()
+            )
+        }
     }
 }
 
