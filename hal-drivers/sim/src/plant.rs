@@ -117,6 +117,20 @@ impl Body {
     }
 }
 
+/// A body simulated by physics of its own (a MuJoCo model, crate `softarm-mujoco`) in place of
+/// the PCC kinematics: the realism layer's actuators drive it, and it says where the tracked
+/// point is. It keeps its own time, stepped to the plant's.
+pub trait Physics: Send {
+    /// The arm's actuators it takes.
+    fn actuators(&self) -> usize;
+    /// Advances to `t` (s of the plant's clock) with `actuation` held (one per actuator, in
+    /// [0, 1]), each actuator's length changed by `offset_m` (m); where the tracked point is
+    /// then, in the arm's base frame (m). Allocates nothing.
+    fn advance(&mut self, t: f64, actuation: &[f64], offset_m: &[f64]) -> [f64; 3];
+    /// What it is, for logs and errors (a model's file, or what it was generated from).
+    fn describe(&self) -> String;
+}
+
 /// What the plant measures after a step.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Measurement {
@@ -156,6 +170,8 @@ pub struct Plant {
     /// Where the tip was last: kept while an actuation the arcs cannot tell lasts.
     position: [f64; 3],
     time: f64,
+    /// Physics in place of the kinematics, if the plant has it.
+    physics: Option<Box<dyn Physics>>,
 }
 
 impl Plant {
@@ -212,7 +228,30 @@ impl Plant {
             disturbance,
             position: [0.0; 3],
             time: 0.0,
+            physics: None,
         })
+    }
+
+    /// This plant with `physics` in place of its kinematics: the same actuators, lag, rate
+    /// limit, backlash, disturbance, length drift and tracker noise in front of physics of
+    /// its own. A scenario's creep moves the actuators' lengths as on the kinematics; what
+    /// else its steps change is the physics' to take (`softarm-mujoco`).
+    pub fn with_physics(mut self, physics: Box<dyn Physics>) -> Result<Self, String> {
+        if physics.actuators() != self.n {
+            return Err(format!(
+                "the physics ({}) has {} actuators; the arm has {}",
+                physics.describe(),
+                physics.actuators(),
+                self.n
+            ));
+        }
+        self.physics = Some(physics);
+        Ok(self)
+    }
+
+    /// What physics the plant runs, if not its kinematics.
+    pub fn physics(&self) -> Option<String> {
+        self.physics.as_ref().map(|p| p.describe())
     }
 
     /// This plant with `drift` on its arm, for any arm but the paper's, whose drift comes with
@@ -283,21 +322,29 @@ impl Plant {
         for i in 0..self.n {
             actuation[i] = (self.state[i] + self.disturbance[i]).clamp(0.0, 1.0);
         }
-        let mut lengths = self.kinematics.lengths(&actuation[..self.n]);
-        if r.drift_m > 0.0 {
-            let w = 2.0 * std::f64::consts::PI * self.time / r.drift_period_s;
-            for (i, l) in lengths[..self.n].iter_mut().enumerate() {
-                // Each actuator drifts with its own phase, as ageing material would.
-                *l += r.drift_m * (w + 1.1 * i as f64).sin();
+        let drift = self.length_drift();
+        if let Some(physics) = &mut self.physics {
+            let mut offset = drift;
+            if !self.changes.drift.is_off() {
+                let o = ArmGeometry::MAX_OFFSET_M;
+                for (d, c) in offset.iter_mut().zip(self.changes.drift.creep_m(self.time)) {
+                    *d += c.clamp(-o, o);
+                }
             }
-        }
-        // An actuation whose arcs the model cannot tell (none of a valid arm's strokes) keeps
-        // the tip where it was.
-        if let Ok(p) = self
-            .kinematics
-            .pose_of_lengths(&lengths[..self.n], r.curvature_taper)
-        {
-            self.position = [p.position.x, p.position.y, p.position.z];
+            self.position = physics.advance(self.time, &actuation[..self.n], &offset[..self.n]);
+        } else {
+            let mut lengths = self.kinematics.lengths(&actuation[..self.n]);
+            for (l, d) in lengths[..self.n].iter_mut().zip(drift) {
+                *l += d;
+            }
+            // An actuation whose arcs the model cannot tell (none of a valid arm's strokes)
+            // keeps the tip where it was.
+            if let Ok(p) = self
+                .kinematics
+                .pose_of_lengths(&lengths[..self.n], r.curvature_taper)
+            {
+                self.position = [p.position.x, p.position.y, p.position.z];
+            }
         }
         let mut position = self.position;
         if r.tracker_noise_m > 0.0 {
@@ -309,6 +356,19 @@ impl Plant {
             actuation,
             position,
         }
+    }
+
+    /// Each actuator's slow length drift now (m): its own phase, as ageing material would.
+    fn length_drift(&self) -> [f64; MAX_ACTUATORS] {
+        let r = self.realism;
+        let mut d = [0.0; MAX_ACTUATORS];
+        if r.drift_m > 0.0 {
+            let w = 2.0 * std::f64::consts::PI * self.time / r.drift_period_s;
+            for (i, d) in d[..self.n].iter_mut().enumerate() {
+                *d = r.drift_m * (w + 1.1 * i as f64).sin();
+            }
+        }
+        d
     }
 
     /// Backlash, lag and rate limit: where each actuator goes under `command`.

@@ -26,5 +26,6 @@ pub mod demonstrations;
 pub mod forward_model;
 pub mod kinematics;
 pub mod learner;
+pub mod mujoco;
 pub mod per_actuator;
 pub mod sim;

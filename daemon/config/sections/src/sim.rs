@@ -4,6 +4,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::changes::Changes;
+use crate::mujoco::MujocoConfig;
 use crate::per_actuator::PerActuator;
 
 /// The `[sim]` section: the sim driver's rate and start, and the plant's realism.
@@ -16,6 +17,9 @@ pub struct SimConfig {
     /// in the arm's order.
     pub initial_actuation: PerActuator,
     pub realism: Realism,
+    /// The plant as a MuJoCo model (`softarm` built with its `mujoco` feature); absent, the
+    /// sim's own PCC kinematics.
+    pub mujoco: Option<MujocoConfig>,
     /// How the arm changes while the sim runs: a scenario's steps and drifts (scenario files
     /// only, not a key of `[sim]`). None by default.
     #[serde(skip)]
@@ -28,6 +32,7 @@ impl Default for SimConfig {
             rate_hz: 200.0,
             initial_actuation: PerActuator::All(0.5),
             realism: Realism::default(),
+            mujoco: None,
             changes: Changes::default(),
         }
     }
@@ -45,7 +50,11 @@ impl SimConfig {
         }
         self.initial_actuation
             .check("sim.initial_actuation", actuators, 0.0..=1.0)?;
-        self.realism.validate()
+        self.realism.validate()?;
+        match &self.mujoco {
+            Some(m) => m.validate(actuators),
+            None => Ok(()),
+        }
     }
 }
 
