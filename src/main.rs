@@ -434,15 +434,16 @@ fn init_logging(default: &str) {
 }
 
 /// `softarm sim [--scenario NAME|FILE]`: the simulated arm, the config's or, for the paper's
-/// arm, a scenario's.
+/// arm, a scenario's; a MuJoCo model of it with `[sim.mujoco]`.
 fn sim(c: &Config, scenario: Option<&str>) -> anyhow::Result<()> {
-    let Ok(configured) = c.paper_arm() else {
-        let on = match scenario {
-            Some(s) => {
-                let s = Scenario::resolve(s)?;
-                tracing::info!(scenario = %s.name, "the sim runs another arm: {}", s.describe());
-                s.apply_to(&c.arm, &c.sim)?
-            }
+    let scenario = scenario.map(Scenario::resolve).transpose()?;
+    if let Some(s) = &scenario {
+        tracing::info!(scenario = %s.name, "the sim runs another arm: {}", s.describe());
+    }
+    let paper = c.paper_arm().ok().filter(|_| c.sim.mujoco.is_none());
+    let Some(configured) = paper else {
+        let on = match &scenario {
+            Some(s) => s.apply_to(&c.arm, &c.sim)?,
             None => OnArm {
                 arm: c.arm.clone(),
                 sim: c.sim.clone(),
@@ -450,18 +451,60 @@ fn sim(c: &Config, scenario: Option<&str>) -> anyhow::Result<()> {
             },
         };
         let body = Body::of_arm(&on.arm, &on.steps).map_err(anyhow::Error::msg)?;
-        return softarm_sim::run(&on.sim, body, c.bus()?, &c.estop_latch(), &*stop_flag()?);
+        let physics = physics(c, &on)?;
+        return softarm_sim::run(
+            &on.sim,
+            body,
+            physics,
+            c.bus()?,
+            &c.estop_latch(),
+            &*stop_flag()?,
+        );
     };
-    let (arm, sim) = match scenario {
-        Some(s) => {
-            let s = Scenario::resolve(s)?;
-            tracing::info!(scenario = %s.name, "the sim runs another arm: {}", s.describe());
-            s.apply(&configured, &c.sim)?
-        }
+    let (arm, sim) = match &scenario {
+        Some(s) => s.apply(&configured, &c.sim)?,
         None => (configured, c.sim.clone()),
     };
     let body = Body::Paper(arm);
-    softarm_sim::run(&sim, body, c.bus()?, &c.estop_latch(), &*stop_flag()?)
+    softarm_sim::run(&sim, body, None, c.bus()?, &c.estop_latch(), &*stop_flag()?)
+}
+
+/// The MuJoCo model `[sim.mujoco]` describes for the sim's arm, if it describes one.
+#[cfg(feature = "mujoco")]
+fn physics(c: &Config, on: &OnArm) -> anyhow::Result<Option<Box<dyn softarm_sim::plant::Physics>>> {
+    let Some(mujoco) = &on.sim.mujoco else {
+        return Ok(None);
+    };
+    // Refused as a config is: exit 78, which `up` and systemd do not restart.
+    let arm = softarm_mujoco::MujocoArm::new(mujoco, &c.arm, &on.arm, &on.steps, &c.base_dir)
+        .map_err(|e| plant_refused(e.0))?;
+    Ok(Some(Box::new(arm)))
+}
+
+/// A plant that cannot run the arm, refused as a config is.
+fn plant_refused(message: String) -> ConfigError {
+    ConfigError {
+        origin: "the sim's plant".into(),
+        line: None,
+        message,
+    }
+}
+
+#[cfg(not(feature = "mujoco"))]
+fn physics(
+    _c: &Config,
+    on: &OnArm,
+) -> anyhow::Result<Option<Box<dyn softarm_sim::plant::Physics>>> {
+    match on.sim.mujoco {
+        None => Ok(None),
+        Some(_) => Err(plant_refused(
+            "sim.mujoco: this softarm was built without MuJoCo; build it with `--features \
+             mujoco` and MuJoCo's library (docs/guide/mujoco.md), or remove [sim.mujoco] to run \
+             the sim's own kinematics"
+                .into(),
+        )
+        .into()),
+    }
 }
 
 /// The processes that keep the arm's pace (the controller, the drivers) lock their memory
@@ -716,6 +759,7 @@ enum FileKindArg {
     Waypoints,
     Scenario,
     Columns,
+    Plant,
 }
 
 impl From<FileKindArg> for FileKind {
@@ -726,6 +770,7 @@ impl From<FileKindArg> for FileKind {
             FileKindArg::Waypoints => Self::WaypointSet,
             FileKindArg::Scenario => Self::Scenario,
             FileKindArg::Columns => Self::ColumnMap,
+            FileKindArg::Plant => Self::Plant,
         }
     }
 }

@@ -27,6 +27,7 @@ mod install;
 mod iox2;
 mod layering;
 mod leftovers;
+mod mujoco;
 mod notify;
 mod operators;
 mod python;

@@ -19,6 +19,9 @@ pub enum FileKind {
     Scenario,
     /// A recording's column map (`softarm train --from REC --columns FILE`).
     ColumnMap,
+    /// A MuJoCo model of an arm for the sim (`softarm demo --mujoco FILE`):
+    /// `crate::plant::Plant`.
+    Plant,
 }
 
 impl FileKind {
@@ -30,6 +33,7 @@ impl FileKind {
             Self::WaypointSet => "a way-point set",
             Self::Scenario => "a scenario",
             Self::ColumnMap => "a recording's column map",
+            Self::Plant => "a plant file",
         }
     }
 
@@ -51,6 +55,8 @@ impl FileKind {
         let arm_keys = properties(schemars::schema_for!(ArmConfig));
         let kind = if config_only {
             Self::Config
+        } else if keys.contains("mujoco") && keys.iter().all(|k| ["arm", "mujoco"].contains(k)) {
+            Self::Plant
         } else if any(&["actuators", "tip", "time"]) {
             Self::ColumnMap
         } else if any(&["point", "duration_s"]) {
@@ -70,7 +76,7 @@ impl FileKind {
                 line: None,
                 message: format!(
                     "cannot tell what this file is from its top-level keys ({}): give `--as \
-                     config|arm|waypoints|scenario|columns`",
+                     config|arm|waypoints|scenario|columns|plant`",
                     found.join(", ")
                 ),
             });
@@ -131,16 +137,32 @@ pub fn check(
             let name = path
                 .file_stem()
                 .map_or_else(|| origin.clone(), |s| s.to_string_lossy().into_owned());
-            // Parsing checks it on the arm it names; one that names none, on the config's.
+            // Parsing checks it on the arm it names; one that names none, on the config's (one
+            // that changes a MuJoCo plant, on a model generated from it if the config has none).
             let scenario = crate::scenario::Scenario::parse(text, &name, &origin)?;
             let on = match scenario.for_arm() {
                 Some(arm) => arm.layout().map(|l| l.identity()).unwrap_or_default(),
                 None => {
-                    scenario.check_on(config)?;
+                    let mut config = config.clone();
+                    if scenario.changes_mujoco() && config.sim.mujoco.is_none() {
+                        config.sim.mujoco = Some(Default::default());
+                    }
+                    scenario.check_on(&config)?;
                     config.arm_identity()
                 }
             };
             format!("on the arm of {on}: {}", scenario.describe())
+        }
+        FileKind::Plant => {
+            let dir = path.parent().unwrap_or(std::path::Path::new("."));
+            let plant = crate::plant::Plant::parse(text, &origin, dir)?;
+            let with = plant.into_config(crate::DEFAULT)?;
+            let c = crate::Config::parse(&with, &origin, config.base_dir.clone())?;
+            let model = match &plant.mujoco.model {
+                Some(m) => format!("the model {}", m.display()),
+                None => "a model generated from the arm".into(),
+            };
+            format!("{model} of the arm of {}", c.arm_identity())
         }
         FileKind::ColumnMap => {
             // Its reader is the recording's (softarm-identify), which this crate does not link.

@@ -37,6 +37,7 @@ pub mod arms;
 pub mod files;
 pub mod hardware;
 pub mod host;
+pub mod plant;
 pub mod reference;
 pub mod ros2;
 pub mod scenario;
@@ -44,7 +45,8 @@ pub mod view;
 pub mod waypoints;
 
 pub use softarm_sections::{
-    activation, arm, changes, demonstrations, forward_model, kinematics, learner, per_actuator, sim,
+    activation, arm, changes, demonstrations, forward_model, kinematics, learner, mujoco,
+    per_actuator, sim,
 };
 
 use softarm_ipc::drivers::{DRIVERS, Driver};

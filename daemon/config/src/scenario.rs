@@ -28,7 +28,11 @@ use std::path::Path;
 
 use crate::arm::{ArmConfig, ArmGeometry};
 use crate::changes::{Changes, Drift, Step};
+use crate::mujoco::MujocoConfig;
 use crate::sim::SimConfig;
+
+/// What a scenario may change of a MuJoCo plant: its gravity and a load at the tip.
+const MUJOCO_KEYS: [&str; 2] = ["gravity_m_s2", "load"];
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 use softarm_arm::Kind;
@@ -144,6 +148,8 @@ struct StepPart {
 struct SimPart {
     #[serde(default)]
     realism: toml::Table,
+    #[serde(default)]
+    mujoco: toml::Table,
 }
 
 /// A parsed scenario: its name (file stem or shipped name) and the keys it overrides.
@@ -156,6 +162,8 @@ pub struct Scenario {
     text: String,
     arm: toml::Table,
     realism: toml::Table,
+    /// Keys of `[sim.mujoco]` (gravity, a tip load): only on a config whose sim runs MuJoCo.
+    mujoco: toml::Table,
     /// Each step's time and keys.
     steps: Vec<(f64, toml::Table)>,
     drift: Drift,
@@ -221,15 +229,19 @@ impl Scenario {
             text: text.into(),
             arm: file.arm,
             realism: file.sim.realism,
+            mujoco: file.sim.mujoco,
             steps: file.step.into_iter().map(|s| (s.at_s, s.arm)).collect(),
             drift: file.drift,
         };
+        // A scenario of the MuJoCo plant is checked on one.
+        let sim = SimConfig {
+            mujoco: (!s.mujoco.is_empty()).then(MujocoConfig::default),
+            ..SimConfig::default()
+        };
         match s.for_arm.as_ref().map(|a| (a, a.geometry())) {
-            None => s
-                .apply(&ArmGeometry::default(), &SimConfig::default())
-                .map(drop)?,
-            Some((_, Some(paper))) => s.apply(&paper, &SimConfig::default()).map(drop)?,
-            Some((arm, None)) => s.apply_to(arm, &SimConfig::default()).map(drop)?,
+            None => s.apply(&ArmGeometry::default(), &sim).map(drop)?,
+            Some((_, Some(paper))) => s.apply(&paper, &sim).map(drop)?,
+            Some((arm, None)) => s.apply_to(arm, &sim).map(drop)?,
         }
         Ok(s)
     }
@@ -242,10 +254,16 @@ impl Scenario {
     /// Checks the scenario on `config`'s arm, as the sim will apply it: what refuses it before
     /// anything starts.
     pub fn check_on(&self, config: &crate::Config) -> Result<(), ConfigError> {
+        // A MuJoCo plant takes any arm's path, the paper's too (as `softarm sim` runs it).
         match config.paper_arm() {
-            Ok(paper) => self.apply(&paper, &config.sim).map(drop),
-            Err(_) => self.apply_to(&config.arm, &config.sim).map(drop),
+            Ok(paper) if config.sim.mujoco.is_none() => self.apply(&paper, &config.sim).map(drop),
+            _ => self.apply_to(&config.arm, &config.sim).map(drop),
         }
+    }
+
+    /// Whether it changes the MuJoCo plant (`[sim.mujoco]` keys).
+    pub fn changes_mujoco(&self) -> bool {
+        !self.mujoco.is_empty()
     }
 
     /// The sim's arm and settings on an arm of any layout (`arm`, the config's `[arm]`): the
@@ -325,6 +343,7 @@ impl Scenario {
         let realism = self.overlay("sim.realism", &sim.realism, &self.realism)?;
         let sim = SimConfig {
             realism,
+            mujoco: self.mujoco_of(sim)?,
             changes: Changes::new(&[], self.drift).map_err(|m| self.error(&m))?,
             ..sim.clone()
         };
@@ -361,12 +380,16 @@ impl Scenario {
 
     /// Whether it changes nothing.
     pub fn is_nominal(&self) -> bool {
-        self.arm.is_empty() && self.realism.is_empty() && !self.changes_over_time()
+        self.arm.is_empty()
+            && self.realism.is_empty()
+            && self.mujoco.is_empty()
+            && !self.changes_over_time()
     }
 
     /// Whether the arm changes while the sim runs (steps or a drift).
     pub fn changes_over_time(&self) -> bool {
-        !self.steps.is_empty() || !self.drift.is_off()
+        // A MuJoCo plant's load comes on at its time.
+        !self.steps.is_empty() || !self.drift.is_off() || self.mujoco.contains_key("load")
     }
 
     /// Each step's time (s of the sim's clock), in order.
@@ -383,6 +406,7 @@ impl Scenario {
         };
         let mut all = keys("arm", &self.arm);
         all.extend(keys("sim.realism", &self.realism));
+        all.extend(keys("sim.mujoco", &self.mujoco));
         for (k, (at_s, arm)) in self.steps.iter().enumerate() {
             all.push(format!(
                 "step {} at {at_s} s: {}",
@@ -460,6 +484,7 @@ impl Scenario {
         let changes = self.changes(&arm)?;
         let sim = SimConfig {
             realism,
+            mujoco: self.mujoco_of(sim)?,
             changes,
             ..sim.clone()
         };
@@ -488,6 +513,36 @@ impl Scenario {
 
     /// `base` with each of `keys` set; an unknown key or a value of the wrong type is blamed on
     /// its own line.
+    /// The sim's `[sim.mujoco]` with the scenario's keys in place; refused when the sim has
+    /// none to change.
+    fn mujoco_of(&self, sim: &SimConfig) -> Result<Option<MujocoConfig>, ConfigError> {
+        match &sim.mujoco {
+            _ if self.mujoco.is_empty() => Ok(sim.mujoco.clone()),
+            Some(m) => {
+                if let Some(key) = self
+                    .mujoco
+                    .keys()
+                    .find(|k| !MUJOCO_KEYS.contains(&k.as_str()))
+                {
+                    return Err(self.error(&format!(
+                        "sim.mujoco.{key}: a scenario changes {} of the MuJoCo plant",
+                        MUJOCO_KEYS.join(" and ")
+                    )));
+                }
+                let mut merged =
+                    toml::Table::try_from(m).map_err(|e| self.error(&e.to_string()))?;
+                merged.extend(self.mujoco.clone());
+                let m: MujocoConfig = MujocoConfig::deserialize(merged)
+                    .map_err(|e| self.error(&format!("[sim.mujoco]: {}", e.message().trim())))?;
+                Ok(Some(m))
+            }
+            None => Err(self.error(
+                "[sim.mujoco]: changes the MuJoCo plant, and this config's sim runs its own \
+                 kinematics: run it on a config with [sim.mujoco]",
+            )),
+        }
+    }
+
     fn overlay<T: Serialize + DeserializeOwned>(
         &self,
         section: &str,

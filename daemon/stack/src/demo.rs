@@ -41,6 +41,11 @@ pub struct Args {
     /// demonstrations.
     #[arg(long, value_name = "NAME|FILE")]
     arm: Option<String>,
+    /// The sim's plant as a MuJoCo model (softarm built with `--features mujoco`): a plant file
+    /// (its `[mujoco]`, and the `[arm]` it models, e.g. config/mujoco/opencr-ftdcr-v6.toml), or
+    /// `generated` for a model generated from the arm. Trained on that plant.
+    #[arg(long, value_name = "FILE|generated")]
+    mujoco: Option<String>,
     /// Runs the set on another arm than the model was trained on: a shipped scenario (nominal,
     /// tool-change, creep, twist, stiffer, not-pcc, ...) or a scenario file. The model stays the
     /// nominal one.
@@ -248,7 +253,18 @@ pub fn model_cache(arm: Option<&str>, seed: u64) -> PathBuf {
 
 /// The embedded default config, with `--arm`'s arm in it.
 fn config_text(args: &Args) -> anyhow::Result<String> {
-    with_arm(args.arm.as_deref())
+    let text = with_arm(args.arm.as_deref())?;
+    let Some(plant) = &args.mujoco else {
+        return Ok(text);
+    };
+    let plant = softarm_config::plant::Plant::resolve(plant)?;
+    if plant.arm.is_some() && args.arm.is_some() {
+        bail!(
+            "--arm and --mujoco {}: the plant file says the arm it models; give one of them",
+            plant.origin()
+        );
+    }
+    Ok(plant.into_config(&text)?)
 }
 
 /// The embedded default config with `arm` (a shipped arm's name or an arm file) in it, and

@@ -15,7 +15,7 @@
 //! at its time, and a scenario's steps change what an actuation sets (the arm's actuator
 //! lengths) and where the tool ends (`tool_m`). Loading allocates; advancing does not.
 //!
-//! Empty without its `physics` feature, which links MuJoCo (decision 0010).
+//! Empty without its `physics` feature, which links MuJoCo (decision 0011).
 #![cfg(feature = "physics")]
 
 use std::path::{Path, PathBuf};
@@ -86,19 +86,25 @@ fn refused<T>(message: impl Into<String>) -> Result<T, Refused> {
 }
 
 impl MujocoArm {
-    /// The model `config` describes for `arm`, which becomes each of `steps` (plant time in s,
-    /// the arm from then on) at its time; `base_dir` is where a relative `model` starts.
+    /// The model `config` describes for the `configured` arm (the one a lab's map and a
+    /// generated model are of), run as the arm `start` (a scenario's: its actuators' lengths
+    /// and tool may differ), which becomes each of `steps` (plant time in s, the arm from then
+    /// on) at its time; `base_dir` is where a relative `model` starts.
     pub fn new(
         config: &MujocoConfig,
-        arm: &ArmConfig,
+        configured: &ArmConfig,
+        start: &ArmConfig,
         steps: &[(f64, ArmConfig)],
         base_dir: &Path,
     ) -> Result<Self, Refused> {
-        let layout = arm.layout().map_err(Refused)?;
+        let layout = configured.layout().map_err(Refused)?;
         let (model, description) = match &config.model {
             Some(file) => {
                 let path = base_dir.join(file);
-                (load_file(&path)?, format!("MuJoCo model {}", path.display()))
+                (
+                    load_file(&path)?,
+                    format!("MuJoCo model {}", path.display()),
+                )
             }
             None => {
                 let gravity = config.gravity_m_s2.unwrap_or([0.0, 0.0, -9.81]);
@@ -112,7 +118,7 @@ impl MujocoArm {
                 (model, "MuJoCo model generated from [arm]".to_string())
             }
         };
-        Self::of_model(model, description, config, &layout, arm, steps)
+        Self::of_model(model, description, config, &layout, start, steps)
     }
 
     fn of_model(
@@ -120,7 +126,7 @@ impl MujocoArm {
         description: String,
         config: &MujocoConfig,
         layout: &Layout,
-        arm: &ArmConfig,
+        start: &ArmConfig,
         steps: &[(f64, ArmConfig)],
     ) -> Result<Self, Refused> {
         let n = layout.actuators().len();
@@ -130,7 +136,9 @@ impl MujocoArm {
         let gravity = model.opt().gravity;
         let timestep = model.opt().timestep;
         if !(timestep.is_finite() && timestep > 0.0) {
-            return refused(format!("{description}: its time step is {timestep}; it must be > 0"));
+            return refused(format!(
+                "{description}: its time step is {timestep}; it must be > 0"
+            ));
         }
         let actuator = map_actuators(&model, config, n, &description)?;
         let tip_site = find(&model, MjtObjBase::mjOBJ_SITE, &config.tip_site).ok_or_else(|| {
@@ -141,7 +149,7 @@ impl MujocoArm {
             ))
         })?;
         let tip_body = model.site_bodyid()[tip_site] as usize;
-        let phases = phases(config, layout, arm, steps)?;
+        let phases = phases(config, layout, start, steps)?;
         let keyframe = match &config.keyframe {
             Some(name) => Some(find(&model, MjtObjBase::mjOBJ_KEY, name).ok_or_else(|| {
                 Refused(format!(
@@ -287,7 +295,10 @@ impl Physics for MujocoArm {
 
 fn load_file(path: &Path) -> Result<MjModel, Refused> {
     if let Err(e) = std::fs::metadata(path) {
-        return refused(format!("sim.mujoco.model: cannot read {}: {e}", path.display()));
+        return refused(format!(
+            "sim.mujoco.model: cannot read {}: {e}",
+            path.display()
+        ));
     }
     MjModel::from_xml(path).map_err(|e| {
         Refused(format!(
@@ -302,7 +313,9 @@ fn find(model: &MjModel, kind: MjtObjBase, name: &str) -> Option<usize> {
 }
 
 fn names(model: &MjModel, kind: MjtObjBase, count: usize) -> String {
-    let all: Vec<&str> = (0..count).filter_map(|i| model.id_to_name(kind, i)).collect();
+    let all: Vec<&str> = (0..count)
+        .filter_map(|i| model.id_to_name(kind, i))
+        .collect();
     if all.is_empty() {
         "none named".into()
     } else {
@@ -352,29 +365,36 @@ fn map_actuators(
     Ok(ids)
 }
 
-/// What an actuation sets from the start and from each step, and the tool's change.
+/// What an actuation sets from the start and from each step, and the tool's change, as the
+/// arm `start` and each of `steps` differ from the configured arm `base`.
 fn phases(
     config: &MujocoConfig,
-    layout: &Layout,
-    arm: &ArmConfig,
+    base: &Layout,
+    start: &ArmConfig,
     steps: &[(f64, ArmConfig)],
 ) -> Result<[Option<Phase>; MAX_STEPS + 1], Refused> {
     if steps.len() > MAX_STEPS {
-        return refused(format!("a scenario of {} steps; at most {MAX_STEPS}", steps.len()));
+        return refused(format!(
+            "a scenario of {} steps; at most {MAX_STEPS}",
+            steps.len()
+        ));
     }
-    let start = phase(config, layout, layout, 0.0);
     let mut all = [None; MAX_STEPS + 1];
-    all[0] = Some(start);
-    let base = arm.layout().map_err(Refused)?;
-    for (k, (at_s, stepped)) in steps.iter().enumerate() {
-        let now = stepped.layout().map_err(|e| Refused(format!("step[{k}]: {e}")))?;
-        if let Some(what) = beyond_lengths(&base, &now) {
+    let arms = std::iter::once((0.0, start)).chain(steps.iter().map(|(t, a)| (*t, a)));
+    for (k, (at_s, arm)) in arms.enumerate() {
+        let key = if k == 0 {
+            "arm".to_string()
+        } else {
+            format!("step[{}]", k - 1)
+        };
+        let now = arm.layout().map_err(|e| Refused(format!("{key}: {e}")))?;
+        if let Some(what) = beyond_lengths(base, &now) {
             return refused(format!(
-                "step[{k}]: changes the arm's {what}; a MuJoCo plant's steps change the \
+                "{key}: changes the arm's {what}; on a MuJoCo plant a scenario changes the \
                  actuators' lengths and the tool's (offsets, tool_m) and nothing else"
             ));
         }
-        all[k + 1] = Some(phase(config, &base, &now, *at_s));
+        all[k] = Some(phase(config, base, &now, at_s));
     }
     Ok(all)
 }
@@ -404,10 +424,17 @@ fn beyond_lengths(base: &Layout, now: &Layout) -> Option<&'static str> {
         return Some("connector_m");
     }
     let same = |a: &softarm_arm::Actuator, b: &softarm_arm::Actuator| {
-        a.kind == b.kind && a.module == b.module && a.radius_m == b.radius_m
+        a.kind == b.kind
+            && a.module == b.module
+            && a.radius_m == b.radius_m
             && a.angle_rad == b.angle_rad
     };
-    if !base.actuators().iter().zip(now.actuators()).all(|(a, b)| same(a, b)) {
+    if !base
+        .actuators()
+        .iter()
+        .zip(now.actuators())
+        .all(|(a, b)| same(a, b))
+    {
         return Some("routing (radius or angle)");
     }
     None
@@ -416,9 +443,21 @@ fn beyond_lengths(base: &Layout, now: &Layout) -> Option<&'static str> {
 /// The rotation of extrinsic x, y, z angles (degrees), row-major.
 fn rotation_of(deg: [f64; 3]) -> [[f64; 3]; 3] {
     let [x, y, z] = deg.map(f64::to_radians);
-    let rx = [[1.0, 0.0, 0.0], [0.0, x.cos(), -x.sin()], [0.0, x.sin(), x.cos()]];
-    let ry = [[y.cos(), 0.0, y.sin()], [0.0, 1.0, 0.0], [-y.sin(), 0.0, y.cos()]];
-    let rz = [[z.cos(), -z.sin(), 0.0], [z.sin(), z.cos(), 0.0], [0.0, 0.0, 1.0]];
+    let rx = [
+        [1.0, 0.0, 0.0],
+        [0.0, x.cos(), -x.sin()],
+        [0.0, x.sin(), x.cos()],
+    ];
+    let ry = [
+        [y.cos(), 0.0, y.sin()],
+        [0.0, 1.0, 0.0],
+        [-y.sin(), 0.0, y.cos()],
+    ];
+    let rz = [
+        [z.cos(), -z.sin(), 0.0],
+        [z.sin(), z.cos(), 0.0],
+        [0.0, 0.0, 1.0],
+    ];
     mul(rz, mul(ry, rx))
 }
 

@@ -25,13 +25,15 @@ use softarm_sections::sim::SimConfig;
 
 pub mod plant;
 
-use crate::plant::{Body, Measurement, Plant};
+use crate::plant::{Body, Measurement, Physics, Plant};
 
 /// Runs the simulated arm until `stop` is set; starts stopped if `latch` says the e-stop is
-/// engaged.
+/// engaged. With `physics` (a MuJoCo model) the plant's actuators drive it in place of the
+/// arm's kinematics.
 pub fn run(
     config: &SimConfig,
     arm: Body,
+    physics: Option<Box<dyn Physics>>,
     namespace: Namespace,
     latch: &EstopLatch,
     stop: &AtomicBool,
@@ -69,6 +71,10 @@ pub fn run(
         }
     }
     let mut sim = SimArm::of_body(arm, config, &start)?;
+    if let Some(physics) = physics {
+        sim = sim.with_physics(physics)?;
+    }
+    let mut pace = Pace::new(config.rate_hz, sim.plant().physics());
     let tracker = ipc.publisher(&ipc.tracker()?)?;
     let motors = ipc.publisher(&ipc.motor_state()?)?;
 
@@ -86,7 +92,9 @@ pub fn run(
         let poll = commands.poll(now_ns(), 1_000_000_000);
         // Commands refused every other count.
         let setpoint = poll.setpoint.as_ref().map(|a| a.as_slice());
+        let stepping = std::time::Instant::now();
         let m = sim.step(setpoint, poll.stopped, wake.missed + 1);
+        pace.stepped(stepping.elapsed(), wake.missed);
         log_step(config, sim.plant(), &mut in_force);
         // The sample number counts the sim's periods, the ones it slept through too, so that
         // seq / rate_hz is the sim's own clock (its scenario's time) on a busy machine as well.
@@ -111,8 +119,66 @@ pub fn run(
         });
     }
     let refused = commands.refused();
-    tracing::info!(overruns = ticker.overruns(), refused, "sim stopped");
+    tracing::info!(
+        overruns = ticker.overruns(),
+        refused,
+        slow_steps = pace.slow,
+        steps = pace.steps,
+        "sim stopped"
+    );
     Ok(())
+}
+
+/// Whether the plant keeps the clock: a step of physics that took longer than the period it
+/// simulated puts the next wake behind, and the plant then steps by all the time missed (it
+/// stays on the clock, in coarser steps). Never silent: said when it starts and every 10 s
+/// while it lasts, with the counts.
+struct Pace {
+    period: std::time::Duration,
+    physics: Option<String>,
+    steps: u64,
+    slow: u64,
+    missed: u64,
+    said_at: Option<std::time::Instant>,
+}
+
+impl Pace {
+    fn new(rate_hz: f64, physics: Option<String>) -> Self {
+        if let Some(p) = &physics {
+            tracing::info!(physics = %p, "the plant runs physics in place of its kinematics");
+        }
+        Self {
+            period: std::time::Duration::from_secs_f64(1.0 / rate_hz),
+            physics,
+            steps: 0,
+            slow: 0,
+            missed: 0,
+            said_at: None,
+        }
+    }
+
+    fn stepped(&mut self, took: std::time::Duration, missed: u64) {
+        self.steps += 1;
+        self.missed += missed;
+        if took <= self.period || self.physics.is_none() {
+            return;
+        }
+        self.slow += 1;
+        let due = self.said_at.is_none_or(|t| t.elapsed().as_secs() >= 10);
+        if due {
+            self.said_at = Some(std::time::Instant::now());
+            tracing::warn!(
+                took_ms = took.as_secs_f64() * 1e3,
+                period_ms = self.period.as_secs_f64() * 1e3,
+                slow_steps = self.slow,
+                steps = self.steps,
+                periods_missed = self.missed,
+                "the physics falls behind the clock: a step took longer than the time it \
+                 simulated (the plant keeps the clock in coarser steps); a faster machine, a \
+                 lower sim.rate_hz or a simpler model keeps it"
+            );
+        }
+    }
 }
 
 /// The simulated arm between two of the driver's wakes, without I/O: the plant and the command
@@ -153,6 +219,15 @@ impl SimArm {
         .map_err(anyhow::Error::msg)
         .context("the simulated plant")?;
         Ok(Self::of_plant(plant, config, start))
+    }
+
+    /// This arm with `physics` in place of its kinematics ([`Plant::with_physics`]).
+    pub fn with_physics(mut self, physics: Box<dyn Physics>) -> anyhow::Result<Self> {
+        self.plant = self
+            .plant
+            .with_physics(physics)
+            .map_err(anyhow::Error::msg)?;
+        Ok(self)
     }
 
     fn of_plant(plant: Plant, config: &SimConfig, start: &[f64]) -> Self {
