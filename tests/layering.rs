@@ -192,6 +192,7 @@ fn each_crate_links_only_what_its_layer_allows() {
     let drivers = [
         "softarm-driver",
         "softarm-sim",
+        "softarm-mujoco",
         "softarm-tendon",
         "softarm-tracker",
     ];

@@ -160,7 +160,8 @@ impl Pace {
     fn stepped(&mut self, took: std::time::Duration, missed: u64) {
         self.steps += 1;
         self.missed += missed;
-        if took <= self.period || self.physics.is_none() {
+        // The first step settles the physics at its first actuation, before the clock counts.
+        if self.steps == 1 || took <= self.period || self.physics.is_none() {
             return;
         }
         self.slow += 1;

@@ -26,9 +26,10 @@ pub struct MujocoConfig {
     /// 9.81 down, the world being the arm's base frame, `[arm] mount` deciding which way the
     /// arm points). `[0, 0, 0]` turns it off.
     pub gravity_m_s2: Option<[f64; 3]>,
-    /// Where the model's world is in the arm's base frame: a translation (m), then the
-    /// rotation about x, y, z (degrees, extrinsic) that turns world directions into base ones.
+    /// Where the model's world origin is in the arm's base frame (m), when the two differ.
     pub base_position_m: [f64; 3],
+    /// The rotation that turns the model's world directions into the arm's base frame: about
+    /// x, then y, then z of the base frame (degrees).
     pub base_rotation_deg: [f64; 3],
     /// Which actuator of the model is which of the arm, in the arm's order; empty: the model's
     /// actuators in its own order, one per actuator of the arm.
