@@ -85,7 +85,9 @@ pub struct TipLoad {
 }
 
 /// What a model generated from `[arm]` is made of. The defaults make a plausible small arm:
-/// a silicone-like soft module or a nitinol-like rod, a few tens of grams per module.
+/// a silicone-like soft module or a thin rod (EI as the OpenCR lab's identified model of its
+/// TDCR), a few tens of grams per module, tendons as stiff as a short braided line (PCC's
+/// lengths held: the servo some 25 times stiffer than a module's bending, per tendon).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
 pub struct Generated {
@@ -116,11 +118,11 @@ impl Default for Generated {
             links_per_module: 10,
             soft_bending_nm2: 0.05,
             soft_axial_n: 200.0,
-            backbone_bending_nm2: 0.002,
+            backbone_bending_nm2: 0.0005,
             module_mass_kg: 0.05,
             tool_mass_kg: 0.01,
             damping_ratio: 0.5,
-            actuator_stiffness_n_per_m: 2000.0,
+            actuator_stiffness_n_per_m: 10000.0,
             max_force_n: 100.0,
         }
     }
