@@ -110,6 +110,14 @@ fn held_stiffness(layout: &Layout, g: &Generated, m: usize, ei: f64, l: f64) -> 
     (bend, axial)
 }
 
+/// Module `m`'s mass (kg): a soft module's or a backbone module's.
+fn mass_of(layout: &Layout, g: &Generated, m: usize) -> f64 {
+    match layout.modules()[m].backbone_m {
+        None => g.module_mass_kg,
+        Some(_) => g.backbone_module_mass_kg,
+    }
+}
+
 /// Each module's links, stiffness and damping.
 fn modules(layout: &Layout, g: &Generated) -> Vec<Module> {
     let count = layout.modules().len();
@@ -124,7 +132,8 @@ fn modules(layout: &Layout, g: &Generated) -> Vec<Module> {
                 g.backbone_bending_nm2
             };
             let link_m = l / n as f64;
-            let link_mass_kg = g.module_mass_kg / n as f64;
+            let mass_kg = mass_of(layout, g, m);
+            let link_mass_kg = mass_kg / n as f64;
             let radius = (0..layout.actuators().len())
                 .filter(|&i| layout.passes(i, m))
                 .map(|i| layout.actuators()[i].radius_m)
@@ -133,12 +142,13 @@ fn modules(layout: &Layout, g: &Generated) -> Vec<Module> {
             let across = link_mass_kg * (3.0 * radius * radius + link_m * link_m) / 12.0;
             let along = link_mass_kg * radius * radius / 2.0;
             // What the module carries beyond its end: the modules after it and the tool.
-            let beyond = g.module_mass_kg * (count - 1 - m) as f64 + g.tool_mass_kg;
+            let beyond =
+                (m + 1..count).map(|k| mass_of(layout, g, k)).sum::<f64>() + g.tool_mass_kg;
             // The actuators through the module hold it: its first modes are theirs as much as
             // its own (bending: EI/l + kp Σr²/2 per rad; axial: EA/l + kp Σ1 per metre).
             let (bend_k, axial_k) = held_stiffness(layout, g, m, ei, l);
-            let bend_w = (3.0 * bend_k / (l * l) / (0.24 * g.module_mass_kg + beyond)).sqrt();
-            let axial_w = (axial_k / (g.module_mass_kg / 3.0 + beyond)).sqrt();
+            let bend_w = (3.0 * bend_k / (l * l) / (0.24 * mass_kg + beyond)).sqrt();
+            let axial_w = (axial_k / (mass_kg / 3.0 + beyond)).sqrt();
             let hinge_stiffness = ei / link_m;
             let slide_stiffness = g.soft_axial_n / link_m;
             // Joint damping c = 2ζ n k/ω₁ (k the module's held stiffness, ω₁ its first mode as a

@@ -33,8 +33,9 @@ pub mod generate;
 const MAX_STEPS: usize = softarm_sections::changes::MAX_STEPS;
 
 /// How long the model settles at the first actuation before its clock starts (s): it starts
-/// at rest where it is first driven, as an arm switched on and left to hang.
-const SETTLE_S: f64 = 2.0;
+/// at rest where it is first driven, as an arm switched on and left to hang (a standing TDCR
+/// under gravity still creeps after 2 s).
+const SETTLE_S: f64 = 5.0;
 
 /// What an actuation sets, and where the tool ends, from a time on.
 #[derive(Debug, Clone, Copy)]

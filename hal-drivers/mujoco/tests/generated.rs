@@ -231,14 +231,9 @@ fn with_gravity_the_tip_sags_by_millimetres() {
         let all = poses(&layout);
         // Straight, bent by its first actuator, and a random pose.
         let some: Vec<_> = [0, 1, all.len() - 1].map(|k| all[k].clone()).into();
-        // A TDCR weighs grams, not the default's soft module's 50 g a module: the lab's model
-        // of the OpenCR arm has 7 g in all. 50 g a module topples a standing TDCR whose tendons
-        // run 4.5 mm off its axis.
+        // A TDCR weighs grams (the defaults' backbone module: 3 g), a soft module tens.
+        let g = Generated::default();
         let backbone = layout.modules().iter().any(|m| m.backbone_m.is_some());
-        let g = Generated {
-            module_mass_kg: if backbone { 0.005 } else { 0.05 },
-            ..Generated::default()
-        };
         let off = settled(&layout, &g, NO_GRAVITY, &some);
         let on = settled(&layout, &g, GRAVITY, &some);
         for (a, b) in off.iter().zip(&on) {

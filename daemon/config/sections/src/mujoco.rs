@@ -99,8 +99,11 @@ pub struct Generated {
     pub soft_axial_n: f64,
     /// Bending stiffness EI of a module with a fixed backbone (N·m²).
     pub backbone_bending_nm2: f64,
-    /// Mass of each module (kg), spread over its links.
+    /// Mass of each soft module (kg), spread over its links.
     pub module_mass_kg: f64,
+    /// Mass of each module with a fixed backbone (kg): a thin rod and its discs, a few grams
+    /// (the OpenCR lab's whole three-segment TDCR weighs 7 g).
+    pub backbone_module_mass_kg: f64,
     /// Mass of the tool at the tip (kg).
     pub tool_mass_kg: f64,
     /// Damping of every joint, as a fraction of critical for the module's first mode.
@@ -120,6 +123,7 @@ impl Default for Generated {
             soft_axial_n: 200.0,
             backbone_bending_nm2: 0.0005,
             module_mass_kg: 0.05,
+            backbone_module_mass_kg: 0.003,
             tool_mass_kg: 0.01,
             damping_ratio: 0.5,
             actuator_stiffness_n_per_m: 10000.0,
@@ -224,6 +228,11 @@ impl Generated {
         positive(&k("soft_axial_n"), self.soft_axial_n, 1e7)?;
         positive(&k("backbone_bending_nm2"), self.backbone_bending_nm2, 1e3)?;
         positive(&k("module_mass_kg"), self.module_mass_kg, 100.0)?;
+        positive(
+            &k("backbone_module_mass_kg"),
+            self.backbone_module_mass_kg,
+            100.0,
+        )?;
         positive(&k("damping_ratio"), self.damping_ratio, 10.0)?;
         positive(
             &k("actuator_stiffness_n_per_m"),
