@@ -119,21 +119,12 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
         s.check_on(config)?;
     }
     // The user's sets, read and checked as the controller will check them, before the stack.
-    let (file, then) = sets(args, config)?;
-    if args.set.is_none() && config.paper_arm().is_err() {
-        let points: Vec<String> = file
-            .point
-            .iter()
-            .map(|p| format!("{:?} m at {} s", p.position_m, p.t_s))
-            .collect();
-        say(
-            args.json,
-            &format!(
-                "softarm demo: the arm {}; the way-points lie on its own demonstrations: {}",
-                config.arm_identity(),
-                points.join(", ")
-            ),
-        );
+    let (mut file, then) = sets(args, config)?;
+    // On physics softarm did not write, the arm goes where its physics takes it, not where
+    // PCC says: the derived set is taken from the model trained on it, after training.
+    let on_the_model = args.set.is_none() && config.sim.mujoco.is_some();
+    if args.set.is_none() && config.paper_arm().is_err() && !on_the_model {
+        say_points(args, config, &file);
     }
 
     let mut sup = sandbox.supervisor(&["sim", "controller", "learner"], "warn")?;
@@ -148,6 +139,13 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
     sandbox.ready_with_model(&mut sup, stop, args.seed, folder, &|line| {
         say(args.json, &format!("softarm demo: {line}"))
     })?;
+    if on_the_model {
+        file = demo_set_on(config, &config.model_dir())?;
+        file.to_set(args.executions())
+            .and_then(|set| validate(&set, &config.waypoints, &config.activation))
+            .map_err(|e| anyhow::anyhow!("the demo set on the trained model: {e}"))?;
+        say_points(args, config, &file);
+    }
     if let Some(s) = scenario.as_ref().filter(|s| !s.is_nominal()) {
         become_scenario(args, s, &sandbox, &mut sup, stop)?;
     }
@@ -226,9 +224,20 @@ fn check(args: &Args) -> anyhow::Result<Option<Scenario>> {
     Ok(scenario)
 }
 
-/// The model folder: `--model-dir`, else [`model_cache`].
+/// The model folder: `--model-dir`, else [`model_cache`], one of its own per MuJoCo plant
+/// (by a hash of the plant file's text), which trains its own model.
 fn model_dir(args: &Args) -> PathBuf {
-    (args.model_dir.clone()).unwrap_or_else(|| model_cache(args.arm.as_deref(), args.seed))
+    if let Some(dir) = &args.model_dir {
+        return dir.clone();
+    }
+    let cache = model_cache(args.arm.as_deref(), args.seed);
+    let Some(plant) = &args.mujoco else {
+        return cache;
+    };
+    let text = std::fs::read_to_string(plant).unwrap_or_else(|_| plant.clone());
+    let name = cache.file_name().map(|n| n.to_string_lossy().into_owned());
+    let hash = softarm_model::bundle::fnv64(text.as_bytes());
+    cache.with_file_name(format!("mujoco{hash:016x}-{}", name.unwrap_or_default()))
 }
 
 /// The demo's model folder in the cache, one per arm and seed (an arm file's by a hash of its
@@ -319,6 +328,40 @@ fn sets(args: &Args, config: &Config) -> anyhow::Result<(WaypointFile, Option<Wa
     Ok((file, then))
 }
 
+/// Says where the derived set's points are.
+fn say_points(args: &Args, config: &Config, file: &WaypointFile) {
+    let points: Vec<String> = file
+        .point
+        .iter()
+        .map(|p| format!("{:?} m at {} s", p.position_m, p.t_s))
+        .collect();
+    say(
+        args.json,
+        &format!(
+            "softarm demo: the arm {}; the way-points lie on its own demonstrations: {}",
+            config.arm_identity(),
+            points.join(", ")
+        ),
+    );
+}
+
+/// The demo's five points ([`softarm_method::skill::demo_points`]) where the arm went in
+/// training: through the forward model trained in `dir` on its demonstrations, not the
+/// configured arm's kinematics. What a MuJoCo plant runs: there, PCC put three of five points
+/// 26 to 46 mm from every pose the arm took.
+fn demo_set_on(config: &Config, dir: &Path) -> anyhow::Result<WaypointFile> {
+    let layout = config.layout();
+    let classes = softarm_method::skill::classes(&config.demonstrations, &layout);
+    let points = softarm_ipc::with_actuators!(layout.actuators().len(),
+        N => {
+            let model = softarm_model::bundle::Model::<N>::read_of(dir)
+                .with_context(|| format!("the trained model in {}", dir.display()))?;
+            softarm_method::skill::demo_points::<N>(&classes, &model.forward)
+        },
+        n => bail!("an arm of {n} actuators"));
+    Ok(set_of(points))
+}
+
 /// The demo's way-point set on `config`'s arm: the shipped one on the paper's, else five points
 /// on the arm's own nominal demonstrations ([`softarm_method::skill::demo_points`]) at the
 /// shipped set's times.
@@ -335,9 +378,15 @@ pub fn demo_set(config: &Config) -> anyhow::Result<WaypointFile> {
     let points = softarm_ipc::with_actuators!(layout.actuators().len(),
         N => softarm_method::skill::demo_points::<N>(&classes, &arm),
         n => bail!("an arm of {n} actuators"));
+    Ok(set_of(points))
+}
+
+/// `points` at the shipped set's times.
+fn set_of(points: Vec<[f64; 3]>) -> WaypointFile {
+    let shipped = WaypointFile::parse(sandbox::DEMO_WAYPOINTS).expect("the shipped set parses");
     // To the tenth of a millimetre, as a way-point file would say them.
     let round = |p: [f64; 3]| p.map(|v| (v * 1e4).round() / 1e4);
-    Ok(WaypointFile {
+    WaypointFile {
         duration_s: shipped.duration_s,
         point: shipped
             .point
@@ -348,7 +397,7 @@ pub fn demo_set(config: &Config) -> anyhow::Result<WaypointFile> {
                 position_m: round(position),
             })
             .collect(),
-    })
+    }
 }
 
 /// Trained (or reused) on the nominal arm; now the sim becomes the scenario's arm.
