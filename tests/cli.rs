@@ -575,6 +575,11 @@ fn config_check_takes_every_shipped_file_for_what_it_is() {
         vec!["--arm", arm.to_str().unwrap()],
     ));
     files.push((arm.clone(), "an [arm] file", vec![]));
+    let mujoco = root.join("config/mujoco");
+    files.push((mujoco.join("opencr-ftdcr-v6.toml"), "a plant file", vec![]));
+    for scenario in ["tip-load.toml", "gravity.toml"] {
+        files.push((mujoco.join(scenario), "a scenario", vec![]));
+    }
     for (file, kind, extra) in &files {
         let out = output(
             Command::new(BIN)

@@ -204,6 +204,11 @@ mod tests {
         assert_eq!(of(set), FileKind::WaypointSet);
         let columns = include_str!("../../../config/recordings/opencr-tdcr/columns.toml");
         assert_eq!(of(columns), FileKind::ColumnMap);
+        let plant = include_str!("../../../config/mujoco/opencr-ftdcr-v6.toml");
+        assert_eq!(of(plant), FileKind::Plant);
+        assert_eq!(of("[mujoco]\ntip_site = \"tip\"\n"), FileKind::Plant);
+        let load = include_str!("../../../config/mujoco/tip-load.toml");
+        assert_eq!(of(load), FileKind::Scenario);
         let hardware = include_str!("../../../config/hardware.toml");
         assert_eq!(of(hardware), FileKind::Config);
     }
