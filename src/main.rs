@@ -559,7 +559,14 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             softarm_tracker::run(&c, c.bus()?, &*stop_flag()?)?
         }
         #[cfg(feature = "rig")]
-        Command::Emulate(args) => emulate::run(&args, &*stop_flag()?)?,
+        Command::Emulate(args) => emulate::run(&args, &*stop_flag()?, &|c| {
+            let on = OnArm {
+                arm: c.arm.clone(),
+                sim: c.sim.clone(),
+                steps: Vec::new(),
+            };
+            physics(c, &on)
+        })?,
         Command::Train {
             stack,
             from: Some(from),

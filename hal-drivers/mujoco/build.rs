@@ -1,4 +1,4 @@
-//! This crate's own tests find MuJoCo's library where they were linked against it (an rpath
+//! This crate's own tests and benches find MuJoCo's library where they were linked against it (an rpath
 //! to `MUJOCO_DYNAMIC_LINK_DIR`), as the binary does (the root's build.rs).
 
 fn main() {
@@ -8,5 +8,6 @@ fn main() {
     }
     if let Ok(dir) = std::env::var("MUJOCO_DYNAMIC_LINK_DIR") {
         println!("cargo::rustc-link-arg-tests=-Wl,-rpath,{dir}");
+        println!("cargo::rustc-link-arg-benches=-Wl,-rpath,{dir}");
     }
 }

@@ -10,6 +10,7 @@ use std::time::Duration;
 use crate::rig::Rig;
 use anyhow::Context;
 use softarm_config::{Config, ConfigError};
+use softarm_sim::plant::Physics;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -116,7 +117,13 @@ fn check_write_config(out: &Path, config: &Path) -> anyhow::Result<()> {
     Ok(())
 }
 
-pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
+/// What gives the physics a config's `[sim.mujoco]` describes, if it describes one (the binary:
+/// MuJoCo when built with it).
+pub type PhysicsOf = dyn Fn(&Config) -> anyhow::Result<Option<Box<dyn Physics>>>;
+
+/// Runs the emulators of `args.config`'s devices until `stop`; `physics_of` gives the physics
+/// its `[sim.mujoco]` describes, if it describes one, which the motors then drive.
+pub fn run(args: &Args, stop: &AtomicBool, physics_of: &PhysicsOf) -> anyhow::Result<()> {
     let c = Config::load(&args.config)?;
     // Refused as the drivers refuse it (exit 78): starting again cannot help.
     for (section, there) in [
@@ -147,7 +154,7 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
     }
     let text = std::fs::read_to_string(&args.config)
         .with_context(|| format!("reading {}", args.config.display()))?;
-    let rig = Rig::start(&c, args.initial)?;
+    let rig = Rig::start_with(&c, args.initial, physics_of(&c)?)?;
     for bus in &rig.buses {
         if let Ok(mut bus) = bus.lock() {
             bus.set_fault_seed(args.fault_seed);

@@ -1,7 +1,9 @@
 //! Both emulators on pseudo-terminals, coupled through the arm: the tracker reports where the
 //! piecewise-constant-curvature model of `[arm]` puts the end effector for the actuation the
 //! emulated motors stand at (through the same [`Mapping`] and [`Frame`] the drivers use), so
-//! the loop closes through the real drivers exactly as it does on the arm.
+//! the loop closes through the real drivers exactly as it does on the arm. Given physics of
+//! its own (a MuJoCo model, `[sim.mujoco]`), the motors drive that instead, stepped on a clock
+//! of its own ([`Rig::start_with`]).
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
@@ -17,6 +19,7 @@ use crate::canary::Canary;
 use crate::dynamixel;
 use crate::pty::Pty;
 use softarm_kinematics::pcc;
+use softarm_sim::plant::Physics;
 
 type Pose = Arc<dyn Fn() -> ([f64; 3], [f64; 3]) + Send + Sync>;
 
@@ -55,6 +58,16 @@ impl Rig {
     /// `initial` (normalised actuation), torque off, at their factory settings (a Return Delay
     /// Time of 500 µs), on lines at `tendon.baud`.
     pub fn start(config: &Config, initial: f64) -> anyhow::Result<Self> {
+        Self::start_with(config, initial, None)
+    }
+
+    /// [`Rig::start`], the motors driving `physics` (stepped every millisecond on a thread of
+    /// its own, from where the motors stand) in place of the PCC model, if given.
+    pub fn start_with(
+        config: &Config,
+        initial: f64,
+        physics: Option<Box<dyn Physics>>,
+    ) -> anyhow::Result<Self> {
         let tendon = config
             .tendon
             .as_ref()
@@ -92,18 +105,35 @@ impl Rig {
             );
             buses.push(bus);
         }
-        let pose: Pose = {
+        let actuation = {
             let buses = buses.clone();
-            // Where the last actuation put the tip, for an actuation whose arcs the model
-            // cannot tell (the motors far outside their strokes).
-            let last = Mutex::new([0.0; 3]);
-            Arc::new(move || {
+            move || {
                 let mut a = [0.0; MAX_ACTUATORS];
                 for (i, &(k, id)) in motor_of.iter().enumerate() {
                     let b = buses[k].lock().unwrap();
                     let ticks = b.motor(id).map_or(0, |m| m.present_position());
                     a[i] = mapping.actuation(i, ticks);
                 }
+                a
+            }
+        };
+        if let Some(physics) = physics {
+            let tip = Arc::new(Mutex::new([f64::NAN; 3]));
+            let (seen, stopping) = (tip.clone(), stop.clone());
+            threads.push(
+                std::thread::Builder::new()
+                    .name("emulated arm".into())
+                    .spawn(move || step_physics(physics, n, actuation, &seen, &stopping))?,
+            );
+            let pose: Pose = Arc::new(move || (frame.to_tracker(*tip.lock().unwrap()), [0.0; 3]));
+            return Self::serving(config, tendon_paths, buses, stop, threads, pose, tracker);
+        }
+        let pose: Pose = {
+            // Where the last actuation put the tip, for an actuation whose arcs the model
+            // cannot tell (the motors far outside their strokes).
+            let last = Mutex::new([0.0; 3]);
+            Arc::new(move || {
+                let a = actuation();
                 let mut last = last.lock().unwrap();
                 if let Ok(p) = arm.pose(&a[..n]) {
                     *last = [p.position.x, p.position.y, p.position.z];
@@ -111,6 +141,19 @@ impl Rig {
                 (frame.to_tracker(*last), [0.0; 3])
             })
         };
+        Self::serving(config, tendon_paths, buses, stop, threads, pose, tracker)
+    }
+
+    /// The rig of the motor buses started, its tracker serving `pose`.
+    fn serving(
+        _config: &Config,
+        tendon_paths: Vec<std::path::PathBuf>,
+        buses: Vec<Arc<Mutex<dynamixel::Bus>>>,
+        stop: Arc<AtomicBool>,
+        threads: Vec<JoinHandle<std::io::Result<()>>>,
+        pose: Pose,
+        tracker: &softarm_config::hardware::TrackerConfig,
+    ) -> anyhow::Result<Self> {
         let mut rig = Self {
             tendon_paths,
             tracker_path: std::path::PathBuf::new(),
@@ -211,4 +254,25 @@ impl Drop for Rig {
     fn drop(&mut self) {
         let _ = self.halt();
     }
+}
+
+/// Steps `physics` every millisecond of the wall clock with the `n` actuations the motors
+/// stand at, keeping where it puts the tip in `tip`, until `stop`.
+fn step_physics(
+    mut physics: Box<dyn Physics>,
+    n: usize,
+    actuation: impl Fn() -> [f64; MAX_ACTUATORS],
+    tip: &Mutex<[f64; 3]>,
+    stop: &AtomicBool,
+) -> std::io::Result<()> {
+    let start = std::time::Instant::now();
+    let none = [0.0; MAX_ACTUATORS];
+    while !stop.load(Ordering::Relaxed) {
+        let a = actuation();
+        let t = start.elapsed().as_secs_f64();
+        let p = physics.advance(t, &a[..n], &none[..n]);
+        *tip.lock().unwrap() = p;
+        std::thread::sleep(std::time::Duration::from_millis(1));
+    }
+    Ok(())
 }
