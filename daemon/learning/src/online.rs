@@ -300,7 +300,8 @@ impl<const N: usize> OnlineLearner<N> {
     pub fn restore_arm(&mut self, arm: &ArmState<N>) {
         let c = self.cacla.config().gauss_newton;
         self.corrections = Corrections::from_points(&c, &arm.corrections);
-        self.footprint = Footprint::from_samples(&arm.footprint);
+        let threshold = c.change_threshold_m;
+        self.footprint = Footprint::from_samples_of(&self.arm, threshold, &arm.footprint);
     }
 
     /// The configured arm as last fitted to the footprint (the configured arm itself before).
@@ -669,8 +670,7 @@ impl<const N: usize> OnlineLearner<N> {
     /// then 75 mm at the second execution).
     fn calibrate_if_grown(&mut self) -> bool {
         let samples = self.footprint.current().count();
-        if samples >= CALIBRATION_SAMPLES
-            && samples >= self.calibrated.samples + CALIBRATION_SAMPLES
+        if samples >= CALIBRATION_SAMPLES && samples >= self.calibrated.tried + CALIBRATION_SAMPLES
         {
             self.recalibrate();
         }
