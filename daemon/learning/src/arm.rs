@@ -292,9 +292,11 @@ impl<const N: usize> Footprint<N> {
         self.remember_before_gap(stamp_ns, actuation);
         self.last = Some((stamp_ns, *actuation, *position));
         let speed = self.speed(stamp_ns, actuation);
-        // A tracked point still swinging is not where its actuation puts it: neither kept nor
-        // checked, as a moving arm.
-        if self.swinging(stamp_ns, position) || speed >= SLOW_PER_S {
+        // A tracked point still swinging when the actuators stand still is not where its
+        // actuation puts it: neither kept nor checked, as a moving arm. (While they move, the
+        // point moves with them, and what is kept of a slowly moving arm stays kept.)
+        let swinging = self.swinging(stamp_ns, position);
+        if speed >= SLOW_PER_S || (swinging && speed < STILL_PER_S) {
             return Seen::Nothing;
         }
         let nearest = self
