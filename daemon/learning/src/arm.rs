@@ -126,17 +126,19 @@ const SLOPE_DOUBT: f64 = 0.5;
 /// neighbourhood, tell how well the configured arm's slope carries one to the other: the
 /// evidence of [`Footprint::slope_doubt`]. Wider than [`CHECK_REACH`], since samples are kept
 /// that far apart where nothing is checked; a linear carry over it misses by its curvature on
-/// the right arm (measured on the paper's: at most 0.3 of what it carries), by 1 to 2 times
-/// what it carries on an arm whose tendons are turned from where `[arm]` has them.
+/// the right arm, by 1 to 2 times what it carries on an arm whose tendons are turned from
+/// where `[arm]` has them.
 const EVIDENCE_REACH: f64 = 0.1;
 /// What a pair of samples carries by the slope, at least, to be evidence (m): under it the
 /// tracker's noise is the miss.
 const EVIDENCE_MIN_M: f64 = 0.004;
-/// Pairs of samples whose miss the doubt is the largest of: the newest this many.
-const EVIDENCE: usize = 32;
-/// The doubt is this much over the largest miss of the evidence: a check must not find the
-/// same arm, carried as far as its pairs were, any further off than they were.
-const EVIDENCE_MARGIN: f64 = 1.25;
+/// Pairs below which the slope is not doubted beyond [`SLOPE_DOUBT`].
+const EVIDENCE_PAIRS: usize = 8;
+/// The doubt is this many times the median miss of the pairs: the median, not the largest,
+/// so that a few samples of another arm (kept while it moved, before a check saw the change)
+/// do not blind the checks; twice it, since a turned arm's slope misses by more in some
+/// directions than in others.
+const EVIDENCE_MARGIN: f64 = 2.0;
 /// Samples of a neighbourhood averaged, at most.
 const AVERAGED: u32 = 16;
 /// A sample is checked against the footprint only while the actuators move slower than this
@@ -202,9 +204,8 @@ pub struct Footprint<const N: usize = ACTUATORS> {
     positions: Vec<(u64, Position)>,
     /// When the tracked point was last seen swinging ([`SWING_RECENT_M`]).
     swung_ns: Option<u64>,
-    /// How far the configured arm's slope missed, carrying one kept sample to another
-    /// (beyond the threshold, as a fraction of what it carried): the newest [`EVIDENCE`].
-    evidence: Vec<f64>,
+    /// [`Footprint::slope_doubt`] of the samples as they are, once worked out.
+    doubt: Option<f64>,
 }
 
 /// The arm's position at one neighbourhood of the actuation space: the average of the samples
@@ -240,30 +241,35 @@ impl<const N: usize> Footprint<N> {
         out
     }
 
-    /// As [`Footprint::from_samples`], with the evidence of the slope worked out again from
-    /// them by `arm` at `threshold_m`.
-    pub fn from_samples_of(
-        arm: &impl ForwardModel<N>,
-        threshold_m: f64,
-        samples: &[Sample<N>],
-    ) -> Self {
-        let mut out = Self::default();
-        let start = samples.len().saturating_sub(FOOTPRINT_SAMPLES);
-        for s in &samples[start..] {
-            out.weigh_slope(arm, threshold_m, &s.actuation, &s.position);
-            out.samples.push(*s);
-        }
-        out
-    }
-
     /// How wrong the configured arm's slope is here, as a fraction of what it carries: at
     /// least [`SLOPE_DOUBT`], more where carrying one kept sample to another missed by more
     /// (the arm's tendons not where `[arm]` has them, the tracker's frame turned). Without it
     /// such an arm, checked a little away from where it stood, read as an arm that keeps
     /// changing (measured: a configured arm turned 180°, 61 changes in 20 executions).
-    pub fn slope_doubt(&self) -> f64 {
-        let worst = self.evidence.iter().copied().fold(0.0, f64::max);
-        (EVIDENCE_MARGIN * worst).max(SLOPE_DOUBT)
+    pub fn slope_doubt(&self, arm: &impl ForwardModel<N>, threshold_m: f64) -> f64 {
+        let jacobians: Vec<_> = self
+            .samples
+            .iter()
+            .map(|s| arm.jacobian(&s.actuation))
+            .collect();
+        let mut misses = Vec::new();
+        for (i, s) in self.samples.iter().enumerate() {
+            for t in &self.samples[i + 1..] {
+                let d = actuation_distance(&s.actuation, &t.actuation);
+                if !(NEIGHBOURHOOD..=EVIDENCE_REACH).contains(&d) {
+                    continue;
+                }
+                let (off, moved) = s.carried_by(&jacobians[i], &t.actuation, &t.position);
+                if moved >= EVIDENCE_MIN_M {
+                    misses.push((off - threshold_m).max(0.0) / moved);
+                }
+            }
+        }
+        if misses.len() < EVIDENCE_PAIRS {
+            return SLOPE_DOUBT;
+        }
+        misses.sort_by(f64::total_cmp);
+        (EVIDENCE_MARGIN * misses[misses.len() / 2]).max(SLOPE_DOUBT)
     }
 
     pub fn samples(&self) -> &[Sample<N>] {
@@ -319,7 +325,6 @@ impl<const N: usize> Footprint<N> {
             // (a restarted sim's first sample, moving at 0.102 per s, hid a tool change so).
             _ if speed >= STILL_PER_S => {
                 if nearest.is_none() && may_keep {
-                    self.weigh_slope(arm, threshold_m, actuation, position);
                     self.keep(stamp_ns, actuation, position);
                 }
                 return Seen::Nothing;
@@ -327,13 +332,15 @@ impl<const N: usize> Footprint<N> {
             Some((i, _)) => i,
             None => {
                 if may_keep {
-                    self.weigh_slope(arm, threshold_m, actuation, position);
                     self.keep(stamp_ns, actuation, position);
                 }
                 return Seen::Nothing;
             }
         };
-        let doubt = self.slope_doubt();
+        let doubt = match self.doubt {
+            Some(d) => d,
+            None => *self.doubt.insert(self.slope_doubt(arm, threshold_m)),
+        };
         let (off, allowed) = self.samples[i].compare(arm, threshold_m, doubt, actuation, position);
         let differs = off > allowed;
         self.checks[self.next_check] = (stamp_ns, differs);
@@ -342,7 +349,6 @@ impl<const N: usize> Footprint<N> {
             if known {
                 self.samples[i].take_in(stamp_ns, actuation, position);
             } else if may_keep {
-                self.weigh_slope(arm, threshold_m, actuation, position);
                 self.keep(stamp_ns, actuation, position);
             }
             return Seen::Same;
@@ -352,6 +358,7 @@ impl<const N: usize> Footprint<N> {
             return Seen::Different(off);
         }
         self.samples.clear();
+        self.doubt = None;
         self.checks = [(0, false); CHECKS];
         self.keep(stamp_ns, actuation, position);
         Seen::Changed(off)
@@ -390,33 +397,6 @@ impl<const N: usize> Footprint<N> {
             return true;
         }
         moved || held
-    }
-
-    /// Takes in the evidence of the configured arm's slope that a sample about to be kept
-    /// gives: how far carrying each kept sample near it (beyond its neighbourhood, within
-    /// [`EVIDENCE_REACH`]) to it by `arm`'s slope misses where it is. Both are of this arm: a
-    /// sample is kept only while the checks agree.
-    fn weigh_slope(
-        &mut self,
-        arm: &impl ForwardModel<N>,
-        threshold_m: f64,
-        actuation: &[f64; N],
-        position: &Position,
-    ) {
-        for s in &self.samples {
-            let d = actuation_distance(&s.actuation, actuation);
-            if !(NEIGHBOURHOOD..=EVIDENCE_REACH).contains(&d) {
-                continue;
-            }
-            let (off, moved) = s.carried(arm, actuation, position);
-            if moved < EVIDENCE_MIN_M {
-                continue;
-            }
-            if self.evidence.len() == EVIDENCE {
-                self.evidence.remove(0);
-            }
-            self.evidence.push((off - threshold_m).max(0.0) / moved);
-        }
     }
 
     /// Recent checks (within [`CHECKS_KEPT_NS`] of `stamp_ns`) that disagreed. Older ones are
@@ -477,6 +457,7 @@ impl<const N: usize> Footprint<N> {
     }
 
     fn keep(&mut self, stamp_ns: u64, actuation: &[f64; N], position: &Position) {
+        self.doubt = None;
         if self.samples.len() >= FOOTPRINT_SAMPLES {
             self.samples.remove(0);
         }
@@ -515,8 +496,18 @@ impl<const N: usize> Sample<N> {
         actuation: &[f64; N],
         position: &Position,
     ) -> (f64, f64) {
+        self.carried_by(&arm.jacobian(&self.actuation), actuation, position)
+    }
+
+    /// [`Sample::carried`] by the slope `j` at this sample.
+    fn carried_by(
+        &self,
+        j: &softarm_kinematics::forward::Jacobian<N>,
+        actuation: &[f64; N],
+        position: &Position,
+    ) -> (f64, f64) {
         let da = nalgebra::SVector::<f64, N>::from_fn(|i, _| actuation[i] - self.actuation[i]);
-        let moved = arm.jacobian(&self.actuation) * da;
+        let moved = j * da;
         let predicted: Position = std::array::from_fn(|d| self.position[d] + moved[d]);
         (distance(&predicted, position), moved.norm())
     }
@@ -825,7 +816,8 @@ mod turned {
             let mut t = 0;
             let (changed, worst) = visit(&mut f, &configured, &real, 20, &mut t);
             assert_eq!(changed, 0, "turned {turn}°: off by up to {worst} m");
-            assert!(f.slope_doubt() > 0.5, "turned {turn}°: {}", f.slope_doubt());
+            let doubt = f.slope_doubt(&configured, 0.004);
+            assert!(doubt > SLOPE_DOUBT, "turned {turn}°: {doubt}");
             // Held at the rest posture as before, with a longer tool: seen.
             let mut longer = real;
             longer.tool_m += 0.02;
@@ -845,7 +837,7 @@ mod turned {
         let mut f = Footprint::default();
         let (changed, _) = visit(&mut f, &real, &real, 20, &mut 0);
         assert_eq!(changed, 0);
-        assert_eq!(f.slope_doubt(), SLOPE_DOUBT);
+        assert_eq!(f.slope_doubt(&real, 0.004), SLOPE_DOUBT);
     }
 
     /// A tracked point that still swings after the actuators stopped is neither checked nor

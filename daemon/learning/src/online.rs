@@ -300,8 +300,7 @@ impl<const N: usize> OnlineLearner<N> {
     pub fn restore_arm(&mut self, arm: &ArmState<N>) {
         let c = self.cacla.config().gauss_newton;
         self.corrections = Corrections::from_points(&c, &arm.corrections);
-        let threshold = c.change_threshold_m;
-        self.footprint = Footprint::from_samples_of(&self.arm, threshold, &arm.footprint);
+        self.footprint = Footprint::from_samples(&arm.footprint);
     }
 
     /// The configured arm as last fitted to the footprint (the configured arm itself before).
