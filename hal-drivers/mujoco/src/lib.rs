@@ -98,10 +98,7 @@ impl MujocoArm {
         let (model, description) = match &config.model {
             Some(file) => {
                 let path = base_dir.join(file);
-                (
-                    load_file(&path)?,
-                    format!("MuJoCo model {}", path.display()),
-                )
+                (load_file(&path)?, format!("MuJoCo model {}", path.display()))
             }
             None => {
                 let gravity = config.gravity_m_s2.unwrap_or([0.0, 0.0, -9.81]);
@@ -133,9 +130,7 @@ impl MujocoArm {
         let gravity = model.opt().gravity;
         let timestep = model.opt().timestep;
         if !(timestep.is_finite() && timestep > 0.0) {
-            return refused(format!(
-                "{description}: its time step is {timestep}; it must be > 0"
-            ));
+            return refused(format!("{description}: its time step is {timestep}; it must be > 0"));
         }
         let actuator = map_actuators(&model, config, n, &description)?;
         let tip_site = find(&model, MjtObjBase::mjOBJ_SITE, &config.tip_site).ok_or_else(|| {
@@ -292,10 +287,7 @@ impl Physics for MujocoArm {
 
 fn load_file(path: &Path) -> Result<MjModel, Refused> {
     if let Err(e) = std::fs::metadata(path) {
-        return refused(format!(
-            "sim.mujoco.model: cannot read {}: {e}",
-            path.display()
-        ));
+        return refused(format!("sim.mujoco.model: cannot read {}: {e}", path.display()));
     }
     MjModel::from_xml(path).map_err(|e| {
         Refused(format!(
@@ -310,9 +302,7 @@ fn find(model: &MjModel, kind: MjtObjBase, name: &str) -> Option<usize> {
 }
 
 fn names(model: &MjModel, kind: MjtObjBase, count: usize) -> String {
-    let all: Vec<&str> = (0..count)
-        .filter_map(|i| model.id_to_name(kind, i))
-        .collect();
+    let all: Vec<&str> = (0..count).filter_map(|i| model.id_to_name(kind, i)).collect();
     if all.is_empty() {
         "none named".into()
     } else {
@@ -370,19 +360,14 @@ fn phases(
     steps: &[(f64, ArmConfig)],
 ) -> Result<[Option<Phase>; MAX_STEPS + 1], Refused> {
     if steps.len() > MAX_STEPS {
-        return refused(format!(
-            "a scenario of {} steps; at most {MAX_STEPS}",
-            steps.len()
-        ));
+        return refused(format!("a scenario of {} steps; at most {MAX_STEPS}", steps.len()));
     }
     let start = phase(config, layout, layout, 0.0);
     let mut all = [None; MAX_STEPS + 1];
     all[0] = Some(start);
     let base = arm.layout().map_err(Refused)?;
     for (k, (at_s, stepped)) in steps.iter().enumerate() {
-        let now = stepped
-            .layout()
-            .map_err(|e| Refused(format!("step[{k}]: {e}")))?;
+        let now = stepped.layout().map_err(|e| Refused(format!("step[{k}]: {e}")))?;
         if let Some(what) = beyond_lengths(&base, &now) {
             return refused(format!(
                 "step[{k}]: changes the arm's {what}; a MuJoCo plant's steps change the \
@@ -419,17 +404,10 @@ fn beyond_lengths(base: &Layout, now: &Layout) -> Option<&'static str> {
         return Some("connector_m");
     }
     let same = |a: &softarm_arm::Actuator, b: &softarm_arm::Actuator| {
-        a.kind == b.kind
-            && a.module == b.module
-            && a.radius_m == b.radius_m
+        a.kind == b.kind && a.module == b.module && a.radius_m == b.radius_m
             && a.angle_rad == b.angle_rad
     };
-    if !base
-        .actuators()
-        .iter()
-        .zip(now.actuators())
-        .all(|(a, b)| same(a, b))
-    {
+    if !base.actuators().iter().zip(now.actuators()).all(|(a, b)| same(a, b)) {
         return Some("routing (radius or angle)");
     }
     None
@@ -438,21 +416,9 @@ fn beyond_lengths(base: &Layout, now: &Layout) -> Option<&'static str> {
 /// The rotation of extrinsic x, y, z angles (degrees), row-major.
 fn rotation_of(deg: [f64; 3]) -> [[f64; 3]; 3] {
     let [x, y, z] = deg.map(f64::to_radians);
-    let rx = [
-        [1.0, 0.0, 0.0],
-        [0.0, x.cos(), -x.sin()],
-        [0.0, x.sin(), x.cos()],
-    ];
-    let ry = [
-        [y.cos(), 0.0, y.sin()],
-        [0.0, 1.0, 0.0],
-        [-y.sin(), 0.0, y.cos()],
-    ];
-    let rz = [
-        [z.cos(), -z.sin(), 0.0],
-        [z.sin(), z.cos(), 0.0],
-        [0.0, 0.0, 1.0],
-    ];
+    let rx = [[1.0, 0.0, 0.0], [0.0, x.cos(), -x.sin()], [0.0, x.sin(), x.cos()]];
+    let ry = [[y.cos(), 0.0, y.sin()], [0.0, 1.0, 0.0], [-y.sin(), 0.0, y.cos()]];
+    let rz = [[z.cos(), -z.sin(), 0.0], [z.sin(), z.cos(), 0.0], [0.0, 0.0, 1.0]];
     mul(rz, mul(ry, rx))
 }
 

@@ -170,10 +170,7 @@ impl MujocoConfig {
         }
         for (i, a) in self.actuators.iter().enumerate() {
             if a.name.trim().is_empty() {
-                return Err(format!(
-                    "{}[{i}].name: must name an actuator",
-                    k("actuators")
-                ));
+                return Err(format!("{}[{i}].name: must name an actuator", k("actuators")));
             }
             if let Some(c) = a.ctrl {
                 finite(&format!("{}[{i}].ctrl", k("actuators")), &c)?;
@@ -189,11 +186,7 @@ impl MujocoConfig {
         if let Some(load) = &self.load {
             finite(&k("load.force_n"), &load.force_n)?;
             if !(load.from_s.is_finite() && load.from_s >= 0.0) {
-                return Err(format!(
-                    "{}: must be ≥ 0 s, got {:?}",
-                    k("load.from_s"),
-                    load.from_s
-                ));
+                return Err(format!("{}: must be ≥ 0 s, got {:?}", k("load.from_s"), load.from_s));
             }
             if !(load.mass_kg.is_finite() && (0.0..=10.0).contains(&load.mass_kg)) {
                 return Err(format!(
@@ -222,11 +215,7 @@ impl Generated {
         positive(&k("backbone_bending_nm2"), self.backbone_bending_nm2, 1e3)?;
         positive(&k("module_mass_kg"), self.module_mass_kg, 100.0)?;
         positive(&k("damping_ratio"), self.damping_ratio, 10.0)?;
-        positive(
-            &k("actuator_stiffness_n_per_m"),
-            self.actuator_stiffness_n_per_m,
-            1e7,
-        )?;
+        positive(&k("actuator_stiffness_n_per_m"), self.actuator_stiffness_n_per_m, 1e7)?;
         positive(&k("max_force_n"), self.max_force_n, 1e5)?;
         if !(self.tool_mass_kg.is_finite() && (0.0..=100.0).contains(&self.tool_mass_kg)) {
             return Err(format!(
@@ -248,42 +237,20 @@ mod tests {
         MujocoConfig::default().validate(6).unwrap();
         let mut c = MujocoConfig::default();
         c.generated.links_per_module = 1;
-        assert!(
-            c.validate(6)
-                .unwrap_err()
-                .starts_with("sim.mujoco.generated.links_per_module:")
-        );
+        assert!(c.validate(6).unwrap_err().starts_with("sim.mujoco.generated.links_per_module:"));
         let mut c = MujocoConfig {
             model: Some("arm.xml".into()),
             ..MujocoConfig::default()
         };
-        c.actuators = vec![MujocoActuator {
-            name: "t".into(),
-            ctrl: None,
-        }];
+        c.actuators = vec![MujocoActuator { name: "t".into(), ctrl: None }];
         let e = c.validate(6).unwrap_err();
-        assert!(
-            e.starts_with("sim.mujoco.actuators:") && e.contains("1 actuators mapped"),
-            "{e}"
-        );
+        assert!(e.starts_with("sim.mujoco.actuators:") && e.contains("1 actuators mapped"), "{e}");
         c.model = None;
-        assert!(
-            c.validate(1)
-                .unwrap_err()
-                .contains("only with sim.mujoco.model")
-        );
+        assert!(c.validate(1).unwrap_err().contains("only with sim.mujoco.model"));
         let c = MujocoConfig {
-            load: Some(TipLoad {
-                from_s: -1.0,
-                force_n: [0.0; 3],
-                mass_kg: 0.0,
-            }),
+            load: Some(TipLoad { from_s: -1.0, force_n: [0.0; 3], mass_kg: 0.0 }),
             ..MujocoConfig::default()
         };
-        assert!(
-            c.validate(6)
-                .unwrap_err()
-                .starts_with("sim.mujoco.load.from_s:")
-        );
+        assert!(c.validate(6).unwrap_err().starts_with("sim.mujoco.load.from_s:"));
     }
 }
