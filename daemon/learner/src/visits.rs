@@ -29,7 +29,7 @@ pub struct Learner<const N: usize> {
     refused: u64,
     /// Arm changes seen since the start.
     arm_changes: u64,
-    /// The calibrated arm last logged: the samples it was fitted to.
+    /// The calibrated arm last logged: the samples its fit was tried on.
     calibrated_logged: usize,
 }
 
@@ -186,14 +186,23 @@ impl<const N: usize> Learner<N> {
     /// Logs the calibrated arm once per fit: what the learner now believes of the arm.
     fn say_calibrated(&mut self) {
         let c = self.online.calibrated();
-        if c.samples == self.calibrated_logged {
+        if c.tried == self.calibrated_logged {
             return;
         }
-        self.calibrated_logged = c.samples;
+        self.calibrated_logged = c.tried;
+        if c.samples == 0 && c.tried > 0 {
+            tracing::info!(
+                samples = c.tried,
+                configured_rms_mm = c.rms_m * 1e3,
+                "the arm not calibrated: no fit explains enough of it, the configured arm stays"
+            );
+            return;
+        }
         tracing::info!(
             samples = c.samples,
             rms_mm = c.rms_m * 1e3,
             tool_mm = ?c.theta[..3].iter().map(|v| v * 1e3).collect::<Vec<_>>(),
+            rotations_deg = ?c.rotations_deg(),
             "the arm calibrated (tool offset in the tip frame)"
         );
     }

@@ -119,8 +119,26 @@ const NEIGHBOURHOOD: f64 = 0.005;
 /// within a neighbourhood, the changes at a sim's restart went unseen (1 of 5 in a soak).
 const CHECK_REACH: f64 = 0.03;
 /// How wrong the configured arm's slope may be, as a fraction of what it predicts (another
-/// tool, a curvature that is not constant).
+/// tool, a curvature that is not constant), at least: more where the footprint's own samples
+/// show it more wrong ([`Footprint::slope_doubt`]).
 const SLOPE_DOUBT: f64 = 0.5;
+/// Two kept samples this far apart or nearer (normalised, Euclidean), and further than a
+/// neighbourhood, tell how well the configured arm's slope carries one to the other: the
+/// evidence of [`Footprint::slope_doubt`]. Wider than [`CHECK_REACH`], since samples are kept
+/// that far apart where nothing is checked; a linear carry over it misses by its curvature on
+/// the right arm, by 1 to 2 times what it carries on an arm whose tendons are turned from
+/// where `[arm]` has them.
+const EVIDENCE_REACH: f64 = 0.1;
+/// What a pair of samples carries by the slope, at least, to be evidence (m): under it the
+/// tracker's noise is the miss.
+const EVIDENCE_MIN_M: f64 = 0.004;
+/// Pairs below which the slope is not doubted beyond [`SLOPE_DOUBT`].
+const EVIDENCE_PAIRS: usize = 8;
+/// The doubt is this many times the median miss of the pairs: the median, not the largest,
+/// so that a few samples of another arm (kept while it moved, before a check saw the change)
+/// do not blind the checks; twice it, since a turned arm's slope misses by more in some
+/// directions than in others.
+const EVIDENCE_MARGIN: f64 = 2.0;
 /// Samples of a neighbourhood averaged, at most.
 const AVERAGED: u32 = 16;
 /// A sample is checked against the footprint only while the actuators move slower than this
@@ -140,6 +158,22 @@ const SPEED_GAP_NS: u64 = 2_000_000_000;
 const GAP_NS: u64 = 50_000_000;
 /// Samples kept for the speed: 80 ms at 200 Hz.
 const RECENT: usize = 16;
+/// The tracked point still moves when the means of the older and newer half of the last
+/// [`RECENT`] positions (within [`SWING_SPAN_NS`]) are further apart than this (m): an arm that
+/// swings and settles after its actuators stopped (a physical arm, not a kinematic sim) is
+/// not where its actuation puts it when still. About 0.05 m/s; the tracker's noise (0.5 mm
+/// per axis) moves the means by 0.4 mm.
+const SWING_M: f64 = 0.002;
+/// The positions of the swing test are this recent (ns); fewer than [`RECENT`] so recent say
+/// nothing of a swing.
+const SWING_SPAN_NS: u64 = 100_000_000;
+/// A point seen moving that moved within both the older and the newer half of those positions
+/// too (the means of each half's halves this far apart, m; 0.075 m/s) swings, and is taken to
+/// go on swinging this long (ns): at a swing's turning points it stands still a moment (a 2 Hz
+/// swing of 8 mm: long enough for a change to be concluded there). A step of the point (the
+/// arm changed, a sample of another moment) moves within one half alone.
+const SWING_RECENT_M: f64 = 0.0015;
+const SWING_HOLD_NS: u64 = 150_000_000;
 /// Checks of the arm remembered; this many of them disagreeing say the arm changed.
 const CHECKS: usize = 8;
 const DISAGREEING: usize = 6;
@@ -166,6 +200,12 @@ pub struct Footprint<const N: usize = ACTUATORS> {
     /// The last checks: when, and `true` where the arm disagreed with its footprint.
     checks: [(u64, bool); CHECKS],
     next_check: usize,
+    /// The last [`RECENT`] (stamp, position), for the swing test.
+    positions: Vec<(u64, Position)>,
+    /// When the tracked point was last seen swinging ([`SWING_RECENT_M`]).
+    swung_ns: Option<u64>,
+    /// [`Footprint::slope_doubt`] of the samples as they are, once worked out.
+    doubt: Option<f64>,
 }
 
 /// The arm's position at one neighbourhood of the actuation space: the average of the samples
@@ -201,6 +241,37 @@ impl<const N: usize> Footprint<N> {
         out
     }
 
+    /// How wrong the configured arm's slope is here, as a fraction of what it carries: at
+    /// least [`SLOPE_DOUBT`], more where carrying one kept sample to another missed by more
+    /// (the arm's tendons not where `[arm]` has them, the tracker's frame turned). Without it
+    /// such an arm, checked a little away from where it stood, read as an arm that keeps
+    /// changing (measured: a configured arm turned 180°, 61 changes in 20 executions).
+    pub fn slope_doubt(&self, arm: &impl ForwardModel<N>, threshold_m: f64) -> f64 {
+        let jacobians: Vec<_> = self
+            .samples
+            .iter()
+            .map(|s| arm.jacobian(&s.actuation))
+            .collect();
+        let mut misses = Vec::new();
+        for (i, s) in self.samples.iter().enumerate() {
+            for t in &self.samples[i + 1..] {
+                let d = actuation_distance(&s.actuation, &t.actuation);
+                if !(NEIGHBOURHOOD..=EVIDENCE_REACH).contains(&d) {
+                    continue;
+                }
+                let (off, moved) = s.carried_by(&jacobians[i], &t.actuation, &t.position);
+                if moved >= EVIDENCE_MIN_M {
+                    misses.push((off - threshold_m).max(0.0) / moved);
+                }
+            }
+        }
+        if misses.len() < EVIDENCE_PAIRS {
+            return SLOPE_DOUBT;
+        }
+        misses.sort_by(f64::total_cmp);
+        (EVIDENCE_MARGIN * misses[misses.len() / 2]).max(SLOPE_DOUBT)
+    }
+
     pub fn samples(&self) -> &[Sample<N>] {
         &self.samples
     }
@@ -227,7 +298,11 @@ impl<const N: usize> Footprint<N> {
         self.remember_before_gap(stamp_ns, actuation);
         self.last = Some((stamp_ns, *actuation, *position));
         let speed = self.speed(stamp_ns, actuation);
-        if speed >= SLOW_PER_S {
+        // A tracked point still swinging when the actuators stand still is not where its
+        // actuation puts it: neither kept nor checked, as a moving arm. (While they move, the
+        // point moves with them, and what is kept of a slowly moving arm stays kept.)
+        let swinging = self.swinging(stamp_ns, position);
+        if speed >= SLOW_PER_S || (swinging && speed < STILL_PER_S) {
             return Seen::Nothing;
         }
         let nearest = self
@@ -262,7 +337,11 @@ impl<const N: usize> Footprint<N> {
                 return Seen::Nothing;
             }
         };
-        let (off, allowed) = self.samples[i].compare(arm, threshold_m, actuation, position);
+        let doubt = match self.doubt {
+            Some(d) => d,
+            None => *self.doubt.insert(self.slope_doubt(arm, threshold_m)),
+        };
+        let (off, allowed) = self.samples[i].compare(arm, threshold_m, doubt, actuation, position);
         let differs = off > allowed;
         self.checks[self.next_check] = (stamp_ns, differs);
         self.next_check = (self.next_check + 1) % CHECKS;
@@ -279,9 +358,45 @@ impl<const N: usize> Footprint<N> {
             return Seen::Different(off);
         }
         self.samples.clear();
+        self.doubt = None;
         self.checks = [(0, false); CHECKS];
         self.keep(stamp_ns, actuation, position);
         Seen::Changed(off)
+    }
+
+    /// Whether the tracked point still moves (see [`SWING_M`]), whatever the actuators do:
+    /// a physical arm swings and settles after they stopped; and for [`SWING_HOLD_NS`] after
+    /// it swung ([`SWING_RECENT_M`]), over its turning points. Not known (false) with fewer
+    /// than [`RECENT`] positions within [`SWING_SPAN_NS`] and no swing held.
+    fn swinging(&mut self, stamp_ns: u64, position: &Position) -> bool {
+        self.positions
+            .retain(|(t, _)| *t <= stamp_ns && stamp_ns - t < SWING_SPAN_NS);
+        if self.positions.len() == RECENT {
+            self.positions.remove(0);
+        }
+        self.positions.push((stamp_ns, *position));
+        let held = self
+            .swung_ns
+            .is_some_and(|t| t <= stamp_ns && stamp_ns - t < SWING_HOLD_NS);
+        if self.positions.len() < RECENT {
+            return held;
+        }
+        let half = RECENT / 2;
+        let mean = |s: &[(u64, Position)]| -> Position {
+            std::array::from_fn(|d| s.iter().map(|(_, p)| p[d]).sum::<f64>() / s.len() as f64)
+        };
+        let (older, newer) = self.positions.split_at(half);
+        let moved = distance(&mean(older), &mean(newer)) > SWING_M;
+        // Moving over both halves: a step of the point moves within one of them alone.
+        let within = |s: &[(u64, Position)]| {
+            let (a, b) = s.split_at(s.len() / 2);
+            distance(&mean(a), &mean(b)) > SWING_RECENT_M
+        };
+        if moved && within(older) && within(newer) {
+            self.swung_ns = Some(stamp_ns);
+            return true;
+        }
+        moved || held
     }
 
     /// Recent checks (within [`CHECKS_KEPT_NS`] of `stamp_ns`) that disagreed. Older ones are
@@ -342,6 +457,7 @@ impl<const N: usize> Footprint<N> {
     }
 
     fn keep(&mut self, stamp_ns: u64, actuation: &[f64; N], position: &Position) {
+        self.doubt = None;
         if self.samples.len() >= FOOTPRINT_SAMPLES {
             self.samples.remove(0);
         }
@@ -357,22 +473,43 @@ impl<const N: usize> Footprint<N> {
 impl<const N: usize> Sample<N> {
     /// How far `position` is from where this sample says the arm is at `actuation`, and how
     /// far it may be: the sample carried to `actuation` by the configured arm's slope, within
-    /// `threshold_m` plus half of the distance carried (the configured arm is only roughly the
-    /// real one). Within a neighbourhood that is the threshold alone.
+    /// `threshold_m` plus `doubt` of the distance carried (the configured arm is only roughly
+    /// the real one, [`Footprint::slope_doubt`]). Within a neighbourhood that is the threshold
+    /// alone.
     fn compare(
         &self,
         arm: &impl ForwardModel<N>,
         threshold_m: f64,
+        doubt: f64,
+        actuation: &[f64; N],
+        position: &Position,
+    ) -> (f64, f64) {
+        let (off, moved) = self.carried(arm, actuation, position);
+        (off, threshold_m + doubt * moved)
+    }
+
+    /// How far `position` is from this sample carried to `actuation` by `arm`'s slope, and
+    /// how far it was carried (m).
+    fn carried(
+        &self,
+        arm: &impl ForwardModel<N>,
+        actuation: &[f64; N],
+        position: &Position,
+    ) -> (f64, f64) {
+        self.carried_by(&arm.jacobian(&self.actuation), actuation, position)
+    }
+
+    /// [`Sample::carried`] by the slope `j` at this sample.
+    fn carried_by(
+        &self,
+        j: &softarm_kinematics::forward::Jacobian<N>,
         actuation: &[f64; N],
         position: &Position,
     ) -> (f64, f64) {
         let da = nalgebra::SVector::<f64, N>::from_fn(|i, _| actuation[i] - self.actuation[i]);
-        let moved = arm.jacobian(&self.actuation) * da;
+        let moved = j * da;
         let predicted: Position = std::array::from_fn(|d| self.position[d] + moved[d]);
-        (
-            distance(&predicted, position),
-            threshold_m + SLOPE_DOUBT * moved.norm(),
-        )
+        (distance(&predicted, position), moved.norm())
     }
 
     /// Averages in another sample of the same neighbourhood: over the last [`AVERAGED`] or so,
@@ -597,5 +734,145 @@ mod tests {
         assert_eq!(k.visited(&[0.1, 0.0, -0.5]), None);
         let back = Corrections::from_points(&c, k.points());
         assert_eq!(back.points(), k.points());
+    }
+}
+
+#[cfg(test)]
+mod turned {
+    use super::*;
+    use rand::rngs::StdRng;
+    use rand::{RngExt, SeedableRng};
+    use softarm_sections::arm::ArmGeometry;
+    use softarm_space::Actuation;
+
+    const MS: u64 = 1_000_000;
+
+    /// The paper's arm sampled through `executions` of five postures and a rest, each
+    /// execution's postures a little off the last's (a learner's steps), moving between them
+    /// at 0.3 per s and holding 150 ms, with actuation and tracker noise, into `f` checked by
+    /// `configured`'s slope; from `t` (ns), returned at the end. Changes seen, and the
+    /// furthest off any check found the arm (m).
+    fn visit(
+        f: &mut Footprint,
+        configured: &ArmGeometry,
+        real: &ArmGeometry,
+        executions: usize,
+        t: &mut u64,
+    ) -> (usize, f64) {
+        let mut rng = StdRng::seed_from_u64(3);
+        let postures: Vec<Actuation> = (0..5)
+            .map(|_| std::array::from_fn(|_| rng.random_range(0.35..0.65)))
+            .collect();
+        let rest = [0.5; ACTUATORS];
+        let (mut changed, mut worst) = (0, 0.0f64);
+        let mut at = rest;
+        for e in 0..executions {
+            let mut targets = postures.clone();
+            for p in &mut targets {
+                for v in p.iter_mut() {
+                    *v += rng.random_range(-0.02..0.02) / (1.0 + e as f64);
+                }
+            }
+            targets.push(rest);
+            for target in targets {
+                let d = actuation_distance(&at, &target);
+                let steps = ((d / 0.3) / 0.005).ceil().max(1.0) as usize;
+                let from = at;
+                for k in 1..=steps + 30 {
+                    let s = (k as f64 / steps as f64).min(1.0);
+                    at = std::array::from_fn(|i| from[i] + s * (target[i] - from[i]));
+                    let a: Actuation =
+                        std::array::from_fn(|i| at[i] + rng.random_range(-0.001..0.001));
+                    let mut p = real.position(&a);
+                    for v in &mut p {
+                        *v += rng.random_range(-0.0008..0.0008);
+                    }
+                    *t += 5 * MS;
+                    match f.observe(configured, 0.004, *t, &a, &p) {
+                        Seen::Changed(off) => {
+                            changed += 1;
+                            worst = worst.max(off);
+                        }
+                        Seen::Different(off) => worst = worst.max(off),
+                        _ => {}
+                    }
+                }
+            }
+        }
+        (changed, worst)
+    }
+
+    /// A lab whose `[arm]` has the tendons turned from where they are (tendon 1 not where
+    /// the drawing puts it): the arm, visited again and again, is the same arm, never a
+    /// changed one (before: 2, 48 and 61 changes in 20 executions turned 60°, 120°, 180°);
+    /// and a tool 20 mm longer is still seen where the arm stood.
+    #[test]
+    fn an_arm_configured_with_its_tendons_turned_reads_as_the_same_arm() {
+        let real = ArmGeometry::default();
+        for turn in [60.0, 120.0, 180.0] {
+            let mut configured = real;
+            configured.module_rotation_deg = [turn, 60.0 + turn];
+            let mut f = Footprint::default();
+            let mut t = 0;
+            let (changed, worst) = visit(&mut f, &configured, &real, 20, &mut t);
+            assert_eq!(changed, 0, "turned {turn}°: off by up to {worst} m");
+            let doubt = f.slope_doubt(&configured, 0.004);
+            assert!(doubt > SLOPE_DOUBT, "turned {turn}°: {doubt}");
+            // Held at the rest posture as before, with a longer tool: seen.
+            let mut longer = real;
+            longer.tool_m += 0.02;
+            let rest = [0.5; ACTUATORS];
+            let seen: Vec<Seen> = (0..60)
+                .map(|k| {
+                    let at = t + (300 + 5 * k) * MS;
+                    f.observe(&configured, 0.004, at, &rest, &longer.position(&rest))
+                })
+                .collect();
+            assert!(
+                seen.iter().any(|s| matches!(s, Seen::Changed(_))),
+                "turned {turn}°: {seen:?}"
+            );
+        }
+        // The arm as configured: its slope is not doubted beyond the floor.
+        let mut f = Footprint::default();
+        let (changed, _) = visit(&mut f, &real, &real, 20, &mut 0);
+        assert_eq!(changed, 0);
+        assert_eq!(f.slope_doubt(&real, 0.004), SLOPE_DOUBT);
+    }
+
+    /// A tracked point that still swings after the actuators stopped is neither checked nor
+    /// kept: where a settled arm would be, the check would find it off.
+    #[test]
+    fn a_tip_still_swinging_is_not_compared_as_still() {
+        let real = ArmGeometry::default();
+        let mut f = Footprint::default();
+        let a = [0.4, 0.6, 0.5, 0.55, 0.45, 0.5];
+        let at = real.position(&a);
+        for k in 0..40u64 {
+            assert!(!matches!(
+                f.observe(&real, 0.004, k * 5 * MS, &a, &at),
+                Seen::Changed(_) | Seen::Different(_)
+            ));
+        }
+        // Away and back at 1 per s, the tip following, and at `a` the tip swings on ±8 mm at
+        // 2 Hz, decaying, the actuators still: never judged while it is far off.
+        let b: Actuation = std::array::from_fn(|i| a[i] + 0.04);
+        let mut t = 200 * MS;
+        for k in (0..=20).chain((0..=20).rev()) {
+            let x: Actuation = std::array::from_fn(|i| a[i] + k as f64 / 20.0 * (b[i] - a[i]));
+            t += 5 * MS;
+            f.observe(&real, 0.004, t, &x, &real.position(&x));
+        }
+        let mut different = 0;
+        for k in 0..200u64 {
+            let s = k as f64 * 0.005;
+            let swing = 0.008 * (-s / 0.6).exp() * (2.0 * std::f64::consts::PI * 2.0 * s).cos();
+            let p = [at[0] + swing, at[1], at[2]];
+            let seen = f.observe(&real, 0.004, t + (5 + 5 * k) * MS, &a, &p);
+            assert!(!matches!(seen, Seen::Changed(_)), "at {s} s");
+            different += usize::from(matches!(seen, Seen::Different(_)));
+        }
+        // Only at its turning points, where it stands still for a moment.
+        assert!(different < 12, "{different}");
     }
 }

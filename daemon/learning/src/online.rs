@@ -669,8 +669,7 @@ impl<const N: usize> OnlineLearner<N> {
     /// then 75 mm at the second execution).
     fn calibrate_if_grown(&mut self) -> bool {
         let samples = self.footprint.current().count();
-        if samples >= CALIBRATION_SAMPLES
-            && samples >= self.calibrated.samples + CALIBRATION_SAMPLES
+        if samples >= CALIBRATION_SAMPLES && samples >= self.calibrated.tried + CALIBRATION_SAMPLES
         {
             self.recalibrate();
         }
