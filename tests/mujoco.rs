@@ -5,7 +5,6 @@
 //! `.ci/run` runs these with the feature (`--features mujoco --test e2e mujoco`).
 
 use std::path::Path;
-use std::time::Duration;
 
 use softarm_config::plant::Plant;
 use softarm_test_support::{TestStack, config_text};
@@ -45,6 +44,7 @@ mod with_mujoco {
     use softarm_ipc::{Actuators, DriverState, MotorState, Namespace, Node, Setpoint};
     use softarm_runtime::now_ns;
     use softarm_test_support::eventually;
+    use std::time::Duration;
 
     /// The newest of a subscriber's samples, if any came.
     fn newest<T: Copy + std::fmt::Debug + softarm_ipc::iceoryx2::prelude::ZeroCopySend>(
