@@ -638,6 +638,34 @@ mod tests {
     }
 
     /// The sim's arm and settings on `name` at the defaults.
+    /// A scenario changes a MuJoCo plant's gravity and tip load, only on a sim that runs one,
+    /// and nothing else of it.
+    #[test]
+    fn a_scenario_changes_a_mujoco_plants_gravity_and_load_and_nothing_else() {
+        let text = "[sim.mujoco]\ngravity_m_s2 = [0.0, 0.0, -9.81]\nload = { from_s = 60.0, \
+                    force_n = [0.25, 0.0, 0.0] }\n";
+        let s = Scenario::parse(text, "load", "test").unwrap();
+        assert!(s.changes_mujoco() && s.changes_over_time() && !s.is_nominal());
+        let arm = ArmConfig::default();
+        let mujoco = SimConfig {
+            mujoco: Some(MujocoConfig::default()),
+            ..SimConfig::default()
+        };
+        let on = s.apply_to(&arm, &mujoco).unwrap();
+        let m = on.sim.mujoco.unwrap();
+        assert_eq!(m.gravity_m_s2, Some([0.0, 0.0, -9.81]));
+        assert_eq!(m.load.unwrap().force_n, [0.25, 0.0, 0.0]);
+        assert_eq!(m.tip_site, MujocoConfig::default().tip_site);
+        let e = s.apply_to(&arm, &SimConfig::default()).unwrap_err();
+        assert!(e.message.contains("runs its own kinematics"), "{e}");
+        let e = Scenario::parse("[sim.mujoco]\nmodel = \"x.xml\"\n", "m", "test").unwrap_err();
+        assert!(
+            e.message
+                .starts_with("sim.mujoco.model: a scenario changes"),
+            "{e}"
+        );
+    }
+
     fn sim_of(name: &str) -> (ArmGeometry, SimConfig) {
         Scenario::resolve(name)
             .unwrap()

@@ -288,3 +288,25 @@ fn log_step(config: &SimConfig, plant: &Plant, in_force: &mut Option<usize>) {
         );
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::time::Duration;
+
+    /// A physics step longer than its period is counted (never silently), the first (its
+    /// settling) is not, and a plant without physics counts none.
+    #[test]
+    fn a_physics_step_longer_than_its_period_is_counted() {
+        let mut pace = Pace::new(200.0, Some("a model".into()));
+        for took_ms in [300, 1, 6, 4, 12] {
+            pace.stepped(Duration::from_millis(took_ms), 0);
+        }
+        assert_eq!((pace.steps, pace.slow), (5, 2));
+        let mut kinematics = Pace::new(200.0, None);
+        for _ in 0..3 {
+            kinematics.stepped(Duration::from_millis(50), 1);
+        }
+        assert_eq!((kinematics.slow, kinematics.missed), (0, 3));
+    }
+}
