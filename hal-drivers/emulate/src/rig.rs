@@ -126,7 +126,7 @@ impl Rig {
                     .spawn(move || step_physics(physics, n, actuation, &seen, &stopping))?,
             );
             let pose: Pose = Arc::new(move || (frame.to_tracker(*tip.lock().unwrap()), [0.0; 3]));
-            return Self::serving(config, tendon_paths, buses, stop, threads, pose, tracker);
+            return Self::serving(tendon_paths, buses, stop, threads, pose, tracker);
         }
         let pose: Pose = {
             // Where the last actuation put the tip, for an actuation whose arcs the model
@@ -141,12 +141,11 @@ impl Rig {
                 (frame.to_tracker(*last), [0.0; 3])
             })
         };
-        Self::serving(config, tendon_paths, buses, stop, threads, pose, tracker)
+        Self::serving(tendon_paths, buses, stop, threads, pose, tracker)
     }
 
     /// The rig of the motor buses started, its tracker serving `pose`.
     fn serving(
-        _config: &Config,
         tendon_paths: Vec<std::path::PathBuf>,
         buses: Vec<Arc<Mutex<dynamixel::Bus>>>,
         stop: Arc<AtomicBool>,

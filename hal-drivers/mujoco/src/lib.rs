@@ -18,7 +18,7 @@
 //! Empty without its `physics` feature, which links MuJoCo (decision 0011).
 #![cfg(feature = "physics")]
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::Arc;
 
 use mujoco_rs::prelude::*;
@@ -464,10 +464,4 @@ fn rotation_of(deg: [f64; 3]) -> [[f64; 3]; 3] {
 
 fn mul(a: [[f64; 3]; 3], b: [[f64; 3]; 3]) -> [[f64; 3]; 3] {
     std::array::from_fn(|r| std::array::from_fn(|c| (0..3).map(|k| a[r][k] * b[k][c]).sum()))
-}
-
-/// Where a relative `sim.mujoco.model` is found: `base_dir` joined, as every relative path of a
-/// config.
-pub fn model_path(config: &MujocoConfig, base_dir: &Path) -> Option<PathBuf> {
-    config.model.as_ref().map(|m| base_dir.join(m))
 }

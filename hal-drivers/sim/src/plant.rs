@@ -306,14 +306,18 @@ impl Plant {
     pub fn step(&mut self, command: &[f64], dt: f64) -> Measurement {
         let r = self.realism;
         self.time += dt;
-        if let Body::Paper(arm) = &self.body
+        // Physics of its own takes its changes itself (softarm-mujoco): no kinematics to move.
+        if self.physics.is_none()
+            && let Body::Paper(arm) = &self.body
             && !self.changes.is_empty()
         {
             let now = self.changes.arm_at(arm, self.time);
             self.geometry = Some(now);
             self.kinematics = pcc::Arm::of_geometry(&now);
         }
-        if let Some(now) = self.body.drifted_at(self.time, &self.changes.drift) {
+        if self.physics.is_none()
+            && let Some(now) = self.body.drifted_at(self.time, &self.changes.drift)
+        {
             self.kinematics = now;
         }
         self.actuate(command, dt);
