@@ -647,6 +647,8 @@ fn put_arm<const N: usize>(t: &mut Tensors, arm: &ArmState<N>) {
     let positions: Vec<f64> = arm.footprint.iter().flat_map(|s| s.position).collect();
     t.put_u64("arm.footprint.stamps", &stamps);
     t.put_u64("arm.footprint.counts", &counts);
+    let settled: Vec<u64> = arm.footprint.iter().map(|s| u64::from(s.settled)).collect();
+    t.put_u64("arm.footprint.settled", &settled);
     t.put_f64("arm.footprint.actuations", &[m, N], &actuations);
     t.put_f64("arm.footprint.positions", &[m, 3], &positions);
 }
@@ -679,6 +681,17 @@ fn get_arm<const N: usize>(t: &Tensors) -> Result<ArmState<N>, String> {
             stamps.len()
         ));
     }
+    // Written before samples of an arm that lags were kept apart: all of them settled.
+    let settled = match t.has("arm.footprint.settled") {
+        true => t.u64s("arm.footprint.settled")?,
+        false => vec![1; stamps.len()],
+    };
+    if settled.len() != stamps.len() || settled.iter().any(|v| *v > 1) {
+        return Err(format!(
+            "arm.footprint.settled must be {} flags of 0 or 1",
+            stamps.len()
+        ));
+    }
     if let Some(v) = actuations.iter().find(|v| !(0.0..=1.0).contains(*v)) {
         return Err(format!("a footprint actuation of {v} is outside [0, 1]"));
     }
@@ -692,6 +705,7 @@ fn get_arm<const N: usize>(t: &Tensors) -> Result<ArmState<N>, String> {
                     .ok()
                     .filter(|c| *c >= 1)
                     .ok_or_else(|| format!("a footprint count of {}", counts[i]))?,
+                settled: settled[i] == 1,
             })
         })
         .collect::<Result<_, String>>()?;
@@ -814,12 +828,22 @@ mod tests {
                 target: [0.1, 0.0, -0.45],
                 estimate: [0.41, 0.48, 0.6, 0.53, 0.5, 0.44],
             }],
-            footprint: vec![Sample {
-                stamp_ns: 123_456_789_012,
-                actuation: [0.4, 0.5, 0.6, 0.5, 0.5, 0.45],
-                position: [0.1, 0.01, -0.46],
-                count: 7,
-            }],
+            footprint: vec![
+                Sample {
+                    stamp_ns: 123_456_789_012,
+                    actuation: [0.4, 0.5, 0.6, 0.5, 0.5, 0.45],
+                    position: [0.1, 0.01, -0.46],
+                    count: 7,
+                    settled: true,
+                },
+                Sample {
+                    stamp_ns: 123_456_789_013,
+                    actuation: [0.5, 0.5, 0.6, 0.5, 0.5, 0.45],
+                    position: [0.11, 0.01, -0.46],
+                    count: 1,
+                    settled: false,
+                },
+            ],
         };
         write_checkpoint(&dir, &m.learner, &arm, &id).unwrap();
         let back = read_checkpoint(&dir).unwrap();
