@@ -934,10 +934,15 @@ fn the_hardware_stack_executes_a_set_through_softarm_emulate() {
 /// tendon, ids 11 to 19, each with its own direction; 20 mm of stroke on a 5 mm spool.
 fn tdcr(text: String) -> String {
     let arm = softarm_config::arms::resolve("tdcr").unwrap();
-    let text = softarm_config::arms::with_arm(&text, &arm, "tdcr").unwrap();
+    nine_motors(&softarm_config::arms::with_arm(&text, &arm, "tdcr").unwrap())
+}
+
+/// `text`'s `[tendon]` with nine motors, ids 11 to 19, each with its own direction; 20 mm of
+/// stroke on a 5 mm spool.
+pub(crate) fn nine_motors(text: &str) -> String {
     let list = |v: Vec<toml::Value>| toml::Value::Array(v);
     softarm_test_support::with_overrides(
-        &text,
+        text,
         &[
             (
                 "tendon.ids",

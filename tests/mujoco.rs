@@ -119,6 +119,80 @@ mod with_mujoco {
         assert!(held.position[0] > 0.02, "{:?}", held.position);
     }
 
+    /// The lab's model behind emulated devices, as `softarm emulate` runs it for a config with
+    /// `[sim.mujoco]`: the real tendon and tracker drivers close the loop through MuJoCo. The
+    /// nine motors engage where they stand, the tracker reads the straight arm where the model
+    /// has it (230 mm over the base, through the tracker's frame and hemisphere; the arm's PCC
+    /// would put it at 233), and a tendon
+    /// the driver pulls bends the arm towards it.
+    #[test]
+    fn mujoco_the_real_drivers_drive_a_labs_model_behind_emulated_devices() {
+        use crate::hardware::{eventually, nine_motors, send_each, watch};
+        use softarm_emulate::rig::Rig;
+        use softarm_test_support::Devices;
+
+        let plant = ftdcr(|_| {});
+        let (s, _, rig) = TestStack::with_devices_for(
+            BIN,
+            "mujoco-emulated",
+            Devices::Shared,
+            |text| {
+                // The arm stands: the sensor stays below the transmitter, on its +z side. Its
+                // 26 mm strokes on 10 mm spools.
+                let spools = toml::Value::Array(vec![0.01.into(); 9]);
+                softarm_test_support::with_overrides(
+                    &nine_motors(&plant.into_config(&text).unwrap()),
+                    &[
+                        ("tracker.hemisphere", "lower".into()),
+                        ("tendon.spool_radius_m", spools),
+                    ],
+                )
+            },
+            |c| {
+                let mujoco = c.sim.mujoco.as_ref().expect("the plant's [sim.mujoco]");
+                let arm = softarm_mujoco::MujocoArm::new(mujoco, &c.arm, &c.arm, &[], &c.base_dir)
+                    .unwrap();
+                let rig = Rig::start_with(c, 0.5, Some(Box::new(arm))).unwrap();
+                let (tendon, tracker) = (rig.tendon_path().into(), rig.tracker_path().into());
+                (rig, tendon, tracker)
+            },
+        );
+        watch(&rig);
+        let n = Node::open(Namespace::new(&s.namespace).unwrap(), "test").unwrap();
+        let setpoints = n.publisher(&n.setpoint().unwrap()).unwrap();
+        let motors = n.subscriber(&n.motor_state().unwrap()).unwrap();
+        let tracker = n.subscriber(&n.tracker().unwrap()).unwrap();
+        let _tendon = s.spawn(&["tendon"]);
+        let _tracker = s.spawn(&["tracker"]);
+
+        let rest = [0.5; 9];
+        eventually("nine motors FOLLOWING at rest", || {
+            send_each(&setpoints, &rest);
+            std::thread::sleep(Duration::from_millis(10));
+            newest(&motors).filter(|m| {
+                m.driver_state() == Some(DriverState::Following) && m.actuation.len() == 9
+            })
+        });
+        let straight = eventually("the straight arm on the tracker", || {
+            send_each(&setpoints, &rest);
+            std::thread::sleep(Duration::from_millis(10));
+            newest(&tracker).filter(|t| (t.position[2] - 0.230).abs() < 0.0015)
+        });
+        assert!(
+            straight.position[0].abs() < 0.003 && straight.position[1].abs() < 0.003,
+            "{:?}",
+            straight.position
+        );
+        let mut bend = rest;
+        bend[0] = 0.1;
+        let bent = eventually("the arm bent by tendon 1", || {
+            send_each(&setpoints, &bend);
+            std::thread::sleep(Duration::from_millis(10));
+            newest(&tracker).filter(|t| t.position[0] > 0.03)
+        });
+        assert!(bent.position[1].abs() < 0.015, "{:?}", bent.position);
+    }
+
     /// A map onto an actuator the model has not: the sim stops as on a bad config (78, not
     /// restarted), naming the key and the model's actuators.
     #[test]
