@@ -16,6 +16,9 @@ use softarm_space::Workspace;
 /// (its Jacobians, corrections and critic scale with the error), and the checkpoint with it.
 const REACH_MARGIN_M: f64 = 0.25;
 
+/// An arm judged this long or longer after its actuators stopped (s) is said to be so, once.
+const SETTLING_SAID_S: f64 = 0.1;
+
 /// An [`OnlineLearner<N>`] at the conditioning points of the sets the controller runs. What does
 /// not fit is refused, counted and logged, naming what was wrong; nothing else changes then.
 pub struct Learner<const N: usize> {
@@ -31,6 +34,9 @@ pub struct Learner<const N: usize> {
     arm_changes: u64,
     /// The calibrated arm last logged: the samples its fit was tried on.
     calibrated_logged: usize,
+    /// `controller.rest_s`, and how long the arm must stand still to be judged as last logged.
+    rest_s: f64,
+    judged_after_logged: f64,
 }
 
 impl<const N: usize> Learner<N> {
@@ -48,6 +54,8 @@ impl<const N: usize> Learner<N> {
             refused: 0,
             calibrated_logged: 0,
             arm_changes: 0,
+            rest_s: config.controller.rest_s,
+            judged_after_logged: 0.0,
         }
     }
 
@@ -65,7 +73,9 @@ impl<const N: usize> Learner<N> {
         measured: &[f64; N],
         position: &Position,
     ) -> Vec<ActuationEstimate> {
-        let off = match self.online.observe_arm(stamp_ns, measured, position) {
+        let seen = self.online.observe_arm(stamp_ns, measured, position);
+        self.say_settling();
+        let off = match seen {
             Seen::Changed(off) => off,
             Seen::Different(off) => {
                 tracing::debug!(off_mm = off * 1e3, "the arm is not where it was");
@@ -89,6 +99,34 @@ impl<const N: usize> Learner<N> {
                 estimate(self.set_id, point, self.next_execution(point), a)
             })
             .collect()
+    }
+
+    /// Says how long a physical arm goes on moving after its actuators stop, when first seen
+    /// and when it grew by half: an operator whose arm never rests that long between
+    /// executions learns why the learner neither checks it for changes nor calibrates it.
+    fn say_settling(&mut self) {
+        let Some(after) = self.online.judged_after_s() else {
+            return;
+        };
+        if after < SETTLING_SAID_S || after <= 1.5 * self.judged_after_logged {
+            return;
+        }
+        self.judged_after_logged = after;
+        if after < self.rest_s {
+            tracing::info!(
+                judged_after_s = after,
+                "the arm goes on moving after its actuators stop: it is judged only once they \
+                 stood still this long"
+            );
+        } else {
+            tracing::warn!(
+                judged_after_s = after,
+                rest_s = self.rest_s,
+                "the arm goes on moving after its actuators stop for longer than it rests \
+                 between executions (controller.rest_s): between them it is neither checked \
+                 for changes nor calibrated on where it stands; a longer rest_s lets it settle"
+            );
+        }
     }
 
     pub fn online(&self) -> &OnlineLearner<N> {

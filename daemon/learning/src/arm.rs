@@ -318,6 +318,13 @@ impl<const N: usize> Footprint<N> {
         &self.samples
     }
 
+    /// How long the actuators must stand still before the arm is judged (s): as long as it was
+    /// seen to go on moving after they stopped, with a margin; 0 for an arm that follows them.
+    /// None until it was seen still long enough to know.
+    pub fn judged_after_s(&self) -> Option<f64> {
+        self.settle_ns.map(|s| s as f64 * 1e-9 * SETTLE_MARGIN)
+    }
+
     /// The samples that still tell where the arm is: within [`FOOTPRINT_AGE_NS`] of the newest
     /// (an arm creeps; what it did an hour ago is another arm's).
     pub fn current(&self) -> impl Iterator<Item = &Sample<N>> {
@@ -787,12 +794,15 @@ mod tests {
         let model = ArmGeometry::default();
         let mut f = Footprint::default();
         let a = [0.4, 0.6, 0.5, 0.55, 0.45, 0.5];
-        let seen = hold(&mut f, &model, &a, 0, 200);
+        assert_eq!(f.judged_after_s(), None);
+        let seen = hold(&mut f, &model, &a, 0, 400);
         assert!(seen.iter().all(|s| *s != Seen::Changed(0.0)));
         assert!(seen.contains(&Seen::Same), "{seen:?}");
+        // It follows its actuators: judged as soon as they stand still.
+        assert_eq!(f.judged_after_s(), Some(0.0));
         // Nearby, still the same arm.
         let b: Actuation = std::array::from_fn(|i| a[i] + 0.001);
-        let seen = hold(&mut f, &model, &b, 300 * MS, 200);
+        let seen = hold(&mut f, &model, &b, 500 * MS, 200);
         assert!(
             seen.iter().all(|s| matches!(s, Seen::Same | Seen::Nothing)),
             "{seen:?}"
@@ -802,7 +812,7 @@ mod tests {
             tool_m: model.tool_m + 0.02,
             ..model
         };
-        let seen = hold(&mut f, &tool, &a, 600 * MS, 200);
+        let seen = hold(&mut f, &tool, &a, 800 * MS, 200);
         let changed = seen
             .iter()
             .position(|s| matches!(s, Seen::Changed(_)))
@@ -1124,6 +1134,8 @@ mod settling {
         let (changed, worst) = lagging(&mut f, &arm, 0.3, 2_500, &mut t);
         assert_eq!(changed, 0);
         assert!(f.samples().iter().any(|s| s.settled));
+        let after = f.judged_after_s().unwrap();
+        assert!((0.4..2.0).contains(&after), "judged after {after} s");
         assert!(
             worst < 0.003,
             "a sample kept {worst} m from the settled arm"

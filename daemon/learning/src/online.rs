@@ -350,6 +350,11 @@ impl<const N: usize> OnlineLearner<N> {
         seen
     }
 
+    /// How long the arm must stand still before it is judged (s; [`Footprint::judged_after_s`]).
+    pub fn judged_after_s(&self) -> Option<f64> {
+        self.footprint.judged_after_s()
+    }
+
     /// The exploration-free estimate of every point of the running set whose target is known:
     /// what a set's first execution runs, and what replaces a changed arm's estimates.
     pub fn first_estimates(&mut self) -> Vec<(usize, [f64; N])> {
