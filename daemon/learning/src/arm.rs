@@ -176,10 +176,10 @@ const SWING_RECENT_M: f64 = 0.0015;
 const SWING_HOLD_NS: u64 = 150_000_000;
 /// The tracked point creeps when, over the last [`CREEP_SPAN_NS`] of still actuators, the
 /// means of its first, middle and last [`CREEP_END_NS`] each moved more than this from the one
-/// before, beyond what the actuators' own motion moved it (m): a physical arm whose joints are damped goes on moving for a second after its
-/// actuators stopped (the lab's MuJoCo TDCR: 83 mm from a tendon's step 0.1 s after it, 102 at
-/// 1 s, 105 at 3 s), spread over the whole span, where a step of the point (the arm changed)
-/// moves within one part alone. The tracker's noise (0.5 mm per axis) moves a mean of 15
+/// before, beyond what the actuators' own motion moved it (m): a physical arm whose joints are
+/// damped goes on moving for a second after its actuators stopped (the lab's MuJoCo TDCR: 83 mm
+/// from a tendon's step 0.1 s after it, 102 at 1 s, 105 at 3 s), spread over the whole span,
+/// where a step of the point (the arm changed) moves within one part alone. The tracker's noise (0.5 mm per axis) moves a mean of 15
 /// samples by about 0.2 mm.
 const CREEP_M: f64 = 0.0008;
 const CREEP_SPAN_NS: u64 = 250_000_000;
@@ -484,8 +484,7 @@ impl<const N: usize> Footprint<N> {
                     // First seen to lag its actuators: what was kept of it as if it followed
                     // them (while they moved, or just stopped) is where it was on its way.
                     self.samples.iter_mut().for_each(|s| s.settled = false);
-                    self.doubt = None;
-                    self.checks = [(0, false); CHECKS];
+                    self.unchecked();
                 }
                 self.settle_ns = Some(self.settle_ns.unwrap_or(0).max(still_for));
             }
@@ -528,10 +527,7 @@ impl<const N: usize> Footprint<N> {
         // What the tip did beyond what the actuators' own last motion moves it by.
         let j = arm.jacobian(&a.0);
         let beyond = |from: &([f64; N], Position), to: &([f64; N], Position)| {
-            let da = nalgebra::SVector::<f64, N>::from_fn(|i, _| to.0[i] - from.0[i]);
-            let moved = j * da;
-            let p: Position = std::array::from_fn(|d| from.1[d] + moved[d]);
-            distance(&p, &to.1)
+            carried(&j, (&from.0, &from.1), (&to.0, &to.1)).0
         };
         Some(beyond(&a, &b) > CREEP_M && beyond(&b, &c) > CREEP_M)
     }
@@ -545,6 +541,11 @@ impl<const N: usize> Footprint<N> {
     /// Nothing kept, nothing checked: the footprint starts over.
     fn forget(&mut self) {
         self.samples.clear();
+        self.unchecked();
+    }
+
+    /// No check remembered, the slope's doubt to be worked out again.
+    fn unchecked(&mut self) {
         self.doubt = None;
         self.checks = [(0, false); CHECKS];
     }
@@ -684,10 +685,7 @@ impl<const N: usize> Sample<N> {
         actuation: &[f64; N],
         position: &Position,
     ) -> (f64, f64) {
-        let da = nalgebra::SVector::<f64, N>::from_fn(|i, _| actuation[i] - self.actuation[i]);
-        let moved = j * da;
-        let predicted: Position = std::array::from_fn(|d| self.position[d] + moved[d]);
-        (distance(&predicted, position), moved.norm())
+        carried(j, (&self.actuation, &self.position), (actuation, position))
     }
 
     /// Averages in another sample of the same neighbourhood: over the last [`AVERAGED`] or so,
@@ -704,6 +702,19 @@ impl<const N: usize> Sample<N> {
         }
         self.stamp_ns = stamp_ns;
     }
+}
+
+/// How far the arm at `to` is from the arm at `from` carried there by the slope `j`, and how far
+/// the slope carried it (m); each an (actuation, position).
+fn carried<const N: usize>(
+    j: &softarm_kinematics::forward::Jacobian<N>,
+    from: (&[f64; N], &Position),
+    to: (&[f64; N], &Position),
+) -> (f64, f64) {
+    let da = nalgebra::SVector::<f64, N>::from_fn(|i, _| to.0[i] - from.0[i]);
+    let moved = j * da;
+    let predicted: Position = std::array::from_fn(|d| from.1[d] + moved[d]);
+    (distance(&predicted, to.1), moved.norm())
 }
 
 pub(crate) fn actuation_distance<const N: usize>(a: &[f64; N], b: &[f64; N]) -> f64 {
