@@ -856,11 +856,21 @@ mod tests {
         put_learner(&mut t, &m.learner);
         assert_eq!(get_arm::<6>(&t), Ok(ArmState::default()));
         // A broken one is refused, saying what is wrong.
-        let mut broken = arm;
+        let mut broken = arm.clone();
         broken.footprint[0].actuation[2] = 1.5;
         put_arm(&mut t, &broken);
         let e = get_arm::<6>(&t).unwrap_err();
         assert!(e.contains("1.5 is outside [0, 1]"), "{e}");
+        // Settled flags that are not one 0 or 1 per sample; none at all reads as settled.
+        put_arm(&mut t, &arm);
+        t.put_u64("arm.footprint.settled", &[1, 2]);
+        let e = get_arm::<6>(&t).unwrap_err();
+        assert!(
+            e.contains("arm.footprint.settled must be 2 flags of 0 or 1"),
+            "{e}"
+        );
+        t.put_u64("arm.footprint.settled", &[1]);
+        assert!(get_arm::<6>(&t).is_err());
         fs::remove_dir_all(&dir).unwrap();
     }
 
