@@ -179,8 +179,8 @@ const SWING_HOLD_NS: u64 = 150_000_000;
 /// before, beyond what the actuators' own motion moved it (m): a physical arm whose joints are
 /// damped goes on moving for a second after its actuators stopped (the lab's MuJoCo TDCR: 83 mm
 /// from a tendon's step 0.1 s after it, 102 at 1 s, 105 at 3 s), spread over the whole span,
-/// where a step of the point (the arm changed) moves within one part alone. The tracker's noise (0.5 mm per axis) moves a mean of 15
-/// samples by about 0.2 mm.
+/// where a step of the point (the arm changed) moves within one part alone. The tracker's
+/// noise (0.5 mm per axis) moves a mean of 15 samples by about 0.2 mm.
 const CREEP_M: f64 = 0.0008;
 const CREEP_SPAN_NS: u64 = 250_000_000;
 const CREEP_END_NS: u64 = 75_000_000;
@@ -188,8 +188,10 @@ const CREEP_END_NS: u64 = 75_000_000;
 const CREEP_POSITIONS: usize = 100;
 /// Actuators that moved further than this over the span (normalised, Euclidean; still, they
 /// may still creep to their setpoints) leave the creep test unknown: it takes away what their
-/// motion moves the tip by the configured arm's slope, which is only roughly the arm's.
-const SETTLING_REACH: f64 = 0.01;
+/// motion moves the tip by the configured arm's slope, which is only roughly the arm's (at
+/// 0.01, a sim of a twisted arm settling its actuators read as an arm that creeps for 2 s).
+/// About three times what the actuators' noise moves the span's means by.
+const SETTLING_REACH: f64 = 0.003;
 /// The arm settles within this long (ns) or is taken to creep for good (drift, not settling):
 /// creep seen later than this after the actuators stopped is not the arm's settling time.
 const SETTLE_MAX_NS: u64 = 3_000_000_000;
@@ -571,6 +573,14 @@ impl<const N: usize> Footprint<N> {
             return;
         };
         let gap = stamp_ns.saturating_sub(t) >= GAP_NS;
+        if gap {
+            // What the tip does across a gap (a driver restarted, the arm changed meanwhile)
+            // is no settling of the arm: the creep test starts over after it (measured: a sim
+            // restarted as another arm read as an arm that creeps for 2 s, and no change was
+            // seen after).
+            self.still_since = None;
+            self.settling.clear();
+        }
         // A restarted sim starts at the held setpoint, a few thousandths from where the
         // lagging actuators were.
         let near = actuation_distance(&a, actuation) <= CHECK_REACH;
