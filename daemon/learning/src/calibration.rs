@@ -205,6 +205,25 @@ impl<const N: usize> CalibratedArm<N> {
         Slots::of(&self.configured).count()
     }
 
+    /// Each parameter's prior variance: how far the arm plausibly departs from the configured
+    /// one along it (squared, in the parameter's own unit).
+    pub fn prior_variances(&self) -> DVector<f64> {
+        let slots = Slots::of(&self.configured);
+        DVector::from_fn(slots.count(), |k, _| slots.prior(k).powi(2))
+    }
+
+    /// How the tracked point moves at `a` per unit of each parameter (3 × parameters): what a
+    /// departure of the arm's parameters does there.
+    pub fn sensitivity(&self, a: &[f64; N]) -> DMatrix<f64> {
+        let slots = Slots::of(&self.configured);
+        let mut g = DMatrix::zeros(3, slots.count());
+        for q in 0..slots.count() {
+            let col = sensitivity(&self.configured, &self.theta, a, q);
+            g.set_column(q, &col);
+        }
+        g
+    }
+
     /// The parameters that explain `samples` (measured actuation, tracked position) best
     /// within the prior: damped Gauss-Newton (Levenberg-Marquardt) on
     /// Σ ‖p − f(a; θ)‖² / σ² + Σ (θ_k / prior_k)². With few samples or ones that do not tell
@@ -447,18 +466,11 @@ fn normal_equations<const N: usize>(
     let k = slots.count();
     let mut jtj = DMatrix::<f64>::identity(k, k);
     let mut jtr = DVector::<f64>::from_fn(k, |p, _| -(theta[p] - centre[p]) / slots.prior(p));
-    const H: f64 = 1e-4;
     for (a, p) in samples {
         let f = position(configured, theta, a);
         let r = Vector3::from_fn(|d, _| (p[d] - f[d]) / SAMPLE_SIGMA_M);
         let cols: Vec<Vector3<f64>> = (0..k)
-            .map(|q| {
-                let (mut up, mut down) = (*theta, *theta);
-                up[q] += H * slots.prior(q);
-                down[q] -= H * slots.prior(q);
-                let (u, d) = (position(configured, &up, a), position(configured, &down, a));
-                Vector3::from_fn(|i, _| (u[i] - d[i]) / (2.0 * H) / SAMPLE_SIGMA_M)
-            })
+            .map(|q| sensitivity(configured, theta, a, q) * (slots.prior(q) / SAMPLE_SIGMA_M))
             .collect();
         for q in 0..k {
             jtr[q] += cols[q].dot(&r);
@@ -468,6 +480,22 @@ fn normal_equations<const N: usize>(
         }
     }
     (jtj, jtr)
+}
+
+/// ∂p/∂θ_q at `a` (per unit of θ_q), by central differences of a ten-thousandth of its prior.
+fn sensitivity(
+    configured: &pcc::Arm,
+    theta: &[f64; MAX_PARAMETERS],
+    a: &[f64],
+    q: usize,
+) -> Vector3<f64> {
+    const H: f64 = 1e-4;
+    let h = H * Slots::of(configured).prior(q);
+    let (mut up, mut down) = (*theta, *theta);
+    up[q] += h;
+    down[q] -= h;
+    let (u, d) = (position(configured, &up, a), position(configured, &down, a));
+    Vector3::from_fn(|i, _| (u[i] - d[i]) / (2.0 * h))
 }
 
 #[cfg(test)]

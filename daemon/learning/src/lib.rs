@@ -13,8 +13,11 @@
 //!   corrections of the visited points, and the footprint that says when the arm has changed.
 //! - [`calibration`] — the configured arm fitted to the footprint: what carries a changed
 //!   arm to targets never visited.
+//! - [`within`] — what the running execution's points show of the arm, for the points still
+//!   to come in it.
 
 pub mod arm;
 pub mod cacla;
 pub mod calibration;
 pub mod online;
+pub mod within;
