@@ -17,7 +17,8 @@ pub fn late_estimates(s: &ExecutionStats) -> u32 {
 
 /// One JSON object per execution: `execution`, `errors_mm` (`null` for a point the tracker
 /// did not see), `mean_mm`, `max_mm` (of the points seen), `unseen` ([`ExecutionStats::unseen`]),
-/// `reconditions` (estimates applied during it), `late_estimates` ([`late_estimates`]), and
+/// `reconditions` (estimates applied during it), `late_estimates` ([`late_estimates`]),
+/// `within` (per point: whether it ran on an estimate corrected within the execution), and
 /// the set.
 pub fn json_line(s: &ExecutionStats) -> String {
     serde_json::json!({
@@ -30,6 +31,7 @@ pub fn json_line(s: &ExecutionStats) -> String {
         "unseen": s.unseen(),
         "reconditions": s.reconditions,
         "late_estimates": late_estimates(s),
+        "within": (0..s.errors().len()).map(|n| s.corrected_within(n)).collect::<Vec<_>>(),
     })
     .to_string()
 }
@@ -45,6 +47,7 @@ pub fn from_json(v: &serde_json::Value) -> Option<ExecutionStats> {
         executions: u("executions")? as u32,
         count: u("count")? as u32,
         reconditions: u("reconditions")? as u32,
+        within: u("within").unwrap_or(0) as u32,
         mean_m: v["mean_m"].as_f64().unwrap_or(f64::NAN),
         max_m: v["max_m"].as_f64().unwrap_or(f64::NAN),
         ..Default::default()
@@ -76,7 +79,8 @@ pub fn table_header(points: usize) -> String {
     )
 }
 
-/// A row of the table: a point the tracker did not see is `-`.
+/// A row of the table: a point the tracker did not see is `-`; one that ran on an estimate
+/// corrected within the execution is marked `*`.
 pub fn table_row(s: &ExecutionStats) -> String {
     let mm = |v: f64, width: usize| {
         if v.is_finite() {
@@ -86,8 +90,12 @@ pub fn table_row(s: &ExecutionStats) -> String {
         }
     };
     let mut r = format!("{:>5}", s.execution);
-    for e in s.errors() {
-        r += &mm(*e, 7);
+    for (n, e) in s.errors().iter().enumerate() {
+        r += &if s.corrected_within(n) {
+            mm(*e, 6) + "*"
+        } else {
+            mm(*e, 7)
+        };
     }
     r + &mm(s.mean_m, 8) + &mm(s.max_m, 8) + &format!(" {:>5} {:>6}", late_estimates(s), s.unseen())
 }
@@ -209,6 +217,24 @@ mod tests {
         assert_eq!(j["late_estimates"], 3);
         assert!(table_row(&s(3, 1)).ends_with("    3      0"));
         assert!(table_header(4).ends_with(" late unseen"));
+    }
+
+    #[test]
+    fn points_corrected_within_the_execution_are_marked() {
+        let s = ExecutionStats {
+            execution: 1,
+            count: 3,
+            within: 0b110,
+            errors_m: [0.02, 0.003, 0.004, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+            ..Default::default()
+        };
+        let row = table_row(&s);
+        assert!(row.starts_with("    1   20.00   3.00*   4.00*"), "{row}");
+        assert_eq!(row.len(), table_row(&ExecutionStats { within: 0, ..s }).len());
+        let j: serde_json::Value = serde_json::from_str(&json_line(&s)).unwrap();
+        assert_eq!(j["within"], serde_json::json!([false, true, true]));
+        let recorded = serde_json::to_value(s).unwrap();
+        assert_eq!(from_json(&recorded).unwrap().within, 0b110);
     }
 
     #[test]

@@ -253,8 +253,8 @@ impl EstimateRequest {
 /// The learner's actuation for a conditioning point: the controller conditions group `point`
 /// on it.
 #[derive(Debug, Clone, Copy, Default, ZeroCopySend, serde::Serialize)]
-// v2: per-actuator values for any arm (`Actuators`).
-#[type_name("softarm::ActuationEstimate.v2")]
+// v2: per-actuator values for any arm (`Actuators`). v3: `within`.
+#[type_name("softarm::ActuationEstimate.v3")]
 #[repr(C)]
 pub struct ActuationEstimate {
     pub seq: u64,
@@ -265,6 +265,13 @@ pub struct ActuationEstimate {
     /// before the point's group starts in that execution (`ExecutionStats::reconditions`).
     pub execution: u32,
     pub actuation: Actuators,
+    /// 1 if corrected within its execution by what the points before it showed of the arm
+    /// (`ExecutionStats::within`), else 0.
+    pub within: u32,
+    pub _pad: u32,
+    /// The `stamp_ns` (T_cond) of the sample it answers; 0 for a set's first estimates and a
+    /// changed arm's.
+    pub answers_ns: u64,
 }
 
 /// A way-point set to execute (request of `waypoints`).
@@ -357,7 +364,8 @@ pub struct DemonstrateReply {
 
 /// One per finished execution.
 #[derive(Debug, Clone, Copy, Default, ZeroCopySend, serde::Serialize)]
-#[type_name("softarm::ExecutionStats")]
+// v2: `within`.
+#[type_name("softarm::ExecutionStats.v2")]
 #[repr(C)]
 pub struct ExecutionStats {
     pub seq: u64,
@@ -368,9 +376,12 @@ pub struct ExecutionStats {
     pub executions: u32,
     pub count: u32,
     /// Points that ran conditioned on the learner's estimate for this execution (it came in
-    /// time); `count − reconditions` ran on an older one. It took the place of padding: the
-    /// layout, and so the type name, are unchanged.
+    /// time); `count − reconditions` ran on an older one.
     pub reconditions: u32,
+    /// Bit n set: point n ran on an estimate the learner corrected within this execution, by
+    /// what the points before it showed of the arm.
+    pub within: u32,
+    pub _pad: u32,
     /// Eq. 9: ‖P_cond[n] − p_reached[n]‖ (m).
     pub errors_m: [f64; MAX_WAYPOINTS],
     pub mean_m: f64,
@@ -385,6 +396,11 @@ impl ExecutionStats {
     /// worst are of the others.
     pub fn unseen(&self) -> usize {
         self.errors().iter().filter(|e| !e.is_finite()).count()
+    }
+
+    /// Whether point `n` ran on an estimate corrected within this execution.
+    pub fn corrected_within(&self, n: usize) -> bool {
+        n < 32 && self.within & (1 << n) != 0
     }
 }
 

@@ -124,6 +124,8 @@ pub struct Execution<const N: usize> {
     errors: [f64; MAX_WAYPOINTS],
     /// Points of the current execution so far that ran on their estimate for it.
     in_force: u32,
+    /// Bit n: point n ran on an estimate corrected within the execution.
+    within: u32,
     /// What each point's group ran on in the current execution, for the first `evaluated`.
     ran_on: [ConditionedOn<N>; MAX_WAYPOINTS],
     evaluated: usize,
@@ -166,6 +168,7 @@ impl<const N: usize> Execution<N> {
             pending: None,
             errors: [0.0; MAX_WAYPOINTS],
             in_force: 0,
+            within: 0,
             ran_on: [ConditionedOn::NONE; MAX_WAYPOINTS],
             evaluated: 0,
             set,
@@ -257,6 +260,9 @@ impl<const N: usize> Execution<N> {
             let on = self.ran_on[self.next_point];
             if on.execution == self.execution {
                 self.in_force += 1;
+                if on.within {
+                    self.within |= 1 << self.next_point;
+                }
             }
             self.pending = Some(Pending {
                 point: self.next_point,
@@ -380,6 +386,8 @@ impl<const N: usize> Execution<N> {
             executions: set.executions,
             count: set.count as u32,
             reconditions,
+            within: self.within,
+            _pad: 0,
             errors_m: self.errors,
             mean_m: if n > 0 { sum / n as f64 } else { f64::NAN },
             max_m: max,
@@ -388,6 +396,7 @@ impl<const N: usize> Execution<N> {
         self.k = -rest_ticks;
         self.next_point = 0;
         self.in_force = 0;
+        self.within = 0;
         self.evaluated = 0;
         stats
     }

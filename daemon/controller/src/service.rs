@@ -14,7 +14,7 @@ use softarm_ipc::{
     ActuationEstimate, ControllerState, DemonstrateReply, DemonstrateRequest, EstimateRequest,
     Namespace, Node, Pub, Server, Sub, WaypointReply, WaypointSet,
 };
-use softarm_method::blend::{BlendError, Replanner};
+use softarm_method::blend::{BlendError, ConditionedOn, Replanner};
 use softarm_model::bundle::{BundleWatch, Model};
 use softarm_runtime::{EstopLatch, now_ns};
 
@@ -63,17 +63,15 @@ impl<const N: usize> Replanners<N> {
         self.sets.push((set_id, replanner));
     }
 
-    /// Re-conditions `point` of set `set_id` for `execution`; `None` if that set is not with
-    /// the tick.
+    /// Re-conditions `point` of set `set_id` on `on`; `None` if that set is not with the tick.
     fn recondition(
         &mut self,
         set_id: u64,
         point: usize,
-        actuation: &[f64; N],
-        execution: u32,
+        on: &ConditionedOn<N>,
     ) -> Option<Result<(), BlendError>> {
         let (_, r) = self.sets.iter_mut().find(|(id, _)| *id == set_id)?;
-        Some(r.recondition(point, actuation, execution))
+        Some(r.recondition_on(point, on))
     }
 
     /// The tick is done with the set: its replanner goes (here, off the tick thread).
@@ -323,11 +321,28 @@ impl<const N: usize> Service<N> {
                 if point < p.estimates.len() {
                     p.estimates[point] = Some(actuation);
                 }
-            } else if let Some(Err(err)) =
-                self.handed
-                    .recondition(s.set_id, point, &actuation, s.execution)
-            {
-                tracing::warn!(set_id = s.set_id, point, "estimate not used: {err}");
+            } else {
+                let on = ConditionedOn {
+                    actuation,
+                    execution: s.execution,
+                    within: s.within != 0,
+                };
+                match self.handed.recondition(s.set_id, point, &on) {
+                    Some(Err(err)) => {
+                        tracing::warn!(set_id = s.set_id, point, "estimate not used: {err}")
+                    }
+                    // From the sample it answers to the table on its way to the tick, which
+                    // swaps it in at its next tick if the point's group is not active yet.
+                    Some(Ok(())) if s.answers_ns > 0 => tracing::debug!(
+                        set_id = s.set_id,
+                        point,
+                        execution = s.execution,
+                        within = on.within,
+                        since_sample_ms = now_ns().saturating_sub(s.answers_ns) as f64 * 1e-6,
+                        "re-conditioned"
+                    ),
+                    _ => {}
+                }
             }
         }
     }

@@ -9,6 +9,7 @@ use softarm_ipc::{
 };
 use softarm_learning::arm::Seen;
 use softarm_learning::online::OnlineLearner;
+use softarm_learning::within::Within;
 use softarm_space::Workspace;
 
 /// How far outside the way-point workspace an arm's position is still believed (m). Farther, a
@@ -96,7 +97,7 @@ impl<const N: usize> Learner<N> {
             .into_iter()
             .map(|(point, a)| {
                 let point = point as u32;
-                estimate(self.set_id, point, self.next_execution(point), a)
+                estimate(self.set_id, point, self.next_execution(point), a, false)
             })
             .collect()
     }
@@ -177,7 +178,7 @@ impl<const N: usize> Learner<N> {
         first
             .into_iter()
             .enumerate()
-            .map(|(point, a)| estimate(r.set_id, point as u32, 1, a))
+            .map(|(point, a)| estimate(r.set_id, point as u32, 1, a, false))
             .collect()
     }
 
@@ -212,7 +213,12 @@ impl<const N: usize> Learner<N> {
             Ok(next) => {
                 tracing::debug!(point = s.next_point, estimate = ?next, "estimate");
                 self.last_visit = Some((s.set_id, s.execution, s.point));
-                Some(estimate(s.set_id, s.next_point, s.next_execution, next))
+                let within = self.online.within(s.next_point as usize);
+                say_within(&s, within);
+                let within = within.corrected();
+                let mut e = estimate(s.set_id, s.next_point, s.next_execution, next, within);
+                e.answers_ns = s.stamp_ns;
+                Some(e)
             }
             Err(why) => {
                 self.refuse(&s, &why);
@@ -272,12 +278,13 @@ impl<const N: usize> Learner<N> {
     }
 }
 
-/// `point`'s estimate for `execution` of set `set_id`.
+/// `point`'s estimate for `execution` of set `set_id`; `within`: corrected within it.
 fn estimate<const N: usize>(
     set_id: u64,
     point: u32,
     execution: u32,
     actuation: [f64; N],
+    within: bool,
 ) -> ActuationEstimate {
     ActuationEstimate {
         seq: 0,
@@ -286,6 +293,47 @@ fn estimate<const N: usize>(
         point,
         execution,
         actuation: actuation.into(),
+        within: within.into(),
+        _pad: 0,
+        answers_ns: 0,
+    }
+}
+
+/// Says how the estimate `s` asks for was corrected within its execution, and why not: a
+/// correction shortened to the trust region is worth an operator's eye, the rest a debug line.
+/// (One that comes too late for its point's group runs an execution later: `stats`' `late`.)
+fn say_within(s: &ConditioningSample, within: Within) {
+    let (set_id, point, execution) = (s.set_id, s.next_point, s.next_execution);
+    match within {
+        Within::NotAsked => {}
+        Within::NoEvidence => tracing::debug!(
+            set_id,
+            point,
+            execution,
+            "not corrected within the execution: the points before it missed by no more than \
+             they scatter"
+        ),
+        Within::Corrected {
+            shift_m,
+            capped: false,
+        } => tracing::debug!(
+            set_id,
+            point,
+            execution,
+            shift_mm = shift_m * 1e3,
+            "corrected within the execution by what the points before it showed"
+        ),
+        Within::Corrected {
+            shift_m,
+            capped: true,
+        } => tracing::info!(
+            set_id,
+            point,
+            execution,
+            shift_mm = shift_m * 1e3,
+            "corrected within the execution, shortened to the trust region \
+             (learner.gauss_newton.trust_max): the arm moved further than one step makes up for"
+        ),
     }
 }
 

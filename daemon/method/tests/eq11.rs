@@ -239,7 +239,8 @@ fn a_one_point_set_applies_each_estimate_in_its_next_execution() {
         blend.conditioned_on(0),
         ConditionedOn {
             actuation: first,
-            execution: 1
+            execution: 1,
+            within: false,
         }
     );
 
@@ -257,7 +258,8 @@ fn a_one_point_set_applies_each_estimate_in_its_next_execution() {
         blend.conditioned_on(0),
         ConditionedOn {
             actuation: second,
-            execution: 2
+            execution: 2,
+            within: false,
         }
     );
     replanner.recondition(0, &third, 3).unwrap();

@@ -175,6 +175,7 @@ impl<const D: usize> Planner<D> {
         into.on = ConditionedOn {
             actuation: *actuation,
             execution,
+            within: false,
         };
         let (gs, xs) = (g.as_slice(), x.as_slice()); // column-major
         let rows_g = D * k;
@@ -329,12 +330,24 @@ impl<const D: usize> Replanner<D> {
         actuation: &[f64; D],
         execution: u32,
     ) -> Result<(), BlendError> {
+        let on = ConditionedOn {
+            actuation: *actuation,
+            execution,
+            within: false,
+        };
+        self.recondition_on(group, &on)
+    }
+
+    /// [`Replanner::recondition`] on `on`, whose every word the table carries to
+    /// [`Blend::conditioned_on`](super::Blend::conditioned_on).
+    pub fn recondition_on(&mut self, group: usize, on: &ConditionedOn<D>) -> Result<(), BlendError> {
         let mut table = match self.retired.pop() {
             Ok(t) => t,
             Err(_) => Table::zeroed(self.planner.timeline.ticks()),
         };
         self.planner
-            .condition(group, actuation, execution, &mut table)?;
+            .condition(group, &on.actuation, on.execution, &mut table)?;
+        table.on.within = on.within;
         if self.updates.is_abandoned() {
             return Err(BlendError::Disconnected);
         }

@@ -69,6 +69,8 @@ impl<const D: usize> Table<D> {
 pub struct ConditionedOn<const D: usize> {
     pub actuation: [f64; D],
     pub execution: u32,
+    /// The estimate was corrected within its execution (the learner's word, told on).
+    pub within: bool,
 }
 
 impl<const D: usize> ConditionedOn<D> {
@@ -76,6 +78,7 @@ impl<const D: usize> ConditionedOn<D> {
     pub const NONE: Self = Self {
         actuation: [f64::NAN; D],
         execution: 0,
+        within: false,
     };
 }
 
