@@ -494,9 +494,9 @@ impl<const N: usize> OnlineLearner<N> {
             _ => *action,
         };
         if gauss_newton {
-            let (kind, predicted) = self.predicted(point, target, &executed);
+            let (kind, predicted, doubt) = self.predicted(point, target, &executed);
             let missed = Vector3::from_fn(|d, _| reached[d] - predicted[d]);
-            (self.departure).observe(&self.calibrated, point, &executed, &missed, kind);
+            (self.departure).observe(&self.calibrated, point, &executed, &missed, kind, doubt);
         }
         let p = &mut self.set[point];
         let error = distance(target, reached);
@@ -636,12 +636,14 @@ impl<const N: usize> OnlineLearner<N> {
         next
     }
 
-    /// Where `point`'s try at `a` was to land by its own history, before it is learnt from:
-    /// from the try its step was taken from, moved by its slope over the step (through its
-    /// error filter when that runs from there), as [`OnlineLearner::directed`] stepped; on its
-    /// first visit its target, moved by the calibrated arm's slope over what was added to its
-    /// first estimate since (a correction within the execution).
-    fn predicted(&self, point: usize, target: &Position, a: &[f64; N]) -> (Kind, Position) {
+    /// Where `point`'s try at `a` was to land by its own history, before it is learnt from,
+    /// and how uncertain that is beyond the usual scatter (m², [`STEP_UNCERTAINTY`] of the
+    /// step's predicted motion): from the try its step was taken from, moved by its slope over
+    /// the step (through its error filter when that runs from there), as
+    /// [`OnlineLearner::directed`] stepped, or by the calibrated arm itself over the step it
+    /// took; on its first visit its target, moved by the calibrated arm's slope over what was
+    /// added to its first estimate since (a correction within the execution).
+    fn predicted(&self, point: usize, target: &Position, a: &[f64; N]) -> (Kind, Position, f64) {
         let c = self.cacla.config().gauss_newton;
         let p = &self.set[point];
         let (kind, from, error) = match (p.last, p.best) {
@@ -659,13 +661,19 @@ impl<const N: usize> OnlineLearner<N> {
             }
             _ => (Kind::First, p.first.unwrap_or(*a), Vector3::zeros()),
         };
-        let j = match p.jacobian {
-            Some((j, _)) if kind == Kind::Repeated => j,
-            _ => self.calibrated.jacobian(&from),
+        let calibrated_step = p.calibrated_step.is_some_and(|(visit, _)| visit == p.visits);
+        let moved = match p.jacobian {
+            Some((j, _)) if kind == Kind::Repeated && !calibrated_step => {
+                j * SVector::<f64, N>::from_fn(|i, _| a[i] - from[i])
+            }
+            _ => {
+                let (to, at) = (self.calibrated.position(a), self.calibrated.position(&from));
+                Vector3::from_fn(|d, _| to[d] - at[d])
+            }
         };
-        let da = SVector::<f64, N>::from_fn(|i, _| a[i] - from[i]);
-        let landed = error_vector(target, &[0.0; 3]) - error + j * da;
-        (kind, [landed.x, landed.y, landed.z])
+        let landed = error_vector(target, &[0.0; 3]) - error + moved;
+        let doubt = (STEP_UNCERTAINTY * moved.norm()).powi(2);
+        (kind, [landed.x, landed.y, landed.z], doubt)
     }
 
     /// Gauss-Newton's estimate: the first, or a step from the last or best try.

@@ -107,8 +107,9 @@ impl Departure {
     }
 
     /// Point `point`'s try, at actuation `a`, landed `missed` (m) from where its own history
-    /// predicted. Learns the departure from it; a point at or before the last seen begins a
-    /// new execution.
+    /// predicted, a prediction doubtful by `doubt` (m², beyond the kind's scatter: a long
+    /// step's). Learns the departure from it; a point at or before the last seen begins a new
+    /// execution.
     pub fn observe<const N: usize>(
         &mut self,
         arm: &CalibratedArm<N>,
@@ -116,6 +117,7 @@ impl Departure {
         a: &[f64; N],
         missed: &Vector3<f64>,
         kind: Kind,
+        doubt: f64,
     ) {
         if self.last_point.is_some_and(|last| point <= last) || self.theta.len() == 0 {
             self.restart();
@@ -135,9 +137,12 @@ impl Departure {
             Kind::First => &mut self.first_var,
             Kind::Repeated => &mut self.repeated_var,
         };
-        let scatter2 = 3.0 * *var;
+        let scatter2 = 3.0 * *var + doubt.max(0.0);
         let miss2 = innovation.norm_squared();
-        *var += SCATTER_WEIGHT * ((miss2 / 3.0).min(SCATTER_CLIP * *var) - *var);
+        // What a long step misses by is its doubt, not the scatter of the kind.
+        if doubt <= 3.0 * *var {
+            *var += SCATTER_WEIGHT * ((miss2 / 3.0).min(SCATTER_CLIP * *var) - *var);
+        }
         // Until the execution shows a departure, a miss is shrunk by the scatter's share:
         // nothing within it, nearly all of one far beyond. Once it has, the later points
         // refine it, weighed against their scatter.
