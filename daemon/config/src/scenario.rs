@@ -40,7 +40,7 @@ use softarm_arm::Kind;
 use crate::{ConfigError, key_line, line_at};
 
 /// The scenarios shipped in `config/scenarios/`, embedded so `--scenario NAME` works anywhere.
-pub const SHIPPED: [(&str, &str); 15] = [
+pub const SHIPPED: [(&str, &str); 16] = [
     (
         "nominal",
         include_str!("../../../config/scenarios/nominal.toml"),
@@ -84,6 +84,10 @@ pub const SHIPPED: [(&str, &str); 15] = [
     (
         "sequence",
         include_str!("../../../config/scenarios/sequence.toml"),
+    ),
+    (
+        "tendon-steps",
+        include_str!("../../../config/scenarios/tendon-steps.toml"),
     ),
     (
         "tdcr-creep",

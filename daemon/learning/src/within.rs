@@ -119,12 +119,7 @@ impl Departure {
         kind: Kind,
         doubt: f64,
     ) {
-        if self.last_point.is_some_and(|last| point <= last) || self.theta.len() == 0 {
-            self.restart();
-            self.theta = DVector::zeros(arm.parameters());
-            self.cov = DMatrix::from_diagonal(&arm.prior_variances());
-        }
-        self.last_point = Some(point);
+        self.pass(arm, point);
         if !missed.iter().all(|v| v.is_finite()) {
             return;
         }
@@ -164,6 +159,17 @@ impl Departure {
         let kept = DVector::from_column_slice((innovation * keep).as_slice());
         self.theta += &k * kept;
         self.cov = &self.cov - &k * &g * &self.cov;
+    }
+
+    /// Point `point` came and told nothing of the arm (its target is beyond reach); a point at
+    /// or before the last seen begins a new execution.
+    pub fn pass<const N: usize>(&mut self, arm: &CalibratedArm<N>, point: usize) {
+        if self.last_point.is_some_and(|last| point <= last) || self.theta.len() == 0 {
+            self.restart();
+            self.theta = DVector::zeros(arm.parameters());
+            self.cov = DMatrix::from_diagonal(&arm.prior_variances());
+        }
+        self.last_point = Some(point);
     }
 
     /// The shift (m) the departure seen so far predicts at actuation `a`: none without
