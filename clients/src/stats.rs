@@ -225,12 +225,17 @@ mod tests {
             execution: 1,
             count: 3,
             within: 0b110,
-            errors_m: [0.02, 0.003, 0.004, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+            errors_m: [
+                0.02, 0.003, 0.004, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+            ],
             ..Default::default()
         };
         let row = table_row(&s);
         assert!(row.starts_with("    1   20.00   3.00*   4.00*"), "{row}");
-        assert_eq!(row.len(), table_row(&ExecutionStats { within: 0, ..s }).len());
+        assert_eq!(
+            row.len(),
+            table_row(&ExecutionStats { within: 0, ..s }).len()
+        );
         let j: serde_json::Value = serde_json::from_str(&json_line(&s)).unwrap();
         assert_eq!(j["within"], serde_json::json!([false, true, true]));
         let recorded = serde_json::to_value(s).unwrap();

@@ -313,6 +313,14 @@ fn say_within(s: &ConditioningSample, within: Within) {
             "not corrected within the execution: the points before it missed by no more than \
              they scatter"
         ),
+        Within::Unhelpful { shift_m } => tracing::debug!(
+            set_id,
+            point,
+            execution,
+            shift_mm = shift_m * 1e3,
+            "not corrected within the execution: the arm as the points before it showed it \
+             cannot make up for its shift here within the trust region"
+        ),
         Within::Corrected {
             shift_m,
             capped: false,

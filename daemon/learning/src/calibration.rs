@@ -212,6 +212,16 @@ impl<const N: usize> CalibratedArm<N> {
         DVector::from_fn(slots.count(), |k, _| slots.prior(k).powi(2))
     }
 
+    /// This arm departed by `delta` (one per parameter, in [`CalibratedArm::sensitivity`]'s
+    /// order and units).
+    pub fn departed(&self, delta: &DVector<f64>) -> Self {
+        let mut arm = *self;
+        for (t, d) in arm.theta.iter_mut().zip(delta.iter()) {
+            *t += d;
+        }
+        arm
+    }
+
     /// How the tracked point moves at `a` per unit of each parameter (3 × parameters): what a
     /// departure of the arm's parameters does there.
     pub fn sensitivity(&self, a: &[f64; N]) -> DMatrix<f64> {

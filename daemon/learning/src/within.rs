@@ -18,6 +18,7 @@
 use nalgebra::{DMatrix, DVector, Vector3};
 
 use crate::calibration::CalibratedArm;
+use softarm_kinematics::forward::ForwardModel;
 
 /// A miss counts as evidence only beyond this many times its kind's scatter (RMS of the miss).
 const EVIDENCE: f64 = 1.5;
@@ -33,7 +34,7 @@ const SCATTER_CLIP: f64 = 4.0;
 pub const FIRST_MISS_M: f64 = 0.005;
 
 /// A shift smaller than this at a point is not sent as a correction (m).
-const LEAST_SHIFT_M: f64 = 1e-4;
+pub const LEAST_SHIFT_M: f64 = 1e-4;
 
 /// The kind of a visit's prediction, each with its own scatter.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -52,6 +53,9 @@ pub enum Within {
     NotAsked,
     /// What the execution's points so far missed by is within their scatter.
     NoEvidence,
+    /// The arm as they show it would move the point by `shift_m` (m), which no actuation
+    /// within the trust region makes up for by half.
+    Unhelpful { shift_m: f64 },
     /// Moved by what the departure seen so far predicts at the point: `shift_m` (m) there,
     /// shortened to the trust region if `capped`.
     Corrected { shift_m: f64, capped: bool },
@@ -123,11 +127,16 @@ impl Departure {
         if !missed.iter().all(|v| v.is_finite()) {
             return;
         }
-        let g = arm.sensitivity(a);
-        if !g.iter().all(|v| v.is_finite()) {
+        // Linearised where the departure seen so far puts the arm (an extended Kalman filter):
+        // the shift it predicts is the departed arm's own, as the corrections take it.
+        let now = arm.departed(&self.theta);
+        let g = now.sensitivity(a);
+        let (at, was) = (now.position(a), arm.position(a));
+        let predicted = Vector3::from_fn(|d, _| at[d] - was[d]);
+        if !g.iter().chain(predicted.iter()).all(|v| v.is_finite()) {
             return;
         }
-        let innovation = missed - moved(&g, &self.theta);
+        let innovation = missed - predicted;
         let var = match kind {
             Kind::First => &mut self.first_var,
             Kind::Repeated => &mut self.repeated_var,
@@ -172,14 +181,10 @@ impl Departure {
         self.last_point = Some(point);
     }
 
-    /// The shift (m) the departure seen so far predicts at actuation `a`: none without
-    /// evidence in this execution.
-    pub fn shift<const N: usize>(&self, arm: &CalibratedArm<N>, a: &[f64; N]) -> Option<Vector3<f64>> {
-        if !self.evidence || self.theta.len() != arm.parameters() {
-            return None;
-        }
-        let s = moved(&arm.sensitivity(a), &self.theta);
-        (s.iter().all(|v| v.is_finite()) && s.norm() >= LEAST_SHIFT_M).then_some(s)
+    /// `arm` as the execution's points so far show it: departed by what they showed; none
+    /// without evidence in this execution.
+    pub fn arm_now<const N: usize>(&self, arm: &CalibratedArm<N>) -> Option<CalibratedArm<N>> {
+        (self.evidence && self.theta.len() == arm.parameters()).then(|| arm.departed(&self.theta))
     }
 
     /// The scatter (RMS, m) of a kind of visit's prediction.
@@ -190,10 +195,4 @@ impl Departure {
         };
         (3.0 * var).sqrt()
     }
-}
-
-/// Where a departure `theta` moves the tracked point, by its sensitivity `g` (3 × parameters).
-fn moved(g: &DMatrix<f64>, theta: &DVector<f64>) -> Vector3<f64> {
-    let m = g * theta;
-    Vector3::new(m[0], m[1], m[2])
 }

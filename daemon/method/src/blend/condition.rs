@@ -340,7 +340,11 @@ impl<const D: usize> Replanner<D> {
 
     /// [`Replanner::recondition`] on `on`, whose every word the table carries to
     /// [`Blend::conditioned_on`](super::Blend::conditioned_on).
-    pub fn recondition_on(&mut self, group: usize, on: &ConditionedOn<D>) -> Result<(), BlendError> {
+    pub fn recondition_on(
+        &mut self,
+        group: usize,
+        on: &ConditionedOn<D>,
+    ) -> Result<(), BlendError> {
         let mut table = match self.retired.pop() {
             Ok(t) => t,
             Err(_) => Table::zeroed(self.planner.timeline.ticks()),
