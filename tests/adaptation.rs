@@ -33,6 +33,26 @@ fn a_stack_on_a_changed_arm_lowers_its_error_and_reports_its_reconditionings() {
         m.iter().all(|e| *e <= 1.5 * m[0]),
         "the arm wandered: {m:?}"
     );
+    // What the first point showed of the longer tool corrected the points after it within
+    // the first execution: each that ran corrected (an estimate late on a loaded machine runs
+    // an execution later) missed by well under the first point's miss.
+    let first = &stats[0];
+    let errors: Vec<f64> = first["errors_mm"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|e| e.as_f64().unwrap_or(f64::NAN))
+        .collect();
+    let within: Vec<bool> = first["within"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|b| b.as_bool().unwrap())
+        .collect();
+    assert!(!within[0] && within[1..].iter().any(|w| *w), "{first}");
+    for (e, _) in errors.iter().zip(&within).skip(1).filter(|(_, w)| **w) {
+        assert!(*e < 0.6 * errors[0], "{first}");
+    }
     // Every execution after the first ran on re-conditioned estimates, and status says so.
     for v in &stats[1..] {
         assert!(v["reconditions"].as_u64().unwrap() >= 1, "{v}");

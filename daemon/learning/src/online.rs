@@ -645,7 +645,7 @@ impl<const N: usize> OnlineLearner<N> {
     fn corrected_within(&mut self, point: usize, estimate: [f64; N]) -> [f64; N] {
         let c = self.cacla.config().gauss_newton;
         let to_come = self.departure.last_point().is_some_and(|last| point > last);
-        let (within, next) = match self.departure.arm_now(&self.calibrated) {
+        let (within, next) = match self.departure.arm_now(&self.calibrated, &estimate) {
             _ if !to_come || self.set[point].beyond_reach => (Within::NotAsked, estimate),
             None => (Within::NoEvidence, estimate),
             Some(now) => {
@@ -722,7 +722,12 @@ impl<const N: usize> OnlineLearner<N> {
             }
         };
         let landed = error_vector(target, &[0.0; 3]) - error + moved;
-        let doubt = (STEP_UNCERTAINTY * moved.norm()).powi(2);
+        // A first visit took no step of its own: what moved it is a correction within the
+        // execution, whose doubt is the departure's, learnt from its miss.
+        let doubt = match kind {
+            Kind::First => 0.0,
+            Kind::Repeated => (STEP_UNCERTAINTY * moved.norm()).powi(2),
+        };
         (kind, [landed.x, landed.y, landed.z], doubt)
     }
 

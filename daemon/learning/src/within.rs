@@ -10,9 +10,9 @@
 //! shift `G_m δθ` its sensitivity gives there. Not a shift of task space: a longer tool moves
 //! every point along its own tip axis, which turns from point to point.
 //!
-//! Only what stands out of the scatter counts: a miss within what a point's prediction usually
-//! misses by (learnt per kind of visit, first or repeated) is shrunk to nothing, one beyond it
-//! by the scatter's share, so that on an arm that has not changed nothing is added.
+//! Only what stands out of the scatter counts: a miss within twice what a point's prediction
+//! usually misses by (learnt per kind of visit, first or repeated) teaches nothing, so that on
+//! an arm that has not changed nothing is added.
 //! Pure: no I/O.
 
 use nalgebra::{DMatrix, DVector, Vector3};
@@ -20,8 +20,21 @@ use nalgebra::{DMatrix, DVector, Vector3};
 use crate::calibration::CalibratedArm;
 use softarm_kinematics::forward::ForwardModel;
 
-/// A miss counts as evidence only beyond this many times its kind's scatter (RMS of the miss).
-const EVIDENCE: f64 = 1.5;
+/// A miss counts as evidence only beyond this many times its kind's scatter (RMS of the miss):
+/// a miss of pure scatter goes beyond it at about one visit in 140 (χ² of three degrees of
+/// freedom); at 1.5 it was one in 12, and the learner corrected the rest of a nominal
+/// execution by that scatter.
+const EVIDENCE: f64 = 2.0;
+/// A miss beyond this many times its kind's scatter is evidence enough alone; one between
+/// [`EVIDENCE`] and this needs a second point of the execution beside it. One point tells a
+/// departure of a dozen parameters only by the prior's choice of explanation, which a small
+/// miss does not pin (measured: a 0.25 mm tendon step seen at one point as 3.9 mm, carried to
+/// another as 11 mm).
+const ALONE: f64 = 3.0;
+/// A departure's shift at a point still to come is taken up to this many times the largest
+/// miss that showed it: a departure that would move another point much further than any point
+/// moved is its prior's extrapolation, not the arm.
+const AMPLIFY: f64 = 1.5;
 
 /// How fast the scatter of a kind of visit follows what it sees: the weight of one visit.
 const SCATTER_WEIGHT: f64 = 0.1;
@@ -76,8 +89,11 @@ pub struct Departure {
     cov: DMatrix<f64>,
     /// The last point seen in this execution: a point at or before it begins the next.
     last_point: Option<usize>,
-    /// Whether any point of this execution counted as evidence.
-    evidence: bool,
+    /// Points of this execution that counted as evidence, whether one did alone, and the
+    /// largest miss among them (m).
+    evidence: u32,
+    alone: bool,
+    largest_m: f64,
     /// Per axis (m²): what a first and a repeated visit's prediction misses by, the departure
     /// taken away.
     first_var: f64,
@@ -91,7 +107,9 @@ impl Departure {
             theta: DVector::zeros(0),
             cov: DMatrix::zeros(0, 0),
             last_point: None,
-            evidence: false,
+            evidence: 0,
+            alone: false,
+            largest_m: 0.0,
             first_var: FIRST_MISS_M * FIRST_MISS_M / 3.0,
             repeated_var: noise_m * noise_m / 3.0,
         }
@@ -102,7 +120,9 @@ impl Departure {
         self.theta = DVector::zeros(0);
         self.cov = DMatrix::zeros(0, 0);
         self.last_point = None;
-        self.evidence = false;
+        self.evidence = 0;
+        self.alone = false;
+        self.largest_m = 0.0;
     }
 
     /// The last point seen in the running execution.
@@ -111,9 +131,9 @@ impl Departure {
     }
 
     /// Point `point`'s try, at actuation `a`, landed `missed` (m) from where its own history
-    /// predicted, a prediction doubtful by `doubt` (m², beyond the kind's scatter: a long
-    /// step's). Learns the departure from it; a point at or before the last seen begins a new
-    /// execution.
+    /// predicted, a prediction doubtful by `doubt` (m²: a long step's). Learns the departure
+    /// from it unless that doubt is beyond the kind's scatter; a point at or before the last
+    /// seen begins a new execution.
     pub fn observe<const N: usize>(
         &mut self,
         arm: &CalibratedArm<N>,
@@ -141,32 +161,36 @@ impl Departure {
             Kind::First => &mut self.first_var,
             Kind::Repeated => &mut self.repeated_var,
         };
-        let scatter2 = 3.0 * *var + doubt.max(0.0);
-        let miss2 = innovation.norm_squared();
-        // What a long step misses by is its doubt, not the scatter of the kind.
-        if doubt <= 3.0 * *var {
-            *var += SCATTER_WEIGHT * ((miss2 / 3.0).min(SCATTER_CLIP * *var) - *var);
+        let scatter2 = 3.0 * *var;
+        // A long step's own prediction is doubtful: what it misses by may be the step's, not
+        // the arm's (measured: the TDCR's calibrated steps after a tool change missing by 49
+        // mm, which shared threw two other points 66 and 121 mm off). It tells nothing here.
+        if doubt > scatter2 {
+            return;
         }
-        // Until the execution shows a departure, a miss is shrunk by the scatter's share:
-        // nothing within it, nearly all of one far beyond. Once it has, the later points
-        // refine it, weighed against their scatter.
-        let keep = if self.evidence {
-            1.0
-        } else if miss2 > 0.0 {
-            (1.0 - EVIDENCE * EVIDENCE * scatter2 / miss2).max(0.0)
-        } else {
-            0.0
-        };
-        self.evidence |= keep > 0.0;
-        let r = DMatrix::<f64>::identity(3, 3) * (scatter2 / 3.0);
+        let miss2 = innovation.norm_squared();
+        *var += SCATTER_WEIGHT * ((miss2 / 3.0).min(SCATTER_CLIP * *var) - *var);
+        // Evidence is a miss of the point's own prediction beyond the scatter, whatever the
+        // departure already said of it: a second point that agrees confirms.
+        let raw2 = missed.norm_squared();
+        if raw2 > EVIDENCE * EVIDENCE * scatter2 {
+            self.evidence += 1;
+            self.alone |= raw2 > ALONE * ALONE * scatter2;
+            self.largest_m = self.largest_m.max(raw2.sqrt());
+        }
+        // Nothing is learnt before a point showed a departure; after, every point's miss of
+        // the departure's prediction refines it, one that contradicts it too.
+        if self.evidence == 0 {
+            return;
+        }
+        let r = DMatrix::<f64>::identity(3, 3) * var.max(f64::MIN_POSITIVE);
         let pgt = &self.cov * g.transpose();
         let s = &g * &pgt + r;
         let Some(s_inv) = s.try_inverse() else {
             return;
         };
         let k = &pgt * s_inv;
-        let kept = DVector::from_column_slice((innovation * keep).as_slice());
-        self.theta += &k * kept;
+        self.theta += &k * DVector::from_column_slice(innovation.as_slice());
         self.cov = &self.cov - &k * &g * &self.cov;
     }
 
@@ -181,10 +205,27 @@ impl Departure {
         self.last_point = Some(point);
     }
 
-    /// `arm` as the execution's points so far show it: departed by what they showed; none
-    /// without evidence in this execution.
-    pub fn arm_now<const N: usize>(&self, arm: &CalibratedArm<N>) -> Option<CalibratedArm<N>> {
-        (self.evidence && self.theta.len() == arm.parameters()).then(|| arm.departed(&self.theta))
+    /// `arm` as the execution's points so far show it at actuation `a`: departed by what they
+    /// showed, scaled down where that would move the tracked point further than [`AMPLIFY`]
+    /// times the largest miss that showed it; none without evidence enough in this execution.
+    pub fn arm_now<const N: usize>(
+        &self,
+        arm: &CalibratedArm<N>,
+        a: &[f64; N],
+    ) -> Option<CalibratedArm<N>> {
+        let enough = self.alone || self.evidence >= 2;
+        if !enough || self.theta.len() != arm.parameters() {
+            return None;
+        }
+        let now = arm.departed(&self.theta);
+        let (at, was) = (now.position(a), arm.position(a));
+        let shift = (0..3).map(|d| (at[d] - was[d]).powi(2)).sum::<f64>().sqrt();
+        let most = AMPLIFY * self.largest_m;
+        Some(if shift > most {
+            arm.departed(&(&self.theta * (most / shift)))
+        } else {
+            now
+        })
     }
 
     /// The scatter (RMS, m) of a kind of visit's prediction.

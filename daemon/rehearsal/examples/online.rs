@@ -9,7 +9,8 @@
 //! [learner], `;` for newlines), QUICK=1 (write the tests' quick model,
 //! `softarm_test_support::quick_model`, to MODEL_DIR first), STALL=WHO:EVERY_MS:FOR_MS
 //! (a loaded machine: `controller`, `sim` or `learner` kept from its CPU for FOR_MS every
-//! EVERY_MS).
+//! EVERY_MS), SETS=K (the set submitted K times over, EXECUTIONS each, on the same learner
+//! and arm: what a lab submitting a new set as its arm drifts sees at each set's start).
 
 use anyhow::{Context, bail};
 use softarm_config::Config;
@@ -137,14 +138,22 @@ fn main() -> anyhow::Result<()> {
     let (arm, sim) = scenario.apply(&config.paper_arm().unwrap(), &config.sim)?;
     let set = load("SET", "config/waypoints/demo.toml")?;
     let mut adapted = rehearsal(&model, &config, arm, &sim)?;
-    let stats = adapted.rehearse(&set, executions)?;
+    let sets: u32 = match env("SETS").as_str() {
+        "" => 1,
+        s => s.parse().context("SETS must be a whole number")?,
+    };
     println!(
         "{} on {} ({}), errors at the conditioning points (mm)",
         config.learner.algorithm.name(),
         scenario.name,
         scenario.describe()
     );
-    print(&stats);
+    for k in 1..=sets {
+        if sets > 1 {
+            println!("set {k}:");
+        }
+        print(&adapted.rehearse(&set, executions)?);
+    }
     if !env("SECOND").is_empty() {
         let second = load("SECOND", "")?;
         // The fresh learner beside the same controller: the lag it has measured.
