@@ -1356,9 +1356,20 @@ mod tests {
 
         /// Per execution, each point's error (m) and whether it ran corrected within its
         /// execution, on `real` with `noise_m` of tracker noise per axis.
-        fn run<const N: usize>(
+        fn run<const N: usize, M: ForwardModel<N> + Copy>(
             l: &mut OnlineLearner<N>,
-            real: &impl ForwardModel<N>,
+            real: &M,
+            t: &[Position],
+            executions: usize,
+            noise_m: f64,
+        ) -> Vec<Vec<(f64, bool)>> {
+            run_on(l, |_| *real, t, executions, noise_m)
+        }
+
+        /// [`run`] on `real(execution)` (1-based) in each execution.
+        fn run_on<const N: usize, M: ForwardModel<N>>(
+            l: &mut OnlineLearner<N>,
+            real: impl Fn(usize) -> M,
             t: &[Position],
             executions: usize,
             noise_m: f64,
@@ -1371,6 +1382,7 @@ mod tests {
             let mut out = Vec::new();
             for e in 1..=executions {
                 let mut row = Vec::new();
+                let real = real(e);
                 for n in 0..t.len() {
                     let p = real.position(&a[n]);
                     let reached: Position = std::array::from_fn(|d| p[d] + noise.sample(&mut rng));
@@ -1433,7 +1445,7 @@ mod tests {
             assert!(first[1..].iter().all(|(_, c)| *c), "{first:?}");
             let rest = mean(&first[1..]);
             assert!(
-                rest < 0.005,
+                rest < 0.002,
                 "the rest of the first execution: {rest} m, {first:?}"
             );
             // The paper's algorithm learns between executions only.
@@ -1454,9 +1466,39 @@ mod tests {
             let runs = run(&mut l, &real, &t, 2, 0.0);
             let first = &runs[0];
             assert!(first[0].0 > 0.03, "the tool is felt: {runs:?}");
-            assert!(first[1..].iter().any(|(_, c)| *c), "{runs:?}");
-            assert!(first[1..].iter().all(|(e, _)| *e < first[0].0), "{runs:?}");
-            assert!(mean(&first[1..]) < 0.5 * first[0].0, "{runs:?}");
+            assert!(first[1..].iter().all(|(_, c)| *c), "{runs:?}");
+            assert!(
+                first[1..].iter().all(|(e, _)| *e < 0.25 * first[0].0),
+                "{runs:?}"
+            );
+        }
+
+        /// A tendon that creeps a step while the learner has settled: the points after the
+        /// first that sees it are corrected within the execution, back near their steady error.
+        #[test]
+        fn a_tendon_step_seen_at_one_point_is_made_up_for_at_the_rest() {
+            let crept = ArmGeometry {
+                actuator_offset_m: [0.0, 0.0005, 0.0, 0.0, 0.0, 0.0],
+                ..Default::default()
+            };
+            let t = five_targets();
+            let arm = |e: usize| {
+                if e <= 6 {
+                    ArmGeometry::default()
+                } else {
+                    crept
+                }
+            };
+            let runs = run_on(&mut learner(Algorithm::GaussNewton), arm, &t, 7, 0.0002);
+            let steady = mean(&runs[5]);
+            let step = &runs[6];
+            assert!(step[0].0 > steady + 0.002, "the step is felt: {runs:?}");
+            assert!(step[1..].iter().all(|(_, c)| *c), "{runs:?}");
+            let rest = mean(&step[1..]);
+            assert!(
+                rest < steady + 0.001,
+                "{rest} m, steady {steady} m: {runs:?}"
+            );
         }
 
         #[test]

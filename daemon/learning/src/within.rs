@@ -200,7 +200,7 @@ impl Departure {
         if self.last_point.is_some_and(|last| point <= last) || self.theta.len() == 0 {
             self.restart();
             self.theta = DVector::zeros(arm.parameters());
-            self.cov = DMatrix::from_diagonal(&arm.prior_variances());
+            self.cov = DMatrix::from_diagonal(&arm.change_variances());
         }
         self.last_point = Some(point);
     }
