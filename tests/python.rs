@@ -186,7 +186,10 @@ fn rust_layouts() -> Vec<Layout> {
             set_id,
             point,
             execution,
-            actuation
+            actuation,
+            within,
+            _pad,
+            answers_ns
         }),
         layout!(WaypointSet {
             seq,
@@ -225,6 +228,8 @@ fn rust_layouts() -> Vec<Layout> {
             executions,
             count,
             reconditions,
+            within,
+            _pad,
             errors_m,
             mean_m,
             max_m

@@ -508,9 +508,16 @@ pub(crate) mod tests {
         }
         // Execution 1 runs on the first estimates (for it); group 1 is inactive at tick 10, so
         // an estimate for it then is in time.
-        replanner.recondition(1, &[0.6; ACTUATORS], 1).unwrap();
+        // It was corrected within the execution, which the stats say of point 1.
+        let within = ConditionedOn {
+            actuation: [0.6; ACTUATORS],
+            execution: 1,
+            within: true,
+        };
+        replanner.recondition_on(1, &within).unwrap();
         let first = (0..1000).find_map(|_| step(&mut x)).unwrap();
         assert_eq!((first.execution, first.reconditions), (1, 2));
+        assert_eq!(first.within, 0b10);
         assert_eq!(x.reconditions(), 0, "nothing of execution 2 has run yet");
 
         // Execution 2: group 0's estimate comes in the rest, in time; group 1's once group 1
@@ -522,6 +529,8 @@ pub(crate) mod tests {
         replanner.recondition(1, &[0.7; ACTUATORS], 2).unwrap();
         let second = (0..1000).find_map(|_| step(&mut x)).unwrap();
         assert_eq!((second.execution, second.reconditions), (2, 1));
+        // Point 1 ran on execution 1's estimate: corrected within that execution, not this.
+        assert_eq!(second.within, 0);
         assert_eq!(
             samples,
             [(1, 0, 0.5), (1, 1, 0.6), (2, 0, 0.4), (2, 1, 0.6)],

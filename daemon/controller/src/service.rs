@@ -455,6 +455,15 @@ mod tests {
     use crate::execution::tests::planner;
     use softarm_ipc::ACTUATORS;
 
+    /// An estimate of `a` for every actuator, for execution 2.
+    fn on(a: f64) -> ConditionedOn<ACTUATORS> {
+        ConditionedOn {
+            actuation: [a; ACTUATORS],
+            execution: 2,
+            within: false,
+        }
+    }
+
     #[test]
     fn a_queued_set_leaves_the_running_set_its_replanner() {
         let (mut running, r) = planner().start(&[[0.5; ACTUATORS]; 2]).unwrap();
@@ -464,28 +473,19 @@ mod tests {
         handed.add(2, q);
 
         // The running set's estimates still re-condition it, and only it.
-        assert!(matches!(
-            handed.recondition(1, 1, &[0.6; ACTUATORS], 2),
-            Some(Ok(()))
-        ));
+        assert!(matches!(handed.recondition(1, 1, &on(0.6)), Some(Ok(()))));
         running.rest();
         queued.rest();
         assert_eq!((running.applied(), queued.applied()), (1, 0));
         // Once the queued set runs, its own.
-        assert!(matches!(
-            handed.recondition(2, 0, &[0.4; ACTUATORS], 2),
-            Some(Ok(()))
-        ));
+        assert!(matches!(handed.recondition(2, 0, &on(0.4)), Some(Ok(()))));
         queued.rest();
         assert_eq!((running.applied(), queued.applied()), (1, 1));
 
         // A queued set replaced by a newer one goes back; the running set keeps its replanner.
         handed.remove(2);
-        assert!(handed.recondition(2, 0, &[0.4; ACTUATORS], 2).is_none());
-        assert!(matches!(
-            handed.recondition(1, 0, &[0.6; ACTUATORS], 2),
-            Some(Ok(()))
-        ));
+        assert!(handed.recondition(2, 0, &on(0.4)).is_none());
+        assert!(matches!(handed.recondition(1, 0, &on(0.6)), Some(Ok(()))));
         running.rest();
         assert_eq!(running.applied(), 2);
         handed.remove(1);

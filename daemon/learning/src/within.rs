@@ -197,7 +197,7 @@ impl Departure {
     /// Point `point` came and told nothing of the arm (its target is beyond reach); a point at
     /// or before the last seen begins a new execution.
     pub fn pass<const N: usize>(&mut self, arm: &CalibratedArm<N>, point: usize) {
-        if self.last_point.is_some_and(|last| point <= last) || self.theta.len() == 0 {
+        if self.last_point.is_some_and(|last| point <= last) || self.theta.is_empty() {
             self.restart();
             self.theta = DVector::zeros(arm.parameters());
             self.cov = DMatrix::from_diagonal(&arm.change_variances());
