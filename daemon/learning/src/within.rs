@@ -2,13 +2,15 @@
 //! in the running execution show of the arm as it is now, shared with the points still to come.
 //!
 //! Each visited point predicts where its try lands from its own history (its error filter and
-//! Jacobian, or its target on a first visit). What it misses that prediction by, beyond its
-//! usual scatter, is the arm: a tool swapped, a tendon crept, a load. That part is a departure
-//! δθ of the calibrated arm's parameters ([`CalibratedArm`]: tool in the tip frame, actuator
-//! offsets, bends, rotations, connector), estimated by a Kalman filter over the execution's
-//! points from a prior of the plausible departures, and carried to a later point `m` as the
-//! shift `G_m δθ` its sensitivity gives there. Not a shift of task space: a longer tool moves
-//! every point along its own tip axis, which turns from point to point.
+//! slope, or on a first visit where the model of its first estimate says that lands). What it
+//! misses that prediction by, beyond its usual scatter, is the arm: a tool swapped, a tendon
+//! crept, a load. That part is a departure δθ of the calibrated arm's parameters
+//! ([`CalibratedArm`]: tool in the tip frame, actuator offsets, bends, rotations, connector),
+//! estimated by a Kalman filter over the execution's points from a prior of what changes while
+//! an arm runs ([`CalibratedArm::change_variances`]); a later point is corrected by the
+//! departed arm ([`Departure::arm_now`]; the learner takes its inverse). Not a shift of task
+//! space: a longer tool moves every point along its own tip axis, which turns from point to
+//! point.
 //!
 //! Only what stands out of the scatter counts: a miss within twice what a point's prediction
 //! usually misses by (learnt per kind of visit, first or repeated) teaches nothing, so that on
@@ -52,7 +54,7 @@ pub const LEAST_SHIFT_M: f64 = 1e-4;
 /// The kind of a visit's prediction, each with its own scatter.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Kind {
-    /// The point's first try: predicted to land on its target.
+    /// The point's first try: predicted to land where the model of its first estimate says.
     First,
     /// A later one: predicted from the point's own tries.
     Repeated,
