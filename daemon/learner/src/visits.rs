@@ -164,6 +164,15 @@ impl<const N: usize> Learner<N> {
             }
         };
         self.set_id = r.set_id;
+        for point in (0..first.len()).filter(|n| self.online.beyond_reach(*n)) {
+            tracing::warn!(
+                set_id = r.set_id,
+                point,
+                "the point's target is beyond the arm's reach as calibrated (its nearest place \
+                 is more than 5 mm away): the learner steps toward it, and what it misses by is \
+                 not taken for a change of the arm"
+            );
+        }
         let (actor, critic) = self.online.cacla().stored_centres();
         let (actor_evicted, critic_evicted) = self.online.cacla().evicted_centres();
         tracing::info!(
