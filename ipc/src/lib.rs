@@ -1107,7 +1107,7 @@ mod tests {
         use std::mem::{align_of, size_of};
         assert_eq!(
             (size_of::<ExecutionStats>(), align_of::<ExecutionStats>()),
-            (184, 8)
+            (192, 8)
         );
         assert_eq!(
             (
@@ -1127,7 +1127,7 @@ mod tests {
         assert_eq!(size_of::<Actuators>(), 136);
         assert_eq!(size_of::<Setpoint>(), 168);
         assert_eq!(size_of::<MotorState>(), 384);
-        assert_eq!(size_of::<ActuationEstimate>(), 168);
+        assert_eq!(size_of::<ActuationEstimate>(), 184);
     }
 
     #[test]

@@ -48,6 +48,17 @@ impl<const N: usize> Corrections<N> {
         &self.points
     }
 
+    /// The estimate `target` is to start from the next time, once its next step is known.
+    pub fn renew(&mut self, target: &Position, estimate: [f64; N]) {
+        if let Some(p) = self
+            .points
+            .iter_mut()
+            .find(|p| distance(&p.target, target) < SAME_TARGET_M)
+        {
+            p.estimate = estimate;
+        }
+    }
+
     /// The estimate that served `target` best, if it was visited.
     pub fn visited(&self, target: &Position) -> Option<[f64; N]> {
         self.points
