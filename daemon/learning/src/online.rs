@@ -360,7 +360,8 @@ impl<const N: usize> OnlineLearner<N> {
         if let Seen::Changed(_) = seen {
             self.corrections = Corrections::default();
             self.calibrated = CalibratedArm::configured(self.arm);
-            self.departure.restart();
+            self.departure
+                .forget(self.cacla.config().gauss_newton.noise_m);
             let radius = self.cacla.config().gauss_newton.trust_initial;
             for p in &mut self.set {
                 *p = Point {

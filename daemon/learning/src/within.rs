@@ -127,6 +127,13 @@ impl Departure {
         self.largest_m = 0.0;
     }
 
+    /// A changed arm: nothing of it is known, its scatter neither, as a fresh learner's
+    /// (measured in the running stack: a learner that had seen two changes started a third's
+    /// set at 12.2 mm where a fresh one started at 9.0).
+    pub fn forget(&mut self, noise_m: f64) {
+        *self = Self::new(noise_m);
+    }
+
     /// The last point seen in the running execution.
     pub fn last_point(&self) -> Option<usize> {
         self.last_point
