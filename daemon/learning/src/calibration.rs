@@ -205,13 +205,6 @@ impl<const N: usize> CalibratedArm<N> {
         Slots::of(&self.configured).count()
     }
 
-    /// Each parameter's prior variance: how far the arm plausibly departs from the configured
-    /// one along it (squared, in the parameter's own unit).
-    pub fn prior_variances(&self) -> DVector<f64> {
-        let slots = Slots::of(&self.configured);
-        DVector::from_fn(slots.count(), |k, _| slots.prior(k).powi(2))
-    }
-
     /// This arm departed by `delta` (one per parameter, in [`CalibratedArm::sensitivity`]'s
     /// order and units).
     pub fn departed(&self, delta: &DVector<f64>) -> Self {

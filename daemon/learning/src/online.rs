@@ -116,6 +116,17 @@ struct Point<const N: usize> {
 }
 
 impl<const N: usize> Point<N> {
+    /// The try its next step is taken from: the last, unless it was worse than the best by
+    /// more than `noise_m` (a step that made things worse is not built on).
+    fn base(&self, noise_m: f64) -> Option<Try<N>> {
+        let (last, best) = (self.last?, self.best?);
+        Some(if last.error <= best.error + noise_m {
+            last
+        } else {
+            best
+        })
+    }
+
     /// A point nothing is known of, its trust region at `radius`.
     fn new(radius: f64) -> Self {
         Self {
@@ -690,15 +701,10 @@ impl<const N: usize> OnlineLearner<N> {
     fn predicted(&self, point: usize, target: &Position, a: &[f64; N]) -> (Kind, Position, f64) {
         let c = self.cacla.config().gauss_newton;
         let p = &self.set[point];
-        let (kind, from, error) = match (p.last, p.best) {
-            (Some(last), Some(best)) => {
-                let base = if last.error <= best.error + c.noise_m {
-                    last
-                } else {
-                    best
-                };
+        let (kind, from, error) = match p.base(c.noise_m) {
+            Some(base) => {
                 let e = match p.bias {
-                    Some((bias, _)) if base == last => bias,
+                    Some((bias, _)) if Some(base) == p.last => bias,
                     _ => error_vector(target, &base.reached),
                 };
                 (Kind::Repeated, base.action, e)
@@ -736,13 +742,7 @@ impl<const N: usize> OnlineLearner<N> {
     fn directed(&mut self, point: usize, target: &Position, explore: bool) -> [f64; N] {
         let c = self.cacla.config().gauss_newton;
         let p = self.set[point];
-        if explore && let (Some(last), Some(best)) = (p.last, p.best) {
-            // A step that made things worse is not built on: back to the best try.
-            let base = if last.error <= best.error + c.noise_m {
-                last
-            } else {
-                best
-            };
+        if explore && let (Some(last), Some(base)) = (p.last, p.base(c.noise_m)) {
             // The first correction once the arm is calibrated: the calibrated arm, fitted to
             // all the arm did since it was last fitted, takes the whole step (see
             // [`OnlineLearner::first_correction`]); Broyden's from there on.

@@ -239,13 +239,4 @@ impl Departure {
             now
         })
     }
-
-    /// The scatter (RMS, m) of a kind of visit's prediction.
-    pub fn scatter_m(&self, kind: Kind) -> f64 {
-        let var = match kind {
-            Kind::First => self.first_var,
-            Kind::Repeated => self.repeated_var,
-        };
-        (3.0 * var).sqrt()
-    }
 }
