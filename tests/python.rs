@@ -188,7 +188,7 @@ fn rust_layouts() -> Vec<Layout> {
             execution,
             actuation,
             within,
-            _pad,
+            beyond_reach,
             answers_ns
         }),
         layout!(WaypointSet {
@@ -229,7 +229,7 @@ fn rust_layouts() -> Vec<Layout> {
             count,
             reconditions,
             within,
-            _pad,
+            beyond_reach,
             errors_m,
             mean_m,
             max_m

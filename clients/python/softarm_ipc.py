@@ -274,7 +274,7 @@ class EstimateRequest(_Payload):
 class ActuationEstimate(_Payload):
     """``estimate``: the learner's actuation for a conditioning point."""
 
-    TYPE_NAME = "softarm::ActuationEstimate.v3"
+    TYPE_NAME = "softarm::ActuationEstimate.v4"
     _fields_ = [
         ("seq", ctypes.c_uint64),
         ("stamp_ns", ctypes.c_uint64),
@@ -283,7 +283,7 @@ class ActuationEstimate(_Payload):
         ("execution", ctypes.c_uint32),  # the one it is for (1-based)
         ("actuation", Actuators),
         ("within", ctypes.c_uint32),  # 1: corrected within its execution
-        ("_pad", ctypes.c_uint32),
+        ("beyond_reach", ctypes.c_uint32),  # 1: its target is beyond the arm's reach
         ("answers_ns", ctypes.c_uint64),  # the stamp of the sample it answers, 0 if none
     ]
 
@@ -349,7 +349,7 @@ class DemonstrateReply(_Payload):
 class ExecutionStats(_Payload):
     """``stats``: one per finished execution (errors at the conditioning points, Eq. 9)."""
 
-    TYPE_NAME = "softarm::ExecutionStats.v2"
+    TYPE_NAME = "softarm::ExecutionStats.v3"
     _fields_ = [
         ("seq", ctypes.c_uint64),
         ("stamp_ns", ctypes.c_uint64),
@@ -359,7 +359,7 @@ class ExecutionStats(_Payload):
         ("count", ctypes.c_uint32),
         ("reconditions", ctypes.c_uint32),  # learner estimates applied during it
         ("within", ctypes.c_uint32),  # bit n: point n ran corrected within the execution
-        ("_pad", ctypes.c_uint32),
+        ("beyond_reach", ctypes.c_uint32),  # bit n: point n's target is beyond reach
         ("errors_m", ctypes.c_double * MAX_WAYPOINTS),
         ("mean_m", ctypes.c_double),
         ("max_m", ctypes.c_double),

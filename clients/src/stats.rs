@@ -18,8 +18,8 @@ pub fn late_estimates(s: &ExecutionStats) -> u32 {
 /// One JSON object per execution: `execution`, `errors_mm` (`null` for a point the tracker
 /// did not see), `mean_mm`, `max_mm` (of the points seen), `unseen` ([`ExecutionStats::unseen`]),
 /// `reconditions` (estimates applied during it), `late_estimates` ([`late_estimates`]),
-/// `within` (per point: whether it ran on an estimate corrected within the execution), and
-/// the set.
+/// `within` (per point: whether it ran on an estimate corrected within the execution),
+/// `beyond_reach` (per point: whether its target is beyond the arm's reach), and the set.
 pub fn json_line(s: &ExecutionStats) -> String {
     serde_json::json!({
         "set_id": s.set_id,
@@ -32,6 +32,7 @@ pub fn json_line(s: &ExecutionStats) -> String {
         "reconditions": s.reconditions,
         "late_estimates": late_estimates(s),
         "within": (0..s.errors().len()).map(|n| s.corrected_within(n)).collect::<Vec<_>>(),
+        "beyond_reach": (0..s.errors().len()).map(|n| s.beyond_reach(n)).collect::<Vec<_>>(),
     })
     .to_string()
 }
@@ -48,6 +49,7 @@ pub fn from_json(v: &serde_json::Value) -> Option<ExecutionStats> {
         count: u("count")? as u32,
         reconditions: u("reconditions")? as u32,
         within: u("within").unwrap_or(0) as u32,
+        beyond_reach: u("beyond_reach").unwrap_or(0) as u32,
         mean_m: v["mean_m"].as_f64().unwrap_or(f64::NAN),
         max_m: v["max_m"].as_f64().unwrap_or(f64::NAN),
         ..Default::default()
@@ -80,7 +82,8 @@ pub fn table_header(points: usize) -> String {
 }
 
 /// A row of the table: a point the tracker did not see is `-`; one that ran on an estimate
-/// corrected within the execution is marked `*`.
+/// corrected within the execution is marked `*`, one whose target is beyond the arm's reach
+/// `!` (its error is how near the arm comes).
 pub fn table_row(s: &ExecutionStats) -> String {
     let mm = |v: f64, width: usize| {
         if v.is_finite() {
@@ -91,7 +94,9 @@ pub fn table_row(s: &ExecutionStats) -> String {
     };
     let mut r = format!("{:>5}", s.execution);
     for (n, e) in s.errors().iter().enumerate() {
-        r += &if s.corrected_within(n) {
+        r += &if s.beyond_reach(n) {
+            mm(*e, 6) + "!"
+        } else if s.corrected_within(n) {
             mm(*e, 6) + "*"
         } else {
             mm(*e, 7)
@@ -240,6 +245,27 @@ mod tests {
         assert_eq!(j["within"], serde_json::json!([false, true, true]));
         let recorded = serde_json::to_value(s).unwrap();
         assert_eq!(from_json(&recorded).unwrap().within, 0b110);
+    }
+
+    #[test]
+    fn points_beyond_reach_are_marked() {
+        let s = ExecutionStats {
+            execution: 4,
+            count: 3,
+            beyond_reach: 0b1,
+            within: 0b100,
+            errors_m: [
+                0.036, 0.001, 0.002, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+                0.0,
+            ],
+            ..Default::default()
+        };
+        let row = table_row(&s);
+        assert!(row.starts_with("    4   36.00!   1.00    2.00*"), "{row}");
+        let j: serde_json::Value = serde_json::from_str(&json_line(&s)).unwrap();
+        assert_eq!(j["beyond_reach"], serde_json::json!([true, false, false]));
+        let recorded = serde_json::to_value(s).unwrap();
+        assert_eq!(from_json(&recorded).unwrap().beyond_reach, 0b1);
     }
 
     #[test]

@@ -253,8 +253,8 @@ impl EstimateRequest {
 /// The learner's actuation for a conditioning point: the controller conditions group `point`
 /// on it.
 #[derive(Debug, Clone, Copy, Default, ZeroCopySend, serde::Serialize)]
-// v2: per-actuator values for any arm (`Actuators`). v3: `within`.
-#[type_name("softarm::ActuationEstimate.v3")]
+// v2: per-actuator values for any arm (`Actuators`). v3: `within`. v4: `beyond_reach`.
+#[type_name("softarm::ActuationEstimate.v4")]
 #[repr(C)]
 pub struct ActuationEstimate {
     pub seq: u64,
@@ -268,7 +268,9 @@ pub struct ActuationEstimate {
     /// 1 if corrected within its execution by what the points before it showed of the arm
     /// (`ExecutionStats::within`), else 0.
     pub within: u32,
-    pub _pad: u32,
+    /// 1 if the point's target is beyond the arm's reach: the estimate aims at the nearest
+    /// place the arm reaches (`ExecutionStats::beyond_reach`), else 0.
+    pub beyond_reach: u32,
     /// The `stamp_ns` (T_cond) of the sample it answers; 0 for a set's first estimates and a
     /// changed arm's.
     pub answers_ns: u64,
@@ -364,8 +366,8 @@ pub struct DemonstrateReply {
 
 /// One per finished execution.
 #[derive(Debug, Clone, Copy, Default, ZeroCopySend, serde::Serialize)]
-// v2: `within`.
-#[type_name("softarm::ExecutionStats.v2")]
+// v2: `within`. v3: `beyond_reach`.
+#[type_name("softarm::ExecutionStats.v3")]
 #[repr(C)]
 pub struct ExecutionStats {
     pub seq: u64,
@@ -381,7 +383,9 @@ pub struct ExecutionStats {
     /// Bit n set: point n ran on an estimate the learner corrected within this execution, by
     /// what the points before it showed of the arm.
     pub within: u32,
-    pub _pad: u32,
+    /// Bit n set: point n's target is beyond the arm's reach, and it ran on an estimate aimed
+    /// at the nearest place the arm reaches.
+    pub beyond_reach: u32,
     /// Eq. 9: ‖P_cond[n] − p_reached[n]‖ (m).
     pub errors_m: [f64; MAX_WAYPOINTS],
     pub mean_m: f64,
@@ -401,6 +405,11 @@ impl ExecutionStats {
     /// Whether point `n` ran on an estimate corrected within this execution.
     pub fn corrected_within(&self, n: usize) -> bool {
         n < 32 && self.within & (1 << n) != 0
+    }
+
+    /// Whether point `n`'s target is beyond the arm's reach.
+    pub fn beyond_reach(&self, n: usize) -> bool {
+        n < 32 && self.beyond_reach & (1 << n) != 0
     }
 }
 

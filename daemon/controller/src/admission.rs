@@ -6,12 +6,26 @@
 use anyhow::bail;
 use softarm_config::Config;
 use softarm_config::waypoints::validate;
-use softarm_ipc::{EstimateRequest, MAX_WAYPOINTS, Position, WaypointSet};
-use softarm_method::blend::{BlendError, ConditioningPoint, Planner, Replanner, Timeline};
+use softarm_ipc::{ActuationEstimate, EstimateRequest, MAX_WAYPOINTS, Position, WaypointSet};
+use softarm_method::blend::{
+    BlendError, ConditionedOn, ConditioningPoint, Planner, Replanner, Timeline,
+};
 use softarm_method::classify::classify;
 use softarm_model::bundle::Model;
 
 use crate::execution::ReadySet;
+
+/// What the learner's estimate `e` conditions its point on, with the learner's words about it;
+/// `None` if it is not for an arm of `N` actuators. As the service thread and the rehearsal
+/// both take it.
+pub fn conditioned_on<const N: usize>(e: &ActuationEstimate) -> Option<ConditionedOn<N>> {
+    Some(ConditionedOn {
+        actuation: e.actuation.fixed()?,
+        execution: e.execution,
+        within: e.within != 0,
+        beyond_reach: e.beyond_reach != 0,
+    })
+}
 
 /// A set that passed admission: planned, with each way-point's primitive and its mean there,
 /// waiting for the learner's first estimates.
@@ -108,13 +122,23 @@ impl<const N: usize> Admitted<N> {
     pub fn start(
         self,
         set_id: u64,
-        estimates: &[Option<[f64; N]>],
+        estimates: &[Option<ConditionedOn<N>>],
     ) -> Result<(ReadySet<N>, Replanner<N>), BlendError> {
-        let initial: Vec<[f64; N]> = self
+        let initial: Vec<ConditionedOn<N>> = self
             .fallback
             .iter()
             .enumerate()
-            .map(|(i, fallback)| estimates.get(i).copied().flatten().unwrap_or(*fallback))
+            .map(|(i, fallback)| {
+                estimates
+                    .get(i)
+                    .copied()
+                    .flatten()
+                    .unwrap_or(ConditionedOn {
+                        actuation: *fallback,
+                        execution: 1,
+                        ..ConditionedOn::NONE
+                    })
+            })
             .collect();
         let points = initial.len();
         let mut cond = [ConditioningPoint::default(); MAX_WAYPOINTS];
@@ -125,7 +149,7 @@ impl<const N: usize> Admitted<N> {
         {
             *c = ConditioningPoint { position, tick };
         }
-        let (blend, replanner) = self.planner.start(&initial)?;
+        let (blend, replanner) = self.planner.start_on(&initial)?;
         let set = ReadySet {
             set_id,
             executions: self.executions,

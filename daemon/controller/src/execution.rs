@@ -126,6 +126,8 @@ pub struct Execution<const N: usize> {
     in_force: u32,
     /// Bit n: point n ran on an estimate corrected within the execution.
     within: u32,
+    /// Bit n: point n ran on an estimate for a target beyond the arm's reach.
+    beyond_reach: u32,
     /// What each point's group ran on in the current execution, for the first `evaluated`.
     ran_on: [ConditionedOn<N>; MAX_WAYPOINTS],
     evaluated: usize,
@@ -169,6 +171,7 @@ impl<const N: usize> Execution<N> {
             errors: [0.0; MAX_WAYPOINTS],
             in_force: 0,
             within: 0,
+            beyond_reach: 0,
             ran_on: [ConditionedOn::NONE; MAX_WAYPOINTS],
             evaluated: 0,
             set,
@@ -263,6 +266,10 @@ impl<const N: usize> Execution<N> {
                 if on.within {
                     self.within |= 1 << self.next_point;
                 }
+            }
+            // Whichever execution's estimate it ran on: its target is beyond reach all the same.
+            if on.beyond_reach {
+                self.beyond_reach |= 1 << self.next_point;
             }
             self.pending = Some(Pending {
                 point: self.next_point,
@@ -387,7 +394,7 @@ impl<const N: usize> Execution<N> {
             count: set.count as u32,
             reconditions,
             within: self.within,
-            _pad: 0,
+            beyond_reach: self.beyond_reach,
             errors_m: self.errors,
             mean_m: if n > 0 { sum / n as f64 } else { f64::NAN },
             max_m: max,
@@ -397,6 +404,7 @@ impl<const N: usize> Execution<N> {
         self.next_point = 0;
         self.in_force = 0;
         self.within = 0;
+        self.beyond_reach = 0;
         self.evaluated = 0;
         stats
     }
@@ -508,16 +516,18 @@ pub(crate) mod tests {
         }
         // Execution 1 runs on the first estimates (for it); group 1 is inactive at tick 10, so
         // an estimate for it then is in time.
-        // It was corrected within the execution, which the stats say of point 1.
+        // It was corrected within the execution, and its target is beyond reach, which the
+        // stats say of point 1.
         let within = ConditionedOn {
             actuation: [0.6; ACTUATORS],
             execution: 1,
             within: true,
+            beyond_reach: true,
         };
         replanner.recondition_on(1, &within).unwrap();
         let first = (0..1000).find_map(|_| step(&mut x)).unwrap();
         assert_eq!((first.execution, first.reconditions), (1, 2));
-        assert_eq!(first.within, 0b10);
+        assert_eq!((first.within, first.beyond_reach), (0b10, 0b10));
         assert_eq!(x.reconditions(), 0, "nothing of execution 2 has run yet");
 
         // Execution 2: group 0's estimate comes in the rest, in time; group 1's once group 1
@@ -529,8 +539,9 @@ pub(crate) mod tests {
         replanner.recondition(1, &[0.7; ACTUATORS], 2).unwrap();
         let second = (0..1000).find_map(|_| step(&mut x)).unwrap();
         assert_eq!((second.execution, second.reconditions), (2, 1));
-        // Point 1 ran on execution 1's estimate: corrected within that execution, not this.
-        assert_eq!(second.within, 0);
+        // Point 1 ran on execution 1's estimate: corrected within that execution, not this;
+        // its target beyond reach all the same.
+        assert_eq!((second.within, second.beyond_reach), (0, 0b10));
         assert_eq!(
             samples,
             [(1, 0, 0.5), (1, 1, 0.6), (2, 0, 0.4), (2, 1, 0.6)],

@@ -28,7 +28,7 @@ mod rt;
 mod service;
 mod tick;
 
-pub use admission::{Admitted, admit};
+pub use admission::{Admitted, admit, conditioned_on};
 pub use control::{Control, Decided, Health, Latest, Outputs, Plan, Report, Retired};
 pub use demonstration::DemoSequences;
 pub use execution::{

@@ -18,7 +18,7 @@ use softarm_method::blend::{BlendError, ConditionedOn, Replanner};
 use softarm_model::bundle::{BundleWatch, Model};
 use softarm_runtime::{EstopLatch, now_ns};
 
-use crate::admission::{Admitted, admit};
+use crate::admission::{Admitted, admit, conditioned_on};
 use crate::control::{Plan, Retired};
 use crate::demonstration::DemoSequences;
 use crate::{Shared, rt};
@@ -40,7 +40,7 @@ struct PendingSet<const N: usize> {
     /// `None`: wait for every estimate, however long.
     deadline: Option<Instant>,
     admitted: Admitted<N>,
-    estimates: Vec<Option<[f64; N]>>,
+    estimates: Vec<Option<ConditionedOn<N>>>,
 }
 
 impl<const N: usize> PendingSet<N> {
@@ -308,7 +308,7 @@ impl<const N: usize> Service<N> {
         while let Ok(Some(s)) = self.ports.estimates.receive() {
             let s = *s;
             let point = s.point as usize;
-            let Some(actuation) = s.actuation.fixed() else {
+            let Some(on) = conditioned_on(&s) else {
                 tracing::warn!(
                     set_id = s.set_id,
                     point,
@@ -319,14 +319,9 @@ impl<const N: usize> Service<N> {
             };
             if let Some(p) = self.pending.as_mut().filter(|p| p.set_id == s.set_id) {
                 if point < p.estimates.len() {
-                    p.estimates[point] = Some(actuation);
+                    p.estimates[point] = Some(on);
                 }
             } else {
-                let on = ConditionedOn {
-                    actuation,
-                    execution: s.execution,
-                    within: s.within != 0,
-                };
                 match self.handed.recondition(s.set_id, point, &on) {
                     Some(Err(err)) => {
                         tracing::warn!(set_id = s.set_id, point, "estimate not used: {err}")
@@ -460,7 +455,7 @@ mod tests {
         ConditionedOn {
             actuation: [a; ACTUATORS],
             execution: 2,
-            within: false,
+            ..ConditionedOn::NONE
         }
     }
 

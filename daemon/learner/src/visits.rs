@@ -8,7 +8,7 @@ use softarm_ipc::{
     ActuationEstimate, ConditioningSample, EstimateRequest, MAX_WAYPOINTS, Position,
 };
 use softarm_learning::arm::Seen;
-use softarm_learning::online::OnlineLearner;
+use softarm_learning::online::{OnlineLearner, Reach};
 use softarm_learning::within::Within;
 use softarm_space::Workspace;
 
@@ -164,13 +164,14 @@ impl<const N: usize> Learner<N> {
             }
         };
         self.set_id = r.set_id;
-        for point in (0..first.len()).filter(|n| self.online.beyond_reach(*n)) {
+        for point in (0..first.len()).filter(|n| self.online.reach(*n).beyond()) {
             tracing::warn!(
                 set_id = r.set_id,
                 point,
                 "the point's target is beyond the arm's reach as calibrated (its nearest place \
-                 is more than 5 mm away): the learner steps toward it, and what it misses by is \
-                 not taken for a change of the arm"
+                 is more than 5 mm away): the learner brings it to the nearest place the arm \
+                 reaches and holds it there, and what it misses by is not taken for a change \
+                 of the arm"
             );
         }
         let (actor, critic) = self.online.cacla().stored_centres();
@@ -216,16 +217,24 @@ impl<const N: usize> Learner<N> {
         if s.set_id != self.set_id && self.online.begin(s.points as usize).is_ok() {
             self.set_id = s.set_id;
         }
+        let reach = self.online.reach(s.point as usize);
         let result = observe_and_estimate(&mut self.online, &s);
         self.say_calibrated();
+        say_reach(&s, reach, self.online.reach(s.point as usize));
         match result {
             Ok(next) => {
                 tracing::debug!(point = s.next_point, estimate = ?next, "estimate");
                 self.last_visit = Some((s.set_id, s.execution, s.point));
                 let within = self.online.within(s.next_point as usize);
                 say_within(&s, within);
-                let within = within.corrected();
-                let mut e = estimate(s.set_id, s.next_point, s.next_execution, next, within);
+                let mut e = estimate(
+                    s.set_id,
+                    s.next_point,
+                    s.next_execution,
+                    next,
+                    within.corrected(),
+                );
+                e.beyond_reach = self.online.reach(s.next_point as usize).beyond().into();
                 e.answers_ns = s.stamp_ns;
                 Some(e)
             }
@@ -303,8 +312,35 @@ fn estimate<const N: usize>(
         execution,
         actuation: actuation.into(),
         within: within.into(),
-        _pad: 0,
+        beyond_reach: 0,
         answers_ns: 0,
+    }
+}
+
+/// Says how a visit `s` changed where its point stands with its reach (`was`, `now`).
+fn say_reach(s: &ConditioningSample, was: Reach, now: Reach) {
+    let (set_id, point) = (s.set_id, s.point);
+    match (was, now) {
+        (Reach::Held { .. }, Reach::Held { .. }) => {}
+        (_, Reach::Held { error_m }) => tracing::warn!(
+            set_id,
+            point,
+            error_mm = error_m * 1e3,
+            "the point is beyond the arm's reach: held at the nearest place its tries found, \
+             as further steps did not bring it closer"
+        ),
+        (Reach::Held { .. }, _) => tracing::warn!(
+            set_id,
+            point,
+            "the point held beyond reach is missed by more than it was held at: the arm moved \
+             there, stepping toward it again"
+        ),
+        (Reach::Beyond, Reach::Reachable) => tracing::info!(
+            set_id,
+            point,
+            "the point is within the arm's reach after all: its tries came within 5 mm"
+        ),
+        _ => {}
     }
 }
 

@@ -392,6 +392,85 @@ impl<const N: usize> CalibratedArm<N> {
     }
 }
 
+/// Random actuations [`nearest_place`] starts its search from, beside the one it is given.
+const NEAREST_SAMPLES: usize = 512;
+/// Of those, how many it descends from (the nearest few).
+const NEAREST_STARTS: usize = 4;
+/// Descent steps from each start.
+const NEAREST_ITERATIONS: usize = 60;
+
+/// The actuation inside [0, 1] that brings `model`'s tracked point nearest to `target`: a
+/// target beyond the arm's reach has no inverse, and Gauss-Newton clipped to the range stops
+/// wherever the clipping turns it (measured: 34 mm off a target the arm comes within 22 mm of).
+/// Bounded descent (damped Gauss-Newton on the actuators not held at a limit by the error,
+/// each step halved until it brings the point nearer) from `start` and from the nearest of
+/// [`NEAREST_SAMPLES`] spread actuations (a fixed sequence: the same answer every time).
+pub fn nearest_place<const N: usize>(
+    model: &impl ForwardModel<N>,
+    target: &Position,
+    start: &[f64; N],
+) -> [f64; N] {
+    let off = |a: &[f64; N]| {
+        let p = model.position(a);
+        Vector3::from_fn(|d, _| target[d] - p[d]).norm()
+    };
+    // Kronecker's sequence (k √p_i mod 1, p_i the i-th prime): spread over the cube, no RNG.
+    const PRIMES: [f64; 16] = [
+        2., 3., 5., 7., 11., 13., 17., 19., 23., 29., 31., 37., 41., 43., 47., 53.,
+    ];
+    let spread = (1..=NEAREST_SAMPLES)
+        .map(|k| std::array::from_fn(|i| (k as f64 * PRIMES[i % 16].sqrt()).fract()));
+    let mut starts: Vec<([f64; N], f64)> = spread.map(|a: [f64; N]| (a, off(&a))).collect();
+    starts.sort_by(|a, b| a.1.total_cmp(&b.1));
+    starts.truncate(NEAREST_STARTS);
+    starts.push((*start, off(start)));
+    starts
+        .into_iter()
+        .map(|(a, _)| nearest_place_from(model, target, a))
+        .min_by(|a, b| off(a).total_cmp(&off(b)))
+        .unwrap_or(*start)
+}
+
+/// [`nearest_place`]'s descent from `a` alone: the nearest place around it.
+pub fn nearest_place_from<const N: usize>(
+    model: &impl ForwardModel<N>,
+    target: &Position,
+    mut a: [f64; N],
+) -> [f64; N] {
+    let error = |a: &[f64; N]| {
+        let p = model.position(a);
+        Vector3::from_fn(|d, _| target[d] - p[d])
+    };
+    let mut e = error(&a);
+    for _ in 0..NEAREST_ITERATIONS {
+        let mut j: Jacobian<N> = model.jacobian(&a);
+        let push = j.transpose() * e;
+        for i in 0..N {
+            if (a[i] <= 0.0 && push[i] < 0.0) || (a[i] >= 1.0 && push[i] > 0.0) {
+                j.set_column(i, &Vector3::zeros());
+            }
+        }
+        let Some(pinv) = damped_pseudo_inverse(&j, 1e-3) else {
+            break;
+        };
+        let mut step = pinv * e;
+        let mut moved = false;
+        for _ in 0..12 {
+            let b: [f64; N] = std::array::from_fn(|i| (a[i] + step[i]).clamp(0.0, 1.0));
+            let f = error(&b);
+            if f.norm() < e.norm() - 1e-7 {
+                (a, e, moved) = (b, f, true);
+                break;
+            }
+            step *= 0.5;
+        }
+        if !moved {
+            break;
+        }
+    }
+    a
+}
+
 /// Jᵀ (J Jᵀ + λ² I)⁻¹: the damped minimum-norm inverse of a Jacobian; none if singular. Here
 /// rather than in `online`, which uses it too, so that `online` depends on this module and not
 /// the other way round.

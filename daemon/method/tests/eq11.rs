@@ -241,6 +241,7 @@ fn a_one_point_set_applies_each_estimate_in_its_next_execution() {
             actuation: first,
             execution: 1,
             within: false,
+            beyond_reach: false,
         }
     );
 
@@ -260,6 +261,7 @@ fn a_one_point_set_applies_each_estimate_in_its_next_execution() {
             actuation: second,
             execution: 2,
             within: false,
+            beyond_reach: false,
         }
     );
     replanner.recondition(0, &third, 3).unwrap();

@@ -10,7 +10,8 @@
 //! `softarm_test_support::quick_model`, to MODEL_DIR first), STALL=WHO:EVERY_MS:FOR_MS
 //! (a loaded machine: `controller`, `sim` or `learner` kept from its CPU for FOR_MS every
 //! EVERY_MS), SETS=K (the set submitted K times over, EXECUTIONS each, on the same learner
-//! and arm: what a lab submitting a new set as its arm drifts sees at each set's start).
+//! and arm: what a lab submitting a new set as its arm drifts sees at each set's start),
+//! RUST_LOG (the learner's and the controller's log lines on stderr, e.g. `softarm_learner=info`).
 
 use anyhow::{Context, bail};
 use softarm_config::Config;
@@ -118,6 +119,11 @@ fn print(stats: &[ExecutionStats]) {
 }
 
 fn main() -> anyhow::Result<()> {
+    // The processes' log lines, on stderr, as RUST_LOG says (none without it).
+    tracing_subscriber::fmt()
+        .with_env_filter(tracing_subscriber::EnvFilter::from_default_env())
+        .with_writer(std::io::stderr)
+        .init();
     let args: Vec<String> = std::env::args().collect();
     let Some(dir) = args.get(1) else {
         bail!("usage: online MODEL_DIR [EXECUTIONS]");

@@ -16,7 +16,9 @@ use softarm_config::Config;
 use softarm_config::arm::ArmGeometry;
 use softarm_config::sim::SimConfig;
 use softarm_config::waypoints::WaypointFile;
-use softarm_controller::{ActuatorLag, Control, Latest, Outputs, Plan, Retired, admit, rest_ticks};
+use softarm_controller::{
+    ActuatorLag, Control, Latest, Outputs, Plan, Retired, admit, conditioned_on, rest_ticks,
+};
 use softarm_ipc::{
     ACTUATORS, Actuation, ActuationEstimate, ConditioningSample, ControllerState, ExecutionStats,
     Setpoint, WaypointSet,
@@ -407,7 +409,7 @@ impl<'a> Rehearsal<'a> {
         let request = admitted.estimate_request(set_id, set_id, self.now_ns);
         let mut estimates = vec![None; admitted.points()];
         for e in self.learner.request(&request) {
-            estimates[e.point as usize] = e.actuation.fixed();
+            estimates[e.point as usize] = conditioned_on(&e);
         }
         if estimates.iter().any(Option::is_none) {
             // The stack would start from the primitives' means after a time-out: nothing to
@@ -486,13 +488,10 @@ impl<'a> Rehearsal<'a> {
         let Some(r) = self.running.as_mut().filter(|r| r.set_id == e.set_id) else {
             return;
         };
-        let Some(actuation) = e.actuation.fixed() else {
+        let Some(on) = conditioned_on(e) else {
             return;
         };
-        if let Err(err) = r
-            .replanner
-            .recondition(e.point as usize, &actuation, e.execution)
-        {
+        if let Err(err) = r.replanner.recondition_on(e.point as usize, &on) {
             tracing::warn!(
                 set_id = e.set_id,
                 point = e.point,

@@ -176,6 +176,7 @@ impl<const D: usize> Planner<D> {
             actuation: *actuation,
             execution,
             within: false,
+            beyond_reach: false,
         };
         let (gs, xs) = (g.as_slice(), x.as_slice()); // column-major
         let rows_g = D * k;
@@ -222,6 +223,24 @@ impl<const D: usize> Planner<D> {
     /// Builds the Blend with every group conditioned on its initial estimate (for the first
     /// execution), and the replanner that re-conditions groups while it runs.
     pub fn start(self, initial: &[[f64; D]]) -> Result<(Blend<D>, Replanner<D>), BlendError> {
+        let on: Vec<ConditionedOn<D>> = initial
+            .iter()
+            .map(|a| ConditionedOn {
+                actuation: *a,
+                execution: 1,
+                ..ConditionedOn::NONE
+            })
+            .collect();
+        self.start_on(&on)
+    }
+
+    /// [`Planner::start`] on `initial`, whose learner's words (`within`, `beyond_reach`) the
+    /// tables carry to [`Blend::conditioned_on`](super::Blend::conditioned_on); each for the
+    /// first execution, whatever its `execution` says.
+    pub fn start_on(
+        self,
+        initial: &[ConditionedOn<D>],
+    ) -> Result<(Blend<D>, Replanner<D>), BlendError> {
         let n = self.schedule.points();
         if initial.len() != n {
             return Err(BlendError::Count {
@@ -234,9 +253,10 @@ impl<const D: usize> Planner<D> {
             .map(|j| self.base_table(j))
             .collect();
         let mut conditioned = Vec::with_capacity(n);
-        for (group, a) in initial.iter().enumerate() {
+        for (group, on) in initial.iter().enumerate() {
             let mut t = Table::zeroed(self.timeline.ticks());
-            self.condition(group, a, 1, &mut t)?;
+            self.condition(group, &on.actuation, 1, &mut t)?;
+            (t.on.within, t.on.beyond_reach) = (on.within, on.beyond_reach);
             conditioned.push(t);
         }
         // Bounded both ways: a replanner can be at most `n` updates ahead, and the retired
@@ -334,6 +354,7 @@ impl<const D: usize> Replanner<D> {
             actuation: *actuation,
             execution,
             within: false,
+            beyond_reach: false,
         };
         self.recondition_on(group, &on)
     }
@@ -351,7 +372,7 @@ impl<const D: usize> Replanner<D> {
         };
         self.planner
             .condition(group, &on.actuation, on.execution, &mut table)?;
-        table.on.within = on.within;
+        (table.on.within, table.on.beyond_reach) = (on.within, on.beyond_reach);
         if self.updates.is_abandoned() {
             return Err(BlendError::Disconnected);
         }

@@ -71,6 +71,9 @@ pub struct ConditionedOn<const D: usize> {
     pub execution: u32,
     /// The estimate was corrected within its execution (the learner's word, told on).
     pub within: bool,
+    /// The point's target is beyond the arm's reach: the estimate aims at the nearest place
+    /// the arm reaches (the learner's word, told on).
+    pub beyond_reach: bool,
 }
 
 impl<const D: usize> ConditionedOn<D> {
@@ -79,6 +82,7 @@ impl<const D: usize> ConditionedOn<D> {
         actuation: [f64::NAN; D],
         execution: 0,
         within: false,
+        beyond_reach: false,
     };
 }
 
