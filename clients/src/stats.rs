@@ -261,7 +261,7 @@ mod tests {
             ..Default::default()
         };
         let row = table_row(&s);
-        assert!(row.starts_with("    4   36.00!   1.00    2.00*"), "{row}");
+        assert!(row.starts_with("    4  36.00!    1.00   2.00*"), "{row}");
         let j: serde_json::Value = serde_json::from_str(&json_line(&s)).unwrap();
         assert_eq!(j["beyond_reach"], serde_json::json!([true, false, false]));
         let recorded = serde_json::to_value(s).unwrap();

@@ -1642,6 +1642,52 @@ mod tests {
             assert!(runs[0].iter().all(|(_, c)| !c), "{runs:?}");
         }
 
+        /// A target beyond reach is held once steps stop bringing it closer: its estimate
+        /// stops moving, it stays beyond reach, and it misses by no more than at its nearest
+        /// try.
+        #[test]
+        fn a_target_beyond_reach_is_held_where_steps_stop_helping() {
+            let mut t = five_targets();
+            t[1][2] -= 0.15;
+            let mut l = learner(Algorithm::GaussNewton);
+            let runs = run(&mut l, &ArmGeometry::default(), &t, 8, 0.0003);
+            let Reach::Held { error_m } = l.reach(1) else {
+                panic!("{:?}: {runs:?}", l.reach(1));
+            };
+            // Visited again at what it is held at: held there still.
+            let held = l.estimate(1, &t[1], true).unwrap();
+            let reached = ArmGeometry::default().position(&held);
+            l.observe(1, &t[1], &held, Some(&held), &reached).unwrap();
+            assert!(matches!(l.reach(1), Reach::Held { .. }));
+            assert_eq!(l.estimate(1, &t[1], true).unwrap(), held);
+            let best = runs.iter().map(|r| r[1].0).fold(f64::INFINITY, f64::min);
+            let again = distance(&reached, &t[1]);
+            assert!(again < best + 0.002, "{error_m} m held, {again}: {runs:?}");
+        }
+
+        /// A target the calibrated arm reaches but the arm does not (its actuators shorter than
+        /// configured, where the arm is straight at its longest): beyond reach as its tries
+        /// show, held, and shares nothing from then on.
+        #[test]
+        fn a_target_only_the_tries_show_beyond_reach_is_held() {
+            let arm = ArmGeometry::default();
+            let tip = arm.position(&[1.0; 6]);
+            let mut t = five_targets();
+            t[1] = [tip[0], tip[1], tip[2] + 0.002];
+            let shorter = ArmGeometry {
+                actuator_offset_m: [-0.01; 6],
+                ..Default::default()
+            };
+            let mut l = learner(Algorithm::GaussNewton);
+            let runs = run(&mut l, &shorter, &t, 8, 0.0003);
+            assert!(runs[0][1].0 > 0.01, "{runs:?}");
+            assert!(
+                matches!(l.reach(1), Reach::Held { .. }),
+                "{:?}: {runs:?}",
+                l.reach(1)
+            );
+        }
+
         #[test]
         fn where_the_arm_has_not_changed_nothing_is_added() {
             let nominal = ArmGeometry::default();
