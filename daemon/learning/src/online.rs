@@ -705,10 +705,10 @@ impl<const N: usize> OnlineLearner<N> {
             }
             _ if best.error < BEYOND_REACH_M => q.reach = Reach::Reachable,
             Reach::Beyond if stopped => self.hold(point, best),
-            Reach::Reachable if stopped && p.visits > UNHELPFUL => {
-                if self.at_nearest_place(target, &best) {
-                    self.hold(point, best);
-                }
+            Reach::Reachable
+                if stopped && p.visits > UNHELPFUL && self.at_nearest_place(target, &best) =>
+            {
+                self.hold(point, best)
             }
             _ => {}
         }
