@@ -486,6 +486,7 @@ fn python_mirrors_match_the_rust_payloads_enums_and_services() {
 
 #[test]
 fn python_reads_a_live_stack_and_submits_to_it() {
+    const EXECUTIONS: u32 = 4;
     let Some(py) = python(&["iceoryx2", "safetensors", "numpy"]) else {
         return;
     };
@@ -519,11 +520,15 @@ fn python_reads_a_live_stack_and_submits_to_it() {
     assert_eq!(t["kinematics.weights"]["dtype"], "float64", "{t}");
 
     s.up();
-    let (code, out, err) = s.submit(Path::new(DEMO_WAYPOINTS), 2);
+    // Four executions (23 s): Python is still in time to read setpoints live when it starts
+    // seconds late on a loaded machine (with two, it came after both, read their stats from
+    // the history and stopped at once, with 20 setpoints).
+    let (code, out, err) = s.submit(Path::new(DEMO_WAYPOINTS), EXECUTIONS);
     assert_eq!(code, 0, "{out}{err}");
     let id = set_id(&out);
 
-    // Python reads the set's execution as it happens: setpoints, status, both executions' stats.
+    // Python reads the set's execution as it happens: setpoints, status, every execution's
+    // stats.
     let out = run_python(
         &py,
         &[
@@ -536,7 +541,7 @@ fn python_reads_a_live_stack_and_submits_to_it() {
             "--set-id",
             &id.to_string(),
             "--stats",
-            "2",
+            &EXECUTIONS.to_string(),
         ],
     );
     let text = String::from_utf8_lossy(&out.stdout).to_string();
@@ -565,17 +570,23 @@ fn python_reads_a_live_stack_and_submits_to_it() {
         .iter()
         .map(|v| v["execution"].as_u64().unwrap())
         .collect();
-    assert_eq!(executions, vec![1, 2], "{summary}");
+    assert_eq!(
+        executions,
+        (1..=EXECUTIONS as u64).collect::<Vec<_>>(),
+        "{summary}"
+    );
     // The same numbers as `softarm stats --json` (the Rust client) prints.
-    let rust = s.wait_stats(id, 2, Duration::from_secs(30));
+    let rust = s.wait_stats(id, EXECUTIONS as usize, Duration::from_secs(30));
     for (p, r) in stats.iter().zip(&rust) {
         assert_eq!(
             (p["set_id"].as_u64(), p["executions"].as_u64()),
-            (Some(id), Some(2))
+            (Some(id), Some(EXECUTIONS as u64))
         );
         assert_eq!(p["count"], 5, "{p}");
         assert_eq!(p["execution"], r["execution"]);
         assert_eq!(p["reconditions"], r["reconditions"]);
+        assert_eq!(p["within"], r["within"], "{p} vs {r}");
+        assert_eq!(p["beyond_reach"], r["beyond_reach"], "{p} vs {r}");
         let (pe, re) = (
             p["errors_mm"].as_array().unwrap(),
             r["errors_mm"].as_array().unwrap(),

@@ -46,6 +46,8 @@ def stats_dict(s: sa.ExecutionStats) -> dict:
         "mean_mm": round(s.mean_m * 1e3, 3),
         "max_mm": round(s.max_m * 1e3, 3),
         "reconditions": s.reconditions,
+        "within": [bool(s.within >> n & 1) for n in range(len(s.errors()))],
+        "beyond_reach": [bool(s.beyond_reach >> n & 1) for n in range(len(s.errors()))],
     }
 
 
