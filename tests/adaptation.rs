@@ -90,6 +90,39 @@ fn a_one_point_set_improves_across_executions() {
     assert!(m[4] < 0.5 * m[0], "a one-point set did not improve: {m:?}");
 }
 
+/// Issue 48: a way-point beyond the arm's reach, in the running stack. The demo set with its
+/// second point 80 mm below where it was, which the sim's arm comes within 21.8 mm of (a brute
+/// force over the sim's own arm, `daemon/rehearsal/src/tests.rs::nearest_reach`): the learner
+/// brings it there and holds it, `stats` says it of that point in every execution, and the
+/// other points are not thrown by what it misses by.
+#[test]
+fn a_way_point_beyond_reach_is_held_where_the_arm_comes_nearest_and_said() {
+    const NEAREST_M: f64 = 0.0218;
+    let mut s = TestStack::new(BIN, "beyond", true);
+    s.up();
+    let demo = std::fs::read_to_string(DEMO_WAYPOINTS).unwrap();
+    let beyond = demo.replace("[0.031, 0.000, -0.501]", "[0.031, 0.000, -0.580]");
+    assert_ne!(beyond, demo);
+    let file = s.dir.join("beyond.toml");
+    std::fs::write(&file, beyond).unwrap();
+    let (code, out, err) = s.submit(&file, 6);
+    assert_eq!(code, 0, "{out}{err}");
+    let stats = s.wait_stats(set_id(&out), 6, Duration::from_secs(180));
+    let said = serde_json::json!([false, true, false, false, false]);
+    for v in &stats {
+        assert_eq!(v["beyond_reach"], said, "{v}");
+    }
+    let error = |v: &serde_json::Value, n: usize| v["errors_mm"][n].as_f64().unwrap() * 1e-3;
+    // Held, it scatters by what the sim's own disturbance moves it (a millimetre); before,
+    // the learner stepped toward the target and stopped 14 mm further than the arm comes.
+    for v in &stats[3..] {
+        assert!((error(v, 1) - NEAREST_M).abs() < 0.003, "{v}");
+    }
+    for n in [0, 2, 3, 4] {
+        assert!(error(&stats[5], n) < 0.005, "point {n}: {}", stats[5]);
+    }
+}
+
 const SECOND_WAYPOINTS: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/config/waypoints/second.toml");
 
 /// The sim as another arm: the running one stopped as a restarting driver would be, and the
