@@ -273,6 +273,18 @@ fn gauss_newton_step<const N: usize>(
     std::array::from_fn(|i| step[i])
 }
 
+/// From `a` toward `to`, no further than `radius` (‖Δa‖), inside [0, 1]; whether it was
+/// shortened.
+fn toward<const N: usize>(a: &[f64; N], to: &[f64; N], radius: f64) -> ([f64; N], bool) {
+    let mut step = minus(to, a);
+    let norm = step.iter().map(|v| v * v).sum::<f64>().sqrt();
+    let shortened = norm > radius;
+    if shortened {
+        step = step.map(|v| v * radius / norm);
+    }
+    (plus(a, &step), shortened)
+}
+
 /// An actuator at `a` that a step of `s` would push out of [0, 1].
 fn at_limit(a: f64, s: f64) -> bool {
     (a <= 0.0 && s < 0.0) || (a >= 1.0 && s > 0.0)
@@ -778,13 +790,8 @@ impl<const N: usize> OnlineLearner<N> {
             Some(now) => {
                 let was = self.calibrated.position(&estimate);
                 let shift = distance(&now.position(&estimate), &was);
-                let mut step = minus(&CalibratedArm::invert(&now, &was, &estimate), &estimate);
-                let norm = step.iter().map(|v| v * v).sum::<f64>().sqrt();
-                let capped = norm > c.trust_max;
-                if capped {
-                    step = step.map(|v| v * c.trust_max / norm);
-                }
-                let next = plus(&estimate, &step);
+                let inverse = CalibratedArm::invert(&now, &was, &estimate);
+                let (next, capped) = toward(&estimate, &inverse, c.trust_max);
                 let left = distance(&now.position(&next), &was);
                 if shift < LEAST_SHIFT_M {
                     (Within::NoEvidence, estimate)
@@ -991,15 +998,16 @@ impl<const N: usize> OnlineLearner<N> {
         radius: f64,
     ) -> (Jacobian<N>, [f64; N]) {
         let model = &self.calibrated;
-        let predicted = model.position(&base.action);
-        let aim: Position = std::array::from_fn(|d| target[d] + predicted[d] - base.reached[d]);
-        let inverse = CalibratedArm::invert(model, &aim, &base.action);
-        let mut step = minus(&inverse, &base.action);
-        let norm = step.iter().map(|v| v * v).sum::<f64>().sqrt();
-        if norm > radius {
-            step = step.map(|v| v * radius / norm);
-        }
-        (model.jacobian(&base.action), plus(&base.action, &step))
+        let inverse = CalibratedArm::invert(model, &self.aim(target, base), &base.action);
+        let (next, _) = toward(&base.action, &inverse, radius);
+        (model.jacobian(&base.action), next)
+    }
+
+    /// `target` moved by what the calibrated arm misses at the try `base` (what no fit
+    /// explains, carried over): where a step from `base` aims in the calibrated arm.
+    fn aim(&self, target: &Position, base: &Try<N>) -> Position {
+        let predicted = self.calibrated.position(&base.action);
+        std::array::from_fn(|d| target[d] + predicted[d] - base.reached[d])
     }
 
     /// A step of a point beyond reach from its try `base`: to the calibrated arm's nearest place
@@ -1008,15 +1016,8 @@ impl<const N: usize> OnlineLearner<N> {
     /// Not a step toward the target, which no actuation reaches: from the nearest place, one
     /// went from 21 to 36 mm.
     fn toward_nearest_place(&self, target: &Position, base: &Try<N>, radius: f64) -> [f64; N] {
-        let model = &self.calibrated;
-        let predicted = model.position(&base.action);
-        let aim: Position = std::array::from_fn(|d| target[d] + predicted[d] - base.reached[d]);
-        let mut step = minus(&nearest_place_from(model, &aim, base.action), &base.action);
-        let norm = step.iter().map(|v| v * v).sum::<f64>().sqrt();
-        if norm > radius {
-            step = step.map(|v| v * radius / norm);
-        }
-        plus(&base.action, &step)
+        let nearest = nearest_place_from(&self.calibrated, &self.aim(target, base), base.action);
+        toward(&base.action, &nearest, radius).0
     }
 
     /// `base` moved by `step`, halved (up to four times) while the calibrated arm, once fitted,
