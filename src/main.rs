@@ -609,7 +609,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Train { stack, seed, .. } => {
             let config = stack.load()?;
             let out = softarm_identify::run::Output::log();
-            let r = train::train(&config, &stack.namespace()?, seed, out)?;
+            let r = train::train(&config, &stack.namespace()?, seed, out, &*stop_flag()?)?;
             println!(
                 "trained model {} in {}: {}",
                 r.model_id,

@@ -271,3 +271,49 @@ fn train_killed_anywhere_leaves_a_whole_bundle_old_or_new() {
         "seed {seed}: no kill landed in the middle of a write"
     );
 }
+
+/// `softarm train` asked to stop (SIGTERM, as systemd or Ctrl-C asks) during its
+/// demonstrations ends at its next step, says so, and writes nothing: the folder keeps the
+/// bundle it had, and no temporary of its is left.
+#[test]
+fn train_asked_to_stop_ends_writing_nothing() {
+    let mut s = TestStack::new(BIN, "train-stop", true);
+    let model = s.dir.join("model");
+    s.up();
+    let quick = Model::read(&model).unwrap();
+    let log_path = s.dir.join("train-stop.log");
+    let mut child = Guard::spawn(
+        s.command()
+            .args(["train", "--config"])
+            .arg(&s.config)
+            .env("RUST_LOG", "info")
+            .stdout(Stdio::null())
+            .stderr(std::fs::File::create(&log_path).unwrap()),
+    );
+    // The shipped demonstrations take minutes: asked to stop once they are under way.
+    let start = Instant::now();
+    while !std::fs::read_to_string(&log_path)
+        .unwrap_or_default()
+        .contains("recording")
+    {
+        assert!(
+            child.try_wait().unwrap().is_none(),
+            "train ended before recording"
+        );
+        assert!(
+            start.elapsed() < Duration::from_secs(60),
+            "train never began recording"
+        );
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    kill(Pid::from_raw(child.id() as i32), Signal::SIGTERM).unwrap();
+    let status = child.wait().unwrap();
+    let log = std::fs::read_to_string(&log_path).unwrap();
+    assert_eq!(status.code(), Some(1), "{status}: {log}");
+    assert!(
+        log.contains("stopped during the demonstrations; nothing was written"),
+        "{log}"
+    );
+    assert_eq!(Model::read(&model).unwrap().id, quick.id);
+    assert!(temporaries(&model).is_empty(), "{:?}", names(&model));
+}

@@ -7,6 +7,7 @@
 pub mod recipe;
 pub mod recording;
 
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result, anyhow, bail, ensure};
@@ -90,6 +91,7 @@ fn record<const N: usize>(
     namespace: &Namespace,
     seed: u64,
     out: Output,
+    stop: &AtomicBool,
 ) -> Result<(Vec<Sample<N>>, usize, f64)> {
     let mut r = Recorder::<N>::open(namespace)?;
     let (demos, deadline) = r.request(namespace, seed)?;
@@ -105,6 +107,9 @@ fn record<const N: usize>(
         r.take_tracker_samples(demos, &progress);
         if r.finished()? {
             break;
+        }
+        if stop.load(Ordering::Relaxed) {
+            bail!("stopped during the demonstrations; nothing was written");
         }
         if start.elapsed() > deadline {
             bail!(
@@ -315,6 +320,7 @@ fn fit<const N: usize>(
     training: &Training,
     budget: Duration,
     out: Output,
+    stop: &AtomicBool,
 ) -> (
     std::result::Result<(Model<N>, TrainReport), PipelineError>,
     f64,
@@ -339,7 +345,7 @@ fn fit<const N: usize>(
                 )
             });
             progress.set_position(start.elapsed().as_secs());
-            start.elapsed() < budget
+            start.elapsed() < budget && !stop.load(Ordering::Relaxed)
         },
     );
     steps.borrow_mut().end();
@@ -407,10 +413,18 @@ pub fn training(config: &Config) -> Training {
 }
 
 /// Runs the whole training against the stack in `namespace`, for the config's arm, and writes
-/// the bundle; each step's progress to `out`.
-pub fn train(config: &Config, namespace: &Namespace, seed: u64, out: Output) -> Result<Trained> {
+/// the bundle; each step's progress to `out`. Once `stop` is set it ends at its next step
+/// (within the demonstrations' next millisecond, or the pre-training's next batch), writing
+/// nothing.
+pub fn train(
+    config: &Config,
+    namespace: &Namespace,
+    seed: u64,
+    out: Output,
+    stop: &AtomicBool,
+) -> Result<Trained> {
     let n = config.layout().actuators().len();
-    softarm_ipc::with_actuators!(n, N => train_for::<N>(config, namespace, seed, out), n => {
+    softarm_ipc::with_actuators!(n, N => train_for::<N>(config, namespace, seed, out, stop), n => {
         unreachable!("a loaded config's arm has 3 to 16 actuators, not {n}")
     })
 }
@@ -421,9 +435,10 @@ fn train_for<const N: usize>(
     namespace: &Namespace,
     seed: u64,
     out: Output,
+    stop: &AtomicBool,
 ) -> Result<Trained> {
     let budget = budget(config.pretrain.budget_s)?;
-    let (samples, demos, demonstrate_s) = record::<N>(namespace, seed, out)?;
+    let (samples, demos, demonstrate_s) = record::<N>(namespace, seed, out, stop)?;
     (out.lines)(&format!(
         "{demos} demonstrations recorded in {demonstrate_s:.1} s ({} samples): fitting the \
          primitives, the forward model and the kinematics",
@@ -437,7 +452,10 @@ fn train_for<const N: usize>(
         positions: samples.iter().map(|s| s.position).collect(),
         demo: samples.iter().map(|s| s.demo as usize).collect(),
     };
-    let (trained, pretrain_s) = fit(&data, &training(config), budget, out);
+    let (trained, pretrain_s) = fit(&data, &training(config), budget, out, stop);
+    if stop.load(Ordering::Relaxed) {
+        bail!("stopped while fitting the model; nothing was written");
+    }
     let (mut model, report) =
         trained.context("training on the demonstrations; nothing was written")?;
     model.arm = config.arm_identity();

@@ -174,7 +174,7 @@ impl Sandbox {
                 terminal: std::io::IsTerminal::is_terminal(&std::io::stderr()),
                 lines: say,
             };
-            let r = train::train(&self.config, &self.namespace, seed, out)?;
+            let r = train::train(&self.config, &self.namespace, seed, out, stop)?;
             say(&format!(
                 "trained in {:.1} s: {}",
                 t.elapsed().as_secs_f64(),
