@@ -358,6 +358,14 @@ fn say_within(s: &ConditioningSample, within: Within) {
             "not corrected within the execution: the points before it missed by no more than \
              they scatter"
         ),
+        Within::Unfit { rms_m } => tracing::debug!(
+            set_id,
+            point,
+            execution,
+            calibrated_rms_mm = rms_m * 1e3,
+            "not corrected within the execution: the calibrated arm misses where the arm went by \
+             more than the tracker's noise (learner.gauss_newton.noise_m), no model to share by"
+        ),
         Within::Unhelpful { shift_m } => tracing::debug!(
             set_id,
             point,

@@ -68,6 +68,9 @@ pub enum Within {
     NotAsked,
     /// What the execution's points so far missed by is within their scatter.
     NoEvidence,
+    /// The calibrated arm misses its own samples by `rms_m` (m), more than the tracker's
+    /// noise (`noise_m`): no model of the arm to share a departure by.
+    Unfit { rms_m: f64 },
     /// The arm as they show it would move the point by `shift_m` (m), which no actuation
     /// within the trust region makes up for by half.
     Unhelpful { shift_m: f64 },
