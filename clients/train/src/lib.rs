@@ -568,7 +568,13 @@ mod tests {
             terminal: false,
             lines: &say,
         };
-        let (trained, _) = fit(&data, &training(&config), Duration::ZERO, out);
+        let (trained, _) = fit(
+            &data,
+            &training(&config),
+            Duration::ZERO,
+            out,
+            &AtomicBool::new(false),
+        );
         trained.unwrap();
         let lines = lines.into_inner();
         let mut steps = Vec::new();
