@@ -10,7 +10,8 @@ use crate::residual::Residual;
 use crate::tendon::{Model, Slots, Structure};
 
 /// The format this build writes and reads.
-pub const FORMAT: u32 = 1;
+/// 2: gravity's terms in the parameters, and which terms each candidate fitted.
+pub const FORMAT: u32 = 2;
 
 /// A physical model calibrated to a recording.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -22,10 +23,11 @@ pub struct Identified {
     /// The recording it was fitted to, and how many rows.
     pub recording: String,
     pub rows: usize,
-    /// The prior's strength cross-validation chose, and what it measured of each tried:
-    /// `[strength, RMS over held-out motions in mm]`.
+    /// The prior's strength and the terms cross-validation chose, and what it measured of
+    /// each candidate tried.
     pub strength: f64,
-    pub validated: Vec<[f64; 2]>,
+    pub gravity: bool,
+    pub validated: Vec<CandidateTried>,
     /// RMS over the rows it was fitted to (mm).
     pub fitted_rms_mm: f64,
     /// The parameters, in [`Slots`]' order.
@@ -34,6 +36,16 @@ pub struct Identified {
     pub residual_validated: Vec<ResidualTried>,
     /// The residual it chose over the physical model, if any.
     pub residual: Option<Residual>,
+}
+
+/// One physical model cross-validation tried: a prior's strength, with gravity or not.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CandidateTried {
+    pub strength: f64,
+    pub gravity: bool,
+    /// RMS over held-out motions (mm).
+    pub held_out_rms_mm: f64,
 }
 
 /// One residual cross-validation tried.
@@ -213,7 +225,12 @@ mod tests {
             recording: "r.csv".into(),
             rows: 100,
             strength: 1.0,
-            validated: vec![[1.0, 2.0]],
+            gravity: false,
+            validated: vec![CandidateTried {
+                strength: 1.0,
+                gravity: false,
+                held_out_rms_mm: 2.0,
+            }],
             fitted_rms_mm: 1.0,
             theta: Structure::of(arm).nominal(arm),
             residual_validated: vec![],
@@ -235,8 +252,8 @@ mod tests {
         let good = std::fs::read_to_string(&path).unwrap();
         let e = refused("theta = 3\n");
         assert!(e.contains("identified.toml: line 1"), "{e}");
-        let e = refused(&good.replace("format = 1", "format = 9"));
-        assert!(e.contains("format 9; this softarm reads format 1"), "{e}");
+        let e = refused(&good.replace("format = 2", "format = 9"));
+        assert!(e.contains("format 9; this softarm reads format 2"), "{e}");
         let e = refused(&good.replacen("theta = [", "theta = [nan, ", 1));
         assert!(e.contains("parameters; this arm's model has"), "{e}");
         let e = refused(&good.replacen("theta = [0.1", "theta = [nan", 1));
