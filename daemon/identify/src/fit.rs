@@ -374,11 +374,14 @@ impl<'a> Start<'a> {
 }
 
 /// Each of `candidates` fitted [`FOLDS`] times with a fifth of the motions held out (each fit
-/// on at most [`MAX_FIT_ROWS`] rows, on every core): what each measured, and each fold's fit.
+/// on at most [`MAX_FIT_ROWS`] rows, on every core), each fold's fit from `from[fold]` (fits
+/// of the same fold, so nothing held out is seen) or else the prior's centre: what each
+/// measured, and each fold's fit.
 pub fn validate(
     start: &Start,
     samples: &[Sample],
     candidates: &[Candidate],
+    from: Option<&[Vec<f64>]>,
     tick: &mut dyn FnMut(),
 ) -> Vec<(Validated, Vec<Vec<f64>>)> {
     let all: Vec<&Sample> = samples.iter().collect();
@@ -396,7 +399,8 @@ pub fn validate(
                 start.center.clone()
             } else {
                 let problem = start.problem(&sds[c], candidates[c].strength);
-                problem.fit(&start.center, &thinned(&train)).theta
+                let first = from.map_or(start.center.as_slice(), |f| f[fold].as_slice());
+                problem.fit(first, &thinned(&train)).theta
             };
             let missed = rms_m(start.structure, &fitted, &held).powi(2) * held.len() as f64;
             (
@@ -447,12 +451,15 @@ pub fn calibrate(
             terms: Terms::default(),
         })
         .collect();
-    let mut tried = validate(&start, samples, &plain, tick);
+    let mut tried = validate(&start, samples, &plain, None, tick);
+    let best = least(&tried);
     let heavy = Candidate {
-        strength: tried[least(&tried)].0.strength,
+        strength: tried[best].0.strength,
         terms: Terms { gravity: true },
     };
-    tried.extend(validate(&start, samples, &[heavy], tick));
+    // From each fold's fit without gravity: fewer steps to where gravity takes it.
+    let from = tried[best].1.clone();
+    tried.extend(validate(&start, samples, &[heavy], Some(&from), tick));
     chosen(&start, samples, tried, tick)
 }
 
