@@ -162,6 +162,22 @@ pub fn twin(arm: &Layout, theta: &[f64], source: &str) -> String {
         theta[s.marker(0)] * 1e3,
         theta[s.marker(1)] * 1e3
     );
+    // An [arm] has no mass: the sim runs the twin without its weight.
+    let weight: Vec<f64> = (0..3).map(|k| theta[s.gravity_vector(k)]).collect();
+    if weight.iter().any(|w| *w != 0.0) {
+        out.push_str(&format!(
+            "# Nor its weight: module 1's ({:.2}, {:.2}, {:.2}) per metre of its bending\n\
+             # stiffness, up in the backbone's frame; the others' masses and the payload's\n\
+             # relative to module 1's: {:?}.\n",
+            weight[0],
+            weight[1],
+            weight[2],
+            ((1..s.modules).map(|m| theta[s.weight(m)]))
+                .chain([theta[s.payload()]])
+                .map(|v| (v * 100.0).round() / 100.0)
+                .collect::<Vec<_>>()
+        ));
+    }
     out.push_str(&format!(
         "routing = \"{}\"\nmount = \"{}\"\nconnector_m = {}\ntool_m = {:.5}\n",
         routing_name(arm),
@@ -262,5 +278,22 @@ mod tests {
         std::fs::write(&path, &good).unwrap();
         assert_eq!(Identified::read(&path, &other).unwrap().arm, arm.identity());
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn the_twin_names_the_weight_it_cannot_carry() {
+        let arm = crate::test_arm();
+        let structure = Structure::of(&arm);
+        let mut theta = structure.nominal(&arm);
+        assert!(!twin(&arm, &theta, "r.csv").contains("weight"));
+        theta[structure.slots.gravity_vector(2)] = -4.0;
+        let text = twin(&arm, &theta, "r.csv");
+        assert!(
+            text.contains("Nor its weight: module 1's (0.00, 0.00, -4.00)"),
+            "{text}"
+        );
+        // Still an [arm]: the weight only in comments.
+        let d: softarm_arm::Description = toml::from_str(&text).unwrap();
+        assert_eq!(softarm_arm::Layout::new(&d).unwrap().modules().len(), 2);
     }
 }
