@@ -166,6 +166,17 @@ impl Problem<'_> {
             .collect()
     }
 
+    /// `z` with no mass below zero (a projected step): a negative mass is no arm, and a fit
+    /// left free gave the short third module -1.2 times the first's.
+    fn feasible(&self, mut z: DVector<f64>) -> DVector<f64> {
+        for k in self.structure.slots.masses() {
+            if k < z.len() && self.sd[k] > 0.0 {
+                z[k] = z[k].max(-self.center[k] / self.sd[k]);
+            }
+        }
+        z
+    }
+
     /// Fits from `start` (parameters).
     pub fn fit(&self, start: &[f64], samples: &[&Sample]) -> Fitted {
         let p = start.len();
@@ -207,7 +218,7 @@ impl Problem<'_> {
                     damping *= 10.0;
                     continue;
                 };
-                let trial = &z + &step;
+                let trial = self.feasible(&z + &step);
                 let mut trial_shapes = shapes.clone();
                 let rt = self.residuals(&trial, samples, &mut trial_shapes, &curvatures, true);
                 let ct = rt.norm_squared();
@@ -675,6 +686,29 @@ mod tests {
                 "{turned}"
             );
         }
+    }
+
+    /// A step that would make a mass negative stops at zero: a negative mass is no arm.
+    #[test]
+    fn no_mass_is_fitted_below_zero() {
+        let arm = arm();
+        let structure = Structure::of(&arm);
+        let nominal = structure.nominal(&arm);
+        let s = structure.slots;
+        let sd = prior_sd(s, &nominal, Terms { gravity: true });
+        let problem = Problem {
+            structure: &structure,
+            center: &nominal,
+            sd: &sd,
+            strength: 1.0,
+        };
+        let z = problem.feasible(DVector::from_element(nominal.len(), -1e3));
+        let theta = problem.theta(&z);
+        for k in s.masses() {
+            assert!(theta[k].abs() < 1e-12, "slot {k}: {}", theta[k]);
+        }
+        // Gravity's direction is no mass: free either way.
+        assert!(theta[s.gravity_vector(2)] < -1.0);
     }
 
     /// An arm with weight (hanging, as the shared recording's), sampled: the fit with gravity

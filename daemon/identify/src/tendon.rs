@@ -82,6 +82,11 @@ impl Slots {
     pub fn payload(&self) -> usize {
         4 * self.modules + 13 + 3 * self.tendons
     }
+    /// The slots of masses (every module's but the first, which is the unit, and the
+    /// payload's): none is negative.
+    pub fn masses(&self) -> std::ops::RangeInclusive<usize> {
+        self.weight(1)..=self.payload()
+    }
     /// The slots of gravity's terms: its vector, the modules' masses and the payload's.
     pub fn gravity(&self) -> std::ops::Range<usize> {
         self.gravity_vector(0)..self.payload() + 1
