@@ -61,6 +61,8 @@ impl Errors {
 pub struct Check {
     pub all: Errors,
     pub families: Vec<(String, Errors)>,
+    /// The model's terms beyond its geometry (gravity), for people; empty: none said.
+    pub terms: String,
 }
 
 /// Checks `predict` (pulls → tip, m) against every row of `recording`, calling `tick` per row.
@@ -89,13 +91,19 @@ pub fn check(
         families: (by_family.into_iter())
             .map(|(f, m)| (f, Errors::of(&m)))
             .collect(),
+        terms: String::new(),
     }
 }
 
 impl Check {
     /// A table for people: one row overall, one per family.
     pub fn table(&self) -> String {
-        let mut out = format!(
+        let mut out = if self.terms.is_empty() {
+            String::new()
+        } else {
+            format!("{}\n", self.terms)
+        };
+        out += &format!(
             "{:<24} {:>5} {:>8} {:>8} {:>10} {:>8} {:>8}\n",
             "rows (mm)", "n", "rms", "mean", "rms-offset", "p95", "max"
         );
@@ -133,9 +141,10 @@ impl Check {
             .map(|(f, e)| format!("{}:{}", json_string(f), one(e)))
             .collect();
         format!(
-            "{{\"all\":{},\"families\":{{{}}}}}",
+            "{{\"all\":{},\"families\":{{{}}},\"terms\":{}}}",
             one(&self.all),
-            families.join(",")
+            families.join(","),
+            json_string(&self.terms)
         )
     }
 }
@@ -176,6 +185,7 @@ mod tests {
         let c = Check {
             all: Errors::default(),
             families: vec![("a\"b".into(), Errors::default())],
+            terms: String::new(),
         };
         assert!(c.json().contains("\"a\\\"b\":{"), "{}", c.json());
     }

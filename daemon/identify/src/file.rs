@@ -10,7 +10,8 @@ use crate::residual::Residual;
 use crate::tendon::{Model, Slots, Structure};
 
 /// The format this build writes and reads.
-pub const FORMAT: u32 = 1;
+/// 2: gravity's terms in the parameters, and which terms each candidate fitted.
+pub const FORMAT: u32 = 2;
 
 /// A physical model calibrated to a recording.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -22,10 +23,11 @@ pub struct Identified {
     /// The recording it was fitted to, and how many rows.
     pub recording: String,
     pub rows: usize,
-    /// The prior's strength cross-validation chose, and what it measured of each tried:
-    /// `[strength, RMS over held-out motions in mm]`.
+    /// The prior's strength and the terms cross-validation chose, and what it measured of
+    /// each candidate tried.
     pub strength: f64,
-    pub validated: Vec<[f64; 2]>,
+    pub gravity: bool,
+    pub validated: Vec<CandidateTried>,
     /// RMS over the rows it was fitted to (mm).
     pub fitted_rms_mm: f64,
     /// The parameters, in [`Slots`]' order.
@@ -34,6 +36,16 @@ pub struct Identified {
     pub residual_validated: Vec<ResidualTried>,
     /// The residual it chose over the physical model, if any.
     pub residual: Option<Residual>,
+}
+
+/// One physical model cross-validation tried: a prior's strength, with gravity or not.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CandidateTried {
+    pub strength: f64,
+    pub gravity: bool,
+    /// RMS over held-out motions (mm).
+    pub held_out_rms_mm: f64,
 }
 
 /// One residual cross-validation tried.
@@ -150,6 +162,22 @@ pub fn twin(arm: &Layout, theta: &[f64], source: &str) -> String {
         theta[s.marker(0)] * 1e3,
         theta[s.marker(1)] * 1e3
     );
+    // An [arm] has no mass: the sim runs the twin without its weight.
+    let weight: Vec<f64> = (0..3).map(|k| theta[s.gravity_vector(k)]).collect();
+    if weight.iter().any(|w| *w != 0.0) {
+        out.push_str(&format!(
+            "# Nor its weight: module 1's ({:.2}, {:.2}, {:.2}) per metre of its bending\n\
+             # stiffness, up in the backbone's frame; the others' masses and the payload's\n\
+             # relative to module 1's: {:?}.\n",
+            weight[0],
+            weight[1],
+            weight[2],
+            ((1..s.modules).map(|m| theta[s.weight(m)]))
+                .chain([theta[s.payload()]])
+                .map(|v| (v * 100.0).round() / 100.0)
+                .collect::<Vec<_>>()
+        ));
+    }
     out.push_str(&format!(
         "routing = \"{}\"\nmount = \"{}\"\nconnector_m = {}\ntool_m = {:.5}\n",
         routing_name(arm),
@@ -213,7 +241,12 @@ mod tests {
             recording: "r.csv".into(),
             rows: 100,
             strength: 1.0,
-            validated: vec![[1.0, 2.0]],
+            gravity: false,
+            validated: vec![CandidateTried {
+                strength: 1.0,
+                gravity: false,
+                held_out_rms_mm: 2.0,
+            }],
             fitted_rms_mm: 1.0,
             theta: Structure::of(arm).nominal(arm),
             residual_validated: vec![],
@@ -235,8 +268,8 @@ mod tests {
         let good = std::fs::read_to_string(&path).unwrap();
         let e = refused("theta = 3\n");
         assert!(e.contains("identified.toml: line 1"), "{e}");
-        let e = refused(&good.replace("format = 1", "format = 9"));
-        assert!(e.contains("format 9; this softarm reads format 1"), "{e}");
+        let e = refused(&good.replace("format = 2", "format = 9"));
+        assert!(e.contains("format 9; this softarm reads format 2"), "{e}");
         let e = refused(&good.replacen("theta = [", "theta = [nan, ", 1));
         assert!(e.contains("parameters; this arm's model has"), "{e}");
         let e = refused(&good.replacen("theta = [0.1", "theta = [nan", 1));
@@ -245,5 +278,22 @@ mod tests {
         std::fs::write(&path, &good).unwrap();
         assert_eq!(Identified::read(&path, &other).unwrap().arm, arm.identity());
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn the_twin_names_the_weight_it_cannot_carry() {
+        let arm = crate::test_arm();
+        let structure = Structure::of(&arm);
+        let mut theta = structure.nominal(&arm);
+        assert!(!twin(&arm, &theta, "r.csv").contains("weight"));
+        theta[structure.slots.gravity_vector(2)] = -4.0;
+        let text = twin(&arm, &theta, "r.csv");
+        assert!(
+            text.contains("Nor its weight: module 1's (0.00, 0.00, -4.00)"),
+            "{text}"
+        );
+        // Still an [arm]: the weight only in comments.
+        let d: softarm_arm::Description = toml::from_str(&text).unwrap();
+        assert_eq!(softarm_arm::Layout::new(&d).unwrap().modules().len(), 2);
     }
 }

@@ -10,11 +10,11 @@ use indicatif::{ProgressBar, ProgressStyle};
 use softarm_arm::Layout;
 
 use crate::check::{self, Check};
-use crate::file::{self, FORMAT, Identified, ModelFileError, ResidualTried};
+use crate::file::{self, CandidateTried, FORMAT, Identified, ModelFileError, ResidualTried};
 use crate::fit::{self, Sample};
 use crate::recording::{self, Columns, Recording, RecordingError};
 use crate::residual;
-use crate::tendon::Structure;
+use crate::tendon::{Slots, Structure};
 
 /// What went wrong, for the user: a recording, a column map, a model file, or writing.
 #[derive(Debug, thiserror::Error)]
@@ -190,6 +190,8 @@ pub struct Identification {
     pub check: Check,
     /// The configured arm's length, base to tip (m): what a fit's miss is judged against.
     pub arm_length_m: f64,
+    /// Where each parameter sits in the model's.
+    pub slots: Slots,
 }
 
 /// Calibrates the physical model and its residual to `recording` of `arm` (read by
@@ -219,7 +221,7 @@ pub fn identify(recording: Recording, arm: &Layout) -> Result<Identification, Er
         })
         .collect();
     let nominal = structure.nominal(arm);
-    let fits = (fit::STRENGTHS.len() * fit::FOLDS + 1) as u64;
+    let fits = fit::calibration_fits() as u64;
     let progress = bar(fits, "calibrating");
     let calibration = fit::calibrate(&structure, &nominal, &samples, &mut || progress.inc(1));
     progress.finish_and_clear();
@@ -242,8 +244,13 @@ pub fn identify(recording: Recording, arm: &Layout) -> Result<Identification, Er
         recording: source.clone(),
         rows: recording.len(),
         strength: calibration.strength,
+        gravity: calibration.terms.gravity,
         validated: (calibration.validated.iter())
-            .map(|v| [v.strength, v.held_out_rms_m * 1e3])
+            .map(|v| CandidateTried {
+                strength: v.strength,
+                gravity: v.terms.gravity,
+                held_out_rms_mm: v.held_out_rms_m * 1e3,
+            })
             .collect(),
         fitted_rms_mm: calibration.fitted.rms_m * 1e3,
         theta: calibration.fitted.theta,
@@ -270,6 +277,7 @@ pub fn identify(recording: Recording, arm: &Layout) -> Result<Identification, Er
         twin,
         check,
         arm_length_m,
+        slots,
     })
 }
 
@@ -295,7 +303,10 @@ impl Identification {
     pub fn summary(&self) -> String {
         let m = &self.model;
         let strengths: Vec<(String, f64)> = (m.validated.iter())
-            .map(|[s, rms]| (format!("{s}"), *rms))
+            .map(|t| {
+                let gravity = if t.gravity { " gravity" } else { "" };
+                (format!("{}{gravity}", t.strength), t.held_out_rms_mm)
+            })
             .collect();
         let residuals: Vec<(String, f64)> = (m.residual_validated.iter())
             .map(|t| match (t.width, t.ridge) {
@@ -321,7 +332,7 @@ impl Identification {
         format!(
             "calibrated the arm's physical model to {} ({} rows): on those rows it misses by \
              {:.2} mm RMS, with its residual by {:.2} mm ({:.2} with the mean offset removed)\n\
-             {warning}the prior's strength: {}\n{}the residual (a kernel correction over the \
+             {warning}the prior's strength: {}, {}\n{}the residual (a kernel correction over the \
              pulls; none: the physical model alone): {chosen}\n{}",
             m.recording,
             m.rows,
@@ -329,10 +340,38 @@ impl Identification {
             self.check.all.rms_mm,
             self.check.all.offset_removed_rms_mm,
             m.strength,
-            tried_table("strength", &strengths),
+            gravity_said(m, self.slots),
+            tried_table(
+                "strength (gravity: each module's weight and a payload fitted)",
+                &strengths
+            ),
             tried_table("width/ridge", &residuals),
         )
     }
+}
+
+/// What the model's gravity is, for people: module 0's weight as a vector, the others' masses
+/// and the payload's relative to it, or none.
+pub fn gravity_said(model: &Identified, slots: Slots) -> String {
+    if !model.gravity {
+        return "no gravity".into();
+    }
+    let t = &model.theta;
+    let vector: Vec<f64> = (0..3).map(|k| t[slots.gravity_vector(k)]).collect();
+    let size = vector.iter().map(|v| v * v).sum::<f64>().sqrt();
+    let masses: Vec<String> = (1..slots.modules)
+        .map(|m| format!("{:.2}", t[slots.weight(m)]))
+        .collect();
+    format!(
+        "gravity: module 1's weight {size:.2} /m of its bending stiffness, up along ({:.2}, \
+         {:.2}, {:.2}) in the backbone's frame; the other modules' masses {} of module 1's, \
+         the payload's {:.2}",
+        vector[0] / size,
+        vector[1] / size,
+        vector[2] / size,
+        masses.join(", "),
+        t[slots.payload()]
+    )
 }
 
 /// Candidates and their RMS over held-out motions (mm), as indented lines of as many as fit
@@ -358,8 +397,12 @@ pub fn check_model(
     let structure = Structure::of(arm);
     let predict = model.predictor(&structure, physical_only);
     let progress = bar(recording.len() as u64, "checking");
-    let c = check::check(recording, predict, &mut || progress.inc(1));
+    let mut c = check::check(recording, predict, &mut || progress.inc(1));
     progress.finish_and_clear();
+    c.terms = format!(
+        "the physical model: {}",
+        gravity_said(model, structure.slots)
+    );
     c
 }
 

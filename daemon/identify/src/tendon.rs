@@ -66,8 +66,33 @@ impl Slots {
     pub fn base_position(&self, k: usize) -> usize {
         3 * self.modules + 8 + 3 * self.tendons + k
     }
+    /// Module 0's weight against gravity, as a vector in the backbone's frame at the base (in
+    /// units of module 0's bend stiffness per metre: its mass times g over that stiffness,
+    /// pointing up). A vector, not a size: where the arm's base points in the world (standing,
+    /// hanging, on its side) the recording does not say.
+    pub fn gravity_vector(&self, k: usize) -> usize {
+        3 * self.modules + 11 + 3 * self.tendons + k
+    }
+    /// Module m's mass relative to module 0's, spread evenly along its arc (m ≥ 1; module 0's
+    /// is the unit).
+    pub fn weight(&self, m: usize) -> usize {
+        3 * self.modules + 13 + 3 * self.tendons + m
+    }
+    /// The payload's mass at the marker (the marker, the last disc), relative to module 0's.
+    pub fn payload(&self) -> usize {
+        4 * self.modules + 13 + 3 * self.tendons
+    }
+    /// The slots of masses (every module's but the first, which is the unit, and the
+    /// payload's): none is negative.
+    pub fn masses(&self) -> std::ops::RangeInclusive<usize> {
+        self.weight(1)..=self.payload()
+    }
+    /// The slots of gravity's terms: its vector, the modules' masses and the payload's.
+    pub fn gravity(&self) -> std::ops::Range<usize> {
+        self.gravity_vector(0)..self.payload() + 1
+    }
     pub fn count(&self) -> usize {
-        3 * self.modules + 11 + 3 * self.tendons
+        4 * self.modules + 14 + 3 * self.tendons
     }
 }
 
@@ -127,6 +152,11 @@ impl Structure {
             theta[s.angle(i)] = a.angle_rad;
         }
         theta[s.marker(2)] = arm.tool_m;
+        // Modules alike but for their lengths, a light payload; no gravity until calibrated.
+        for m in 1..s.modules {
+            theta[s.weight(m)] = theta[s.length(m)] / theta[s.length(0)];
+        }
+        theta[s.payload()] = NOMINAL_PAYLOAD;
         theta
     }
 }
@@ -135,6 +165,9 @@ impl Structure {
 /// tendon's per m². A stiff tendon against a bend of about a radian per few millimetres.
 const AXIAL_STIFFNESS: f64 = 1e6;
 const TENDON_STIFFNESS: f64 = 1e8;
+
+/// A marker and last disc of a fifth of module 0's mass.
+const NOMINAL_PAYLOAD: f64 = 0.2;
 
 /// The arm with parameters `theta`, ready to evaluate.
 #[derive(Debug, Clone, PartialEq)]
@@ -145,6 +178,13 @@ pub struct Model<'a> {
     routing: DMatrix<f64>,
     stiffness: DVector<f64>,
     tendon_stiffness: f64,
+    /// Module 0's weight against gravity in the backbone's frame at the base
+    /// ([`Slots::gravity_vector`]).
+    up: Vector3<f64>,
+    /// Each module's mass relative to module 0's, then the payload's.
+    masses: Vec<f64>,
+    /// Whether gravity is on: else the arm settles exactly as one without it.
+    heavy: bool,
 }
 
 /// An arm's shape: each module's bend (2) and compression (1).
@@ -177,21 +217,51 @@ impl<'a> Model<'a> {
             stiffness[3 * m + 1] = k;
             stiffness[3 * m + 2] = theta[s.axial_stiffness()].exp();
         }
+        let up = Vector3::from_fn(|k, _| theta[s.gravity_vector(k)]);
+        let masses = (0..=s.modules)
+            .map(|m| match m {
+                0 => 1.0,
+                m if m == s.modules => theta[s.payload()],
+                m => theta[s.weight(m)],
+            })
+            .collect();
         Self {
             structure,
             theta,
             routing,
             stiffness,
             tendon_stiffness: theta[s.tendon_stiffness()].exp(),
+            up,
+            masses,
+            heavy: up != Vector3::zeros(),
         }
     }
 
     /// The shape the arm settles in with tendons pulled in by `pull_m`, from `start` (a shape
     /// near it, or zeros).
+    ///
+    /// Without gravity the energy is quadratic on each active set: Newton's step is exact.
+    /// With it, Newton's steps on gravity's curvature where the arm is, until the shape stops
+    /// moving.
     pub fn settle(&self, pull_m: &[f64], start: &Shape) -> Shape {
+        self.settle_on(pull_m, start, None)
+    }
+
+    /// [`Model::settle`] on gravity's curvature `curvature` (of an arm near this one, in a
+    /// shape near `start`: what a calibration's small changes of the parameters share), or
+    /// on the curvature where the arm is at each step (`None`).
+    pub fn settle_on(
+        &self,
+        pull_m: &[f64],
+        start: &Shape,
+        curvature: Option<&DMatrix<f64>>,
+    ) -> Shape {
         let s = self.structure.slots;
         let demand: DVector<f64> =
             DVector::from_fn(s.tendons, |i, _| pull_m[i] - self.theta[s.offset(i)]);
+        if self.heavy {
+            return self.settle_heavy(&demand, start, curvature);
+        }
         let mut x = start.clone();
         let mut active = vec![false; s.tendons];
         for _ in 0..30 {
@@ -202,18 +272,9 @@ impl<'a> Model<'a> {
             }
             active = now;
             // Stationary point with this active set: (K + k_t Aᵀ A) x = k_t Aᵀ d over the taut.
-            let mut h = DMatrix::from_diagonal(&self.stiffness);
-            let mut g = DVector::zeros(x.len());
-            for (i, taut) in active.iter().enumerate() {
-                if *taut {
-                    let row = self.routing.row(i);
-                    h += self.tendon_stiffness * row.transpose() * row;
-                    g += self.tendon_stiffness * demand[i] * row.transpose();
-                }
-            }
-            let next = match h.cholesky() {
-                Some(c) => c.solve(&g),
-                None => return DVector::from_element(x.len(), f64::NAN),
+            let (h, g) = self.elastic(&active, &demand);
+            let Some(next) = h.cholesky().map(|c| c.solve(&g)) else {
+                return DVector::from_element(x.len(), f64::NAN);
             };
             let moved = (&next - &x).amax();
             x = next;
@@ -224,19 +285,170 @@ impl<'a> Model<'a> {
         x
     }
 
+    /// The elastic energy's Hessian on the active set `active` of taut tendons, and its pull:
+    /// (K + k_t Aᵀ A, k_t Aᵀ d) over the taut.
+    fn elastic(&self, active: &[bool], demand: &DVector<f64>) -> (DMatrix<f64>, DVector<f64>) {
+        let mut h = DMatrix::from_diagonal(&self.stiffness);
+        let mut g = DVector::zeros(h.nrows());
+        for (i, taut) in active.iter().enumerate() {
+            if *taut {
+                let row = self.routing.row(i);
+                h += self.tendon_stiffness * row.transpose() * row;
+                g += self.tendon_stiffness * demand[i] * row.transpose();
+            }
+        }
+        (h, g)
+    }
+
+    /// [`Model::settle_on`] with gravity: Newton's steps on E + V_g, (H + ∇²V_g) δ = g − H x −
+    /// ∇V_g. On `curvature` given (the chord method), the factor kept while the active set
+    /// stands; else on the curvature where the arm is at each step (a shape far from `start`,
+    /// where the first one is wrong). On H alone where H + ∇²V_g is not positive.
+    fn settle_heavy(
+        &self,
+        demand: &DVector<f64>,
+        start: &Shape,
+        curvature: Option<&DMatrix<f64>>,
+    ) -> Shape {
+        let mut x = start.clone();
+        let mut active = Vec::new();
+        let mut system = None;
+        for _ in 0..60 {
+            let slack = demand - &self.routing * &x;
+            let now: Vec<bool> = slack.iter().map(|v| *v > 0.0).collect();
+            if now != active || system.is_none() || curvature.is_none() {
+                let (h, g) = self.elastic(&now, demand);
+                let here;
+                let c = match curvature {
+                    Some(c) => c,
+                    None => {
+                        here = self.gravity_curvature(&x);
+                        &here
+                    }
+                };
+                let factor = (&h + c).cholesky().or_else(|| h.clone().cholesky());
+                let Some(factor) = factor else {
+                    return DVector::from_element(x.len(), f64::NAN);
+                };
+                system = Some((h, g, factor));
+                active = now;
+            }
+            let Some((h, g, factor)) = &system else {
+                break;
+            };
+            let step = factor.solve(&(g - h * &x - self.gravity_gradient(&x)));
+            x += &step;
+            // A ten-thousandth of the smallest change a calibration's Jacobian makes.
+            if step.amax() < 1e-11 {
+                break;
+            }
+        }
+        x
+    }
+
+    /// Whether gravity is on.
+    pub fn is_heavy(&self) -> bool {
+        self.heavy
+    }
+
+    /// ∇² of [`Model::gravity_energy`] at `shape`, by central differences of its gradient.
+    pub fn gravity_curvature(&self, shape: &Shape) -> DMatrix<f64> {
+        const STEP: f64 = 1e-6;
+        let n = shape.len();
+        let mut c = DMatrix::zeros(n, n);
+        let mut moved = shape.clone();
+        for k in 0..n {
+            moved[k] = shape[k] + STEP;
+            let up = self.gravity_gradient(&moved);
+            moved[k] = shape[k] - STEP;
+            let down = self.gravity_gradient(&moved);
+            moved[k] = shape[k];
+            c.set_column(k, &((up - down) / (2.0 * STEP)));
+        }
+        (&c + c.transpose()) * 0.5
+    }
+
+    /// The arm's potential energy in gravity for `shape` (units of module 0's bend stiffness):
+    /// each module's weight at its arc's centroid, the payload at the marker.
+    pub fn gravity_energy(&self, shape: &Shape) -> f64 {
+        let mut height = 0.0;
+        let marker = self.walk(shape, Matrix3::identity(), Vector3::zeros(), |m, c| {
+            height += self.masses[m] * self.up.dot(&c);
+        });
+        height + self.masses[self.structure.slots.modules] * self.up.dot(&marker)
+    }
+
+    /// ∇ of [`Model::gravity_energy`] over the shape's variables, by virtual work: a change of
+    /// module m's shape moves its own centroid, and everything beyond its end rigidly with the
+    /// end's frame (its position, and its turn about the end), so each module's part needs the
+    /// weight beyond it and that weight's first moment alone. Exact, in one walk out and back.
+    pub fn gravity_gradient(&self, shape: &Shape) -> DVector<f64> {
+        let s = self.structure.slots;
+        let t = self.theta;
+        let mut frames = Vec::with_capacity(s.modules);
+        let (mut rotation, mut position) = (Matrix3::identity(), Vector3::zeros());
+        for m in 0..s.modules {
+            if m > 0 {
+                position += rotation * Vector3::new(0.0, 0.0, self.structure.connector_m);
+            }
+            let arc = Arc::of(
+                shape[3 * m],
+                shape[3 * m + 1],
+                t[s.length(m)] - shape[3 * m + 2],
+            );
+            let centroid = position + rotation * arc.centroid;
+            let end = position + rotation * arc.end;
+            frames.push((rotation, centroid, end, arc));
+            rotation *= arc.turn;
+            position = end;
+        }
+        let marker =
+            position + rotation * Vector3::new(t[s.marker(0)], t[s.marker(1)], t[s.marker(2)]);
+        // Walking back: the weight beyond module m's end, and its first moment.
+        let mut beyond = self.masses[s.modules];
+        let mut moment = beyond * marker;
+        let mut gradient = DVector::zeros(3 * s.modules);
+        for m in (0..s.modules).rev() {
+            let (rotation, centroid, end, arc) = &frames[m];
+            let up = rotation.transpose() * self.up;
+            let lever = rotation.transpose() * (moment - beyond * end).cross(&self.up);
+            let own = self.masses[m];
+            for k in 0..3 {
+                gradient[3 * m + k] = own * up.dot(&arc.d_centroid[k])
+                    + beyond * up.dot(&arc.d_end[k])
+                    + arc.d_turn[k].dot(&lever);
+            }
+            beyond += own;
+            moment += own * centroid;
+        }
+        gradient
+    }
+
     /// Where the marker is (m, the recording's frame) for the arm in `shape`.
     pub fn marker(&self, shape: &Shape) -> [f64; 3] {
         let s = self.structure.slots;
         let t = self.theta;
-        let mut rotation = self.structure.mount
-            * rot_z(t[s.base_rotation(2)])
-            * rot_y(t[s.base_rotation(1)])
-            * rot_x(t[s.base_rotation(0)]);
-        let mut position = Vector3::new(
+        let position = Vector3::new(
             t[s.base_position(0)],
             t[s.base_position(1)],
             t[s.base_position(2)],
         );
+        let rotation = base_rotation(self.structure, t);
+        let p = self.walk(shape, rotation, position, |_, _| {});
+        [p.x, p.y, p.z]
+    }
+
+    /// The arm in `shape` from a base at `rotation`, `position`: `centroid` is told each
+    /// module's arc's centroid; the marker is returned.
+    fn walk(
+        &self,
+        shape: &Shape,
+        mut rotation: Matrix3<f64>,
+        mut position: Vector3<f64>,
+        mut centroid: impl FnMut(usize, Vector3<f64>),
+    ) -> Vector3<f64> {
+        let s = self.structure.slots;
+        let t = self.theta;
         for m in 0..s.modules {
             if m > 0 {
                 position += rotation * Vector3::new(0.0, 0.0, self.structure.connector_m);
@@ -246,18 +458,110 @@ impl<'a> Model<'a> {
             let bend = ux.hypot(uy);
             let phi = uy.atan2(ux);
             let (f, g) = sinc_terms(bend);
+            let (cf, cg) = centroid_terms(bend, f, g);
             let (sp, cp) = phi.sin_cos();
+            centroid(
+                m,
+                position + rotation * (length * Vector3::new(cp * cf, sp * cf, cg)),
+            );
             position += rotation * (length * Vector3::new(cp * f, sp * f, g));
             rotation *= rot_z(phi) * rot_y(bend) * rot_z(-phi);
         }
-        let p = position + rotation * Vector3::new(t[s.marker(0)], t[s.marker(1)], t[s.marker(2)]);
-        [p.x, p.y, p.z]
+        position + rotation * Vector3::new(t[s.marker(0)], t[s.marker(1)], t[s.marker(2)])
     }
 
     /// The marker for pulls `pull_m`: the shape it settles in, then where that puts it.
     pub fn predict(&self, pull_m: &[f64]) -> [f64; 3] {
         let shape = self.settle(pull_m, &DVector::zeros(3 * self.structure.slots.modules));
         self.marker(&shape)
+    }
+}
+
+/// One module's constant-curvature arc in its base's frame, for bend (ux, uy) and length L,
+/// with its derivatives by (ux, uy, compression). In Cartesian bends every term is smooth
+/// through the straight arc: the end is L (ux F, uy F, sin θ/θ), the centroid L (ux A, uy A,
+/// F), with F = (1 − cos θ)/θ² and A = (1 − sin θ/θ)/θ²; the turn is the rotation vector
+/// (−uy, ux, 0), whose change turns the end by its left Jacobian.
+#[derive(Debug, Clone, Copy)]
+struct Arc {
+    end: Vector3<f64>,
+    centroid: Vector3<f64>,
+    turn: Matrix3<f64>,
+    d_end: [Vector3<f64>; 3],
+    d_centroid: [Vector3<f64>; 3],
+    /// How the end turns (an angular change, in the base's frame) per unit of each.
+    d_turn: [Vector3<f64>; 3],
+}
+
+impl Arc {
+    fn of(ux: f64, uy: f64, length: f64) -> Self {
+        let t2 = ux * ux + uy * uy;
+        let theta = t2.sqrt();
+        // F, A, sin θ/θ and each one's derivative over θ, divided by θ.
+        let (f, a, g, f1, a1, g1) = if theta < 1e-3 {
+            (
+                0.5 - t2 / 24.0,
+                1.0 / 6.0 - t2 / 120.0,
+                1.0 - t2 / 6.0,
+                -1.0 / 12.0 + t2 / 180.0,
+                -1.0 / 60.0 + t2 / 1260.0,
+                -1.0 / 3.0 + t2 / 30.0,
+            )
+        } else {
+            let (sn, cs) = theta.sin_cos();
+            let f = (1.0 - cs) / t2;
+            let g = sn / theta;
+            let a = (1.0 - g) / t2;
+            let dg = (theta * cs - sn) / t2;
+            let df = sn / t2 - 2.0 * f / theta;
+            let da = -dg / t2 - 2.0 * a / theta;
+            (f, a, g, df / theta, da / theta, dg / theta)
+        };
+        let v = Vector3::new(-uy, ux, 0.0);
+        let vx = v.cross_matrix();
+        let left = Matrix3::identity() + f * vx + a * vx * vx;
+        let turn = Matrix3::identity() + g * vx + f * vx * vx;
+        Self {
+            end: length * Vector3::new(ux * f, uy * f, g),
+            centroid: length * Vector3::new(ux * a, uy * a, f),
+            turn,
+            d_end: [
+                length * Vector3::new(f + ux * ux * f1, ux * uy * f1, ux * g1),
+                length * Vector3::new(ux * uy * f1, f + uy * uy * f1, uy * g1),
+                -Vector3::new(ux * f, uy * f, g),
+            ],
+            d_centroid: [
+                length * Vector3::new(a + ux * ux * a1, ux * uy * a1, ux * f1),
+                length * Vector3::new(ux * uy * a1, a + uy * uy * a1, uy * f1),
+                -Vector3::new(ux * a, uy * a, f),
+            ],
+            d_turn: [
+                left * Vector3::y(),
+                -(left * Vector3::x()),
+                Vector3::zeros(),
+            ],
+        }
+    }
+}
+
+/// The mount and the base's tilt and turn: from the backbone's frame at the base to the
+/// stack's base frame.
+fn base_rotation(structure: &Structure, theta: &[f64]) -> Matrix3<f64> {
+    let s = structure.slots;
+    structure.mount
+        * rot_z(theta[s.base_rotation(2)])
+        * rot_y(theta[s.base_rotation(1)])
+        * rot_x(theta[s.base_rotation(0)])
+}
+
+/// A uniform arc's centroid over its length, as the end's (f, g) of [`sinc_terms`] are:
+/// (1 − sin θ/θ)/θ across and (1 − cos θ)/θ² along, by series near 0.
+fn centroid_terms(theta: f64, f: f64, g: f64) -> (f64, f64) {
+    if theta.abs() < 1e-3 {
+        let t2 = theta * theta;
+        (theta / 6.0 - theta * t2 / 120.0, 0.5 - t2 / 24.0)
+    } else {
+        ((1.0 - g) / theta, f / theta)
     }
 }
 
@@ -343,5 +647,59 @@ mod tests {
         let p = Model::new(&s, &theta).predict(&[0.001, 0.001, 0.001, 0.0, 0.0, 0.0]);
         assert!(p[0].abs() < 1e-12 && p[1].abs() < 1e-12, "{p:?}");
         assert!(p[2] < 0.21 - 1e-4, "{p:?}");
+    }
+
+    #[test]
+    fn gravitys_force_is_the_gradient_of_its_energy() {
+        let arm = arm();
+        let structure = Structure::of(&arm);
+        let s = structure.slots;
+        let mut theta = structure.nominal(&arm);
+        theta[s.gravity_vector(0)] = -0.6;
+        theta[s.gravity_vector(1)] = 0.4;
+        theta[s.gravity_vector(2)] = 2.0;
+        theta[s.weight(1)] = 0.7;
+        theta[s.payload()] = 0.3;
+        theta[s.marker(0)] = 0.01;
+        theta[s.base_rotation(1)] = 0.1;
+        let model = Model::new(&structure, &theta);
+        for shape in [
+            DVector::from_vec(vec![0.3, -0.2, 0.001, -0.5, 0.4, 0.002]),
+            DVector::from_vec(vec![1e-5, 0.0, 0.0, 0.0, 2e-4, 0.0]),
+        ] {
+            let exact = model.gravity_gradient(&shape);
+            for k in 0..6 {
+                let h = 1e-6;
+                let (mut up, mut down) = (shape.clone(), shape.clone());
+                up[k] += h;
+                down[k] -= h;
+                let fd = (model.gravity_energy(&up) - model.gravity_energy(&down)) / (2.0 * h);
+                assert!(
+                    (exact[k] - fd).abs() < 1e-7,
+                    "{k}: {} against {fd}",
+                    exact[k]
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn a_heavy_arm_bent_sags_further_and_a_straight_one_stands() {
+        let arm = arm();
+        let structure = Structure::of(&arm);
+        let s = structure.slots;
+        let light = structure.nominal(&arm);
+        let mut heavy = light.clone();
+        heavy[s.gravity_vector(2)] = 3.0;
+        heavy[s.payload()] = 0.3;
+        // Straight and untensioned it stands where it did, but for its weight pressing it
+        // together along its axis.
+        let p = Model::new(&structure, &heavy).predict(&[-0.001; 6]);
+        assert!(p[2] < 0.21 && p[2] > 0.2099 && p[0].abs() < 1e-12, "{p:?}");
+        // Bent towards +x by module 1's tendon at 0°, the others slack: further out and down.
+        let pull = [0.004, -0.005, -0.005, -0.005, -0.005, -0.005];
+        let a = Model::new(&structure, &light).predict(&pull);
+        let b = Model::new(&structure, &heavy).predict(&pull);
+        assert!(b[0] > a[0] + 1e-3 && b[2] < a[2], "{a:?} {b:?}");
     }
 }
