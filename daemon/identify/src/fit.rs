@@ -31,17 +31,6 @@ pub struct Terms {
     pub gravity: bool,
 }
 
-impl Terms {
-    /// What the table of choices calls it.
-    pub fn name(&self) -> &'static str {
-        if self.gravity {
-            "gravity"
-        } else {
-            "no gravity"
-        }
-    }
-}
-
 /// How far each kind of parameter plausibly is from the configured arm (the prior's standard
 /// deviations at strength 1): a backbone within 10 %, a radius within 30 %, a tendon's angle
 /// within 10°, a module turned within 60°, slack within 3 mm, stiffnesses within e³, the marker
@@ -307,9 +296,9 @@ pub const FOLDS: usize = 5;
 
 /// One choice cross-validation judges: the prior's strength and the terms fitted.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Candidate {
-    pub strength: f64,
-    pub terms: Terms,
+struct Candidate {
+    strength: f64,
+    terms: Terms,
 }
 
 /// What cross-validation found for one candidate: the RMS over held-out motions (m).
@@ -358,14 +347,14 @@ fn thinned<'a>(samples: &[&'a Sample]) -> Vec<&'a Sample> {
 
 /// Where every fit starts and what its prior is centred on: the configured arm oriented to
 /// the recording ([`orient`]).
-pub struct Start<'a> {
-    pub structure: &'a Structure,
-    pub nominal: &'a [f64],
-    pub center: Vec<f64>,
+struct Start<'a> {
+    structure: &'a Structure,
+    nominal: &'a [f64],
+    center: Vec<f64>,
 }
 
 impl<'a> Start<'a> {
-    pub fn of(structure: &'a Structure, nominal: &'a [f64], samples: &[Sample]) -> Self {
+    fn of(structure: &'a Structure, nominal: &'a [f64], samples: &[Sample]) -> Self {
         let all: Vec<&Sample> = samples.iter().collect();
         Self {
             structure,
@@ -388,7 +377,7 @@ impl<'a> Start<'a> {
 /// on at most [`MAX_FIT_ROWS`] rows, on every core), each fold's fit from `from[fold]` (fits
 /// of the same fold, so nothing held out is seen) or else the prior's centre: what each
 /// measured, and each fold's fit.
-pub fn validate(
+fn validate(
     start: &Start,
     samples: &[Sample],
     candidates: &[Candidate],
@@ -487,7 +476,7 @@ fn least(tried: &[(Validated, Vec<Vec<f64>>)]) -> usize {
 }
 
 /// The candidate of `tried` whose held-out RMS is least, fitted to every sample.
-pub fn chosen(
+fn chosen(
     start: &Start,
     samples: &[Sample],
     mut tried: Vec<(Validated, Vec<Vec<f64>>)>,
@@ -623,6 +612,17 @@ mod tests {
         out
     }
 
+    /// A recording of [`pulls`] on `model`, four rows a motion.
+    fn recorded(model: &Model) -> Vec<Sample> {
+        (pulls(6).into_iter().enumerate())
+            .map(|(j, pull_m)| Sample {
+                tip_m: model.predict(&pull_m),
+                pull_m,
+                group: j / 4,
+            })
+            .collect()
+    }
+
     #[test]
     fn a_long_recording_is_thinned_evenly_to_its_cap() {
         let samples: Vec<Sample> = (0..5 * MAX_FIT_ROWS / 2)
@@ -658,13 +658,7 @@ mod tests {
         truth[s.marker(2)] = 0.016;
         truth[s.base_position(0)] = -0.01;
         let model = Model::new(&structure, &truth);
-        let samples: Vec<Sample> = (pulls(6).into_iter().enumerate())
-            .map(|(j, pull_m)| Sample {
-                tip_m: model.predict(&pull_m),
-                pull_m,
-                group: j / 4,
-            })
-            .collect();
+        let samples = recorded(&model);
         let refs: Vec<&Sample> = samples.iter().collect();
         let before = rms_m(&structure, &nominal, &refs);
         let sd = prior_sd(s, &nominal, Terms::default());
@@ -728,13 +722,7 @@ mod tests {
         truth[s.payload()] = 0.4;
         truth[s.length(0)] = 0.104;
         let model = Model::new(&structure, &truth);
-        let samples: Vec<Sample> = (pulls(6).into_iter().enumerate())
-            .map(|(j, pull_m)| Sample {
-                tip_m: model.predict(&pull_m),
-                pull_m,
-                group: j / 4,
-            })
-            .collect();
+        let samples = recorded(&model);
         let refs: Vec<&Sample> = samples.iter().collect();
         let fit = |gravity| {
             let sd = prior_sd(s, &nominal, Terms { gravity });
