@@ -531,7 +531,7 @@ impl<const N: usize> OnlineLearner<N> {
     /// of two inverses kept the model's own miss (up to 12 mm at a point off the
     /// demonstrations).
     fn transferred(&self, target: &Position, model: &[f64; N]) -> [f64; N] {
-        if self.calibrated.samples < CALIBRATION_SAMPLES {
+        if !self.is_calibrated() {
             return *model;
         }
         CalibratedArm::invert(&self.calibrated, target, model)
@@ -874,8 +874,7 @@ impl<const N: usize> OnlineLearner<N> {
         let (moved, disagreed) = match p.jacobian {
             Some((j, _)) if kind == Kind::Repeated && !calibrated_step => {
                 let moved = j * SVector::<f64, N>::from_fn(|i, _| a[i] - from[i]);
-                let calibrated = self.calibrated.samples >= CALIBRATION_SAMPLES;
-                let disagreed = if calibrated {
+                let disagreed = if self.is_calibrated() {
                     (moved - by_calibrated()).norm_squared()
                 } else {
                     0.0
@@ -975,19 +974,18 @@ impl<const N: usize> OnlineLearner<N> {
         if let Some(first) = p.first {
             return first;
         }
-        let mut doubt = 0.0;
         let model = self.model(point, target);
         // Where the arm's own demonstrations reach the target, it is within reach whatever the
         // calibrated arm says: a quasi-static fit of an arm that creeps (the lab's MuJoCo TDCR)
         // put a target the arm had been at 50 mm out of its reach, and held it there.
         let demonstrated = distance(&self.kinematics.position(&model), target) <= BEYOND_REACH_M;
-        let (first, landing, reach) = match self.corrections.visited(target) {
+        let (first, landing, reach, doubt) = match self.corrections.visited(target) {
             Some(estimate) => {
                 let reach = match self.out_of_reach(target, &estimate) {
                     Some(_) if !demonstrated => Reach::Beyond,
                     _ => Reach::Reachable,
                 };
-                (estimate, *target, reach)
+                (estimate, *target, reach, 0.0)
             }
             // Never visited and beyond reach: from the calibrated arm's nearest place, not
             // from what the trained model sends so far from what it was trained on (measured:
@@ -996,13 +994,19 @@ impl<const N: usize> OnlineLearner<N> {
                 let first = self.transferred(target, &model);
                 match self.out_of_reach(target, &first) {
                     Some(nearest) if !demonstrated => {
-                        (nearest, self.calibrated.position(&nearest), Reach::Beyond)
+                        let landing = self.calibrated.position(&nearest);
+                        (nearest, landing, Reach::Beyond, 0.0)
                     }
                     // The calibrated arm misses where the demonstrations reach: not its
                     // inverse, the trained model's estimate.
-                    Some(_) => self.models_first(&model, &mut doubt),
-                    None if first == model => self.models_first(&model, &mut doubt),
-                    None => (first, self.calibrated.position(&first), Reach::Reachable),
+                    Some(_) => self.models_first(&model),
+                    None if first == model => self.models_first(&model),
+                    None => (
+                        first,
+                        self.calibrated.position(&first),
+                        Reach::Reachable,
+                        0.0,
+                    ),
                 }
             }
         };
@@ -1014,12 +1018,13 @@ impl<const N: usize> OnlineLearner<N> {
         first
     }
 
-    /// A first estimate that is the trained model's `model`: where the trained kinematics say
-    /// it lands, within reach; `doubt` how far the calibrated arm puts it from there, squared.
-    fn models_first(&self, model: &[f64; N], doubt: &mut f64) -> ([f64; N], Position, Reach) {
+    /// A first estimate that is the trained model's `model`: it, where the trained kinematics
+    /// say it lands, within reach, and how doubtful that landing is (m²: how far the calibrated
+    /// arm puts `model` from it).
+    fn models_first(&self, model: &[f64; N]) -> ([f64; N], Position, Reach, f64) {
         let landing = self.kinematics.position(model);
-        *doubt = distance(&landing, &self.calibrated.position(model)).powi(2);
-        (*model, landing, Reach::Reachable)
+        let doubt = distance(&landing, &self.calibrated.position(model)).powi(2);
+        (*model, landing, Reach::Reachable, doubt)
     }
 
     /// Fits the calibrated arm again if the footprint of the arm now holds at least
@@ -1034,6 +1039,11 @@ impl<const N: usize> OnlineLearner<N> {
         {
             self.recalibrate();
         }
+        self.is_calibrated()
+    }
+
+    /// Whether the calibrated arm is fitted to the arm, not the configured arm as it was.
+    fn is_calibrated(&self) -> bool {
         self.calibrated.samples >= CALIBRATION_SAMPLES
     }
 
@@ -1079,10 +1089,10 @@ impl<const N: usize> OnlineLearner<N> {
     /// 15.8 mm, for six executions. Before the arm is calibrated, the step as it is.
     /// Whether the step was shortened.
     fn judged(&self, target: &Position, base: &Try<N>, mut step: [f64; N]) -> ([f64; N], bool) {
-        let model = &self.calibrated;
-        if model.samples < CALIBRATION_SAMPLES {
+        if !self.is_calibrated() {
             return (plus(&base.action, &step), false);
         }
+        let model = &self.calibrated;
         let at_base = model.position(&base.action);
         let landing = |a: &[f64; N]| {
             let p = model.position(a);
