@@ -264,6 +264,9 @@ pub(crate) struct Link {
     configure_faults: u64,
     /// Per motor, its Return Delay Time (unit 2 µs) as read back once configured.
     delays: [u8; MAX_ACTUATORS],
+    /// Per motor, the Return Delay Time it was said to keep ([`say_delay_kept`]): said once,
+    /// not again at each configuration a lost reply elsewhere on the bus starts over.
+    delays_said: [Option<u8>; MAX_ACTUATORS],
     line: Line,
     /// When the line is done with what the driver sent, and the replies it asked for (ns).
     busy_until_ns: u64,
@@ -430,6 +433,7 @@ impl Link {
             survey: Some(Survey::new(now, n)),
             configure_faults: 0,
             delays: [0; MAX_ACTUATORS],
+            delays_said: [None; MAX_ACTUATORS],
             line: Line::new(t.baud),
             busy_until_ns: now,
             lateness: Lateness::default(),
@@ -638,8 +642,9 @@ impl Link {
             );
         }
         self.delays[i] = back.delay;
-        if back.delay != RETURN_DELAY {
+        if back.delay != RETURN_DELAY && self.delays_said[i] != Some(back.delay) {
             say_delay_kept(t, id, i, back.delay, refused);
+            self.delays_said[i] = Some(back.delay);
         }
         Ok((false, now))
     }
