@@ -433,3 +433,83 @@ fn foxglove_comes_without_tls_and_only_the_view_serves() {
         }
     }
 }
+
+/// A crate's modules named by what `path` (a crate root, `src/lib.rs` or `src/main.rs`)
+/// declares beside it: module name -> the crate's other modules its code (tests left out) uses
+/// through `crate::`.
+fn module_uses(root: &std::path::Path) -> BTreeMap<String, BTreeSet<String>> {
+    let dir = root.parent().unwrap();
+    let files: Vec<(String, std::path::PathBuf)> = std::fs::read_dir(dir)
+        .unwrap()
+        .filter_map(|e| {
+            let path = e.unwrap().path();
+            let name = path.file_stem()?.to_str()?.to_string();
+            let file = if path.is_dir() {
+                path.join("mod.rs")
+            } else {
+                path.clone()
+            };
+            (file.extension()? == "rs" && file.exists() && path != root).then_some((name, file))
+        })
+        .collect();
+    let names: BTreeSet<&str> = files.iter().map(|(n, _)| n.as_str()).collect();
+    files
+        .iter()
+        .map(|(name, file)| {
+            let text = std::fs::read_to_string(file).unwrap();
+            // Code only: no tests, no comments (a doc link is no use).
+            let code: String = text
+                .split("#[cfg(test)]")
+                .next()
+                .unwrap()
+                .lines()
+                .filter(|l| !l.trim_start().starts_with("//"))
+                .collect::<Vec<_>>()
+                .join("\n");
+            let uses = code
+                .match_indices("crate::")
+                .filter_map(|(i, _)| {
+                    let rest = &code[i + "crate::".len()..];
+                    let used: String = rest
+                        .chars()
+                        .take_while(|c| c.is_alphanumeric() || *c == '_')
+                        .collect();
+                    (used != *name && names.contains(used.as_str())).then_some(used)
+                })
+                .collect();
+            (name.clone(), uses)
+        })
+        .collect()
+}
+
+/// Within a crate, no module uses one that uses it back: each module's job stands on the ones
+/// below it, so a fix lands in one place and the modules read bottom up.
+#[test]
+fn no_module_uses_one_that_uses_it_back() {
+    let mut circles = Vec::new();
+    for p in packages() {
+        for t in p["targets"].as_array().unwrap() {
+            let kinds = t["kind"].as_array().unwrap();
+            if !kinds.iter().any(|k| k == "lib" || k == "bin") {
+                continue;
+            }
+            let root = std::path::PathBuf::from(t["src_path"].as_str().unwrap());
+            if !matches!(
+                root.file_name().and_then(|f| f.to_str()),
+                Some("lib.rs" | "main.rs")
+            ) {
+                continue;
+            }
+            let uses = module_uses(&root);
+            for m in uses.keys() {
+                if links(&uses, m).contains(m) {
+                    circles.push(format!("{}: {m}", p["name"].as_str().unwrap()));
+                }
+            }
+        }
+    }
+    assert!(
+        circles.is_empty(),
+        "modules that use themselves through others (move what both need below both): {circles:?}"
+    );
+}

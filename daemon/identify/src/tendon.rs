@@ -13,6 +13,7 @@
 
 use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
 use softarm_arm::{Layout, Mount};
+use softarm_kinematics::arc::{Arc, module_centroid, module_pose, rot_x, rot_y, rot_z};
 
 /// Where each parameter sits in the vector a calibration fits, for M modules and n tendons.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -391,7 +392,7 @@ impl<'a> Model<'a> {
             if m > 0 {
                 position += rotation * Vector3::new(0.0, 0.0, self.structure.connector_m);
             }
-            let arc = Arc::of(
+            let arc = Slopes::of(
                 shape[3 * m],
                 shape[3 * m + 1],
                 t[s.length(m)] - shape[3 * m + 2],
@@ -455,17 +456,15 @@ impl<'a> Model<'a> {
             }
             let (ux, uy) = (shape[3 * m], shape[3 * m + 1]);
             let length = t[s.length(m)] - shape[3 * m + 2];
-            let bend = ux.hypot(uy);
-            let phi = uy.atan2(ux);
-            let (f, g) = sinc_terms(bend);
-            let (cf, cg) = centroid_terms(bend, f, g);
-            let (sp, cp) = phi.sin_cos();
-            centroid(
-                m,
-                position + rotation * (length * Vector3::new(cp * cf, sp * cf, cg)),
-            );
-            position += rotation * (length * Vector3::new(cp * f, sp * f, g));
-            rotation *= rot_z(phi) * rot_y(bend) * rot_z(-phi);
+            let arc = Arc {
+                length,
+                theta: ux.hypot(uy),
+                phi: uy.atan2(ux),
+            };
+            centroid(m, position + rotation * module_centroid(&arc));
+            let module = module_pose(&arc);
+            position += rotation * module.position;
+            rotation *= module.rotation;
         }
         position + rotation * Vector3::new(t[s.marker(0)], t[s.marker(1)], t[s.marker(2)])
     }
@@ -477,13 +476,14 @@ impl<'a> Model<'a> {
     }
 }
 
-/// One module's constant-curvature arc in its base's frame, for bend (ux, uy) and length L,
-/// with its derivatives by (ux, uy, compression). In Cartesian bends every term is smooth
+/// One module's arc in its base's frame ([`module_pose`], [`module_centroid`]) for bend
+/// (ux, uy) and length L, with its derivatives by (ux, uy, compression): what settling the arm
+/// needs. In Cartesian bends every term is smooth
 /// through the straight arc: the end is L (ux F, uy F, sin θ/θ), the centroid L (ux A, uy A,
 /// F), with F = (1 − cos θ)/θ² and A = (1 − sin θ/θ)/θ²; the turn is the rotation vector
 /// (−uy, ux, 0), whose change turns the end by its left Jacobian.
 #[derive(Debug, Clone, Copy)]
-struct Arc {
+struct Slopes {
     end: Vector3<f64>,
     centroid: Vector3<f64>,
     turn: Matrix3<f64>,
@@ -493,7 +493,7 @@ struct Arc {
     d_turn: [Vector3<f64>; 3],
 }
 
-impl Arc {
+impl Slopes {
     fn of(ux: f64, uy: f64, length: f64) -> Self {
         let t2 = ux * ux + uy * uy;
         let theta = t2.sqrt();
@@ -552,40 +552,6 @@ fn base_rotation(structure: &Structure, theta: &[f64]) -> Matrix3<f64> {
         * rot_z(theta[s.base_rotation(2)])
         * rot_y(theta[s.base_rotation(1)])
         * rot_x(theta[s.base_rotation(0)])
-}
-
-/// A uniform arc's centroid over its length, as the end's (f, g) of [`sinc_terms`] are:
-/// (1 − sin θ/θ)/θ across and (1 − cos θ)/θ² along, by series near 0.
-fn centroid_terms(theta: f64, f: f64, g: f64) -> (f64, f64) {
-    if theta.abs() < 1e-3 {
-        let t2 = theta * theta;
-        (theta / 6.0 - theta * t2 / 120.0, 0.5 - t2 / 24.0)
-    } else {
-        ((1.0 - g) / theta, f / theta)
-    }
-}
-
-/// (1 − cos θ)/θ and sin θ/θ, by series near 0.
-fn sinc_terms(theta: f64) -> (f64, f64) {
-    if theta.abs() < 1e-4 {
-        let t2 = theta * theta;
-        (theta / 2.0 - theta * t2 / 24.0, 1.0 - t2 / 6.0)
-    } else {
-        ((1.0 - theta.cos()) / theta, theta.sin() / theta)
-    }
-}
-
-fn rot_x(a: f64) -> Matrix3<f64> {
-    let (s, c) = a.sin_cos();
-    Matrix3::new(1.0, 0.0, 0.0, 0.0, c, -s, 0.0, s, c)
-}
-fn rot_y(a: f64) -> Matrix3<f64> {
-    let (s, c) = a.sin_cos();
-    Matrix3::new(c, 0.0, s, 0.0, 1.0, 0.0, -s, 0.0, c)
-}
-fn rot_z(a: f64) -> Matrix3<f64> {
-    let (s, c) = a.sin_cos();
-    Matrix3::new(c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0)
 }
 
 #[cfg(test)]

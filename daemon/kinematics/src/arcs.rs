@@ -15,7 +15,7 @@
 
 use softarm_arm::{Layout, MAX_ACTUATORS, MAX_MODULES};
 
-use crate::pcc::Arc;
+use crate::arc::Arc;
 
 /// Most unknowns: three a module.
 const MAX_UNKNOWNS: usize = 3 * MAX_MODULES;

@@ -3,6 +3,7 @@
 //! (`[arm]`, `[kinematics]`, `[forward_model]`) are plain data in `softarm-sections`; the math
 //! on them is here.
 //!
+//! - [`arc`] — one constant-curvature module: its arc, its transform, its centroid.
 //! - [`arcs`] — actuator lengths to module arcs for any arm (least squares).
 //! - [`pcc`] — piecewise-constant-curvature kinematics, [`pcc::Kinematics`] on
 //!   `softarm_sections::arm::ArmGeometry`.
@@ -12,6 +13,7 @@
 //! - [`linalg`] — the symmetric solve and the normal equations the fits share, summed in blocks
 //!   on every core.
 
+pub mod arc;
 pub mod arcs;
 pub mod forward;
 pub mod linalg;

@@ -7,106 +7,13 @@
 
 use nalgebra::{Matrix3, Vector3};
 
+pub use crate::arc::{Arc, Pose};
+use crate::arc::{module_pose, tapered_module_pose};
 use crate::arcs::{Routes, Undetermined};
 use softarm_arm::{Layout, MAX_ACTUATORS, MAX_MODULES};
 
 pub use softarm_sections::arm::{ACTUATORS, ACTUATORS_PER_MODULE, MODULES};
 use softarm_sections::arm::{ArmConfig, ArmGeometry, Mount};
-
-/// Arc parameters of one constant-curvature module.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Arc {
-    /// Backbone length l (m).
-    pub length: f64,
-    /// Bending angle θ = κ l (rad), ≥ 0.
-    pub theta: f64,
-    /// Bending-plane angle φ (rad): the module bends towards φ.
-    pub phi: f64,
-}
-
-impl Arc {
-    pub fn curvature(&self) -> f64 {
-        self.theta / self.length
-    }
-}
-
-/// A rigid transform: rotation and translation.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Pose {
-    pub rotation: Matrix3<f64>,
-    pub position: Vector3<f64>,
-}
-
-impl Pose {
-    pub fn identity() -> Self {
-        Self {
-            rotation: Matrix3::identity(),
-            position: Vector3::zeros(),
-        }
-    }
-
-    fn translation_z(z: f64) -> Self {
-        Self {
-            rotation: Matrix3::identity(),
-            position: Vector3::new(0.0, 0.0, z),
-        }
-    }
-
-    pub fn then(&self, next: &Pose) -> Pose {
-        Pose {
-            rotation: self.rotation * next.rotation,
-            position: self.position + self.rotation * next.position,
-        }
-    }
-}
-
-/// (1 − cos θ)/θ² and sin θ/θ, by series near 0 where the quotients lose precision.
-fn sinc_terms(theta: f64) -> (f64, f64) {
-    let t2 = theta * theta;
-    if theta.abs() < 1e-3 {
-        (
-            0.5 - t2 / 24.0 + t2 * t2 / 720.0,
-            1.0 - t2 / 6.0 + t2 * t2 / 120.0,
-        )
-    } else {
-        ((1.0 - theta.cos()) / t2, theta.sin() / theta)
-    }
-}
-
-/// Constant-curvature pieces a tapered module is made of.
-pub const TAPER_PIECES: usize = 16;
-
-/// Base → tip of a module whose curvature is not constant but falls linearly along it,
-/// κ(s) = κ̄ (1 + c (1 − 2 s / l)) for c = `taper` in [0, 1]: at the base (1 + c) κ̄, at the
-/// tip (1 − c) κ̄, as a module loaded by what hangs below it bends more near its base. Length l,
-/// total bend θ = κ̄ l and plane φ are `arc`'s, so the tip's orientation is PCC's and only its
-/// position departs. Made of [`TAPER_PIECES`] constant-curvature pieces, each with the mean
-/// curvature of its stretch (the bends add up to θ exactly).
-pub fn tapered_module_pose(arc: &Arc, taper: f64) -> Pose {
-    let n = TAPER_PIECES as f64;
-    (0..TAPER_PIECES).fold(Pose::identity(), |pose, k| {
-        let share = 1.0 + taper * (1.0 - (2 * k + 1) as f64 / n);
-        let piece = Arc {
-            length: arc.length / n,
-            theta: arc.theta / n * share,
-            phi: arc.phi,
-        };
-        pose.then(&module_pose(&piece))
-    })
-}
-
-/// Base → tip of one module: R = Rz(φ) Ry(θ) Rz(−φ), p = l (cos φ f θ, sin φ f θ, g).
-pub fn module_pose(arc: &Arc) -> Pose {
-    let (f, g) = sinc_terms(arc.theta);
-    let (sp, cp) = arc.phi.sin_cos();
-    let (st, ct) = arc.theta.sin_cos();
-    let rz = |s: f64, c: f64| Matrix3::new(c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0);
-    let ry = Matrix3::new(ct, 0.0, st, 0.0, 1.0, 0.0, -st, 0.0, ct);
-    Pose {
-        rotation: rz(sp, cp) * ry * rz(-sp, cp),
-        position: arc.length * Vector3::new(cp * f * arc.theta, sp * f * arc.theta, g),
-    }
-}
 
 /// Base → tip of modules `arcs` from `base`, each made by `module`, a connector between
 /// consecutive ones and the tool after the last.
@@ -476,12 +383,6 @@ mod tests {
         close(arm.position(&[0.5; 6]), [0.0, 0.0, -0.5], 1e-12);
         let tiny = arm.position(&[0.5, 0.5 + 1e-12, 0.5, 0.5, 0.5, 0.5]);
         close(tiny, [0.0, 0.0, -0.5], 1e-9);
-        // Series and closed form agree where they hand over.
-        for theta in [0.999e-3, 1.001e-3] {
-            let (f, g) = sinc_terms(theta);
-            assert!((f - (1.0 - theta.cos()) / (theta * theta)).abs() < 1e-9);
-            assert!((g - theta.sin() / theta).abs() < 1e-12);
-        }
     }
 
     #[test]
