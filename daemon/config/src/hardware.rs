@@ -327,55 +327,6 @@ impl TendonConfig {
         Bus { tendon, actuators }
     }
 
-    /// The extra buses: a port each, none twice nor `port`, and actuators of the arm's `n`,
-    /// each on one bus, `port`'s keeping at least one.
-    fn validate_buses(&self, n: usize) -> Result<(), Invalid> {
-        let mut taken: Vec<Option<usize>> = vec![None; n];
-        for (k, b) in self.extra_bus.iter().enumerate() {
-            let key = |what: &str| format!("tendon.extra_bus[{k}].{what}");
-            if b.port.as_os_str().is_empty() {
-                return invalid(key("port"), "must name the serial device".into());
-            }
-            let earlier =
-                std::iter::once(&self.port).chain(self.extra_bus[..k].iter().map(|b| &b.port));
-            if earlier.clone().any(|p| *p == b.port) {
-                return invalid(
-                    key("port"),
-                    format!("{} is the port of another bus", b.port.display()),
-                );
-            }
-            if b.actuators.is_empty() {
-                return invalid(
-                    key("actuators"),
-                    "a bus drives at least one actuator".into(),
-                );
-            }
-            for &a in &b.actuators {
-                if !(1..=n).contains(&a) {
-                    return invalid(
-                        key("actuators"),
-                        format!("actuator {a}: the arm has actuators 1 to {n}"),
-                    );
-                }
-                if let Some(other) = taken[a - 1].replace(k) {
-                    return invalid(
-                        key("actuators"),
-                        format!("actuator {a} is on extra_bus[{other}] already"),
-                    );
-                }
-            }
-        }
-        if !self.extra_bus.is_empty() && taken.iter().all(Option::is_some) {
-            return invalid(
-                "tendon.port".into(),
-                "every actuator is on an extra bus: put one on port's, or make one extra bus \
-                 the port"
-                    .into(),
-            );
-        }
-        Ok(())
-    }
-
     /// Checks the section against the arm and the controller's actuator limits: every setpoint
     /// the controller may send must map to ticks the motors accept.
     /// `controller_rate_hz`: the time-outs must span several of the controller's periods.
@@ -388,9 +339,48 @@ impl TendonConfig {
     ) -> Result<(), Invalid> {
         let key = |k: &str| format!("tendon.{k}");
         let n = arm.actuators().len();
+        self.validate_arm(arm)?;
+        self.validate_buses(n)?;
+        self.validate_ids()?;
+        if !(self.rate_hz.is_finite() && (1.0..=1000.0).contains(&self.rate_hz)) {
+            return invalid(
+                key("rate_hz"),
+                format!("must be in [1, 1000] Hz, got {:?}", self.rate_hz),
+            );
+        }
+        if !(16..=1 << 20).contains(&self.ticks_per_rev) {
+            return invalid(
+                key("ticks_per_rev"),
+                format!("must be 16 to 1048576, got {}", self.ticks_per_rev),
+            );
+        }
+        self.validate_motors(n)?;
+        self.validate_mapping(arm, actuator_min, actuator_max)?;
+        if self.profile_velocity > 32767 {
+            return invalid(
+                key("profile_velocity"),
+                format!("must be 0 to 32767, got {}", self.profile_velocity),
+            );
+        }
+        if !(self.max_engage_step.is_finite()
+            && self.max_engage_step > 0.0
+            && self.max_engage_step <= 1.0)
+        {
+            return invalid(
+                key("max_engage_step"),
+                format!("must be in (0, 1], got {:?}", self.max_engage_step),
+            );
+        }
+        self.validate_timeouts(controller_rate_hz)
+    }
+
+    /// A tendon motor per actuator of the arm: no chamber among them, and each per-motor
+    /// list one value per actuator.
+    fn validate_arm(&self, arm: &Layout) -> Result<(), Invalid> {
+        let n = arm.actuators().len();
         if let Some(i) = arm.actuators().iter().position(|a| a.kind != Kind::Tendon) {
             return invalid(
-                key("ids"),
+                "tendon.ids".into(),
                 format!(
                     "actuator {} ({}) of [arm] is a pneumatic chamber, which the tendon driver \
                      cannot drive: chambers run in the sim alone (robot.drivers = [\"sim\"] and \
@@ -411,7 +401,7 @@ impl TendonConfig {
         for (name, len) in lengths {
             if len != n {
                 return invalid(
-                    key(name),
+                    format!("tendon.{name}"),
                     format!(
                         "{len} values for an arm of {n} actuators ([arm]); give one per motor, \
                          in the arm's order"
@@ -419,17 +409,41 @@ impl TendonConfig {
                 );
             }
         }
+        Ok(())
+    }
+
+    /// The buses: `port`, the extra buses (each checked by [`ExtraBus::validate`]) with
+    /// actuators of the arm's `n`, `port`'s keeping at least one, and `baud`.
+    fn validate_buses(&self, n: usize) -> Result<(), Invalid> {
         if self.port.as_os_str().is_empty() {
-            return invalid(key("port"), "must name the serial device".into());
+            return invalid("tendon.port".into(), "must name the serial device".into());
         }
-        self.validate_buses(n)?;
+        let mut taken: Vec<Option<usize>> = vec![None; n];
+        for (k, b) in self.extra_bus.iter().enumerate() {
+            let earlier =
+                std::iter::once(&self.port).chain(self.extra_bus[..k].iter().map(|b| &b.port));
+            b.validate(k, earlier, &mut taken)?;
+        }
+        if !self.extra_bus.is_empty() && taken.iter().all(Option::is_some) {
+            return invalid(
+                "tendon.port".into(),
+                "every actuator is on an extra bus: put one on port's, or make one extra bus \
+                 the port"
+                    .into(),
+            );
+        }
         if !(9600..=10_500_000).contains(&self.baud) {
             return invalid(
-                key("baud"),
+                "tendon.baud".into(),
                 format!("must be 9600 to 10500000 baud, got {}", self.baud),
             );
         }
-        // Unique on each bus: two buses may each have a motor 1.
+        Ok(())
+    }
+
+    /// The motor ids: each a Dynamixel id, unique on its bus (two buses may each have a motor
+    /// 1).
+    fn validate_ids(&self) -> Result<(), Invalid> {
         let bus_of = |i: usize| {
             (self.extra_bus.iter())
                 .position(|b| b.actuators.contains(&(i + 1)))
@@ -453,18 +467,12 @@ impl TendonConfig {
                 );
             }
         }
-        if !(self.rate_hz.is_finite() && (1.0..=1000.0).contains(&self.rate_hz)) {
-            return invalid(
-                key("rate_hz"),
-                format!("must be in [1, 1000] Hz, got {:?}", self.rate_hz),
-            );
-        }
-        if !(16..=1 << 20).contains(&self.ticks_per_rev) {
-            return invalid(
-                key("ticks_per_rev"),
-                format!("must be 16 to 1048576, got {}", self.ticks_per_rev),
-            );
-        }
+        Ok(())
+    }
+
+    /// Each of the `n` motors: its spool, its direction and its position limits, which
+    /// position control must accept.
+    fn validate_motors(&self, n: usize) -> Result<(), Invalid> {
         let (lowest, highest) = TICKS_RANGE;
         for i in 0..n {
             let r = self.spool_radius_m[i];
@@ -499,8 +507,19 @@ impl TendonConfig {
                 );
             }
         }
+        Ok(())
+    }
+
+    /// The controller's limits (`actuator_min`, `actuator_max`, one per actuator of `arm`)
+    /// map inside each motor's own: a motor that would be pushed past them is named.
+    fn validate_mapping(
+        &self,
+        arm: &Layout,
+        actuator_min: &[f64],
+        actuator_max: &[f64],
+    ) -> Result<(), Invalid> {
         let mapping = Mapping::new(self, arm);
-        for i in 0..n {
+        for i in 0..arm.actuators().len() {
             let ends = [actuator_min[i], actuator_max[i]];
             for (end, a) in ["actuator_min", "actuator_max"].into_iter().zip(ends) {
                 let t = mapping.ticks(i, a);
@@ -520,27 +539,18 @@ impl TendonConfig {
                 }
             }
         }
-        if self.profile_velocity > 32767 {
-            return invalid(
-                key("profile_velocity"),
-                format!("must be 0 to 32767, got {}", self.profile_velocity),
-            );
-        }
-        if !(self.max_engage_step.is_finite()
-            && self.max_engage_step > 0.0
-            && self.max_engage_step <= 1.0)
-        {
-            return invalid(
-                key("max_engage_step"),
-                format!("must be in (0, 1], got {:?}", self.max_engage_step),
-            );
-        }
+        Ok(())
+    }
+
+    /// `hold_after_ms` and `torque_off_after_ms`, against this driver's rate (checked) and
+    /// the controller's, `controller_rate_hz`.
+    fn validate_timeouts(&self, controller_rate_hz: f64) -> Result<(), Invalid> {
         // A setpoint must be missed for several periods of both loops before the driver
         // stops following, or it would hold between two of them.
         let periods_ms = 3.0 * (1000.0 / self.rate_hz).max(1000.0 / controller_rate_hz);
         if !(self.hold_after_ms.is_finite() && self.hold_after_ms >= periods_ms) {
             return invalid(
-                key("hold_after_ms"),
+                "tendon.hold_after_ms".into(),
                 format!(
                     "must be at least 3 periods of tendon.rate_hz and controller.rate_hz, \
                      {periods_ms} ms, got {:?}",
@@ -553,12 +563,57 @@ impl TendonConfig {
             && self.torque_off_after_ms <= 600_000.0)
         {
             return invalid(
-                key("torque_off_after_ms"),
+                "tendon.torque_off_after_ms".into(),
                 format!(
                     "must be in (hold_after_ms, 600000] = ({}, 600000] ms, got {:?}",
                     self.hold_after_ms, self.torque_off_after_ms
                 ),
             );
+        }
+        Ok(())
+    }
+}
+
+impl ExtraBus {
+    /// Checks `[[tendon.extra_bus]]` number `k`: a port, none of the buses' before it
+    /// (`earlier`), and actuators of the arm's `taken.len()`, each on no bus yet (`taken`:
+    /// which extra bus each is on; marked here).
+    fn validate<'a>(
+        &self,
+        k: usize,
+        mut earlier: impl Iterator<Item = &'a PathBuf>,
+        taken: &mut [Option<usize>],
+    ) -> Result<(), Invalid> {
+        let key = |what: &str| format!("tendon.extra_bus[{k}].{what}");
+        let n = taken.len();
+        if self.port.as_os_str().is_empty() {
+            return invalid(key("port"), "must name the serial device".into());
+        }
+        if earlier.any(|p| *p == self.port) {
+            return invalid(
+                key("port"),
+                format!("{} is the port of another bus", self.port.display()),
+            );
+        }
+        if self.actuators.is_empty() {
+            return invalid(
+                key("actuators"),
+                "a bus drives at least one actuator".into(),
+            );
+        }
+        for &a in &self.actuators {
+            if !(1..=n).contains(&a) {
+                return invalid(
+                    key("actuators"),
+                    format!("actuator {a}: the arm has actuators 1 to {n}"),
+                );
+            }
+            if let Some(other) = taken[a - 1].replace(k) {
+                return invalid(
+                    key("actuators"),
+                    format!("actuator {a} is on extra_bus[{other}] already"),
+                );
+            }
         }
         Ok(())
     }

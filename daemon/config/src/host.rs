@@ -37,6 +37,7 @@ fn is_name(s: &str) -> bool {
 }
 
 impl HostConfig {
+    /// Checks the names, that user and group go together, and the paths.
     pub(crate) fn validate(&self) -> Result<(), Invalid> {
         for (key, name) in [("host.user", &self.user), ("host.group", &self.group)] {
             if let Some(n) = name
@@ -88,6 +89,19 @@ impl HostConfig {
         }
         Ok(())
     }
+
+    /// As [`HostConfig::validate`], and `bus`, the stack's namespace under `ipc_root`
+    /// ([`crate::Config::bus`]), made: its error is `ipc_root`'s.
+    pub(crate) fn validate_for(
+        &self,
+        bus: Result<softarm_ipc::Namespace, softarm_ipc::Error>,
+    ) -> Result<(), Invalid> {
+        self.validate()?;
+        match bus {
+            Ok(_) => Ok(()),
+            Err(m) => invalid("host.ipc_root", m.to_string()),
+        }
+    }
 }
 
 #[cfg(test)]
@@ -124,5 +138,29 @@ mod tests {
             ..HostConfig::default()
         };
         assert_eq!(gate_alone.validate().unwrap_err().0, "host.gate");
+    }
+
+    #[test]
+    fn a_root_the_namespace_cannot_go_under_is_the_root_s_error() {
+        let root = HostConfig {
+            ipc_root: Some("/run/softarm/iceoryx2".into()),
+            ..HostConfig::default()
+        };
+        let ns = softarm_ipc::Namespace::new("softarm/sim").unwrap();
+        root.validate_for(Ok(ns)).unwrap();
+        let refused = softarm_ipc::Error("not a path iceoryx2 takes".into());
+        assert_eq!(
+            root.validate_for(Err(refused)).unwrap_err(),
+            ("host.ipc_root".into(), "not a path iceoryx2 takes".into())
+        );
+        // The section's own checks come first.
+        let relative = HostConfig {
+            ipc_root: Some("run/ipc".into()),
+            ..HostConfig::default()
+        };
+        let refused = softarm_ipc::Error("x".into());
+        let (key, m) = relative.validate_for(Err(refused)).unwrap_err();
+        assert_eq!(key, "host.ipc_root");
+        assert!(m.ends_with("must be an absolute path"), "{m}");
     }
 }

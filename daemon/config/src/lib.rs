@@ -23,7 +23,7 @@ use crate::activation::ActivationConfig;
 use crate::arm::{ArmConfig, ArmGeometry};
 use crate::demonstrations::DemoRecipe;
 use crate::forward_model::NetworkConfig;
-use crate::kinematics::{MAX_DEGREE, PolynomialConfig};
+use crate::kinematics::PolynomialConfig;
 use crate::learner::{LearnerConfig, PretrainConfig};
 use crate::per_actuator::PerActuator;
 use crate::sim::SimConfig;
@@ -50,6 +50,7 @@ pub use softarm_sections::{
 };
 
 use softarm_ipc::drivers::{DRIVERS, Driver};
+use softarm_sections::bounds::{self, Lower, Lower::Closed, Lower::Open};
 
 use crate::hardware::{TendonConfig, TrackerConfig};
 use crate::host::HostConfig;
@@ -160,6 +161,65 @@ pub struct Robot {
     pub drivers: Vec<String>,
 }
 
+impl Robot {
+    /// The service namespace: `namespace`, else `softarm/<id>`.
+    pub fn namespace(&self) -> String {
+        self.namespace
+            .clone()
+            .unwrap_or_else(|| format!("softarm/{}", self.id))
+    }
+
+    /// Checks the namespace (or the id it is made of) and the drivers: each known and listed
+    /// once, "sim" alone or the hardware drivers, each of these with its section
+    /// (`has_section`: [`Config::has_section`]).
+    fn validate(&self, has_section: impl Fn(&str) -> bool) -> Result<(), Invalid> {
+        softarm_ipc::Namespace::new(&self.namespace()).map_err(|m| {
+            let key = if self.namespace.is_some() {
+                "robot.namespace"
+            } else {
+                "robot.id"
+            };
+            (key.to_string(), m.to_string())
+        })?;
+        for (i, d) in self.drivers.iter().enumerate() {
+            if Driver::named(d).is_none() {
+                return invalid(
+                    "robot.drivers",
+                    format!("unknown driver {d:?}; this build has {:?}", Driver::names()),
+                );
+            }
+            if self.drivers[..i].contains(d) {
+                return invalid("robot.drivers", format!("driver {d:?} is listed twice"));
+            }
+        }
+        let listed = || {
+            DRIVERS
+                .iter()
+                .filter(|d| self.drivers.iter().any(|x| x == d.name))
+        };
+        if let Some(whole) = listed().find(|d| !d.hardware)
+            && listed().any(|d| d.hardware)
+        {
+            return invalid(
+                "robot.drivers",
+                format!(
+                    "\"{}\" is the whole arm: list it alone, or the hardware drivers",
+                    whole.name
+                ),
+            );
+        }
+        for driver in listed().filter(|d| d.hardware).map(|d| d.name) {
+            if !has_section(driver) {
+                return invalid(
+                    "robot.drivers",
+                    format!("lists \"{driver}\" but the config has no [{driver}] section"),
+                );
+            }
+        }
+        Ok(())
+    }
+}
+
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct Controller {
@@ -198,6 +258,95 @@ pub struct Controller {
 
 fn locked() -> bool {
     true
+}
+
+impl Controller {
+    /// Checks `rate_hz`, `tracker_timeout_ms` and `slew_per_s`: what needs nothing of the
+    /// arm ([`Controller::validate`] the rest).
+    fn validate_rates(&self) -> Result<(), Invalid> {
+        within(
+            "controller.rate_hz",
+            self.rate_hz,
+            Closed(10.0),
+            1000.0,
+            " Hz",
+        )?;
+        within(
+            "controller.tracker_timeout_ms",
+            self.tracker_timeout_ms,
+            Open(0.0),
+            10_000.0,
+            " ms",
+        )?;
+        within(
+            "controller.slew_per_s",
+            self.slew_per_s,
+            Open(0.0),
+            1000.0,
+            " /s",
+        )
+    }
+
+    /// Checks the rest ([`Controller::validate_rates`] the rates) for an arm of `n` actuators:
+    /// the limits, one number or one per actuator, each minimum below its maximum; the times,
+    /// the variance floor, the real-time priority and the CPU.
+    fn validate(&self, n: usize) -> Result<(), Invalid> {
+        (self.actuator_min)
+            .check("controller.actuator_min", n, 0.0..=1.0)
+            .map_err(|e| keyed("controller.actuator_min", e))?;
+        (self.actuator_max)
+            .check("controller.actuator_max", n, 0.0..=1.0)
+            .map_err(|e| keyed("controller.actuator_max", e))?;
+        for i in 0..n {
+            let (lo, hi) = (self.actuator_min.get(i), self.actuator_max.get(i));
+            if lo >= hi {
+                return invalid(
+                    "controller.actuator_max",
+                    format!("actuator {}: {hi} must exceed its actuator_min {lo}", i + 1),
+                );
+            }
+        }
+        within("controller.rest_s", self.rest_s, Closed(0.0), 60.0, " s")?;
+        within(
+            "controller.variance_floor",
+            self.variance_floor,
+            Open(0.0),
+            1.0,
+            "",
+        )?;
+        within(
+            "controller.estimate_timeout_s",
+            self.estimate_timeout_s,
+            Open(0.0),
+            60.0,
+            " s",
+        )?;
+        within(
+            "controller.max_lead_s",
+            self.max_lead_s,
+            Closed(0.0),
+            1.0,
+            " s",
+        )?;
+        if !(0..=99).contains(&self.realtime_priority) {
+            return invalid(
+                "controller.realtime_priority",
+                format!("must be 0 (off) to 99, got {}", self.realtime_priority),
+            );
+        }
+        if let Some(cpu) = self.cpu
+            && cpu >= MAX_CPUS
+        {
+            return invalid(
+                "controller.cpu",
+                format!(
+                    "must be 0 to {}, the CPUs a CPU set can name, got {cpu}",
+                    MAX_CPUS - 1
+                ),
+            );
+        }
+        Ok(())
+    }
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
@@ -239,6 +388,49 @@ impl WaypointLimits {
             max_m: self.workspace_max_m,
         }
     }
+
+    /// Checks the box, the reach, the durations and the executions. The longest set at
+    /// `controller_rate_hz` (checked) must fit the planner's tables: at most [`MAX_TICKS`].
+    fn validate(&self, controller_rate_hz: f64) -> Result<(), Invalid> {
+        workspace("waypoints", self.workspace_min_m, self.workspace_max_m)?;
+        within("waypoints.reach_m", self.reach_m, Open(0.0), 10.0, " m")?;
+        within(
+            "waypoints.min_duration_s",
+            self.min_duration_s,
+            Open(0.0),
+            MAX_DURATION_S,
+            " s",
+        )?;
+        if !(self.max_duration_s >= self.min_duration_s && self.max_duration_s <= MAX_DURATION_S) {
+            return invalid(
+                "waypoints.max_duration_s",
+                format!(
+                    "must be in [min_duration_s, {MAX_DURATION_S}] = [{}, {MAX_DURATION_S}] s, \
+                     got {:?}",
+                    self.min_duration_s, self.max_duration_s
+                ),
+            );
+        }
+        let ticks = self.max_duration_s * controller_rate_hz;
+        if ticks > MAX_TICKS {
+            return invalid(
+                "waypoints.max_duration_s",
+                format!(
+                    "{} s at controller.rate_hz = {} Hz is {ticks:.0} ticks; the planner keeps \
+                     tables per tick, so at most {MAX_TICKS} ({:.0} s at this rate)",
+                    self.max_duration_s,
+                    controller_rate_hz,
+                    MAX_TICKS / controller_rate_hz
+                ),
+            );
+        }
+        count(
+            "waypoints.max_executions",
+            self.max_executions as usize,
+            1,
+            1_000_000,
+        )
+    }
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
@@ -249,11 +441,29 @@ pub struct ModelConfig {
     pub basis_functions: usize,
 }
 
+impl ModelConfig {
+    fn validate(&self) -> Result<(), Invalid> {
+        if self.dir.as_os_str().is_empty() {
+            return invalid("model.dir", "must name a folder".into());
+        }
+        count("model.basis_functions", self.basis_functions, 2, 40)
+    }
+}
+
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct StateConfig {
     /// Learner checkpoints live here.
     pub dir: PathBuf,
+}
+
+impl StateConfig {
+    fn validate(&self) -> Result<(), Invalid> {
+        if self.dir.as_os_str().is_empty() {
+            return invalid("state.dir", "must name a folder".into());
+        }
+        Ok(())
+    }
 }
 
 /// A config key (`section.key`, sections nested with dots) and the value it is set to.
@@ -360,10 +570,7 @@ impl Config {
 
     /// The service namespace.
     pub fn namespace(&self) -> String {
-        self.robot
-            .namespace
-            .clone()
-            .unwrap_or_else(|| format!("softarm/{}", self.robot.id))
+        self.robot.namespace()
     }
 
     /// Who the arm this config describes is to the stack's processes, its bundles and its
@@ -420,232 +627,39 @@ impl Config {
         softarm_runtime::EstopLatch::new(self.state_dir().join("estop"))
     }
 
-    /// Checks every value of every section. The error is the exact dotted key (array elements
-    /// as `[i]`) and a message that does not repeat it.
+    /// Checks every value of every section, each by its own `validate`, in this order (a
+    /// config with several errors is refused for the first). The error is the exact dotted
+    /// key (array elements as `[i]`) and a message that does not repeat it.
     fn validate(&self) -> Result<(), Invalid> {
-        let r = &self.robot;
-        softarm_ipc::Namespace::new(&self.namespace()).map_err(|m| {
-            let key = if r.namespace.is_some() {
-                "robot.namespace"
-            } else {
-                "robot.id"
-            };
-            (key.to_string(), m.to_string())
-        })?;
-        for (i, d) in r.drivers.iter().enumerate() {
-            if Driver::named(d).is_none() {
-                return invalid(
-                    "robot.drivers",
-                    format!("unknown driver {d:?}; this build has {:?}", Driver::names()),
-                );
-            }
-            if r.drivers[..i].contains(d) {
-                return invalid("robot.drivers", format!("driver {d:?} is listed twice"));
-            }
-        }
-        let listed = || {
-            DRIVERS
-                .iter()
-                .filter(|d| r.drivers.iter().any(|x| x == d.name))
-        };
-        if let Some(whole) = listed().find(|d| !d.hardware)
-            && listed().any(|d| d.hardware)
-        {
-            return invalid(
-                "robot.drivers",
-                format!(
-                    "\"{}\" is the whole arm: list it alone, or the hardware drivers",
-                    whole.name
-                ),
-            );
-        }
-        for driver in listed().filter(|d| d.hardware).map(|d| d.name) {
-            if !self.has_section(driver) {
-                return invalid(
-                    "robot.drivers",
-                    format!("lists \"{driver}\" but the config has no [{driver}] section"),
-                );
-            }
-        }
-
         let c = &self.controller;
-        within("controller.rate_hz", c.rate_hz, Closed(10.0), 1000.0, " Hz")?;
-        within(
-            "controller.tracker_timeout_ms",
-            c.tracker_timeout_ms,
-            Open(0.0),
-            10_000.0,
-            " ms",
-        )?;
-        within(
-            "controller.slew_per_s",
-            c.slew_per_s,
-            Open(0.0),
-            1000.0,
-            " /s",
-        )?;
-        let n = match self.arm.validate() {
-            Ok(()) => self.layout().actuators().len(),
-            Err(e) => return Err(keyed("arm", e)),
-        };
-        c.actuator_min
-            .check("controller.actuator_min", n, 0.0..=1.0)
-            .map_err(|e| keyed("controller.actuator_min", e))?;
-        c.actuator_max
-            .check("controller.actuator_max", n, 0.0..=1.0)
-            .map_err(|e| keyed("controller.actuator_max", e))?;
-        for i in 0..n {
-            let (lo, hi) = (c.actuator_min.get(i), c.actuator_max.get(i));
-            if lo >= hi {
-                return invalid(
-                    "controller.actuator_max",
-                    format!("actuator {}: {hi} must exceed its actuator_min {lo}", i + 1),
-                );
-            }
-        }
-        within("controller.rest_s", c.rest_s, Closed(0.0), 60.0, " s")?;
-        within(
-            "controller.variance_floor",
-            c.variance_floor,
-            Open(0.0),
-            1.0,
-            "",
-        )?;
-        within(
-            "controller.estimate_timeout_s",
-            c.estimate_timeout_s,
-            Open(0.0),
-            60.0,
-            " s",
-        )?;
-        within(
-            "controller.max_lead_s",
-            c.max_lead_s,
-            Closed(0.0),
-            1.0,
-            " s",
-        )?;
-        if !(0..=99).contains(&c.realtime_priority) {
-            return invalid(
-                "controller.realtime_priority",
-                format!("must be 0 (off) to 99, got {}", c.realtime_priority),
-            );
-        }
-        if let Some(cpu) = c.cpu
-            && cpu >= MAX_CPUS
-        {
-            return invalid(
-                "controller.cpu",
-                format!(
-                    "must be 0 to {}, the CPUs a CPU set can name, got {cpu}",
-                    MAX_CPUS - 1
-                ),
-            );
-        }
-
-        let w = &self.waypoints;
-        workspace("waypoints", w.workspace_min_m, w.workspace_max_m)?;
-        within("waypoints.reach_m", w.reach_m, Open(0.0), 10.0, " m")?;
-        within(
-            "waypoints.min_duration_s",
-            w.min_duration_s,
-            Open(0.0),
-            MAX_DURATION_S,
-            " s",
-        )?;
-        if !(w.max_duration_s >= w.min_duration_s && w.max_duration_s <= MAX_DURATION_S) {
-            return invalid(
-                "waypoints.max_duration_s",
-                format!(
-                    "must be in [min_duration_s, {MAX_DURATION_S}] = [{}, {MAX_DURATION_S}] s, \
-                     got {:?}",
-                    w.min_duration_s, w.max_duration_s
-                ),
-            );
-        }
-        let ticks = w.max_duration_s * c.rate_hz;
-        if ticks > MAX_TICKS {
-            return invalid(
-                "waypoints.max_duration_s",
-                format!(
-                    "{} s at controller.rate_hz = {} Hz is {ticks:.0} ticks; the planner keeps \
-                     tables per tick, so at most {MAX_TICKS} ({:.0} s at this rate)",
-                    w.max_duration_s,
-                    c.rate_hz,
-                    MAX_TICKS / c.rate_hz
-                ),
-            );
-        }
-        count(
-            "waypoints.max_executions",
-            w.max_executions as usize,
-            1,
-            1_000_000,
-        )?;
-
-        self.activation
-            .validate()
-            .map_err(|e| keyed("activation", e))?;
-
-        if self.model.dir.as_os_str().is_empty() {
-            return invalid("model.dir", "must name a folder".into());
-        }
-        count("model.basis_functions", self.model.basis_functions, 2, 40)?;
-
-        let d = &self.demonstrations;
-        d.validate(&self.layout())
+        self.robot.validate(|driver| self.has_section(driver))?;
+        // The controller's rates need nothing of the arm; its limits, one per actuator, do.
+        c.validate_rates()?;
+        self.arm.validate().map_err(|e| keyed("arm", e))?;
+        let arm = self.layout();
+        let n = arm.actuators().len();
+        c.validate(n)?;
+        self.waypoints.validate(c.rate_hz)?;
+        (self.activation.validate()).map_err(|e| keyed("activation", e))?;
+        self.model.validate()?;
+        (self.demonstrations.validate_for(&arm, c.rate_hz))
             .map_err(|e| keyed("demonstrations", e))?;
-        if d.sample_rate_hz > c.rate_hz {
-            return invalid(
-                "demonstrations.sample_rate_hz",
-                format!(
-                    "{} Hz is faster than controller.rate_hz = {} Hz, which plays the samples",
-                    d.sample_rate_hz, c.rate_hz
-                ),
-            );
-        }
-
-        let f = &self.forward_model;
-        count("forward_model.centres", f.centres, 1, 2000)?;
-        within(
-            "forward_model.width_factor",
-            f.width_factor,
-            Open(0.0),
-            100.0,
-            "",
-        )?;
-        within("forward_model.ridge", f.ridge, Closed(0.0), 1.0, "")?;
-        count("forward_model.widths", f.widths, 1, 4)?;
-        let k = &self.kinematics;
-        count("kinematics.degree", k.degree, 1, MAX_DEGREE)?;
-        within("kinematics.ridge", k.ridge, Closed(0.0), 1.0, "")?;
-
+        (self.forward_model.validate()).map_err(|e| keyed("forward_model", e))?;
+        (self.kinematics.validate()).map_err(|e| keyed("kinematics", e))?;
         self.learner.validate().map_err(|e| keyed("learner", e))?;
-
-        let p = &self.pretrain;
-        count("pretrain.targets_per_epoch", p.targets_per_epoch, 0, 1000)?;
-        within("pretrain.threshold_m", p.threshold_m, Open(0.0), 1.0, " m")?;
-        count("pretrain.visits_per_epoch", p.visits_per_epoch, 1, 100_000)?;
-        within("pretrain.budget_s", p.budget_s, Closed(0.0), 86_400.0, " s")?;
-
-        if self.state.dir.as_os_str().is_empty() {
-            return invalid("state.dir", "must name a folder".into());
-        }
+        self.pretrain.validate().map_err(|e| keyed("pretrain", e))?;
+        self.state.validate()?;
         self.sim.validate(n).map_err(|e| keyed("sim", e))?;
         if let Some(t) = &self.tendon {
             let (lo, hi) = (c.actuator_min.values(n), c.actuator_max.values(n));
-            t.validate(&self.layout(), &lo, &hi, c.rate_hz)?;
+            t.validate(&arm, &lo, &hi, c.rate_hz)?;
         }
         if let Some(t) = &self.tracker {
             t.validate()?;
         }
         self.view.validate()?;
         self.ros2.validate()?;
-        self.host.validate()?;
-        if let Err(m) = self.bus() {
-            return invalid("host.ipc_root", m.to_string());
-        }
-        Ok(())
+        self.host.validate_for(self.bus())
     }
 }
 
@@ -706,34 +720,14 @@ fn keyed(section: &str, e: String) -> Invalid {
     }
 }
 
-/// The lower end of a range: included or not.
-#[derive(Clone, Copy)]
-enum Lower {
-    Closed(f64),
-    Open(f64),
-}
-use Lower::{Closed, Open};
-
-/// A finite `v` within the range, or an error that names the range.
+/// A finite `v` within the range, or an error that names the range ([`bounds::within`]).
 fn within(key: &str, v: f64, lower: Lower, upper: f64, unit: &str) -> Result<(), Invalid> {
-    let (ok, bracket, lo) = match lower {
-        Closed(lo) => (v >= lo, '[', lo),
-        Open(lo) => (v > lo, '(', lo),
-    };
-    if v.is_finite() && ok && v <= upper {
-        return Ok(());
-    }
-    invalid(
-        key,
-        format!("must be in {bracket}{lo}, {upper}]{unit}, got {v:?}"),
-    )
+    bounds::within(key, v, lower, upper, unit).map_err(|e| keyed(key, e))
 }
 
+/// `v` in `lo..=hi`, or an error that names the range ([`bounds::count`]).
 fn count(key: &str, v: usize, lo: usize, hi: usize) -> Result<(), Invalid> {
-    if (lo..=hi).contains(&v) {
-        return Ok(());
-    }
-    invalid(key, format!("must be {lo} to {hi}, got {v}"))
+    bounds::count(key, v, lo, hi).map_err(|e| keyed(key, e))
 }
 
 /// A box checked by [`Workspace::new`]; the key is the bound that is not finite, else the upper.
@@ -1193,6 +1187,45 @@ mod tests {
         assert_eq!(key_line(array, "a[9]"), Some(1));
         assert_eq!(key_line("a = [", "a"), None);
         assert_eq!(line_at("a\nb\n", 2), 2);
+    }
+
+    /// Checks no other test reaches: the namespace, a driver twice, the real-time priority,
+    /// and the longest set at the controller's rate.
+    #[test]
+    fn the_robot_the_priority_and_the_longest_set_are_checked() {
+        let (text, line) = edit("robot", "id", "id = \"a b\"");
+        let e = refused(&text);
+        assert_eq!(e.line, Some(line), "{e}");
+        names_key_once(&e, "robot.id");
+        assert!(e.message.contains("\"softarm/a b\" is not valid"), "{e}");
+        let text = with_overrides(DEFAULT, &[("robot.namespace", "/x".into())]).unwrap();
+        names_key_once(&refused(&text), "robot.namespace");
+
+        let (text, _) = edit("robot", "drivers", r#"drivers = ["sim", "sim"]"#);
+        let e = refused(&text);
+        names_key_once(&e, "robot.drivers");
+        assert!(
+            e.message.ends_with(r#"driver "sim" is listed twice"#),
+            "{e}"
+        );
+
+        let (text, line) = edit("controller", "realtime_priority", "realtime_priority = 100");
+        let e = refused(&text);
+        assert_eq!(e.line, Some(line), "{e}");
+        names_key_once(&e, "controller.realtime_priority");
+        assert!(e.message.ends_with("must be 0 (off) to 99, got 100"), "{e}");
+
+        let (text, line) = edit("waypoints", "max_duration_s", "max_duration_s = 3600.0");
+        let e = refused(&text);
+        assert_eq!(e.line, Some(line), "{e}");
+        names_key_once(&e, "waypoints.max_duration_s");
+        assert!(
+            e.message.ends_with(
+                "3600 s at controller.rate_hz = 500 Hz is 1800000 ticks; the planner keeps \
+                 tables per tick, so at most 120000 (240 s at this rate)"
+            ),
+            "{e}"
+        );
     }
 
     #[test]

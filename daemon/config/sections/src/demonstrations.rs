@@ -168,6 +168,13 @@ impl DemoRecipe {
                 format!("must be 0 to 100, got {}", self.intermediate_points),
             );
         }
+        self.validate_classes(actuators)
+    }
+
+    /// The given classes' start and end: one normalised actuation per actuator of an arm of
+    /// `actuators`. The error is `demonstrations.classes[i].start` (or `end`): message.
+    fn validate_classes(&self, actuators: usize) -> Result<(), String> {
+        let bad = |key: &str, m: String| Err(format!("demonstrations.{key}: {m}"));
         for (i, c) in self.classes.iter().flatten().enumerate() {
             for (field, values) in [("start", &c.start), ("end", &c.end)] {
                 if values.len() != actuators {
@@ -191,6 +198,20 @@ impl DemoRecipe {
                     );
                 }
             }
+        }
+        Ok(())
+    }
+
+    /// As [`DemoRecipe::validate`], and the samples no faster than the controller, ticking at
+    /// `controller_rate_hz`, plays them: the config's check (training has no controller).
+    pub fn validate_for(&self, arm: &Layout, controller_rate_hz: f64) -> Result<(), String> {
+        self.validate(arm)?;
+        if self.sample_rate_hz > controller_rate_hz {
+            return Err(format!(
+                "demonstrations.sample_rate_hz: {} Hz is faster than controller.rate_hz = {} Hz, \
+                 which plays the samples",
+                self.sample_rate_hz, controller_rate_hz
+            ));
         }
         Ok(())
     }
@@ -260,6 +281,28 @@ mod tests {
         check(
             &|r| r.classes.as_mut().unwrap()[0].end.push(0.5),
             "demonstrations.classes[0].end: 7 values for an arm of 6 actuators",
+        );
+    }
+
+    #[test]
+    fn the_controller_plays_the_samples_no_faster_than_it_ticks() {
+        let arm = crate::arm::ArmGeometry::default().layout();
+        let r = DemoRecipe::default();
+        r.validate_for(&arm, r.sample_rate_hz).unwrap();
+        assert_eq!(
+            r.validate_for(&arm, 40.0).unwrap_err(),
+            "demonstrations.sample_rate_hz: 50 Hz is faster than controller.rate_hz = 40 Hz, \
+             which plays the samples"
+        );
+        // The recipe's own checks come first.
+        let bad = DemoRecipe {
+            spread: 0.9,
+            ..DemoRecipe::default()
+        };
+        assert!(
+            bad.validate_for(&arm, 40.0)
+                .unwrap_err()
+                .starts_with("demonstrations.spread: ")
         );
     }
 }

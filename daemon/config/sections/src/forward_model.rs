@@ -3,6 +3,9 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::bounds::Lower::{Closed, Open};
+use crate::bounds::{count, within};
+
 /// How the forward model is fitted.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, schemars::JsonSchema)]
 #[serde(deny_unknown_fields, default)]
@@ -27,5 +30,21 @@ impl Default for NetworkConfig {
             ridge: 1e-8,
             widths: 2,
         }
+    }
+}
+
+impl NetworkConfig {
+    /// Checks every field; the error is `forward_model.KEY: message`.
+    pub fn validate(&self) -> Result<(), String> {
+        count("forward_model.centres", self.centres, 1, 2000)?;
+        within(
+            "forward_model.width_factor",
+            self.width_factor,
+            Open(0.0),
+            100.0,
+            "",
+        )?;
+        within("forward_model.ridge", self.ridge, Closed(0.0), 1.0, "")?;
+        count("forward_model.widths", self.widths, 1, 4)
     }
 }

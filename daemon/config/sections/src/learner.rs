@@ -16,6 +16,9 @@ use serde::{Deserialize, Serialize};
 
 use softarm_space::Position;
 
+use crate::bounds::Lower::{Closed, Open};
+use crate::bounds::{count, within};
+
 /// Most centres a lattice evaluates per axis (`learner.critic_span`, `learner.actor_span`):
 /// what `softarm_kinematics::rbf::Lattice` accepts.
 pub const MAX_SPAN: usize = 9;
@@ -169,6 +172,37 @@ impl LearnerConfig {
                 );
             }
         }
+        self.validate_lattices()?;
+        self.gauss_newton.validate()?;
+        for (k, v, least) in [
+            (
+                "actor_max_centres",
+                self.actor_max_centres,
+                min_capacity(self.actor_span, 3),
+            ),
+            (
+                "critic_max_centres",
+                self.critic_max_centres,
+                min_capacity(self.critic_span, 6),
+            ),
+        ] {
+            if !(least..=100_000_000).contains(&v) {
+                return bad(
+                    k,
+                    format!(
+                        "must be {least} (eight updates' worth of centres) to 100000000, got {v}"
+                    ),
+                );
+            }
+        }
+        Ok(())
+    }
+
+    /// The workspace the lattices span (a box from `workspace_min_m` to `workspace_max_m`)
+    /// and the centres the spacings, already checked, make over it: few enough for
+    /// `Lattice::new` to count. The error is `learner.KEY: message`.
+    fn validate_lattices(&self) -> Result<(), String> {
+        let bad = |key: &str, m: String| Err(format!("learner.{key}: {m}"));
         let (lo, hi) = (self.workspace_min_m, self.workspace_max_m);
         if let Err(e) = softarm_space::Workspace::new(lo, hi) {
             let key = if lo.iter().all(|v| v.is_finite()) {
@@ -194,28 +228,6 @@ impl LearnerConfig {
                     format!(
                         "{spacing} m over the workspace makes {centres:.1e} lattice centres, more \
                          than {MAX_CENTRES:.0e}: widen the spacing or shrink the workspace"
-                    ),
-                );
-            }
-        }
-        self.gauss_newton.validate()?;
-        for (k, v, least) in [
-            (
-                "actor_max_centres",
-                self.actor_max_centres,
-                min_capacity(self.actor_span, 3),
-            ),
-            (
-                "critic_max_centres",
-                self.critic_max_centres,
-                min_capacity(self.critic_span, 6),
-            ),
-        ] {
-            if !(least..=100_000_000).contains(&v) {
-                return bad(
-                    k,
-                    format!(
-                        "must be {least} (eight updates' worth of centres) to 100000000, got {v}"
                     ),
                 );
             }
@@ -374,6 +386,38 @@ impl Default for PretrainConfig {
             max_epochs: u64::MAX,
             budget_s: 30.0,
         }
+    }
+}
+
+impl PretrainConfig {
+    /// Checks every field; the error is `pretrain.KEY: message`.
+    pub fn validate(&self) -> Result<(), String> {
+        count(
+            "pretrain.targets_per_epoch",
+            self.targets_per_epoch,
+            0,
+            1000,
+        )?;
+        within(
+            "pretrain.threshold_m",
+            self.threshold_m,
+            Open(0.0),
+            1.0,
+            " m",
+        )?;
+        count(
+            "pretrain.visits_per_epoch",
+            self.visits_per_epoch,
+            1,
+            100_000,
+        )?;
+        within(
+            "pretrain.budget_s",
+            self.budget_s,
+            Closed(0.0),
+            86_400.0,
+            " s",
+        )
     }
 }
 

@@ -18,9 +18,12 @@
 //! - [`kinematics`] — `[kinematics]`: [`kinematics::PolynomialConfig`].
 //! - [`activation`] — `[activation]`: [`activation::ActivationConfig`], [`activation::Fade`].
 //! - [`demonstrations`] — `[demonstrations]`: [`demonstrations::DemoRecipe`].
+//! - [`bounds`] — the range checks most keys share, worded once: [`bounds::within`],
+//!   [`bounds::count`].
 
 pub mod activation;
 pub mod arm;
+pub mod bounds;
 pub mod changes;
 pub mod demonstrations;
 pub mod forward_model;
