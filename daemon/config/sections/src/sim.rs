@@ -84,9 +84,8 @@ pub struct Realism {
     /// Period of that drift (s).
     pub drift_period_s: f64,
     /// A departure from constant curvature, c in [0, 1]: each module's curvature falls
-    /// linearly from (1 + c) κ̄ at its base to (1 − c) κ̄ at its tip, same bend θ
-    /// (`softarm_kinematics::arc::tapered_module_pose`); the model's family is PCC, the plant then is
-    /// not. 0: exactly PCC.
+    /// linearly from (1 + c) κ̄ at its base to (1 − c) κ̄ at its tip, same bend θ; the
+    /// model's family is PCC, the plant then is not. 0: exactly PCC.
     pub curvature_taper: f64,
 }
 
