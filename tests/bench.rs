@@ -1,4 +1,4 @@
-//! End to end: `softarm bench --json` on short settings. Every section is there with samples
+//! End to end: `softarm-rig bench --json` on short settings. Every section is there with samples
 //! and ordered, finite percentiles, and the throwaway stack is gone afterwards. Timing values
 //! are never asserted: they are whatever the machine gives.
 
@@ -9,13 +9,14 @@ use std::time::{Duration, Instant};
 use serde_json::Value;
 use softarm_test_support::Guard;
 
-const BIN: &str = env!("CARGO_BIN_EXE_softarm");
+/// The test rig's binary: bench is its command.
+const RIG: &str = env!("CARGO_BIN_EXE_softarm-rig");
 
-/// Runs `softarm <args>` to completion (killed and failed after `limit`); its stdout, and the
+/// Runs `softarm-rig <args>` to completion (killed and failed after `limit`); its stdout, and the
 /// exited process, whose group is killed when dropped: after the check that nothing is left.
 fn run(args: &[&str], limit: Duration) -> (String, Guard) {
     let mut child = Guard::spawn(
-        Command::new(BIN)
+        Command::new(RIG)
             .args(args)
             .stdin(Stdio::null())
             .stdout(Stdio::piped()),
@@ -35,14 +36,14 @@ fn run(args: &[&str], limit: Duration) -> (String, Guard) {
             let _ = child.kill();
             let _ = child.wait();
             panic!(
-                "softarm {args:?} did not finish within {} s",
+                "softarm-rig {args:?} did not finish within {} s",
                 limit.as_secs()
             );
         }
         std::thread::sleep(Duration::from_millis(50));
     };
     let out = reader.join().unwrap();
-    assert!(status.success(), "softarm {args:?}: {status}\n{out}");
+    assert!(status.success(), "softarm-rig {args:?}: {status}\n{out}");
     (out, child)
 }
 

@@ -1,7 +1,7 @@
 //! The docs name what exists: every `file.rs::item` a document cites is defined in that file,
 //! every path it names is in the repository, every relative link resolves, and every
-//! `softarm ...` command line of README's and the guide's shell blocks parses (`--help`
-//! appended: the command and each of its flags are known).
+//! `softarm ...` and `softarm-rig ...` command line of README's and the guide's shell blocks
+//! parses (`--help` appended: the command and each of its flags are known).
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -9,6 +9,7 @@ use std::process::Command;
 use softarm_test_support::output;
 
 const BIN: &str = env!("CARGO_BIN_EXE_softarm");
+const RIG: &str = env!("CARGO_BIN_EXE_softarm-rig");
 const ROOT: &str = env!("CARGO_MANIFEST_DIR");
 
 /// The documents: README, CHANGELOG, everything under docs/, and the folders' READMEs.
@@ -195,6 +196,32 @@ fn a_renamed_item_fails_the_check() {
 /// The command lines of the ```sh blocks of `text`: `softarm ...` (after an optional `sudo`)
 /// and `cargo run --release -- ...`, without their comments.
 fn command_lines(text: &str) -> Vec<(usize, String)> {
+    shell_lines(
+        text,
+        &[
+            "softarm ",
+            "cargo run --release -- ",
+            "target/release/softarm ",
+        ],
+    )
+}
+
+/// The test rig's command lines, as [`command_lines`]: `softarm-rig ...` and `cargo run
+/// --release --bin softarm-rig -- ...`.
+fn rig_command_lines(text: &str) -> Vec<(usize, String)> {
+    shell_lines(
+        text,
+        &[
+            "softarm-rig ",
+            "cargo run --release --bin softarm-rig -- ",
+            "target/release/softarm-rig ",
+        ],
+    )
+}
+
+/// The arguments after one of `prefixes` of the lines of the ```sh blocks of `text` (after an
+/// optional `sudo`), without their comments, each with its line.
+fn shell_lines(text: &str, prefixes: &[&str]) -> Vec<(usize, String)> {
     let mut out = Vec::new();
     let mut in_sh = false;
     for (i, line) in text.lines().enumerate() {
@@ -208,11 +235,7 @@ fn command_lines(text: &str) -> Vec<(usize, String)> {
         }
         let t = t.split(" #").next().unwrap_or(t).trim();
         let t = t.strip_prefix("sudo ").unwrap_or(t);
-        let args = t
-            .strip_prefix("softarm ")
-            .or_else(|| t.strip_prefix("cargo run --release -- "))
-            .or_else(|| t.strip_prefix("target/release/softarm "));
-        if let Some(args) = args {
+        if let Some(args) = prefixes.iter().find_map(|p| t.strip_prefix(p)) {
             out.push((i + 1, args.to_string()));
         }
     }
@@ -262,18 +285,24 @@ fn every_command_line_of_readme_and_the_guide_parses() {
     let mut checked = 0;
     for doc in docs {
         let text = std::fs::read_to_string(&doc).unwrap();
-        for (line, args) in command_lines(&text) {
+        let lines = command_lines(&text)
+            .into_iter()
+            .map(|l| (BIN, "softarm", l));
+        let rig = rig_command_lines(&text)
+            .into_iter()
+            .map(|l| (RIG, "softarm-rig", l));
+        for (bin, name, (line, args)) in lines.chain(rig) {
             for words in variants(&args) {
                 checked += 1;
                 let out = output(
-                    Command::new(BIN)
+                    Command::new(bin)
                         .args(&words)
                         .arg("--help")
                         .env("SOFTARM_CONFIG", root.join("config/softarm.toml")),
                 );
                 if !out.status.success() {
                     wrong.push(format!(
-                        "{}:{line}: softarm {}: {}",
+                        "{}:{line}: {name} {}: {}",
                         doc.strip_prefix(root).unwrap().display(),
                         words.join(" "),
                         String::from_utf8_lossy(&out.stderr)

@@ -1,6 +1,6 @@
 //! Fault injection, end to end: the sim, the learner and the controller SIGKILLed at seeded
 //! random moments of running executions, `softarm up` restarting them. An independent
-//! subscriber (`softarm_watch`, the one `softarm soak` uses) checks what a person
+//! subscriber (`softarm_watch`, the one `softarm-rig soak` uses) checks what a person
 //! beside the arm relies on: no setpoint outside the actuator limits, no step faster than the
 //! slew limit (within each controller's stream, and across a restart no jump), HOLD within
 //! twice the stale age once the sim is gone, no execution's statistics twice or lost; the test

@@ -1,6 +1,6 @@
 //! End to end on the real arm's code path, without the arm: the `tendon` and `tracker` driver
 //! processes against emulators of their devices on pseudo-terminals (Dynamixel Protocol 2.0
-//! motors, an Ascension Bird tracker), and the whole hardware stack (`softarm emulate` +
+//! motors, an Ascension Bird tracker), and the whole hardware stack (`softarm-rig emulate` +
 //! `softarm up` with the hardware config) closing the loop through them.
 
 use std::path::Path;
@@ -21,6 +21,8 @@ use softarm_runtime::now_ns;
 use softarm_test_support::{DEMO_WAYPOINTS, Devices, Guard, TestStack, alive, set_id};
 
 const BIN: &str = env!("CARGO_BIN_EXE_softarm");
+/// The test rig's binary: `emulate`.
+const RIG: &str = env!("CARGO_BIN_EXE_softarm-rig");
 const LIMIT: Duration = Duration::from_secs(20);
 
 /// Waits on the emulated devices never end before this much wall clock, whatever the kernel
@@ -868,8 +870,8 @@ fn a_motor_fault_holds_the_controller_and_shows_in_status() {
 #[test]
 fn the_hardware_stack_executes_a_set_through_softarm_emulate() {
     // The emulators as a user runs them, from the hardware config; the stack from the config
-    // `softarm emulate` writes.
-    let (mut s, mut emulate) = TestStack::emulated(BIN, "hw-stack", Devices::Shared);
+    // `softarm-rig emulate` writes.
+    let (mut s, mut emulate) = TestStack::emulated(BIN, RIG, "hw-stack", Devices::Shared);
     let c = Config::load(&s.config).unwrap();
     assert!(c.tendon.unwrap().port.starts_with("/dev/pts"));
     s.up();
@@ -920,7 +922,9 @@ fn the_hardware_stack_executes_a_set_through_softarm_emulate() {
     });
     s.stop();
     kill(Pid::from_raw(emulate.id() as i32), Signal::SIGTERM).unwrap();
-    let out = eventually("softarm emulate to stop", || emulate.try_wait().unwrap());
+    let out = eventually("softarm-rig emulate to stop", || {
+        emulate.try_wait().unwrap()
+    });
     assert!(out.success());
     let mut text = String::new();
     std::io::Read::read_to_string(&mut emulate.stdout.take().unwrap(), &mut text).unwrap();

@@ -1,4 +1,4 @@
-//! Fault injection on the real arm's code path, without the arm: `softarm emulate` (the motor
+//! Fault injection on the real arm's code path, without the arm: `softarm-rig emulate` (the motor
 //! bus and the tracker on pseudo-terminals) and `softarm up` with the hardware config, the
 //! `tendon` and `tracker` drivers and the controller SIGKILLed at seeded random moments of
 //! running executions while `up` restarts them. An independent subscriber
@@ -13,9 +13,10 @@
 //! (`daemon/controller/src/tick.rs`, `Tick::health`), so the config's limits apply to both.
 //! A failure names the seed; SOFTARM_FAULT_SEED=N reruns that sequence.
 //!
-//! Also `softarm soak` on this code path: its own kills, its report read back.
+//! Also `softarm-rig soak` on this code path: its own kills, its report read back.
 
 use std::path::Path;
+use std::process::Command;
 use std::time::{Duration, Instant};
 
 use nix::sys::signal::{Signal, kill};
@@ -31,6 +32,8 @@ use softarm_test_support::{
 use softarm_watch::{Limits, Watch};
 
 const BIN: &str = env!("CARGO_BIN_EXE_softarm");
+/// The test rig's binary: `emulate` and `soak`.
+const RIG: &str = env!("CARGO_BIN_EXE_softarm-rig");
 const LIMIT: Duration = Duration::from_secs(30);
 
 fn pid_of(s: &TestStack, role: &str) -> Option<i32> {
@@ -76,8 +79,8 @@ fn killed_hardware_drivers_and_controller_break_no_safety_invariant() {
     let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
     let started = Instant::now();
 
-    // The emulators as a user runs them; the stack from the config `softarm emulate` writes.
-    let (mut s, mut emulate) = TestStack::emulated(BIN, "hw-faults", Devices::Shared);
+    // The emulators as a user runs them; the stack from the config `softarm-rig emulate` writes.
+    let (mut s, mut emulate) = TestStack::emulated(BIN, RIG, "hw-faults", Devices::Shared);
     let config = Config::load(&s.config).unwrap();
     s.up();
     s.wait_status("every process of the hardware stack", LIMIT, alive_all);
@@ -143,10 +146,10 @@ fn killed_hardware_drivers_and_controller_break_no_safety_invariant() {
     let r = watch.finish();
     s.stop();
     kill(Pid::from_raw(emulate.id() as i32), Signal::SIGTERM).unwrap();
-    let status = eventually("softarm emulate to stop", LIMIT, || {
+    let status = eventually("softarm-rig emulate to stop", LIMIT, || {
         emulate.try_wait().unwrap()
     });
-    assert!(status.success(), "softarm emulate: {status}");
+    assert!(status.success(), "softarm-rig emulate: {status}");
     eprintln!(
         "seed {seed}: {} setpoints from {} controller runs, {} executions of {} sets, \
          {driver_kills} driver kills, {:.1} s",
@@ -166,13 +169,13 @@ fn killed_hardware_drivers_and_controller_break_no_safety_invariant() {
     assert_eq!(r.streams, 2, "seed {seed}: one controller restart");
 }
 
-/// `softarm soak` on the real arm's code path: the tendon and tracker drivers against
-/// `softarm emulate`, killed at random; no sim, so no arm changes.
+/// `softarm-rig soak` on the real arm's code path: the tendon and tracker drivers against
+/// `softarm-rig emulate`, killed at random; no sim, so no arm changes.
 #[test]
 fn a_soak_of_the_hardware_stack_kills_its_drivers_and_changes_no_arm() {
-    let (s, _emulator) = TestStack::emulated(BIN, "soak-hw", Devices::Shared);
+    let (s, _emulator) = TestStack::emulated(BIN, RIG, "soak-hw", Devices::Shared);
     let out = output(
-        s.command()
+        Command::new(RIG)
             .args(["soak", "--minutes", "0.75", "--kill-every-s", "8"])
             // Two executions to count, however slow the machine (a loaded one got through one in
             // the 45 s).

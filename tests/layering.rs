@@ -305,9 +305,10 @@ fn each_crate_links_only_what_its_layer_allows() {
             "only `softarm record`, `replay`, `plot` and demo write recordings and draw figures",
         );
     }
-    // The test kit: what checks, emulates or rehearses the product. Only the binary (through
-    // its `rig` feature, [`the_test_kit_comes_into_the_binary_through_its_rig_feature_alone`])
-    // and the kit itself link it.
+    // The test kit: what checks, emulates or rehearses the product. Only the root package
+    // (its `softarm-rig` binary, through the `rig` feature,
+    // [`the_test_kit_comes_into_the_binary_through_its_rig_feature_alone`]) and the kit itself
+    // link it.
     let kit = [
         "softarm-rig",
         "softarm-emulate",
@@ -351,15 +352,29 @@ fn each_crate_links_only_what_its_layer_allows() {
     }
 }
 
-/// The binary's dependencies on the test kit's commands (`softarm emulate`, `soak`, `bench`)
-/// are optional and enabled by its `rig` feature alone: `--no-default-features` builds the
-/// product without them.
+/// The root package's dependencies on the test kit's commands (`softarm-rig emulate`, `soak`,
+/// `bench`) are optional and enabled by its `rig` feature alone, which the `softarm-rig`
+/// binary requires: `--no-default-features` builds the product without them.
 #[test]
 fn the_test_kit_comes_into_the_binary_through_its_rig_feature_alone() {
     let root = packages()
         .into_iter()
         .find(|p| p["name"] == "softarm")
         .expect("the root package");
+    let required = |name: &str| {
+        let target = root["targets"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|t| t["name"] == name)
+            .unwrap_or_else(|| panic!("no target {name}"));
+        target["required-features"].clone()
+    };
+    assert_eq!(required("softarm-rig"), serde_json::json!(["rig"]));
+    assert!(
+        required("softarm").is_null(),
+        "the product needs no feature"
+    );
     let kit = ["softarm-rig", "softarm-emulate"];
     for d in root["dependencies"].as_array().unwrap() {
         let name = d["name"].as_str().unwrap();
@@ -384,6 +399,32 @@ fn the_test_kit_comes_into_the_binary_through_its_rig_feature_alone() {
         }
     }
     assert_eq!(features["default"], serde_json::json!(["rig"]));
+}
+
+/// What `softarm install` installs, the `softarm` binary, is the product alone whatever the
+/// features it was built with (the `rig` feature builds `softarm-rig` beside it): none of the
+/// test kit's code is in it. Its symbols name every crate whose code it has.
+#[test]
+fn the_installed_binary_has_none_of_the_test_kit() {
+    let product = std::fs::read(env!("CARGO_BIN_EXE_softarm")).unwrap();
+    let rig = std::fs::read(env!("CARGO_BIN_EXE_softarm-rig")).unwrap();
+    let has = |binary: &[u8], name: &str| {
+        let name = name.as_bytes();
+        (0..binary.len()).any(|i| binary[i] == name[0] && binary[i..].starts_with(name))
+    };
+    for kit in [
+        "softarm_rig",
+        "softarm_emulate",
+        "softarm_watch",
+        "dynamixel2",
+    ] {
+        // The check can see it: the rig's binary has each (the watch through soak).
+        assert!(
+            has(&rig, kit),
+            "softarm-rig has no {kit}: the check sees nothing"
+        );
+        assert!(!has(&product, kit), "the product binary has {kit}");
+    }
 }
 
 /// `ros2-client` without its defaults: the DDS backend alone (no zenoh, no mio integration),

@@ -119,7 +119,7 @@ mod with_mujoco {
         assert!(held.position[0] > 0.02, "{:?}", held.position);
     }
 
-    /// The lab's model behind emulated devices, as `softarm emulate` runs it for a config with
+    /// The lab's model behind emulated devices, as `softarm-rig emulate` runs it for a config with
     /// `[sim.mujoco]`: the real tendon and tracker drivers close the loop through MuJoCo. The
     /// nine motors engage where they stand, the tracker reads the straight arm where the model
     /// has it (230 mm over the base, through the tracker's frame and hemisphere; the arm's PCC

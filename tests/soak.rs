@@ -1,13 +1,14 @@
-//! `softarm soak`, short: the whole sim stack with continuous executions, a scenario change and
+//! `softarm-rig soak`, short: the whole sim stack with continuous executions, a scenario change and
 //! random kills, its report read back. The ten-minute figures are in the README; this checks
 //! that the machinery runs and reports what happened. (On the real arm's code path, the tendon
-//! and tracker drivers against `softarm emulate`: `hardware_faults`.)
+//! and tracker drivers against `softarm-rig emulate`: `hardware_faults`.)
 
 use std::process::Command;
 
 use softarm_test_support::{output, quick_model};
 
-const BIN: &str = env!("CARGO_BIN_EXE_softarm");
+/// The test rig's binary: soak is its command.
+const RIG: &str = env!("CARGO_BIN_EXE_softarm-rig");
 
 #[test]
 fn a_short_soak_survives_its_kills_and_reports_everything() {
@@ -20,7 +21,7 @@ fn a_short_soak_survives_its_kills_and_reports_everything() {
     std::fs::write(&swap, "[[step]]\nat_s = 1.0\n[step.arm]\ntool_m = 0.05\n").unwrap();
     let rotation = format!("{},creep", swap.display());
     let out = output(
-        Command::new(BIN)
+        Command::new(RIG)
             .args(["soak", "--minutes", "1", "--kill-every-s", "12"])
             .args(["--scenario-every-s", "10", "--seed", "3", "--json"])
             // What the checks below count, however slow the machine: 3 executions, one after
@@ -106,7 +107,7 @@ fn a_soak_of_no_time_or_a_kill_every_instant_is_refused() {
             "--scenario-every-s",
         ),
     ] {
-        let out = output(Command::new(BIN).arg("soak").args(args));
+        let out = output(Command::new(RIG).arg("soak").args(args));
         let err = String::from_utf8_lossy(&out.stderr);
         assert_eq!(out.status.code(), Some(2), "{args:?}: {err}");
         assert!(err.contains(want), "{args:?}: {err}");

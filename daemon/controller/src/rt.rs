@@ -1,5 +1,5 @@
 //! Real-time set-up of the tick thread (a pinned CPU, SCHED_FIFO; the process's memory is
-//! locked where it starts, `src/main.rs::keep_pace`), each refused
+//! locked where it starts, `src/lib.rs::keep_pace`), each refused
 //! one a warning, and systemd's notifications: READY once the tick runs (sent by the service
 //! thread), WATCHDOG while it does, STATUS with its state.
 

@@ -1,7 +1,7 @@
 //! Criterion benches of Eq. 11 (the Blend): one Eq. 11 tick and re-condition + ready on arms of
 //! 6 (the paper's), 9 (a three-segment TDCR) and 16 actuators (the most an arm may have),
 //! training, one conditioning. `cargo bench -p softarm-method --bench blend`. Percentiles of
-//! single ticks: `softarm bench`.
+//! single ticks: `softarm-rig bench`.
 
 #[path = "../tests/common/mod.rs"]
 mod common;

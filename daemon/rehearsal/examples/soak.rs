@@ -1,4 +1,4 @@
-//! Diagnostic: `softarm soak`'s pattern (`softarm_rig::soak::sets::nth`) in one process, faster than real time: sets one after
+//! Diagnostic: `softarm-rig soak`'s pattern (`softarm_rig::soak::sets::nth`) in one process, faster than real time: sets one after
 //! another (the demo set every third, else a variation of it, each point moved up to 25 mm and
 //! sometimes one left out), 3 to 6 executions each, the arm changed to the next scenario of a
 //! rotation every CHANGE_EVERY_S of simulated time; per set its executions' mean errors.

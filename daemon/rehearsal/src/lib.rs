@@ -32,7 +32,7 @@ use softarm_sim::plant::Measurement;
 const NS_PER_S: f64 = 1e9;
 
 /// How long the arm holds after a set's end before a sim driver restarted as another arm
-/// stops (measured in `softarm soak`: 51 ms from the set's end to the old sim stopping).
+/// stops (measured in `softarm-rig soak`: 51 ms from the set's end to the old sim stopping).
 pub const END_HOLD_NS: u64 = 50_000_000;
 
 /// How long no sample comes while the sim driver restarts as another arm (measured in `softarm
@@ -41,7 +41,7 @@ pub const END_HOLD_NS: u64 = 50_000_000;
 pub const SIM_AWAY_NS: u64 = 60_000_000;
 
 /// How long the restarted sim publishes the held arm before the next set moves it (measured in
-/// `softarm soak`: the set accepted 85 ms after the new sim said it was running).
+/// `softarm-rig soak`: the set accepted 85 ms after the new sim said it was running).
 pub const CHANGE_HOLD_NS: u64 = 80_000_000;
 
 /// How long the arm holds between two sets: `softarm submit --wait` returning on the set's
@@ -317,7 +317,7 @@ impl<'a> Rehearsal<'a> {
         std::mem::replace(&mut self.learner, learner)
     }
 
-    /// The sim's arm changes between sets, as when `softarm soak` restarts the sim with another
+    /// The sim's arm changes between sets, as when `softarm-rig soak` restarts the sim with another
     /// scenario: the arm held for [`END_HOLD_NS`] after the last set, no sample for
     /// [`SIM_AWAY_NS`], then the arm held where it was for [`CHANGE_HOLD_NS`] before the next
     /// set, as the stack's; the learner watches it, and the controller ticks on, holding.

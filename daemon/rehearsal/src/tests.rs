@@ -427,7 +427,7 @@ fn a_running_learner_follows_an_arm_that_creeps() {
     );
 }
 
-/// `softarm soak`'s pattern, rehearsed: sets one after another (the demo set every third,
+/// `softarm-rig soak`'s pattern, rehearsed: sets one after another (the demo set every third,
 /// else a variation of it), 3 to 6 executions each, the arm changed to the next of soak's
 /// scenarios every 2 minutes, one learner all along, on a plant whose curvature is not constant
 /// (`not-pcc`): every change seen, and every set's last execution within 2.5 mm (issue 19's

@@ -241,7 +241,7 @@ fn model_dir(args: &Args) -> PathBuf {
 }
 
 /// The demo's model folder in the cache, one per arm and seed (an arm file's by a hash of its
-/// text, so an edited arm is trained again): what `softarm soak --arm` uses too.
+/// text, so an edited arm is trained again): what `softarm-rig soak --arm` uses too.
 pub fn model_cache(arm: Option<&str>, seed: u64) -> PathBuf {
     let arm = match arm {
         None | Some("paper") => String::new(),

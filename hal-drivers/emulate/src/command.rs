@@ -1,4 +1,4 @@
-//! `softarm emulate`: the real arm's two devices, emulated on pseudo-terminals and coupled
+//! `softarm-rig emulate`: the real arm's two devices, emulated on pseudo-terminals and coupled
 //! through the arm's model, so the hardware stack (`tendon` + `tracker`) runs without hardware.
 //! Prints the device paths and, with `--write-config`, writes a copy of the config pointing at
 //! them, ready for `softarm up`.
@@ -202,6 +202,6 @@ pub fn run(args: &Args, stop: &AtomicBool, physics_of: &PhysicsOf) -> anyhow::Re
     let records = rig.tracker_counts.records.load(Ordering::Relaxed);
     let counters = rig.bus.lock().map(|b| b.counters()).ok();
     rig.stop().context("an emulator failed")?;
-    eprintln!("softarm emulate: {records} tracker records sent; motor bus {counters:?}");
+    eprintln!("softarm-rig emulate: {records} tracker records sent; motor bus {counters:?}");
     Ok(())
 }

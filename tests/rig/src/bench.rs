@@ -1,5 +1,5 @@
-//! `softarm bench`: what the stack costs on this machine, as percentiles. By default, in one run
-//! (about 30 s):
+//! `softarm-rig bench`: what the stack costs on this machine, as percentiles. By default, in one
+//! run (about 30 s):
 //!
 //! - the controller's tick wake-up latency on a throwaway stack (sim, controller, learner in a
 //!   namespace of its own), against a bare absolute-deadline loop in this process at the same
@@ -166,7 +166,7 @@ impl Out {
     /// What is happening, on stderr, while it happens.
     fn progress(&self, s: &str) {
         if !self.json {
-            eprintln!("softarm bench: {s}");
+            eprintln!("softarm-rig bench: {s}");
         }
     }
 }
@@ -321,7 +321,7 @@ fn machine() -> Value {
 
 fn machine_text(m: &Value) -> String {
     format!(
-        "softarm bench {}: {}, {} cores available ({} online), Linux {} ({}), load {}",
+        "softarm-rig bench {}: {}, {} cores available ({} online), Linux {} ({}), load {}",
         m["softarm"].as_str().unwrap_or(""),
         m["cpu"].as_str().unwrap_or(""),
         m["cores"],

@@ -1,7 +1,8 @@
 //! The end-to-end harness: a stack of real `softarm` processes in a folder and an iceoryx2
 //! namespace of its own (the product's sandbox, `daemon/stack/src/sandbox.rs::Sandbox`, as
 //! `softarm demo` has), so tests run in parallel without crosstalk. The binary's path comes from
-//! the caller: `env!("CARGO_BIN_EXE_softarm")` exists only in the root package's tests.
+//! the caller: `env!("CARGO_BIN_EXE_softarm")` (and `softarm-rig`'s, for `emulate`) exists only
+//! in the root package's tests.
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
@@ -77,10 +78,16 @@ impl TestStack {
     }
 
     /// The real arm's stack without the arm, as a user runs it: a stack on the hardware config
-    /// (with a quick model), `softarm emulate` started from it (stdout piped: it prints the
-    /// device paths; its log in the stack's folder), and the stack switched to the config the
-    /// emulator writes, naming its devices. It waits for its `devices` turn first.
-    pub fn emulated(bin: impl AsRef<Path>, name: &str, devices: Devices) -> (Self, Guard) {
+    /// (with a quick model), `softarm-rig emulate` (the binary `rig`) started from it (stdout
+    /// piped: it prints the device paths; its log in the stack's folder), and the stack switched
+    /// to the config the emulator writes, naming its devices. It waits for its `devices` turn
+    /// first.
+    pub fn emulated(
+        bin: impl AsRef<Path>,
+        rig: impl AsRef<Path>,
+        name: &str,
+        devices: Devices,
+    ) -> (Self, Guard) {
         let turn = DevicesTurn::take(devices);
         let mut s = Self::with_config(bin, name, true, |dir, ns| {
             hardware_config_text(dir, ns, Path::new("/dev/null"), Path::new("/dev/null"))
@@ -88,7 +95,7 @@ impl TestStack {
         let emulated = s.dir.join("emulated.toml");
         let log = std::fs::File::create(s.dir.join("emulate.log")).unwrap();
         let emulator = Guard::spawn(
-            s.command()
+            Command::new(rig.as_ref())
                 .args(["emulate", "--config"])
                 .arg(&s.config)
                 .arg("--write-config")

@@ -1,4 +1,4 @@
-//! Setpoint-sized messages from another process (`softarm bench --peer`, hidden), one way: the
+//! Setpoint-sized messages from another process (`softarm-rig bench --peer`, hidden), one way: the
 //! peer stamps CLOCK_MONOTONIC into a [`Setpoint`] and sends it; this process takes now − stamp
 //! on receipt. Three variants in turn, each started by a byte from this side over the socket:
 //!
@@ -298,7 +298,7 @@ fn accept(
 struct Peer(Child);
 
 impl Peer {
-    /// `softarm bench --peer`: sends `samples` timed messages (after [`WARMUP`]) per variant at
+    /// `softarm-rig bench --peer`: sends `samples` timed messages (after [`WARMUP`]) per variant at
     /// `rate_hz`, connecting to `socket`.
     fn start(namespace: &str, socket: &Path, samples: usize, rate_hz: f64) -> anyhow::Result<Self> {
         let child = Command::new(std::env::current_exe().context("finding my own executable")?)

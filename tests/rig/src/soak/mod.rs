@@ -1,4 +1,4 @@
-//! `softarm soak --minutes M`: the simulated stack run for a long time the way a lab runs it,
+//! `softarm-rig soak --minutes M`: the simulated stack run for a long time the way a lab runs it,
 //! with things going wrong on purpose, and a report of what held.
 //!
 //! - Continuous executions: way-point sets one after another, the demo set and seeded random
@@ -67,7 +67,7 @@ pub struct Args {
     #[arg(long)]
     model_dir: Option<PathBuf>,
     /// Soaks the stack this config describes instead of the simulated arm: its drivers, devices
-    /// and model (e.g. the config `softarm emulate --write-config` wrote, for the real arm's
+    /// and model (e.g. the config `softarm-rig emulate --write-config` wrote, for the real arm's
     /// code path against emulated devices). Without a sim there are no scenario changes.
     #[arg(long, value_name = "FILE", conflicts_with = "arm")]
     config: Option<PathBuf>,
@@ -141,7 +141,7 @@ struct Running {
 
 fn say(json: bool, line: &str) {
     if !json {
-        eprintln!("softarm soak: {line}");
+        eprintln!("softarm-rig soak: {line}");
     }
 }
 

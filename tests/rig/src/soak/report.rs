@@ -147,7 +147,7 @@ pub(super) fn failures(report: &Report) -> Vec<String> {
 /// The demo set moved: each point up to 25 mm away on each axis, a point sometimes left out.
 pub(super) fn print_report(r: &Report) {
     let us = |ns: u64| ns as f64 / 1e3;
-    println!("softarm soak: {:.1} min, seed {}", r.minutes, r.seed);
+    println!("softarm-rig soak: {:.1} min, seed {}", r.minutes, r.seed);
     println!(
         "  executions           {} in {} sets ({} refused), {} scenario changes",
         r.executions, r.sets_submitted, r.sets_rejected, r.scenario_changes

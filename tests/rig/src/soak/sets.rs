@@ -1,5 +1,5 @@
 //! The way-point sets soak runs: its pattern, the same whether the stack runs as processes
-//! (`softarm soak`) or in one process (`softarm-rehearsal`'s soak example and tests).
+//! (`softarm-rig soak`) or in one process (`softarm-rehearsal`'s soak example and tests).
 
 use rand::RngExt;
 use softarm_config::waypoints::{Point, WaypointFile};
