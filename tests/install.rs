@@ -1,6 +1,7 @@
-//! End to end: `softarm install --root DIR` stages the service install (binary, config, state
-//! folder, units) without touching the running system, never overwrites an edited config, and
-//! `uninstall` removes what it put there but the config and the state.
+//! End to end: `softarm install --root DIR` stages the service install (binary without its
+//! debug info, the debug info apart, config, state folder, units) without touching the running
+//! system, never overwrites an edited config, and `uninstall` removes what it put there but the
+//! config and the state.
 
 use std::path::Path;
 use std::process::{Command, Output};
@@ -15,6 +16,41 @@ fn softarm(args: &[&str], root: &Path) -> Output {
     out
 }
 
+/// The names of the sections of the ELF file at `path` (64-bit, little-endian, as x86-64 and
+/// aarch64 Linux build it).
+fn sections(path: &Path) -> Vec<String> {
+    let b = std::fs::read(path).unwrap();
+    elf_sections(&b).into_iter().map(|(name, _)| name).collect()
+}
+
+/// The sections of an ELF file (64-bit, little-endian): each one's name and where its contents
+/// are in `b`.
+fn elf_sections(b: &[u8]) -> Vec<(String, std::ops::Range<usize>)> {
+    assert!(
+        b.starts_with(b"\x7fELF\x02\x01"),
+        "not a 64-bit little-endian ELF"
+    );
+    let n = |at: usize, len: usize| {
+        let mut v = [0u8; 8];
+        v[..len].copy_from_slice(&b[at..at + len]);
+        u64::from_le_bytes(v) as usize
+    };
+    let (table, size, count, names) = (n(0x28, 8), n(0x3a, 2), n(0x3c, 2), n(0x3e, 2));
+    let strings = n(table + names * size + 0x18, 8);
+    (0..count)
+        .map(|i| {
+            let header = table + i * size;
+            let at = strings + n(header, 4);
+            let end = at + b[at..].iter().position(|c| *c == 0).unwrap();
+            let (offset, len) = (n(header + 0x18, 8), n(header + 0x20, 8));
+            (
+                String::from_utf8_lossy(&b[at..end]).into_owned(),
+                offset..offset + len,
+            )
+        })
+        .collect()
+}
+
 #[test]
 fn install_stages_binary_config_state_and_units_and_keeps_an_edited_config() {
     let root = std::env::temp_dir().join(format!("softarm-install-{}", std::process::id()));
@@ -25,6 +61,7 @@ fn install_stages_binary_config_state_and_units_and_keeps_an_edited_config() {
     let text = String::from_utf8_lossy(&out.stdout);
     for step in [
         "usr/local/bin/softarm",
+        "usr/lib/debug/usr/local/bin/softarm.debug",
         "etc/softarm/softarm.toml",
         "var/lib/softarm",
     ] {
@@ -33,8 +70,34 @@ fn install_stages_binary_config_state_and_units_and_keeps_an_edited_config() {
     assert!(!root.exists(), "a dry run wrote something");
 
     softarm(&["install"], &root);
+    // The binary without its debug info (its symbols kept), naming the file that has it, where
+    // a backtrace and gdb look for it; the gate the same binary.
     let bin = root.join("usr/local/bin/softarm");
-    assert_eq!(std::fs::read(&bin).unwrap(), std::fs::read(BIN).unwrap());
+    let debug = root.join("usr/lib/debug/usr/local/bin/softarm.debug");
+    let (installed, built) = (sections(&bin), sections(Path::new(BIN)));
+    assert!(built.iter().any(|s| s == ".debug_line"), "{built:?}");
+    // (`.debug_gdb_scripts` is loaded with the program: it stays.)
+    assert!(
+        !installed
+            .iter()
+            .any(|s| s.starts_with(".debug_") && s != ".debug_gdb_scripts"),
+        "{installed:?}"
+    );
+    assert!(installed.iter().any(|s| s == ".symtab"), "{installed:?}");
+    assert!(
+        installed.iter().any(|s| s == ".gnu_debuglink"),
+        "{installed:?}"
+    );
+    assert!(sections(&debug).iter().any(|s| s == ".debug_line"));
+    let link = std::fs::read(&bin).unwrap();
+    let (_, at) = elf_sections(&link)
+        .into_iter()
+        .find(|(name, _)| name == ".gnu_debuglink")
+        .unwrap();
+    assert!(link[at].starts_with(b"softarm.debug\0"));
+    assert!(std::fs::metadata(&bin).unwrap().len() < std::fs::metadata(BIN).unwrap().len());
+    let version = output(Command::new(&bin).arg("--version"));
+    assert!(version.status.success(), "{version:?}");
     let units = root.join("etc/systemd/system");
     for unit in [
         "softarm-controller.service",
@@ -70,6 +133,7 @@ fn install_stages_binary_config_state_and_units_and_keeps_an_edited_config() {
     }
     // Staged, the gate has no set-user-ID bit (root owns it here): a package sets owner and mode.
     let gate = root.join("usr/local/libexec/softarm/softarm");
+    assert_eq!(std::fs::read(&gate).unwrap(), link);
     let mode =
         std::os::unix::fs::PermissionsExt::mode(&std::fs::metadata(&gate).unwrap().permissions());
     assert_eq!(mode & 0o7777, 0o750, "{mode:o}");
@@ -86,6 +150,16 @@ fn install_stages_binary_config_state_and_units_and_keeps_an_edited_config() {
     // Again: the same config is left as it is; an edited one is kept, the shipped one beside.
     let out = softarm(&["install"], &root);
     assert!(String::from_utf8_lossy(&out.stdout).contains("unchanged"));
+    // The installed binary installing itself again: as it is, its debug info kept.
+    let debug_info = std::fs::read(&debug).unwrap();
+    let out = output(Command::new(&bin).arg("install").arg("--root").arg(&root));
+    assert!(out.status.success(), "{out:?}");
+    assert!(
+        String::from_utf8_lossy(&out.stdout).contains("the binary is the one installed, kept"),
+        "{out:?}"
+    );
+    assert_eq!(std::fs::read(&bin).unwrap(), link);
+    assert_eq!(std::fs::read(&debug).unwrap(), debug_info);
     let edited = text.replace("rate_hz = 500.0", "rate_hz = 250.0");
     std::fs::write(&config, &edited).unwrap();
     let out = softarm(&["install"], &root);
@@ -113,9 +187,11 @@ fn install_stages_binary_config_state_and_units_and_keeps_an_edited_config() {
     assert!(upgraded.contains("user = \"softarm\"") && upgraded.contains("rate_hz = 250.0"));
     std::fs::write(&config, &edited).unwrap();
 
-    // Uninstall: units, binary, the gate and its folder go; config and state stay.
+    // Uninstall: units, binary, its debug info, the gate and their folders go; config and
+    // state stay.
     softarm(&["uninstall"], &root);
     assert!(!bin.exists());
+    assert!(!debug.exists() && !root.join("usr/lib/debug/usr").exists());
     assert!(!gate.exists());
     assert!(!root.join("usr/local/libexec/softarm").exists());
     assert!(!root.join("etc/tmpfiles.d/softarm.conf").exists());
@@ -220,6 +296,30 @@ fn the_target_wants_the_ros2_bridge_and_the_view_only_when_enabled() {
             assert_eq!(wants.contains(&file), wanted, "{name}: {wants}");
         }
     }
+    std::fs::remove_dir_all(&root).unwrap();
+}
+
+/// Without objcopy the install is refused before it writes anything, saying what to install.
+#[test]
+fn without_objcopy_the_install_says_to_install_binutils_and_writes_nothing() {
+    let root = std::env::temp_dir().join(format!("softarm-install-objcopy-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&root);
+    let empty = root.join("no-tools");
+    std::fs::create_dir_all(&empty).unwrap();
+    let stage = root.join("stage");
+    let out = output(
+        Command::new(BIN)
+            .args(["install", "--root"])
+            .arg(&stage)
+            .env("PATH", &empty),
+    );
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("objcopy not found") && err.contains("apt-get install binutils"),
+        "{err}"
+    );
+    assert!(!stage.exists(), "something was staged without objcopy");
     std::fs::remove_dir_all(&root).unwrap();
 }
 

@@ -1,9 +1,11 @@
-//! `softarm install` / `softarm uninstall`: the stack as a system service. The binary, a config
-//! in /etc/softarm (never overwriting an edited one), the state folder, the systemd units
+//! `softarm install` / `softarm uninstall`: the stack as a system service. The binary (without
+//! its debug info, which goes to /usr/lib/debug for backtraces and debuggers), a config in
+//! /etc/softarm (never overwriting an edited one), the state folder, the systemd units
 //! (`systemd/` of the repository, built in), the `softarm` user and group, and a reload of
 //! systemd. `--dry-run` prints each step and does nothing; `--root DIR` stages everything under
 //! DIR, as DESTDIR does for packagers, and leaves the running system alone.
 
+use std::ffi::OsStr;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -26,6 +28,11 @@ const UNITS: &str = "etc/systemd/system";
 const GATE: &str = "libexec/softarm/softarm";
 /// Where the units in the repository start the binary; `--prefix` rewrites it.
 const UNIT_BINARY: &str = "/usr/local/bin/softarm";
+/// Where a backtrace (Rust's, through the binary's `.gnu_debuglink`) and gdb look for the debug
+/// info of `/DIR/softarm`: `/usr/lib/debug/DIR/softarm.debug`.
+const DEBUG_ROOT: &str = "/usr/lib/debug";
+/// The name of the debug info's file, which the installed binary's `.gnu_debuglink` names.
+const DEBUG_FILE: &str = "softarm.debug";
 
 /// The units, as in `systemd/`.
 const UNIT_FILES: [(&str, &str); 6] = [
@@ -398,6 +405,79 @@ fn under(root: &Path, path: &Path) -> PathBuf {
     root.join(path.strip_prefix("/").unwrap_or(path))
 }
 
+/// Where the debug info of the binary installed at `binary` goes: where a backtrace and gdb
+/// look for the file its `.gnu_debuglink` names.
+fn debug_file(binary: &Path) -> PathBuf {
+    let dir = binary.parent().unwrap_or(Path::new("/"));
+    Path::new(DEBUG_ROOT)
+        .join(dir.strip_prefix("/").unwrap_or(dir))
+        .join(DEBUG_FILE)
+}
+
+/// The binary as installed from `exe`, and its debug info: `exe` without its debug info (its
+/// symbols kept, so a backtrace names the functions without the debug info), naming the file of
+/// its debug info (`.gnu_debuglink`) so that a backtrace and gdb give the lines too. When `exe`
+/// is the binary installed at `installed` (a `softarm install` of the installed softarm), it
+/// is installed again as it is and its debug info kept (`None`): it has none to split.
+fn installed_binary(exe: &Path, installed: &Path) -> anyhow::Result<(Vec<u8>, Option<Vec<u8>>)> {
+    let bytes = std::fs::read(exe).with_context(|| format!("reading {}", exe.display()))?;
+    if std::fs::read(installed).is_ok_and(|i| i == bytes) {
+        return Ok((bytes, None));
+    }
+    drop(bytes);
+    // A folder of our own, new (mkdtemp: never one someone else made).
+    let dir = nix::unistd::mkdtemp(&std::env::temp_dir().join("softarm-install-XXXXXX"))
+        .context("making a temporary folder")?;
+    let split = || -> anyhow::Result<(Vec<u8>, Option<Vec<u8>>)> {
+        let debug = dir.join(DEBUG_FILE);
+        let stripped = dir.join("softarm");
+        objcopy(&[
+            OsStr::new("--only-keep-debug"),
+            exe.as_os_str(),
+            debug.as_os_str(),
+        ])?;
+        let link = format!("--add-gnu-debuglink={}", debug.display());
+        objcopy(&[
+            OsStr::new("--strip-debug"),
+            // An already stripped binary's own link is replaced, not added to.
+            OsStr::new("--remove-section=.gnu_debuglink"),
+            OsStr::new(&link),
+            exe.as_os_str(),
+            stripped.as_os_str(),
+        ])?;
+        let read = |p: &Path| std::fs::read(p).with_context(|| format!("reading {}", p.display()));
+        Ok((read(&stripped)?, Some(read(&debug)?)))
+    };
+    let r = split();
+    let _ = std::fs::remove_dir_all(&dir);
+    r
+}
+
+/// `objcopy ARGS`: binutils', which comes with the C compiler a build needs.
+fn objcopy(args: &[&OsStr]) -> anyhow::Result<()> {
+    let out = match Command::new("objcopy").args(args).output() {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => bail!(
+            "objcopy not found: softarm install installs the binary without its debug info \
+             (kept apart in {DEBUG_ROOT}, for backtraces) and needs objcopy for that; install \
+             binutils (Debian, Ubuntu: `apt-get install binutils`; Fedora: `dnf install \
+             binutils`) and run it again"
+        ),
+        r => r.context("running objcopy")?,
+    };
+    if !out.status.success() {
+        bail!(
+            "objcopy {} failed ({}): {}",
+            args.iter()
+                .map(|a| a.to_string_lossy())
+                .collect::<Vec<_>>()
+                .join(" "),
+            out.status,
+            String::from_utf8_lossy(&out.stderr).trim()
+        );
+    }
+    Ok(())
+}
+
 /// The config as installed: its model and state live in /var/lib/softarm, where the services
 /// may write (the units make everything else read-only); `[host]` names the user, the
 /// operators' `group`, iceoryx2's folder and the operator `gate`.
@@ -470,11 +550,13 @@ pub fn install(args: &Args) -> anyhow::Result<()> {
     }
     let gate = args.target.prefix.join(GATE);
     let (config_text, config) = installed_config(args.config.as_deref(), &args.group, &gate)?;
+    let debug = debug_file(&binary);
     let exe = std::env::current_exe().context("finding my own executable")?;
-    let exe_bytes = if dry_run {
-        Vec::new()
+    // Before any step: a machine without objcopy is told so before anything is written.
+    let (exe_bytes, debug_bytes) = if dry_run {
+        (Vec::new(), Some(Vec::new()))
     } else {
-        std::fs::read(&exe).with_context(|| format!("reading {}", exe.display()))?
+        installed_binary(&exe, &under(&root, &binary))?
     };
     let mut steps = vec![if system {
         Step::CreateUser
@@ -488,6 +570,17 @@ pub fn install(args: &Args) -> anyhow::Result<()> {
         path: under(&root, &binary),
         text: exe_bytes.clone(),
         mode: 0o755,
+    });
+    steps.push(match debug_bytes {
+        Some(bytes) => Step::Write {
+            path: under(&root, &debug),
+            text: bytes,
+            mode: 0o644,
+        },
+        None => Step::Skip(format!(
+            "{}: the binary is the one installed, kept with it",
+            debug.display()
+        )),
     });
     steps.push(Step::Gate {
         path: under(&root, &gate),
@@ -590,12 +683,19 @@ pub fn uninstall(args: &UninstallArgs) -> anyhow::Result<()> {
         )));
     }
     let gate = args.target.prefix.join(GATE);
-    for path in [
-        args.target.prefix.join("bin/softarm"),
-        gate.clone(),
-        Path::new("/").join(TMPFILES),
-    ] {
-        steps.push(Step::Remove(under(&root, &path)));
+    let binary = args.target.prefix.join("bin/softarm");
+    let debug = debug_file(&binary);
+    for path in [&binary, &debug, &gate, &Path::new("/").join(TMPFILES)] {
+        steps.push(Step::Remove(under(&root, path)));
+    }
+    // The debug info's folders below /usr/lib/debug, which the install made if nothing else
+    // had, from the deepest up.
+    for dir in debug
+        .ancestors()
+        .skip(1)
+        .take_while(|d| d.starts_with(DEBUG_ROOT) && *d != Path::new(DEBUG_ROOT))
+    {
+        steps.push(Step::RemoveDirIfEmpty(under(&root, dir)));
     }
     if let Some(dir) = gate.parent() {
         steps.push(Step::RemoveDirIfEmpty(under(&root, dir)));
