@@ -25,9 +25,7 @@ pub use iceoryx2;
 pub mod drivers;
 pub use drivers::{DRIVERS, Driver};
 pub mod own;
-pub use softarm_space::{
-    ACTUATORS, Actuation, MAX_ACTUATORS, MAX_WAYPOINTS, MIN_ACTUATORS, Position, with_actuators,
-};
+pub use softarm_space::{MAX_ACTUATORS, MAX_WAYPOINTS, MIN_ACTUATORS, Position, with_actuators};
 
 mod actuators;
 pub use actuators::Actuators;

@@ -124,7 +124,7 @@ mod tests {
     use crate::Config;
 
     /// Each shipped arm in the embedded config: valid, its counts and kinds as it says, and
-    /// only the paper's computed by the method.
+    /// only the paper's written by the shorthand keys.
     #[test]
     fn every_shipped_arm_loads_into_the_default_config() {
         let want = [
@@ -139,27 +139,18 @@ mod tests {
             let layout = c.layout();
             assert_eq!(layout.actuators().len(), actuators, "{name}");
             assert_eq!(layout.modules().len(), modules, "{name}");
-            assert_eq!(c.paper_arm().is_ok(), paper, "{name}");
+            assert_eq!(c.arm.shorthand().is_some(), paper, "{name}");
+            assert_eq!(layout.is_papers_kind(), paper, "{name}");
             assert_eq!(resolve(name).unwrap(), *text);
         }
-        // The paper's arm as modules is the shorthand's arm: the same identity and geometry.
+        // The paper's arm as modules is the shorthand's arm: the same identity and layout, and
+        // the same shorthand.
         let d = Config::default_sim(".".into());
         let merged = with_arm(crate::DEFAULT, SHIPPED[0].1, "paper").unwrap();
         let p = Config::parse(&merged, "paper", ".".into()).unwrap();
         assert_eq!(p.arm_identity(), d.arm_identity());
-        assert_eq!(p.paper_arm().unwrap(), d.paper_arm().unwrap());
-        let e = Config::parse(
-            &with_arm(crate::DEFAULT, SHIPPED[2].1, "tdcr").unwrap(),
-            "t",
-            ".".into(),
-        )
-        .unwrap()
-        .paper_arm()
-        .unwrap_err();
-        assert!(
-            e.message.contains("9 actuators (a1 .. a9) in 3 modules"),
-            "{e}"
-        );
+        assert_eq!(p.layout(), d.layout());
+        assert_eq!(p.arm.shorthand(), d.arm.shorthand());
         assert!(
             resolve("no-such-arm")
                 .unwrap_err()

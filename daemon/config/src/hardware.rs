@@ -755,7 +755,7 @@ mod tests {
 
     #[test]
     fn mapping_winds_the_stroke_onto_the_spool_and_back() {
-        let arm = crate::arm::ArmGeometry::default().layout();
+        let arm = crate::arm::ArmConfig::default().layout().unwrap();
         let m = Mapping::new(&tendon(), &arm);
         // 60 mm stroke on a 15 mm spool: 4 rad, 2607.9 ticks.
         assert_eq!(m.ticks(0, 0.0), 700);
@@ -771,7 +771,7 @@ mod tests {
 
     #[test]
     fn inconsistent_limits_are_refused_naming_the_motor() {
-        let arm = crate::arm::ArmGeometry::default().layout();
+        let arm = crate::arm::ArmConfig::default().layout().unwrap();
         let mut t = tendon();
         t.validate(&arm, &[0.0; 6], &[1.0; 6], 500.0).unwrap();
         t.direction[1] = -1; // 700 - 2608 < 600

@@ -20,7 +20,7 @@ use serde::{Deserialize, Serialize};
 use softarm_space::{Position, Workspace};
 
 use crate::activation::ActivationConfig;
-use crate::arm::{ArmConfig, ArmGeometry};
+use crate::arm::ArmConfig;
 use crate::demonstrations::DemoRecipe;
 use crate::forward_model::NetworkConfig;
 use crate::kinematics::PolynomialConfig;
@@ -586,24 +586,6 @@ impl Config {
             .expect("a loaded config's arm passed its check")
     }
 
-    /// The arm as the paper's geometry, for what computes with it: the controller, the
-    /// learner, the sim, training and the rehearsal run the paper's kind of arm (two soft
-    /// modules of three evenly spaced tendons). Any other arm is refused as a config error
-    /// (exit 78, which neither `up` nor systemd restarts), naming it.
-    pub fn paper_arm(&self) -> Result<ArmGeometry, ConfigError> {
-        self.arm.geometry().ok_or_else(|| ConfigError {
-            origin: "[arm]".into(),
-            line: None,
-            message: format!(
-                "arm: {}: the controller, the learner, the sim and training compute for the \
-                 paper's kind of arm alone (two soft modules of three evenly spaced tendons of \
-                 one radius and stroke, independent routing); the tendon and tracker drivers, \
-                 the emulators, the view, the ROS 2 bridge and the recorder run any arm",
-                self.arm_identity()
-            ),
-        })
-    }
-
     /// This stack on this host: its namespace under its iceoryx2 root folder, for the arm
     /// this config describes (a process of another arm's stack cannot join it).
     pub fn bus(&self) -> Result<softarm_ipc::Namespace, softarm_ipc::Error> {
@@ -840,7 +822,7 @@ mod tests {
         assert_eq!(c.model_dir(), PathBuf::from("/tmp/x/model"));
         // The file spells out the structs' defaults (the learner's online rates excepted).
         assert_eq!(c.sim, SimConfig::default());
-        assert_eq!(c.paper_arm().unwrap(), ArmGeometry::default());
+        assert_eq!(c.arm.shorthand(), ArmConfig::default().shorthand());
         assert_eq!(c.activation, ActivationConfig::default());
         assert_eq!(c.forward_model, NetworkConfig::default());
     }

@@ -21,13 +21,13 @@
 //! ```
 //!
 //! Unknown sections and keys are refused, every value is checked as the config checks it (the
-//! arm at every time: each step's, at both ends of a radius cycle; the creep is bounded by its
-//! rule), and errors name the key and its line in the scenario file.
+//! arm at every time: each step's, with a radius cycle that keeps every tendon off the
+//! backbone; the creep is bounded by its rule), and errors name the key and its line in the scenario file.
 
 use std::path::Path;
 
-use crate::arm::{ArmConfig, ArmGeometry};
-use crate::changes::{Changes, Drift, Step};
+use crate::arm::{ArmConfig, MAX_OFFSET_M};
+use crate::changes::Drift;
 use crate::mujoco::MujocoConfig;
 use crate::sim::SimConfig;
 
@@ -207,8 +207,8 @@ impl Scenario {
         Self::parse(&text, &name, &origin)
     }
 
-    /// Parses a scenario and checks it against the defaults; [`Scenario::apply`] checks it
-    /// against the arm it changes.
+    /// Parses a scenario and checks it on the arm it is for (`for_arm`, else the default
+    /// `[arm]`); [`Scenario::apply_to`] checks it on the arm it changes.
     pub fn parse(text: &str, name: &str, origin: &str) -> Result<Self, ConfigError> {
         let file: File = toml::from_str(text).map_err(|e| ConfigError {
             origin: origin.into(),
@@ -242,11 +242,8 @@ impl Scenario {
             mujoco: (!s.mujoco.is_empty()).then(MujocoConfig::default),
             ..SimConfig::default()
         };
-        match s.for_arm.as_ref().map(|a| (a, a.geometry())) {
-            None => s.apply(&ArmGeometry::default(), &sim).map(drop)?,
-            Some((_, Some(paper))) => s.apply(&paper, &sim).map(drop)?,
-            Some((arm, None)) => s.apply_to(arm, &sim).map(drop)?,
-        }
+        let arm = s.for_arm.clone().unwrap_or_default();
+        s.apply_to(&arm, &sim)?;
         Ok(s)
     }
 
@@ -258,11 +255,7 @@ impl Scenario {
     /// Checks the scenario on `config`'s arm, as the sim will apply it: what refuses it before
     /// anything starts.
     pub fn check_on(&self, config: &crate::Config) -> Result<(), ConfigError> {
-        // A MuJoCo plant takes any arm's path, the paper's too (as `softarm sim` runs it).
-        match config.paper_arm() {
-            Ok(paper) if config.sim.mujoco.is_none() => self.apply(&paper, &config.sim).map(drop),
-            _ => self.apply_to(&config.arm, &config.sim).map(drop),
-        }
+        self.apply_to(&config.arm, &config.sim).map(drop)
     }
 
     /// Whether it changes the MuJoCo plant (`[sim.mujoco]` keys).
@@ -289,7 +282,9 @@ impl Scenario {
                     )));
                 }
             }
-            // Without `for_arm`, the keys every arm has.
+            // Without `for_arm`: the paper's arm (any arm its shorthand keys can write), or the
+            // keys every arm has.
+            None if arm.shorthand().is_some() => {}
             None => {
                 let mut keys = self.arm.keys().map(|k| format!("arm.{k}")).chain(
                     self.steps.iter().enumerate().flat_map(|(i, (_, t))| {
@@ -309,7 +304,11 @@ impl Scenario {
             }
         }
         let n = layout.actuators().len();
-        let mut base = arm.clone();
+        // The paper's keys are set on the paper's arm as its shorthand writes it.
+        let mut base = match &self.for_arm {
+            None => arm.shorthand().unwrap_or_else(|| arm.clone()),
+            Some(_) => arm.clone(),
+        };
         base.tool_m.get_or_insert(layout.tool_m);
         base.connector_m.get_or_insert(layout.connector_m);
         base.actuator_offset_m.get_or_insert_with(|| vec![0.0; n]);
@@ -348,7 +347,7 @@ impl Scenario {
         let sim = SimConfig {
             realism,
             mujoco: self.mujoco_of(sim)?,
-            changes: Changes::new(&[], self.drift).map_err(|m| self.error(&m))?,
+            drift: self.drift,
             ..sim.clone()
         };
         sim.validate(n).map_err(|m| self.error(&m))?;
@@ -453,7 +452,7 @@ impl Scenario {
         } else if !self.steps.is_empty() {
             parts.push("before step 1".into());
         }
-        let max_mm = ArmGeometry::MAX_OFFSET_M * 1e3;
+        let max_mm = MAX_OFFSET_M * 1e3;
         let crept: Vec<String> = (self.drift.creep_m(t).iter().enumerate())
             .filter(|(_, c)| **c != 0.0)
             .map(|(i, c)| format!("{}: {:+.2}", i + 1, (c * 1e3).clamp(-max_mm, max_mm)))
@@ -466,53 +465,6 @@ impl Scenario {
             parts.push(format!("radius {dr:+.2} mm"));
         }
         parts.join("; ")
-    }
-
-    /// The sim's arm and settings with the scenario's keys in place of the config's, and the
-    /// scenario's changes over time in `SimConfig::changes`, checked on that arm.
-    pub fn apply(
-        &self,
-        arm: &ArmGeometry,
-        sim: &SimConfig,
-    ) -> Result<(ArmGeometry, SimConfig), ConfigError> {
-        if let Some(other) = self.for_arm.as_ref().filter(|a| a.geometry().is_none()) {
-            let other = other.layout().map_err(|m| self.error(&m))?.identity();
-            return Err(self.error(&format!(
-                "for_arm: the scenario changes the arm {other}; this arm is the paper's ({})",
-                arm.layout().identity()
-            )));
-        }
-        let arm: ArmGeometry = self.overlay("arm", arm, &self.arm)?;
-        arm.validate().map_err(|m| self.error(&m))?;
-        let realism = self.overlay("sim.realism", &sim.realism, &self.realism)?;
-        let changes = self.changes(&arm)?;
-        let sim = SimConfig {
-            realism,
-            mujoco: self.mujoco_of(sim)?,
-            changes,
-            ..sim.clone()
-        };
-        sim.validate(softarm_space::ACTUATORS)
-            .map_err(|m| self.error(&m))?;
-        Ok((arm, sim))
-    }
-
-    /// The steps, each on the arm before it (the first on `arm`), and the drift, checked at
-    /// every time.
-    fn changes(&self, arm: &ArmGeometry) -> Result<Changes, ConfigError> {
-        let mut steps = Vec::with_capacity(self.steps.len());
-        let mut before = *arm;
-        for (k, (at_s, keys)) in self.steps.iter().enumerate() {
-            let after: ArmGeometry = self.overlay(&format!("step[{k}].arm"), &before, keys)?;
-            steps.push(Step {
-                at_s: *at_s,
-                arm: after,
-            });
-            before = after;
-        }
-        let changes = Changes::new(&steps, self.drift).map_err(|m| self.error(&m))?;
-        changes.validate(arm).map_err(|m| self.error(&m))?;
-        Ok(changes)
     }
 
     /// `base` with each of `keys` set; an unknown key or a value of the wrong type is blamed on
@@ -588,37 +540,53 @@ impl Scenario {
 mod tests {
     use super::*;
 
-    fn arm_of(name: &str) -> ArmGeometry {
-        let s = Scenario::resolve(name).unwrap();
-        s.apply(&ArmGeometry::default(), &SimConfig::default())
+    /// The sim's arm and settings for scenario `name` on the default `[arm]` (the paper's).
+    fn sim_of(name: &str) -> OnArm {
+        Scenario::resolve(name)
             .unwrap()
-            .0
+            .apply_to(&ArmConfig::default(), &SimConfig::default())
+            .unwrap()
+    }
+
+    fn arm_of(name: &str) -> ArmConfig {
+        sim_of(name).arm
     }
 
     #[test]
     fn the_shipped_scenarios_change_what_they_say() {
-        let nominal = ArmGeometry::default();
+        // The default [arm] as the shorthand writes it, every key set.
+        let nominal = ArmConfig::default().shorthand().unwrap();
+        assert_eq!(nominal.tool_m, Some(0.03));
         assert!(Scenario::resolve("nominal").unwrap().is_nominal());
-        assert_eq!(arm_of("nominal"), nominal);
+        let zeros = ArmConfig {
+            actuator_offset_m: Some(vec![0.0; 6]),
+            ..nominal.clone()
+        };
+        assert_eq!(arm_of("nominal"), zeros);
         assert_eq!(
             arm_of("tool-change"),
-            ArmGeometry {
-                tool_m: nominal.tool_m + 0.02,
-                ..nominal
+            ArmConfig {
+                tool_m: Some(0.05),
+                ..zeros.clone()
             }
         );
         let creep = arm_of("creep");
-        let longer: Vec<f64> = creep
-            .actuator_offset_m
-            .into_iter()
+        let longer: Vec<f64> = (creep.actuator_offset_m.unwrap().into_iter())
             .filter(|o| *o != 0.0)
             .collect();
         assert_eq!(longer, [0.003, 0.004]);
-        assert_eq!(
-            arm_of("twist").module_rotation_deg[1],
-            nominal.module_rotation_deg[1] + 10.0
-        );
-        assert_eq!(arm_of("stiffer").actuator_radius_m, 0.028);
+        assert_eq!(arm_of("twist").module_rotation_deg, Some([0.0, 70.0]));
+        assert_eq!(arm_of("stiffer").actuator_radius_m, Some(0.028));
+        // The paper's arm written by its modules takes the paper's scenarios as the shorthand's.
+        let modules = ArmConfig {
+            modules: Some(ArmConfig::default().description().modules),
+            ..ArmConfig::default()
+        };
+        let on = Scenario::resolve("stiffer")
+            .unwrap()
+            .apply_to(&modules, &SimConfig::default())
+            .unwrap();
+        assert_eq!(on.arm, arm_of("stiffer"));
         let fixed = [
             "nominal",
             "tool-change",
@@ -670,48 +638,36 @@ mod tests {
         );
     }
 
-    fn sim_of(name: &str) -> (ArmGeometry, SimConfig) {
-        Scenario::resolve(name)
-            .unwrap()
-            .apply(&ArmGeometry::default(), &SimConfig::default())
-            .unwrap()
-    }
-
     #[test]
     fn the_shipped_scenarios_that_change_over_time_do_so_at_their_times() {
-        let nominal = ArmGeometry::default();
-        let (arm, sim) = sim_of("tool-swap");
-        assert_eq!(arm, nominal);
-        let c = sim.changes;
-        assert_eq!(c.arm_at(&arm, 89.9).tool_m, 0.03);
-        assert_eq!(c.arm_at(&arm, 90.0).tool_m, 0.05);
+        let swap = sim_of("tool-swap");
+        assert_eq!(swap.arm.tool_m, Some(0.03));
+        assert_eq!(swap.steps.len(), 1);
+        assert_eq!(
+            (swap.steps[0].0, swap.steps[0].1.tool_m),
+            (90.0, Some(0.05))
+        );
         // Creeping: 0.5 mm/min on actuators 2 and 6, 10 mm in 20 minutes.
-        let (arm, sim) = sim_of("creeping");
-        let o = sim.changes.arm_at(&arm, 1200.0).actuator_offset_m;
+        let o = sim_of("creeping").sim.drift.creep_m(1200.0);
         let want = [0.0, 0.01, 0.0, 0.0, 0.0, 0.01];
         assert!((0..6).all(|i| (o[i] - want[i]).abs() < 1e-12), "{o:?}");
-        let (arm, sim) = sim_of("stiffness-cycle");
-        let r = |t| sim.changes.arm_at(&arm, t).actuator_radius_m;
+        let drift = sim_of("stiffness-cycle").sim.drift;
+        let r = |t| 0.025 + drift.radius_change_m(t);
         assert!((r(150.0) - 0.027).abs() < 1e-12 && (r(450.0) - 0.023).abs() < 1e-12);
         // Combined: each step on the arm before it, the drifts on top.
-        let (arm, sim) = sim_of("combined");
-        let at = |t| sim.changes.arm_at(&arm, t);
-        assert_eq!(
-            (at(60.0).tool_m, at(60.0).module_rotation_deg[0]),
-            (0.03, 0.0)
-        );
-        assert_eq!(
-            (at(300.0).tool_m, at(300.0).module_rotation_deg[0]),
-            (0.05, 5.0)
-        );
-        assert_eq!(
-            (at(500.0).tool_m, at(500.0).module_rotation_deg[0]),
-            (0.03, 5.0)
-        );
-        assert!((at(120.0).actuator_offset_m[4] - 0.001).abs() < 1e-12);
-        assert_eq!(sim_of("not-pcc").1.realism.curvature_taper, 0.6);
+        let combined = sim_of("combined");
+        let at = |t: f64| {
+            let step = combined.steps.iter().filter(|(at_s, _)| *at_s <= t).last();
+            step.map_or(&combined.arm, |(_, arm)| arm)
+        };
+        let state = |t| (at(t).tool_m, at(t).module_rotation_deg.unwrap()[0]);
+        assert_eq!(state(60.0), (Some(0.03), 0.0));
+        assert_eq!(state(300.0), (Some(0.05), 5.0));
+        assert_eq!(state(500.0), (Some(0.03), 5.0));
+        assert!((combined.sim.drift.creep_m(120.0)[4] - 0.001).abs() < 1e-12);
+        assert_eq!(sim_of("not-pcc").sim.realism.curvature_taper, 0.6);
         // The sim's default realism stays exact PCC.
-        assert_eq!(sim_of("nominal").1.realism.curvature_taper, 0.0);
+        assert_eq!(sim_of("nominal").sim.realism.curvature_taper, 0.0);
         let s = Scenario::resolve("combined").unwrap();
         assert_eq!(s.step_times(), [90.0, 240.0, 420.0]);
         assert!(
@@ -733,19 +689,19 @@ mod tests {
     }
 
     use softarm_kinematics::forward::ForwardModel;
-    use softarm_kinematics::pcc::Kinematics;
+    use softarm_kinematics::pcc;
 
     /// The actuation that puts the PCC arm's tip at `target`: damped Gauss-Newton from the
     /// middle, finite-difference Jacobian.
-    fn reach(arm: &ArmGeometry, target: [f64; 3]) -> [f64; 6] {
+    fn reach(arm: &pcc::Arm, target: [f64; 3]) -> [f64; 6] {
         let mut a = [0.5; 6];
         for _ in 0..100 {
-            let p = arm.position(&a);
+            let p = ForwardModel::<6>::position(arm, &a);
             let e: [f64; 3] = std::array::from_fn(|d| target[d] - p[d]);
             let j = nalgebra::SMatrix::<f64, 3, 6>::from_fn(|d, i| {
                 let mut b = a;
                 b[i] += 1e-6;
-                (arm.position(&b)[d] - p[d]) / 1e-6
+                (ForwardModel::<6>::position(arm, &b)[d] - p[d]) / 1e-6
             });
             let jt = j.transpose();
             let m = j * jt + nalgebra::Matrix3::identity() * 1e-8;
@@ -763,20 +719,22 @@ mod tests {
             "../../../config/waypoints/demo.toml"
         ))
         .unwrap();
-        let (arm, sim) = sim_of("not-pcc");
-        let taper = sim.realism.curvature_taper;
+        let not_pcc = sim_of("not-pcc");
+        let arm = pcc::Arm::of_config(&not_pcc.arm).unwrap();
+        let taper = not_pcc.sim.realism.curvature_taper;
         let moved: Vec<f64> = demo
             .point
             .iter()
             .map(|p| {
                 let a = reach(&arm, p.position_m);
-                let pcc = arm.position(&a);
+                let pcc = ForwardModel::<6>::position(&arm, &a);
                 assert!(
                     (0..3).all(|d| (pcc[d] - p.position_m[d]).abs() < 1e-6),
                     "reached"
                 );
                 let q = arm
-                    .pose_of_lengths_tapered(&arm.lengths(&a), taper)
+                    .pose_of_lengths(&arm.lengths(&a), taper)
+                    .unwrap()
                     .position;
                 let d = [q.x - pcc[0], q.y - pcc[1], q.z - pcc[2]];
                 d.iter().map(|v| v * v).sum::<f64>().sqrt() * 1e3
@@ -795,12 +753,12 @@ mod tests {
             rate_hz: 100.0,
             ..Default::default()
         };
-        let arm = ArmGeometry {
-            connector_m: 0.04,
+        let arm = ArmConfig {
+            connector_m: Some(0.04),
             ..Default::default()
         };
-        let (a, c) = s.apply(&arm, &sim).unwrap();
-        assert_eq!((a.tool_m, a.connector_m), (0.06, 0.04));
+        let OnArm { arm: a, sim: c, .. } = s.apply_to(&arm, &sim).unwrap();
+        assert_eq!((a.tool_m, a.connector_m), (Some(0.06), Some(0.04)));
         assert_eq!((c.realism.lag_s, c.rate_hz), (0.05, 100.0));
         assert_eq!(c.realism.backlash, sim.realism.backlash);
         assert!(
@@ -886,7 +844,7 @@ mod tests {
             .unwrap()
             .apply_to(&c.arm, &c.sim)
             .unwrap();
-        assert_eq!(on_tdcr.sim.changes.drift.creep_mm_per_min.len(), 9);
+        assert_eq!(on_tdcr.sim.drift.creep_mm_per_min.len(), 9);
         assert!(on_tdcr.steps.is_empty());
         let cycle = Scenario::resolve("stiffness-cycle").unwrap();
         assert!(cycle.check_on(&c).is_ok());
@@ -979,7 +937,7 @@ mod tests {
                 "[[step]]\nat_s = 9\n[step.arm]\nactuator_radius_m = 0.001\n\
                  [drift]\nactuator_radius_amplitude_m = 0.002\nactuator_radius_period_s = 60\n",
                 6,
-                "drift.actuator_radius_amplitude_m: 0.002 m takes the actuator radius of step[0]'s arm",
+                "drift.actuator_radius_amplitude_m: 0.002 m takes the smallest tendon radius (0.001 m) to 0",
             ),
             (
                 "[sim.realism]\ncurvature_taper = 2\n",

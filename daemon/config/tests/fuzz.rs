@@ -9,10 +9,13 @@ use std::sync::OnceLock;
 
 use proptest::prelude::*;
 use proptest::strategy::ValueTree;
+use softarm_arm::MAX_MODULES;
+use softarm_config::arm::MAX_OFFSET_M;
 use softarm_config::scenario::Scenario;
 use softarm_config::waypoints::{WaypointFile, validate};
 use softarm_config::{Config, DEFAULT};
 use softarm_kinematics::forward::ForwardModel;
+use softarm_kinematics::pcc;
 
 /// Numbers as users and broken tools write them: ordinary, extreme and not numbers at all.
 fn number() -> impl Strategy<Value = String> {
@@ -215,12 +218,21 @@ proptest! {
                 // Accepted text may still not make a valid arm with the config's: refused, not
                 // a panic; and an arm that is accepted gives finite positions.
                 // At every time of its changes too: each arm valid, positions finite.
-                if let Ok((arm, sim)) = s.apply(&c.paper_arm().unwrap(), &c.sim) {
-                    for t in [0.0, 1.0, 59.5, 1e3, 1e6, 1e9] {
-                        let now = sim.changes.arm_at(&arm, t);
-                        prop_assert!(now.validate().is_ok(), "{now:?} at {t} s");
-                        let p = ForwardModel::position(&now, &[0.5; 6]);
-                        prop_assert!(p.iter().all(|v| v.is_finite()));
+                if let Ok(on) = s.apply_to(&c.arm, &c.sim) {
+                    let arms = std::iter::once(&on.arm).chain(on.steps.iter().map(|(_, a)| a));
+                    for arm in arms {
+                        prop_assert!(arm.validate().is_ok(), "{arm:?}");
+                        let arm = pcc::Arm::of_config(arm).unwrap();
+                        for t in [0.0, 1.0, 59.5, 1e3, 1e6, 1e9] {
+                            // As the sim's plant drifts it: the creep within its bound.
+                            let o = MAX_OFFSET_M;
+                            let creep = on.sim.drift.creep_m(t).map(|c| c.clamp(-o, o));
+                            let now = arm
+                                .changed(0.0, 0.0, &creep, &[0.0; MAX_MODULES])
+                                .widened(on.sim.drift.radius_change_m(t));
+                            let p = ForwardModel::<6>::position(&now, &[0.5; 6]);
+                            prop_assert!(p.iter().all(|v| v.is_finite()), "{p:?} at {t} s");
+                        }
                     }
                 }
             }

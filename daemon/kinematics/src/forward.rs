@@ -2,18 +2,17 @@
 //! pre-trains against one offline and steers its corrections by one's Jacobian; the PCC
 //! kinematics, the fitted RBF network and the fitted polynomial are three.
 
-use softarm_sections::arm::ArmGeometry;
-use softarm_space::{ACTUATORS, Actuation, Position};
+use softarm_space::Position;
 
-use crate::pcc::{self, Kinematics};
+use crate::pcc;
 
 /// ∂p/∂a: metres per unit of normalised actuation, one row per axis, one column per actuator
-/// (`N` of them: the paper's six unless said).
-pub type Jacobian<const N: usize = ACTUATORS> = nalgebra::SMatrix<f64, 3, N>;
+/// (`N` of them).
+pub type Jacobian<const N: usize> = nalgebra::SMatrix<f64, 3, N>;
 
 /// Something that predicts where the end effector goes for a normalised actuation of `N`
-/// actuators (the paper's six unless said).
-pub trait ForwardModel<const N: usize = ACTUATORS> {
+/// actuators.
+pub trait ForwardModel<const N: usize> {
     fn position(&self, actuation: &[f64; N]) -> Position;
 
     /// ∂p/∂a at `actuation`; central differences unless the model knows better.
@@ -50,14 +49,5 @@ impl<const N: usize> ForwardModel<N> for pcc::Arm {
             Ok(p) => [p.position.x, p.position.y, p.position.z],
             Err(_) => [f64::NAN; 3],
         }
-    }
-}
-
-/// The PCC kinematics ([`Kinematics`]) as a forward model.
-impl ForwardModel for ArmGeometry {
-    /// End-effector position (m) for a normalised actuation: the forward model of the plant.
-    fn position(&self, actuation: &Actuation) -> Position {
-        let p = self.pose(actuation).position;
-        [p.x, p.y, p.z]
     }
 }

@@ -5,8 +5,7 @@
 //!
 //! - [`arc`] — one constant-curvature module: its arc, its transform, its centroid.
 //! - [`arcs`] — actuator lengths to module arcs for any arm (least squares).
-//! - [`pcc`] — piecewise-constant-curvature kinematics, [`pcc::Kinematics`] on
-//!   `softarm_sections::arm::ArmGeometry`.
+//! - [`pcc`] — piecewise-constant-curvature kinematics of any arm, [`pcc::Arm`].
 //! - [`forward`] — the [`forward::ForwardModel`] trait (the PCC kinematics are one).
 //! - [`poly`] — the polynomial forward model (the learner's kinematics).
 //! - [`rbf`] — RBF lattices (the learner's actor and critic) and the RBF forward-model network.

@@ -1,5 +1,6 @@
-//! Piecewise-constant-curvature kinematics of the two-module, six-actuator arm, with the
-//! conventions of the independent NumPy model the tests agree with. Pure math.
+//! Piecewise-constant-curvature kinematics of any arm, from its layout, with the conventions
+//! of the independent NumPy model the tests agree with (on the paper's arm, the default
+//! `[arm]`). Pure math.
 //!
 //! Module frame: z along the straight backbone; actuator i at β_i = ψ + (i − 1)·120°, radius d.
 //! A module bends towards φ by θ = κ·l, and actuator i has length l − θ d cos(β_i − φ).
@@ -12,8 +13,7 @@ use crate::arc::{module_pose, tapered_module_pose};
 use crate::arcs::{Routes, Undetermined};
 use softarm_arm::{Layout, MAX_ACTUATORS, MAX_MODULES};
 
-pub use softarm_sections::arm::{ACTUATORS, ACTUATORS_PER_MODULE, MODULES};
-use softarm_sections::arm::{ArmConfig, ArmGeometry, Mount};
+use softarm_sections::arm::{ArmConfig, Mount};
 
 /// Base → tip of modules `arcs` from `base`, each made by `module`, a connector between
 /// consecutive ones and the tool after the last.
@@ -34,14 +34,6 @@ fn chain(
     pose.then(&Pose::translation_z(tool_m))
 }
 
-fn psi(arm: &ArmGeometry, module: usize) -> f64 {
-    arm.module_rotation_deg[module].to_radians()
-}
-
-fn base(arm: &ArmGeometry) -> Pose {
-    base_of(arm.mount)
-}
-
 fn base_of(mount: Mount) -> Pose {
     match mount {
         Mount::Hanging => Pose {
@@ -49,97 +41,6 @@ fn base_of(mount: Mount) -> Pose {
             position: Vector3::zeros(),
         },
         Mount::Standing => Pose::identity(),
-    }
-}
-
-/// The PCC kinematics of an arm of this geometry. Its end-effector position is
-/// [`ForwardModel::position`](crate::forward::ForwardModel::position).
-pub trait Kinematics {
-    /// Actuator length (m) of a normalised actuation.
-    fn length_of(&self, a: f64) -> f64;
-
-    /// Normalised actuation of an actuator length (m).
-    fn actuation_of(&self, length: f64) -> f64;
-
-    /// Where the actuators run: module m's actuator k at radius d and angle ψ_m + k·120°,
-    /// ending in its module.
-    fn routes(&self) -> Routes;
-
-    /// Arcs of both modules for actuator lengths in metres ([`Routes::arcs`]: least squares,
-    /// exact on three actuators a module).
-    fn arcs_of_lengths(&self, lengths: &[f64; ACTUATORS]) -> [Arc; MODULES];
-
-    /// End-effector pose for actuator lengths in metres:
-    /// T_EE = T_base · T_module1 · Trans_z(connector) · T_module2 · Trans_z(tool).
-    fn pose_of_lengths(&self, lengths: &[f64; ACTUATORS]) -> Pose;
-
-    /// [`Kinematics::pose_of_lengths`] on an arm that is not quite PCC: each module's
-    /// curvature falls linearly from base to tip by `taper` ([`tapered_module_pose`]); the
-    /// same actuator lengths give each module the same bend θ and plane φ, so the tip points
-    /// the same way but sits elsewhere. `taper = 0` is exactly `pose_of_lengths`.
-    fn pose_of_lengths_tapered(&self, lengths: &[f64; ACTUATORS], taper: f64) -> Pose;
-
-    /// Actuator lengths (m) of a normalised actuation, offsets included.
-    fn lengths(&self, a: &[f64; ACTUATORS]) -> [f64; ACTUATORS];
-
-    /// End-effector pose for a normalised actuation a ∈ [0, 1]^6.
-    fn pose(&self, a: &[f64; ACTUATORS]) -> Pose;
-}
-
-impl Kinematics for ArmGeometry {
-    fn length_of(&self, a: f64) -> f64 {
-        self.actuator_min_m + a * (self.actuator_max_m - self.actuator_min_m)
-    }
-
-    fn actuation_of(&self, length: f64) -> f64 {
-        (length - self.actuator_min_m) / (self.actuator_max_m - self.actuator_min_m)
-    }
-
-    fn routes(&self) -> Routes {
-        let mut r = Routes::empty(ACTUATORS, MODULES);
-        for i in 0..ACTUATORS {
-            let (m, k) = (i / ACTUATORS_PER_MODULE, i % ACTUATORS_PER_MODULE);
-            let beta = psi(self, m) + k as f64 * std::f64::consts::TAU / 3.0;
-            r.place(i, self.actuator_radius_m, beta, 1 << m);
-        }
-        r
-    }
-
-    fn arcs_of_lengths(&self, lengths: &[f64; ACTUATORS]) -> [Arc; MODULES] {
-        let arcs = self
-            .routes()
-            .arcs(lengths)
-            .expect("three actuators at 120° on a positive radius (validated) determine a module");
-        std::array::from_fn(|m| arcs[m])
-    }
-
-    fn pose_of_lengths(&self, lengths: &[f64; ACTUATORS]) -> Pose {
-        let arcs = self.arcs_of_lengths(lengths);
-        chain(
-            base(self),
-            &arcs,
-            self.connector_m,
-            self.tool_m,
-            module_pose,
-        )
-    }
-
-    fn pose_of_lengths_tapered(&self, lengths: &[f64; ACTUATORS], taper: f64) -> Pose {
-        if taper == 0.0 {
-            return self.pose_of_lengths(lengths);
-        }
-        let arcs = self.arcs_of_lengths(lengths);
-        chain(base(self), &arcs, self.connector_m, self.tool_m, |a| {
-            tapered_module_pose(a, taper)
-        })
-    }
-
-    fn lengths(&self, a: &[f64; ACTUATORS]) -> [f64; ACTUATORS] {
-        std::array::from_fn(|i| self.length_of(a[i]) + self.actuator_offset_m[i])
-    }
-
-    fn pose(&self, a: &[f64; ACTUATORS]) -> Pose {
-        self.pose_of_lengths(&self.lengths(a))
     }
 }
 
@@ -187,30 +88,6 @@ impl Arm {
     pub fn of_config(arm: &ArmConfig) -> Result<Self, String> {
         let offsets = arm.actuator_offset_m.as_deref().unwrap_or_default();
         Ok(Self::new(&arm.layout()?, offsets))
-    }
-
-    /// The paper's arm of `g` (its offsets included), without the heap: what a plant whose
-    /// scenario changes the arm builds every step.
-    pub fn of_geometry(g: &ArmGeometry) -> Self {
-        let (mut min_m, mut max_m, mut offset_m) = (
-            [0.0; MAX_ACTUATORS],
-            [0.0; MAX_ACTUATORS],
-            [0.0; MAX_ACTUATORS],
-        );
-        for i in 0..ACTUATORS {
-            min_m[i] = g.actuator_min_m;
-            max_m[i] = g.actuator_max_m;
-            offset_m[i] = g.actuator_offset_m[i];
-        }
-        Self {
-            routes: g.routes(),
-            min_m,
-            max_m,
-            offset_m,
-            connector_m: g.connector_m,
-            tool_m: g.tool_m,
-            mount: g.mount,
-        }
     }
 
     pub fn actuators(&self) -> usize {
@@ -337,11 +214,27 @@ mod tests {
     use rand::rngs::StdRng;
     use rand::{RngExt, SeedableRng};
 
+    /// The default `[arm]`'s actuators: the paper's arm.
+    const N: usize = 6;
+
+    /// The default `[arm]` (the paper's arm), each actuator's length changed by `offset_m`.
+    fn paper(offset_m: &[f64]) -> Arm {
+        let config = ArmConfig {
+            actuator_offset_m: Some(offset_m.to_vec()),
+            ..ArmConfig::default()
+        };
+        Arm::of_config(&config).unwrap()
+    }
+
+    fn position(arm: &Arm, a: &[f64; N]) -> [f64; 3] {
+        ForwardModel::<N>::position(arm, a)
+    }
+
     /// Module `module`'s arc for its three actuators' lengths `l` (the other module straight).
-    fn arc_of(arm: &ArmGeometry, module: usize, l: [f64; 3]) -> Arc {
-        let mut lengths = [0.22; ACTUATORS];
+    fn arc_of(arm: &Arm, module: usize, l: [f64; 3]) -> Arc {
+        let mut lengths = [0.22; N];
         lengths[3 * module..3 * module + 3].copy_from_slice(&l);
-        arm.arcs_of_lengths(&lengths)[module]
+        arm.routes.arcs(&lengths).unwrap()[module]
     }
 
     fn close(got: [f64; 3], want: [f64; 3], tol: f64) {
@@ -354,7 +247,7 @@ mod tests {
     /// printed to 1e-6 m and copied here; agreement is to the printed digits, 5e-7 m).
     #[test]
     fn agrees_with_the_reference_values() {
-        let arm = ArmGeometry::default();
+        let arm = paper(&[0.0; N]);
         let table = [
             ([0.5; 6], [0.0, 0.0, -0.5]),
             ([0.0; 6], [0.0, 0.0, -0.44]),
@@ -370,7 +263,7 @@ mod tests {
             ),
         ];
         for (a, p) in table {
-            close(arm.position(&a), p, 5e-7);
+            close(position(&arm, &a), p, 5e-7);
         }
         let m = module_pose(&arc_of(&arm, 0, [0.20, 0.22, 0.22])).position;
         close([m.x, m.y, m.z], [0.055553, 0.0, 0.203363], 5e-7);
@@ -379,17 +272,15 @@ mod tests {
     /// The straight poses are exact to 1e-9 (and bit-for-bit continuous into tiny bends).
     #[test]
     fn straight_modules_are_exact() {
-        let arm = ArmGeometry::default();
-        close(arm.position(&[0.5; 6]), [0.0, 0.0, -0.5], 1e-12);
-        let tiny = arm.position(&[0.5, 0.5 + 1e-12, 0.5, 0.5, 0.5, 0.5]);
+        let arm = paper(&[0.0; N]);
+        close(position(&arm, &[0.5; 6]), [0.0, 0.0, -0.5], 1e-12);
+        let tiny = position(&arm, &[0.5, 0.5 + 1e-12, 0.5, 0.5, 0.5, 0.5]);
         close(tiny, [0.0, 0.0, -0.5], 1e-9);
     }
 
     #[test]
     fn the_backbone_runs_from_the_base_to_the_end_effector() {
-        let mut geometry = ArmGeometry::default();
-        geometry.actuator_offset_m[4] = 0.003;
-        let arm = Arm::of_geometry(&geometry);
+        let arm = paper(&[0.0, 0.0, 0.0, 0.0, 0.003, 0.0]);
         let mut rng = StdRng::seed_from_u64(3);
         for _ in 0..200 {
             let a: [f64; 6] = std::array::from_fn(|_| rng.random());
@@ -399,7 +290,7 @@ mod tests {
             for w in lines.windows(2) {
                 close(w[1][0], *w[0].last().unwrap(), 1e-15);
             }
-            close(*lines[3].last().unwrap(), geometry.position(&a), 1e-12);
+            close(*lines[3].last().unwrap(), position(&arm, &a), 1e-12);
             // The arc's points lie on it: as long as the module's backbone.
             let arc_length: f64 = lines[0]
                 .windows(2)
@@ -418,34 +309,31 @@ mod tests {
 
     #[test]
     fn an_actuator_offset_is_that_actuator_longer() {
-        let nominal = ArmGeometry::default();
-        let mut crept = nominal;
-        crept.actuator_offset_m[1] = 0.004;
-        crept.validate().unwrap();
+        let nominal = paper(&[0.0; N]);
+        let crept = paper(&[0.0, 0.004, 0.0, 0.0, 0.0, 0.0]);
         let a = [0.3, 0.5, 0.6, 0.5, 0.4, 0.5];
         let mut longer = a;
-        longer[1] += 0.004 / (nominal.actuator_max_m - nominal.actuator_min_m);
-        let (p, q) = (crept.position(&a), nominal.position(&longer));
+        // The default stroke: 0.19 to 0.25 m.
+        longer[1] += 0.004 / (0.25 - 0.19);
+        let (p, q) = (position(&crept, &a), position(&nominal, &longer));
         assert!(
             (0..3).all(|d| (p[d] - q[d]).abs() < 1e-12),
             "{p:?} vs {q:?}"
         );
-        assert_ne!(crept.position(&a), nominal.position(&a));
-        crept.actuator_offset_m[5] = 0.06;
-        let e = crept.validate().unwrap_err();
-        assert!(e.starts_with("arm.actuator_offset_m: actuator 6"), "{e}");
+        assert_ne!(position(&crept, &a), position(&nominal, &a));
     }
 
     #[test]
     fn lengths_to_arc_to_lengths_round_trips() {
-        let arm = ArmGeometry::default();
+        let arm = paper(&[0.0; N]);
         let mut rng = StdRng::seed_from_u64(2);
         for _ in 0..500 {
-            let l: [f64; ACTUATORS] = std::array::from_fn(|_| arm.length_of(rng.random()));
-            let arcs = arm.arcs_of_lengths(&l);
-            let mut back = [0.0; ACTUATORS];
-            arm.routes().lengths(&arcs, &mut back);
-            for i in 0..ACTUATORS {
+            let a: [f64; N] = std::array::from_fn(|_| rng.random());
+            let l = arm.lengths(&a);
+            let arcs = arm.arcs(&a).unwrap();
+            let mut back = [0.0; N];
+            arm.routes.lengths(&arcs, &mut back);
+            for i in 0..N {
                 assert!(
                     (back[i] - l[i]).abs() < 1e-12,
                     "{l:?} -> {arcs:?} -> {back:?}"
@@ -457,7 +345,7 @@ mod tests {
     #[test]
     fn shortening_actuator_one_bends_towards_it() {
         for (module, psi) in [(0usize, 0.0f64), (1, 60.0)] {
-            let arm = ArmGeometry::default();
+            let arm = paper(&[0.0; N]);
             let arc = arc_of(&arm, module, [0.20, 0.22, 0.22]);
             assert!(
                 (arc.phi - psi.to_radians()).abs() < 1e-12,
@@ -471,7 +359,7 @@ mod tests {
 
     #[test]
     fn a_tapered_module_bends_as_much_but_more_at_its_base() {
-        let arm = ArmGeometry::default();
+        let arm = paper(&[0.0; N]);
         let arc = arc_of(&arm, 0, [0.20, 0.24, 0.23]);
         let pcc = module_pose(&arc);
         // No taper: the same arc, piece by piece (to rounding).
@@ -485,42 +373,32 @@ mod tests {
         assert!(out(&tapered) > out(&pcc) + 1e-3, "{tapered:?} vs {pcc:?}");
         // The arm: taper 0 is pose_of_lengths exactly; a taper moves the tip by millimetres.
         let l = arm.lengths(&[0.2, 0.8, 0.5, 0.9, 0.1, 0.4]);
+        let pose = |taper| arm.pose_of_lengths(&l, taper).unwrap();
         assert_eq!(
-            arm.pose_of_lengths_tapered(&l, 0.0),
-            arm.pose_of_lengths(&l)
+            pose(0.0),
+            arm.pose(&[0.2, 0.8, 0.5, 0.9, 0.1, 0.4]).unwrap()
         );
-        let moved = (arm.pose_of_lengths_tapered(&l, 0.5).position
-            - arm.pose_of_lengths(&l).position)
-            .norm();
+        let moved = (pose(0.5).position - pose(0.0).position).norm();
         assert!(moved > 2e-3 && moved < 0.05, "{moved}");
     }
 
-    /// Any arm's kinematics on the paper's layout is the paper's arm's, and the three-module
-    /// TDCR draws as three modules, connectors and a tool ending at its pose.
+    /// The paper's arm by its shorthand keys is the paper's arm by its modules, offsets
+    /// included, and the three-module TDCR draws as three modules, connectors and a tool ending
+    /// at its pose.
     #[test]
-    fn any_arm_on_the_papers_layout_is_the_papers_arm() {
-        let paper = ArmGeometry::default();
+    fn the_shorthand_and_the_modules_are_one_arm() {
         let offsets = [0.001, 0.0, -0.002, 0.0, 0.003, 0.0];
-        let geometry = ArmGeometry {
-            actuator_offset_m: offsets,
-            ..paper
-        };
-        let arm = Arm::new(&paper.layout(), &offsets);
-        let of_geometry = Arm::of_geometry(&geometry);
+        let shorthand = paper(&offsets);
+        let modules: softarm_arm::Description =
+            toml::from_str(include_str!("../../../ipc/arm/testdata/paper.toml")).unwrap();
+        let arm = Arm::new(&Layout::new(&modules).unwrap(), &offsets);
+        assert_eq!(arm, shorthand);
         let mut rng = StdRng::seed_from_u64(3);
         for _ in 0..50 {
-            let a: [f64; ACTUATORS] = std::array::from_fn(|_| rng.random());
-            let want = geometry.pose(&a).position;
-            let got = arm.pose(&a).unwrap().position;
-            assert!((want - got).norm() < 1e-12, "{want} vs {got}");
-            let got = of_geometry.pose(&a).unwrap().position;
-            assert!((want - got).norm() < 1e-12, "{want} vs {got}");
-            let tapered = geometry.pose_of_lengths_tapered(&geometry.lengths(&a), 0.3);
-            let got = arm.pose_of_lengths(&arm.lengths(&a), 0.3).unwrap();
-            assert!((tapered.position - got.position).norm() < 1e-12);
+            let a: [f64; N] = std::array::from_fn(|_| rng.random());
             let lines = arm.backbone(&a, 8).unwrap();
             assert_eq!(lines.len(), 4);
-            close(*lines[3].last().unwrap(), geometry.position(&a), 1e-12);
+            close(*lines[3].last().unwrap(), position(&arm, &a), 1e-12);
         }
         let tdcr: softarm_arm::Description =
             toml::from_str(include_str!("../../../ipc/arm/testdata/tdcr.toml")).unwrap();

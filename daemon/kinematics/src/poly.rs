@@ -7,7 +7,7 @@
 
 pub use softarm_sections::kinematics::MAX_DEGREE;
 use softarm_sections::kinematics::PolynomialConfig;
-use softarm_space::{ACTUATORS, Position};
+use softarm_space::Position;
 
 use crate::forward::{ForwardModel, Jacobian};
 use crate::linalg::Normal;
@@ -17,7 +17,7 @@ const CENTRE: f64 = 0.5;
 
 /// p(a) = Σ_m w_m Π_i (a_i − ½)^{e_{m,i}} per axis.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Polynomial<const N: usize = ACTUATORS> {
+pub struct Polynomial<const N: usize> {
     degree: usize,
     /// One exponent row per monomial, in the order [`exponents`] gives.
     exponents: Vec<[u8; N]>,
@@ -253,7 +253,7 @@ mod tests {
     use super::*;
     use rand::rngs::StdRng;
     use rand::{RngExt, SeedableRng};
-    use softarm_sections::arm::ArmGeometry;
+    use softarm_sections::arm::ArmConfig;
 
     #[test]
     fn term_counts_are_binomial() {
@@ -295,7 +295,8 @@ mod tests {
 
     #[test]
     fn fits_the_arm_and_its_jacobian_matches_finite_differences() {
-        let arm = ArmGeometry::default();
+        // The default `[arm]`: the paper's.
+        let arm = crate::pcc::Arm::of_config(&ArmConfig::default()).unwrap();
         let mut rng = StdRng::seed_from_u64(7);
         let sample = |rng: &mut StdRng| -> [f64; 6] {
             std::array::from_fn(|_| rng.random_range(0.25..0.75))

@@ -4,7 +4,7 @@
 //!   evaluated on the `span` centres nearest to the input per axis only; [`LinearRbf`] keeps its
 //!   weights in a hash map, so a 6-D lattice over the whole workspace (10⁸ centres) costs memory
 //!   only where the input has been.
-//! - [`RbfNetwork`]: the forward model actuation(6) → position(3), Gaussian centres picked from
+//! - [`RbfNetwork`]: the forward model actuation(N) → position(3), Gaussian centres picked from
 //!   the data plus an affine part, output weights by ridge least squares.
 
 use std::collections::HashMap;
@@ -14,7 +14,7 @@ use serde::{Deserialize, Serialize};
 
 use softarm_sections::forward_model::NetworkConfig;
 pub use softarm_sections::learner::MAX_SPAN;
-use softarm_space::{ACTUATORS, Position};
+use softarm_space::Position;
 
 /// Largest lattice dimension.
 pub const MAX_DIM: usize = 8;
@@ -417,10 +417,9 @@ impl<const OUT: usize> LinearRbf<OUT> {
     }
 }
 
-/// The forward model: y = Σ_c w_c exp(−‖a − c‖² / 2σ²) + W_lin [1, a], on `N` actuators (the
-/// paper's six unless said). Saved by its parts ([`RbfNetwork::parts`]).
+/// The forward model: y = Σ_c w_c exp(−‖a − c‖² / 2σ²) + W_lin [1, a], on `N` actuators. Saved by its parts ([`RbfNetwork::parts`]).
 #[derive(Debug, Clone, PartialEq)]
-pub struct RbfNetwork<const N: usize = ACTUATORS> {
+pub struct RbfNetwork<const N: usize> {
     centres: Vec<[f64; N]>,
     sigma: f64,
     /// One row per feature (centres, then 1 and the `N` actuations), one column per axis.

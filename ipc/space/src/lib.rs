@@ -1,8 +1,6 @@
-//! The two spaces the method works in, named once: actuation space (six actuators, each
-//! normalised to [0, 1]) and task space (end-effector positions in metres, base frame).
-
-/// Actuators of the arm: two modules of three.
-pub const ACTUATORS: usize = 6;
+//! The two spaces the method works in, named once: actuation space (the arm's actuators, each
+//! normalised to [0, 1]; as many as its `[arm]` has, [`MIN_ACTUATORS`]..=[`MAX_ACTUATORS`])
+//! and task space (end-effector positions in metres, base frame).
 
 /// Most actuators an arm may have: the capacity of every per-actuator payload.
 pub const MAX_ACTUATORS: usize = 16;
@@ -41,9 +39,6 @@ macro_rules! with_actuators {
 
 /// At most this many way-points (conditioning points) in a set.
 pub const MAX_WAYPOINTS: usize = 16;
-
-/// A normalised actuation: 0 = actuator at its minimum, 1 = at its maximum.
-pub type Actuation = [f64; ACTUATORS];
 
 /// An end-effector position (m, base/tracker frame).
 pub type Position = [f64; 3];

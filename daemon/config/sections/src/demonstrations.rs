@@ -230,7 +230,7 @@ mod tests {
             };
             edit(&mut r);
             let e = r
-                .validate(&crate::arm::ArmGeometry::default().layout())
+                .validate(&crate::arm::ArmConfig::default().layout().unwrap())
                 .unwrap_err();
             assert!(e.starts_with(want), "{e} (wanted {want:?})");
         };
@@ -286,7 +286,7 @@ mod tests {
 
     #[test]
     fn the_controller_plays_the_samples_no_faster_than_it_ticks() {
-        let arm = crate::arm::ArmGeometry::default().layout();
+        let arm = crate::arm::ArmConfig::default().layout().unwrap();
         let r = DemoRecipe::default();
         r.validate_for(&arm, r.sample_rate_hz).unwrap();
         assert_eq!(

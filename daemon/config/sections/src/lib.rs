@@ -2,16 +2,15 @@
 //! their defaults and their validation (`validate`), no math, no I/O. `softarm-config` reads
 //! them from the TOML file and re-exports these modules; the math crates (`softarm-kinematics`,
 //! `softarm-method`, `softarm-learning`, the sim's plant) take them as settings and put their
-//! math on them (e.g. `softarm_kinematics::pcc::Kinematics` for [`arm::ArmGeometry`]). Below
+//! math on them (e.g. `softarm_kinematics::pcc::Arm` for [`arm::ArmConfig`]). Below
 //! the config, so the math links neither the config nor, through it, iceoryx2; and the config
 //! (so every driver) links none of the math.
 //!
-//! - [`arm`] — `[arm]`: [`arm::ArmConfig`] (any arm), [`arm::ArmGeometry`] (the paper's),
+//! - [`arm`] — `[arm]`: [`arm::ArmConfig`] (any arm; the paper's by its shorthand keys),
 //!   [`arm::Mount`].
 //! - [`per_actuator`] — a setting per actuator: [`per_actuator::PerActuator`].
 //! - [`sim`] — `[sim]`: [`sim::SimConfig`], [`sim::Realism`].
-//! - [`changes`] — a scenario's steps and drifts: [`changes::Changes`], [`changes::Step`],
-//!   [`changes::Drift`], and the arm they make at a time.
+//! - [`changes`] — a scenario's drift: [`changes::Drift`], and its bounds.
 //! - [`learner`] — `[learner]`, `[pretrain]`: [`learner::LearnerConfig`],
 //!   [`learner::GaussNewtonConfig`], [`learner::Algorithm`], [`learner::PretrainConfig`].
 //! - [`forward_model`] — `[forward_model]`: [`forward_model::NetworkConfig`].

@@ -3,7 +3,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::changes::Changes;
+use crate::changes::Drift;
 use crate::mujoco::MujocoConfig;
 use crate::per_actuator::PerActuator;
 
@@ -20,10 +20,10 @@ pub struct SimConfig {
     /// The plant as a MuJoCo model (`softarm` built with its `mujoco` feature); absent, the
     /// sim's own PCC kinematics.
     pub mujoco: Option<MujocoConfig>,
-    /// How the arm changes while the sim runs: a scenario's steps and drifts (scenario files
-    /// only, not a key of `[sim]`). None by default.
+    /// How the arm drifts while the sim runs: a scenario's `[drift]` (scenario files only, not
+    /// a key of `[sim]`). None by default.
     #[serde(skip)]
-    pub changes: Changes,
+    pub drift: Drift,
 }
 
 impl Default for SimConfig {
@@ -33,7 +33,7 @@ impl Default for SimConfig {
             initial_actuation: PerActuator::All(0.5),
             realism: Realism::default(),
             mujoco: None,
-            changes: Changes::default(),
+            drift: Drift::default(),
         }
     }
 }
