@@ -14,13 +14,11 @@ use anyhow::Context;
 
 use softarm_driver::Commands;
 use softarm_ipc::{
-    ACTUATORS, Actuation, Actuators, DriverState, MAX_ACTUATORS, MotorState, Namespace, Node,
-    TrackerSample,
+    Actuators, DriverState, MAX_ACTUATORS, MotorState, Namespace, Node, TrackerSample,
 };
 use softarm_runtime::clock::Ticker;
 use softarm_runtime::{EstopLatch, now_ns};
 
-use softarm_sections::arm::ArmGeometry;
 use softarm_sections::sim::SimConfig;
 
 pub mod plant;
@@ -39,10 +37,7 @@ pub fn run(
     stop: &AtomicBool,
 ) -> anyhow::Result<()> {
     let ipc = Node::open(namespace, "sim")?;
-    let n = match arm {
-        Body::Paper(_) => ACTUATORS,
-        Body::Any(a) | Body::Stepped { start: a, .. } => a.actuators(),
-    };
+    let n = arm.start().actuators();
     let mut commands = Commands::open(&ipc, latch, n)?;
     // A real arm stays where it was while its driver restarts: a sim restarted beside a
     // running controller starts where the controller holds it, not at `initial_actuation`
@@ -83,7 +78,8 @@ pub fn run(
     let mut ticker = Ticker::new(config.rate_hz);
     tracing::info!(
         rate_hz = config.rate_hz,
-        changes = !config.changes.is_empty(),
+        steps = matches!(sim.plant().body(), Body::Stepped { .. }),
+        drift = !config.drift.is_off(),
         "sim running"
     );
     while !stop.load(Ordering::Relaxed) {
@@ -95,7 +91,7 @@ pub fn run(
         let stepping = std::time::Instant::now();
         let m = sim.step(setpoint, poll.stopped, wake.missed + 1);
         pace.stepped(stepping.elapsed(), wake.missed);
-        log_step(config, sim.plant(), &mut in_force);
+        log_step(sim.plant(), &mut in_force);
         // The sample number counts the sim's periods, the ones it slept through too, so that
         // seq / rate_hz is the sim's own clock (its scenario's time) on a busy machine as well.
         seq += wake.missed + 1;
@@ -194,31 +190,12 @@ pub struct SimArm {
 }
 
 impl SimArm {
-    /// The plant of `config` on the paper's `arm`, its actuators at `start`, which it follows
-    /// until told otherwise.
-    pub fn new(arm: ArmGeometry, config: &SimConfig, start: Actuation) -> anyhow::Result<Self> {
-        let plant = Plant::of_sim(arm, config, start)
+    /// The plant of `config` on `body` (its steps included, drifting as `config.drift` says),
+    /// its actuators at `start` (one per actuator), which it follows until told otherwise.
+    pub fn of_body(body: Body, config: &SimConfig, start: &[f64]) -> anyhow::Result<Self> {
+        let plant = Plant::of_sim(body, config, start)
             .map_err(anyhow::Error::msg)
             .context("the simulated plant")?;
-        Ok(Self::of_plant(plant, config, &start))
-    }
-
-    /// The plant of `config` on `body` (the paper's arm, with `config`'s changes, or any arm),
-    /// its actuators at `start` (one per actuator).
-    pub fn of_body(body: Body, config: &SimConfig, start: &[f64]) -> anyhow::Result<Self> {
-        let plant = match body {
-            Body::Paper(arm) => {
-                let start: Actuation = start.try_into().context("the paper's arm has six")?;
-                Plant::of_sim(arm, config, start)
-            }
-            Body::Any(_) | Body::Stepped { .. } if config.changes.steps().next().is_some() => {
-                Err("this arm's steps come with its body (Body::stepped), not sim.changes".into())
-            }
-            any => Plant::of_body(any, config.realism, start)
-                .and_then(|p| p.drifting(config.changes.drift)),
-        }
-        .map_err(anyhow::Error::msg)
-        .context("the simulated plant")?;
         Ok(Self::of_plant(plant, config, start))
     }
 
@@ -275,15 +252,15 @@ impl SimArm {
     }
 }
 
-/// Logs a scenario's step once it is in force, with the arm it made.
-fn log_step(config: &SimConfig, plant: &Plant, in_force: &mut Option<usize>) {
-    let now = config.changes.step_at(plant.time()).map(|(k, _)| k);
+/// Logs a scenario's step once it is in force (what it changes is in the scenario's line at
+/// the start).
+fn log_step(plant: &Plant, in_force: &mut Option<usize>) {
+    let now = plant.body().step_at(plant.time());
     if now != *in_force {
         *in_force = now;
         tracing::info!(
             time_s = plant.time(),
             step = now.map(|k| k + 1),
-            arm = ?plant.geometry(),
             "the scenario's arm changes"
         );
     }
