@@ -209,21 +209,22 @@ fn from_the_third(runs: &[Run]) -> Vec<f64> {
 /// model and config: Alg. 2 rehearsed in process (it runs the stack's own code, see
 /// `softarm-rehearsal`), whose controller measures the actuators' lag in the set's first rest
 /// and leads by it, as the stack's has measured it.
-fn fresh_first(model: &Model, config: &Config, scenario: &str, set: &str) -> f64 {
-    let (arm, sim) = Scenario::resolve(scenario)
+fn fresh_first(model: &Model<6>, config: &Config, scenario: &str, set: &str) -> f64 {
+    let on = Scenario::resolve(scenario)
         .unwrap()
-        .apply(&config.paper_arm().unwrap(), &config.sim)
+        .apply_to(&config.arm, &config.sim)
         .unwrap();
     let online = online_learner(
         model.learner.clone(),
         model.kinematics.clone(),
         config.learner,
-        softarm_kinematics::pcc::Arm::of_geometry(&config.paper_arm().unwrap()),
+        softarm_kinematics::pcc::Arm::of_config(&config.arm).unwrap(),
     )
     .unwrap();
     let learner = Learner::new(online, config);
     let set = WaypointFile::load(Path::new(set)).unwrap();
-    let mut r = Rehearsal::new(model, config, learner, arm, &sim).unwrap();
+    let body = softarm_sim::plant::Body::of_arm(&on.arm, &on.steps).unwrap();
+    let mut r = Rehearsal::new(model, config, learner, body, &on.sim).unwrap();
     r.rehearse(&set, 1).unwrap()[0].mean_m
 }
 

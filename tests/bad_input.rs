@@ -13,11 +13,12 @@ use softarm_config::waypoints::WaypointFile;
 use softarm_emulate::rig::Rig;
 use softarm_ipc::iceoryx2::prelude::ZeroCopySend;
 use softarm_ipc::{
-    Actuation, ActuationEstimate, Actuators, ConditioningSample, ControllerState, ControllerStatus,
+    ActuationEstimate, Actuators, ConditioningSample, ControllerState, ControllerStatus,
     DriverState, EstimateRequest, MAX_WAYPOINTS, MotorState, Namespace, Node, Position, Setpoint,
     Sub, TrackerSample, WaypointReply, WaypointSet,
 };
 use softarm_kinematics::forward::ForwardModel;
+use softarm_kinematics::pcc;
 use softarm_runtime::now_ns;
 use softarm_test_support::{DEMO_WAYPOINTS, Devices, TestStack, alive, eventually, with_overrides};
 
@@ -509,7 +510,7 @@ fn setpoints_with_nan_inf_or_out_of_range_values_never_reach_the_tendon_motors()
     let motors = n.subscriber(&n.motor_state().unwrap()).unwrap();
     let driver = s.spawn(&["tendon"]);
     let pid = driver.id() as i32;
-    let send = |actuation: Actuation| {
+    let send = |actuation: [f64; 6]| {
         setpoints
             .send_copy(Setpoint {
                 stamp_ns: now_ns(),
@@ -518,7 +519,7 @@ fn setpoints_with_nan_inf_or_out_of_range_values_never_reach_the_tendon_motors()
             })
             .unwrap();
     };
-    let follow = |actuation: Actuation, what: &str| {
+    let follow = |actuation: [f64; 6], what: &str| {
         let want = ticks(actuation);
         eventually(what, LIMIT, || {
             send(actuation);
@@ -601,7 +602,7 @@ fn state_of(s: &ControllerStatus) -> ControllerState {
 #[test]
 fn tracker_samples_that_are_not_numbers_hold_the_controller() {
     let s = TestStack::new(BIN, "bad-tracker", true);
-    let arm = Config::load(&s.config).unwrap().paper_arm().unwrap();
+    let arm = pcc::Arm::of_config(&Config::load(&s.config).unwrap().arm).unwrap();
     let controller = s.spawn(&["controller"]);
     let n = node(&s);
     let status = n.subscriber(&n.status().unwrap()).unwrap();
@@ -615,7 +616,7 @@ fn tracker_samples_that_are_not_numbers_hold_the_controller() {
             let n = node(&s);
             let motors = n.publisher(&n.motor_state().unwrap()).unwrap();
             let tracker = n.publisher(&n.tracker().unwrap()).unwrap();
-            let at = arm.position(&[0.5; 6]);
+            let at = ForwardModel::<6>::position(&arm, &[0.5; 6]);
             while !done.load(Ordering::Relaxed) {
                 let stamp_ns = now_ns();
                 motors
@@ -781,21 +782,21 @@ fn waypoint_requests_with_nonsense_are_rejected_by_the_controller_naming_it() {
 #[test]
 fn motor_states_that_are_not_numbers_hold_the_controller_and_never_reach_its_setpoints() {
     let s = TestStack::new(BIN, "bad-motors", true);
-    let arm = Config::load(&s.config).unwrap().paper_arm().unwrap();
+    let arm = pcc::Arm::of_config(&Config::load(&s.config).unwrap().arm).unwrap();
     let controller = s.spawn(&["controller"]);
     let n = node(&s);
     let status = n.subscriber(&n.status().unwrap()).unwrap();
     let setpoints = n.subscriber(&n.setpoint().unwrap()).unwrap();
     // This test is the drivers: good tracker samples, and motor states that report `bad` (the
     // first the controller ever sees among them: where its limiter starts) until it is `None`.
-    let bad: Mutex<Option<Actuation>> = Mutex::new(Some([f64::NAN; 6]));
+    let bad: Mutex<Option<[f64; 6]>> = Mutex::new(Some([f64::NAN; 6]));
     let done = AtomicBool::new(false);
     std::thread::scope(|scope| {
         scope.spawn(|| {
             let n = node(&s);
             let motors = n.publisher(&n.motor_state().unwrap()).unwrap();
             let tracker = n.publisher(&n.tracker().unwrap()).unwrap();
-            let at = arm.position(&[0.5; 6]);
+            let at = ForwardModel::<6>::position(&arm, &[0.5; 6]);
             while !done.load(Ordering::Relaxed) {
                 let stamp_ns = now_ns();
                 let actuation = bad.lock().unwrap().unwrap_or([0.5; 6]);

@@ -17,6 +17,7 @@ use softarm_emulate::rig::Rig;
 use softarm_ipc::iceoryx2::prelude::ZeroCopySend;
 use softarm_ipc::{DriverState, MotorState, Namespace, Node, Pub, Setpoint, Sub, TrackerSample};
 use softarm_kinematics::forward::ForwardModel;
+use softarm_kinematics::pcc;
 use softarm_runtime::now_ns;
 use softarm_test_support::{DEMO_WAYPOINTS, Devices, Guard, TestStack, alive, set_id};
 
@@ -564,7 +565,7 @@ fn tracker_publishes_the_arm_in_the_base_frame_resyncs_and_survives_silence() {
     let driver = spawn(&s, "tracker");
     let pid = driver.id() as i32;
 
-    let want = c.paper_arm().unwrap().position(&[0.5; 6]);
+    let want = ForwardModel::<6>::position(&pcc::Arm::of_config(&c.arm).unwrap(), &[0.5; 6]);
     let close = |p: &TrackerSample| (0..3).all(|i| (p.position[i] - want[i]).abs() < 1e-4);
     let p = eventually("tracker samples", || newest(&samples));
     assert!(close(&p), "{:?} vs {want:?}", p.position);
@@ -833,7 +834,7 @@ fn tracker_polls_in_point_mode_with_angles() {
     let n = node(&s);
     let samples = n.subscriber(&n.tracker().unwrap()).unwrap();
     let driver = spawn(&s, "tracker");
-    let want = c.paper_arm().unwrap().position(&[0.5; 6]);
+    let want = ForwardModel::<6>::position(&pcc::Arm::of_config(&c.arm).unwrap(), &[0.5; 6]);
     let p = eventually("20 polled samples", || {
         newest(&samples).filter(|p| p.seq >= 20)
     });

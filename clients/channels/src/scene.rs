@@ -522,7 +522,7 @@ mod tests {
 
     fn scene() -> Scene {
         Scene::new(Settings {
-            arm: Arm::new(&softarm_config::arm::ArmGeometry::default().layout(), &[]),
+            arm: Arm::of_config(&softarm_config::arm::ArmConfig::default()).unwrap(),
             rate_hz: 30.0,
             trail_s: 1.0,
         })
@@ -565,7 +565,7 @@ mod tests {
         );
         assert_eq!(arm.lines.len(), 4);
         let tip = arm.lines[3].points.last().unwrap();
-        let want = softarm_config::arm::ArmGeometry::default().position(&a);
+        let want = ForwardModel::<6>::position(&scene().settings.arm, &a);
         assert!(
             (tip.x - want[0]).abs() + (tip.y - want[1]).abs() + (tip.z - want[2]).abs() < 1e-12
         );

@@ -2,12 +2,14 @@
 //! set on a scenario's arm, per execution the error at each conditioning point, as
 //! `softarm demo` prints them for the running stack.
 //! `cargo run --release -p softarm-rehearsal --example online -- MODEL_DIR [EXECUTIONS]`
-//! Environment: SCENARIO (shipped name or file, default nominal), ALGORITHM (gauss-newton |
+//! Environment: ARM (a shipped arm's name or an `[arm]` file, default the default config's: the
+//! paper's arm), SCENARIO (shipped name or file, default nominal), ALGORITHM (gauss-newton |
 //! paper), SEED (the learner's and the plant's, as `softarm demo --seed`; default the config's),
-//! SET (a way-point file, default config/waypoints/demo.toml), SECOND (a way-point file run
+//! SET (a way-point file, default config/waypoints/demo.toml, the paper's arm's), SECOND (a
+//! way-point file run
 //! once afterwards on the adapted learner, and once on a fresh one), LEARNER (TOML overrides of
-//! [learner], `;` for newlines), QUICK=1 (write the tests' quick model,
-//! `softarm_test_support::quick_model`, to MODEL_DIR first), STALL=WHO:EVERY_MS:FOR_MS
+//! [learner], `;` for newlines), QUICK=1 (write the tests' quick model of the arm,
+//! `softarm_test_support::quick_model_of`, to MODEL_DIR first), STALL=WHO:EVERY_MS:FOR_MS
 //! (a loaded machine: `controller`, `sim` or `learner` kept from its CPU for FOR_MS every
 //! EVERY_MS), SETS=K (the set submitted K times over, EXECUTIONS each, on the same learner
 //! and arm: what a lab submitting a new set as its arm drifts sees at each set's start),
@@ -15,23 +17,27 @@
 
 use anyhow::{Context, bail};
 use softarm_config::Config;
-use softarm_config::arm::ArmGeometry;
 use softarm_config::learner::LearnerConfig;
-use softarm_config::scenario::Scenario;
-use softarm_config::sim::SimConfig;
+use softarm_config::scenario::{OnArm, Scenario};
 use softarm_config::waypoints::WaypointFile;
 use softarm_ipc::ExecutionStats;
 use softarm_learner::{Learner, online_learner};
 use softarm_model::bundle::Model;
 use softarm_rehearsal::{Rehearsal, Stalled, Stalls};
+use softarm_sim::plant::Body;
 
 fn env(k: &str) -> String {
     std::env::var(k).unwrap_or_default()
 }
 
-/// The default sim config with SEED and the [learner] of LEARNER and ALGORITHM.
+/// The default sim config on ARM's arm, with SEED and the [learner] of LEARNER and ALGORITHM.
 fn config() -> anyhow::Result<Config> {
     let mut config = Config::default_sim(".".into());
+    if !env("ARM").is_empty() {
+        let arm = softarm_config::arms::resolve(&env("ARM"))?;
+        let text = softarm_config::arms::with_arm(softarm_config::DEFAULT, &arm, &env("ARM"))?;
+        config = Config::parse(&text, "ARM", ".".into())?;
+    }
     if !env("SEED").is_empty() {
         let seed: u64 = env("SEED").parse().context("SEED must be a whole number")?;
         config.learner.seed = seed;
@@ -55,21 +61,21 @@ fn load(var: &str, default: &str) -> anyhow::Result<WaypointFile> {
     WaypointFile::load(std::path::Path::new(&path)).map_err(anyhow::Error::msg)
 }
 
-/// A stack of `config` with a fresh learner of `model`, its sim on `arm`.
-fn rehearsal<'a>(
-    model: &'a Model,
+/// A stack of `config` with a fresh learner of `model`, its sim on `on`'s arm.
+fn rehearsal<'a, const N: usize>(
+    model: &'a Model<N>,
     config: &'a Config,
-    arm: ArmGeometry,
-    sim: &SimConfig,
-) -> anyhow::Result<Rehearsal<'a>> {
+    on: &OnArm,
+) -> anyhow::Result<Rehearsal<'a, N>> {
     let online = online_learner(
         model.learner.clone(),
         model.kinematics.clone(),
         config.learner,
-        softarm_kinematics::pcc::Arm::of_geometry(&config.paper_arm().unwrap()),
+        softarm_kinematics::pcc::Arm::of_config(&config.arm).map_err(anyhow::Error::msg)?,
     )
     .map_err(anyhow::Error::msg)?;
-    let r = Rehearsal::new(model, config, Learner::new(online, config), arm, sim)?;
+    let body = Body::of_arm(&on.arm, &on.steps).map_err(anyhow::Error::msg)?;
+    let r = Rehearsal::new(model, config, Learner::new(online, config), body, &on.sim)?;
     Ok(match stalls()? {
         Some(s) => r.with_stalls(s),
         None => r,
@@ -128,22 +134,29 @@ fn main() -> anyhow::Result<()> {
     let Some(dir) = args.get(1) else {
         bail!("usage: online MODEL_DIR [EXECUTIONS]");
     };
+    let config = config()?;
     if env("QUICK") == "1" {
-        softarm_test_support::quick_model(std::path::Path::new(dir));
+        softarm_test_support::quick_model_of(std::path::Path::new(dir), &config);
     }
-    let model = Model::read(std::path::Path::new(dir))?;
     let executions: u32 = match args.get(2) {
         Some(s) => s.parse().context("EXECUTIONS must be a whole number")?,
         None => 20,
     };
-    let config = config()?;
+    let n = config.layout().actuators().len();
+    softarm_ipc::with_actuators!(n, N => run::<N>(dir, &config, executions),
+        n => bail!("an arm of {n} actuators"))
+}
+
+/// The rehearsal on an arm of `N` actuators.
+fn run<const N: usize>(dir: &str, config: &Config, executions: u32) -> anyhow::Result<()> {
+    let model = Model::<N>::read(std::path::Path::new(dir))?;
     let scenario = Scenario::resolve(match env("SCENARIO").as_str() {
         "" => "nominal",
         s => s,
     })?;
-    let (arm, sim) = scenario.apply(&config.paper_arm().unwrap(), &config.sim)?;
+    let on = scenario.apply_to(&config.arm, &config.sim)?;
     let set = load("SET", "config/waypoints/demo.toml")?;
-    let mut adapted = rehearsal(&model, &config, arm, &sim)?;
+    let mut adapted = rehearsal(&model, config, &on)?;
     let sets: u32 = match env("SETS").as_str() {
         "" => 1,
         s => s.parse().context("SETS must be a whole number")?,
@@ -163,7 +176,7 @@ fn main() -> anyhow::Result<()> {
     if !env("SECOND").is_empty() {
         let second = load("SECOND", "")?;
         // The fresh learner beside the same controller: the lag it has measured.
-        let fresh = rehearsal(&model, &config, arm, &sim)?
+        let fresh = rehearsal(&model, config, &on)?
             .with_lag(adapted.lag())
             .rehearse(&second, 1)?;
         let after = adapted.rehearse(&second, 1)?;

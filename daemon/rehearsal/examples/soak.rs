@@ -2,6 +2,7 @@
 //! another (the demo set every third, else a variation of it, each point moved up to 25 mm and
 //! sometimes one left out), 3 to 6 executions each, the arm changed to the next scenario of a
 //! rotation every CHANGE_EVERY_S of simulated time; per set its executions' mean errors.
+//! On the default `[arm]` (the paper's, whose the demo set is).
 //! `cargo run --release -p softarm-rehearsal --example soak -- MODEL_DIR [MINUTES]`
 //! Environment: SEED (default 1), SCENARIOS (comma-separated, default soak's rotation),
 //! CHANGE_EVERY_S (default 120).
@@ -14,31 +15,36 @@ use softarm_config::waypoints::WaypointFile;
 use softarm_learner::{Learner, online_learner};
 use softarm_model::bundle::Model;
 use softarm_rehearsal::Rehearsal;
+use softarm_sim::plant::Body;
+
+/// The default `[arm]`'s actuators.
+const N: usize = 6;
 
 /// The least error with which `arm` can reach `target` inside the actuators' range [0, 1]:
 /// projected damped Gauss-Newton from several starts.
-fn reachable(arm: &softarm_config::arm::ArmGeometry, target: &[f64; 3], rng: &mut StdRng) -> f64 {
+fn reachable(arm: &softarm_kinematics::pcc::Arm, target: &[f64; 3], rng: &mut StdRng) -> f64 {
     use softarm_kinematics::forward::{ForwardModel, finite_difference};
+    let position = |a: &[f64; N]| ForwardModel::<N>::position(arm, a);
     let mut best = f64::INFINITY;
     for start in 0..12 {
-        let mut a: [f64; 6] = if start == 0 {
-            [0.5; 6]
+        let mut a: [f64; N] = if start == 0 {
+            [0.5; N]
         } else {
             std::array::from_fn(|_| rng.random_range(0.05..0.95))
         };
         for _ in 0..300 {
-            let p = arm.position(&a);
+            let p = position(&a);
             let e = nalgebra::Vector3::new(target[0] - p[0], target[1] - p[1], target[2] - p[2]);
             let j = finite_difference(arm, &a);
             let jt = j.transpose();
             let m = j * jt + nalgebra::Matrix3::identity() * 1e-6;
             let Some(inv) = m.try_inverse() else { break };
             let step = jt * inv * e;
-            for i in 0..6 {
+            for i in 0..N {
                 a[i] = (a[i] + 0.5 * step[i]).clamp(0.0, 1.0);
             }
         }
-        let p = arm.position(&a);
+        let p = position(&a);
         let d =
             ((target[0] - p[0]).powi(2) + (target[1] - p[1]).powi(2) + (target[2] - p[2]).powi(2))
                 .sqrt();
@@ -57,7 +63,7 @@ fn main() -> anyhow::Result<()> {
     let seed: u64 = env("SEED").map_or(Ok(1), |s| s.parse())?;
     let every_s: f64 = env("CHANGE_EVERY_S").map_or(Ok(120.0), |s| s.parse())?;
     let rotation = env("SCENARIOS").unwrap_or("tool-change,creep,twist,stiffer,nominal".into());
-    let model = Model::read(std::path::Path::new(&dir))?;
+    let model = Model::<N>::read(std::path::Path::new(&dir))?;
     let mut config = Config::default_sim(".".into());
     config.learner.seed = seed;
     config.sim.realism.seed = seed;
@@ -71,13 +77,14 @@ fn main() -> anyhow::Result<()> {
             model.learner.clone(),
             model.kinematics.clone(),
             config.learner,
-            softarm_kinematics::pcc::Arm::of_geometry(&config.paper_arm().unwrap()),
+            softarm_kinematics::pcc::Arm::of_config(&config.arm)?,
         )
         .map_err(anyhow::Error::msg)
     };
     let learner = Learner::new(online()?, &config);
-    let mut r = Rehearsal::new(&model, &config, learner, config.paper_arm()?, &config.sim)?;
-    let mut arm = config.paper_arm().unwrap();
+    let body = |arm| Body::of_arm(arm, &[]).map_err(anyhow::Error::msg);
+    let mut r = Rehearsal::new(&model, &config, learner, body(&config.arm)?, &config.sim)?;
+    let mut arm = config.arm.clone();
     let mut rng = StdRng::seed_from_u64(seed);
     let scenarios: Vec<&str> = rotation.split(',').collect();
     let (mut t_s, mut next_change_s, mut next) = (0.0, every_s, 0);
@@ -87,8 +94,8 @@ fn main() -> anyhow::Result<()> {
         let changes = r.learner().arm_changes();
         if t_s >= next_change_s {
             let s = Scenario::resolve(scenarios[next % scenarios.len()])?;
-            (arm, _) = s.apply(&config.paper_arm().unwrap(), &config.sim)?;
-            r.change_arm(arm)?;
+            arm = s.apply_to(&config.arm, &config.sim)?.arm;
+            r.change_arm(body(&arm)?)?;
             name = s.name.clone();
             next += 1;
             next_change_s += every_s;
@@ -107,7 +114,7 @@ fn main() -> anyhow::Result<()> {
             &model,
             &config,
             Learner::new(online()?, &config),
-            arm,
+            body(&arm)?,
             &config.sim,
         )?
         .with_lag(&lag)
@@ -132,7 +139,10 @@ fn main() -> anyhow::Result<()> {
                 "      reach {}",
                 set.point
                     .iter()
-                    .map(|p| format!("{:6.1}", reachable(&arm, &p.position_m, &mut r2) * 1e3))
+                    .map(|p| {
+                        let arm = softarm_kinematics::pcc::Arm::of_config(&arm).unwrap();
+                        format!("{:6.1}", reachable(&arm, &p.position_m, &mut r2) * 1e3)
+                    })
                     .collect::<String>()
             );
             for s in &stats {

@@ -13,21 +13,19 @@
 
 use anyhow::{Context, bail};
 use softarm_config::Config;
-use softarm_config::arm::ArmGeometry;
 use softarm_config::sim::SimConfig;
 use softarm_config::waypoints::WaypointFile;
 use softarm_controller::{
     ActuatorLag, Control, Latest, Outputs, Plan, Retired, admit, conditioned_on, rest_ticks,
 };
 use softarm_ipc::{
-    ACTUATORS, Actuation, ActuationEstimate, ConditioningSample, ControllerState, ExecutionStats,
-    Setpoint, WaypointSet,
+    ActuationEstimate, ConditioningSample, ControllerState, ExecutionStats, Setpoint, WaypointSet,
 };
 use softarm_learner::Learner;
 use softarm_method::blend::Replanner;
 use softarm_model::bundle::Model;
 use softarm_sim::SimArm;
-use softarm_sim::plant::Measurement;
+use softarm_sim::plant::{Body, Measurement};
 
 const NS_PER_S: f64 = 1e9;
 
@@ -112,13 +110,13 @@ impl StallClock {
 /// The sim driver in simulated time: on its own deadlines (`sim.rate_hz`) it takes the newest
 /// setpoint, steps its [`SimArm`] and publishes the measurement, which is the newest tracker
 /// and motor sample the controller's tick reads until the next.
-struct SimDriver {
+struct SimDriver<const N: usize> {
     arm: SimArm,
     period_ns: u64,
     /// Its next deadline (ns of simulated time).
     due_ns: u64,
     /// The newest setpoint the controller published for it to follow, not yet taken.
-    setpoint: Option<Actuation>,
+    setpoint: Option<[f64; N]>,
     newest: Measurement,
     /// Its own stalls, if the machine has them.
     stalls: Option<StallClock>,
@@ -126,11 +124,18 @@ struct SimDriver {
     missed: u64,
 }
 
-impl SimDriver {
-    /// The sim driver's arm, as it starts when no controller runs: at `sim.initial_actuation`,
-    /// its first measurement published at time 0.
-    fn new(arm: ArmGeometry, sim: &SimConfig) -> anyhow::Result<Self> {
-        let mut arm = SimArm::new(arm, sim, sim.initial_actuation.fixed())?;
+impl<const N: usize> SimDriver<N> {
+    /// The sim driver's arm on `body`, as it starts when no controller runs: at
+    /// `sim.initial_actuation`, its first measurement published at time 0.
+    fn new(body: Body, sim: &SimConfig) -> anyhow::Result<Self> {
+        if body.start().actuators() != N {
+            bail!(
+                "the sim's arm has {} actuators; the rehearsal runs {N}",
+                body.start().actuators()
+            );
+        }
+        let start = sim.initial_actuation.values(N);
+        let mut arm = SimArm::of_body(body, sim, &start)?;
         let newest = arm.step(None, false, 1);
         let period_ns = (arm.dt() * NS_PER_S).round() as u64;
         Ok(Self {
@@ -183,7 +188,7 @@ struct Published {
     stats: Option<ExecutionStats>,
 }
 
-impl Outputs<ACTUATORS> for Published {
+impl<const N: usize> Outputs<N> for Published {
     fn setpoint(&mut self, s: Setpoint) {
         self.setpoint = Some(s);
     }
@@ -197,13 +202,13 @@ impl Outputs<ACTUATORS> for Published {
     }
 
     /// Freed here: the rehearsal has no tick thread to keep from freeing.
-    fn retire(&mut self, _: Retired<ACTUATORS>) {}
+    fn retire(&mut self, _: Retired<N>) {}
 }
 
 /// The running set's side on the service thread: its id and its replanner.
-struct Running {
+struct Running<const N: usize> {
     set_id: u64,
-    replanner: Replanner<ACTUATORS>,
+    replanner: Replanner<N>,
 }
 
 /// The controller's tick, the learner and the sim on one simulated clock: way-point sets run
@@ -219,18 +224,18 @@ struct Running {
 /// sim stepping on); the sim's deadlines fall on the tick grid's (phase
 /// 0) and the arm starts at `sim.initial_actuation` with the plant's noise drawn from its seed
 /// on, where the stack's sim has run for a while before the set (other noise, same statistics).
-pub struct Rehearsal<'a> {
-    model: &'a Model,
+pub struct Rehearsal<'a, const N: usize> {
+    model: &'a Model<N>,
     config: &'a Config,
-    learner: Learner<ACTUATORS>,
-    sim_driver: SimDriver,
+    learner: Learner<N>,
+    sim_driver: SimDriver<N>,
     /// The controller's tick, as the tick thread runs it.
-    control: Control<ACTUATORS>,
+    control: Control<N>,
     /// What the tick has read of the sim, as the controller's inputs keep it.
-    latest: Latest<ACTUATORS>,
+    latest: Latest<N>,
     /// A set admitted and not yet handed to the tick.
-    plan: Option<Plan<ACTUATORS>>,
-    running: Option<Running>,
+    plan: Option<Plan<N>>,
+    running: Option<Running<N>>,
     rest_ticks: i64,
     period_ns: u64,
     /// The simulated clock: the time of the next tick (ns).
@@ -248,17 +253,18 @@ pub struct Rehearsal<'a> {
     late: Vec<(u64, ActuationEstimate)>,
 }
 
-impl<'a> Rehearsal<'a> {
-    /// The stack of `config` with `model`, `learner`, and the sim driver on `arm` under `sim`.
+impl<'a, const N: usize> Rehearsal<'a, N> {
+    /// The stack of `config` with `model`, `learner`, and the sim driver on `body` (an arm of
+    /// `N` actuators, with its steps) under `sim` (its drift included).
     pub fn new(
-        model: &'a Model,
+        model: &'a Model<N>,
         config: &'a Config,
-        learner: Learner<ACTUATORS>,
-        arm: ArmGeometry,
+        learner: Learner<N>,
+        body: Body,
         sim: &SimConfig,
     ) -> anyhow::Result<Self> {
         let c = &config.controller;
-        let sim_driver = SimDriver::new(arm, sim)?;
+        let sim_driver = SimDriver::new(body, sim)?;
         // The sim's first measurement, published at time 0, is what the first tick reads.
         let mut latest = Latest::new(false);
         latest.take_tracker(0, sim_driver.newest.position);
@@ -295,33 +301,34 @@ impl<'a> Rehearsal<'a> {
         self
     }
 
-    pub fn learner(&self) -> &Learner<ACTUATORS> {
+    pub fn learner(&self) -> &Learner<N> {
         &self.learner
     }
 
     /// The actuators' lag as its controller has measured it.
-    pub fn lag(&self) -> &ActuatorLag<ACTUATORS> {
+    pub fn lag(&self) -> &ActuatorLag<N> {
         self.control.lag()
     }
 
     /// Its controller has measured `lag` already: a freshly started learner beside a
     /// controller that has been running, which is what "a fresh learner" is compared as (a
     /// fresh controller would lead by nothing in its first set).
-    pub fn with_lag(mut self, lag: &ActuatorLag<ACTUATORS>) -> Self {
+    pub fn with_lag(mut self, lag: &ActuatorLag<N>) -> Self {
         self.control.set_lag(lag.clone());
         self
     }
 
     /// Another learner takes over (a restarted learner process); the one that ran.
-    pub fn replace_learner(&mut self, learner: Learner<ACTUATORS>) -> Learner<ACTUATORS> {
+    pub fn replace_learner(&mut self, learner: Learner<N>) -> Learner<N> {
         std::mem::replace(&mut self.learner, learner)
     }
 
     /// The sim's arm changes between sets, as when `softarm-rig soak` restarts the sim with another
     /// scenario: the arm held for [`END_HOLD_NS`] after the last set, no sample for
     /// [`SIM_AWAY_NS`], then the arm held where it was for [`CHANGE_HOLD_NS`] before the next
-    /// set, as the stack's; the learner watches it, and the controller ticks on, holding.
-    pub fn change_arm(&mut self, arm: ArmGeometry) -> anyhow::Result<()> {
+    /// set, as the stack's; the learner watches it, and the controller ticks on, holding. The
+    /// restarted sim runs `body` without the first one's drift.
+    pub fn change_arm(&mut self, body: Body) -> anyhow::Result<()> {
         if self.gap_due {
             self.hold_for(END_HOLD_NS);
             self.gap_due = false;
@@ -330,14 +337,15 @@ impl<'a> Rehearsal<'a> {
         // setpoint the controller holds (not where the actuators were: they lag it, with
         // backlash and the disturbance).
         let sim = SimConfig {
-            changes: Default::default(),
+            drift: Default::default(),
             ..self.sim.clone()
         };
         let held = self
             .sim_driver
             .setpoint
             .unwrap_or_else(|| std::array::from_fn(|i| self.sim_driver.arm.command()[i]));
-        self.sim_driver.arm = SimArm::new(arm, &sim, held).context("the restarted sim's plant")?;
+        self.sim_driver.arm =
+            SimArm::of_body(body, &sim, &held).context("the restarted sim's plant")?;
         self.sim_driver.away_until(self.now_ns + SIM_AWAY_NS);
         self.hold_for(SIM_AWAY_NS + CHANGE_HOLD_NS);
         Ok(())

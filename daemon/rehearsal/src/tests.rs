@@ -1,37 +1,55 @@
 //! Adaptation, rehearsed: these fail when adaptation stops working.
 
 use super::*;
+use softarm_config::arm::ArmConfig;
 use softarm_config::learner::{Algorithm, LearnerConfig};
-use softarm_config::scenario::Scenario;
+use softarm_config::scenario::{OnArm, Scenario};
 use softarm_ipc::Position;
+use softarm_kinematics::forward::ForwardModel;
+use softarm_kinematics::pcc;
 use softarm_learner::online_learner;
+
+/// The default `[arm]`'s actuators: the paper's arm.
+const N: usize = 6;
 
 const DEMO: &str = include_str!("../../../config/waypoints/demo.toml");
 const SECOND: &str = include_str!("../../../config/waypoints/second.toml");
 
 /// The stack of the default sim config with `model` and `algorithm`, its sim on `scenario`'s
 /// arm.
-fn setup<'a>(
-    model: &'a Model,
+fn setup<'a, const N: usize>(
+    model: &'a Model<N>,
     config: &'a Config,
     scenario: &str,
     algorithm: Algorithm,
-) -> Rehearsal<'a> {
-    let (arm, sim) = Scenario::resolve(scenario)
-        .unwrap()
-        .apply(&config.paper_arm().unwrap(), &config.sim)
-        .unwrap();
-    setup_on(model, config, arm, &sim, algorithm)
+) -> Rehearsal<'a, N> {
+    let on = on_arm(&config.arm, &config.sim, scenario);
+    setup_on(model, config, body(&on), &on.sim, algorithm)
 }
 
-/// The stack of `config` with `model` and `algorithm`, its sim on `arm` under `sim`.
-fn setup_on<'a>(
-    model: &'a Model,
+/// Scenario `name` on `arm` under `sim`.
+fn on_arm(arm: &ArmConfig, sim: &SimConfig, name: &str) -> OnArm {
+    Scenario::resolve(name).unwrap().apply_to(arm, sim).unwrap()
+}
+
+/// The sim's arm a scenario makes, its steps included.
+fn body(on: &OnArm) -> Body {
+    Body::of_arm(&on.arm, &on.steps).unwrap()
+}
+
+/// The sim's arm `arm`, nothing changing it.
+fn arm(arm: &ArmConfig) -> Body {
+    Body::of_arm(arm, &[]).unwrap()
+}
+
+/// The stack of `config` with `model` and `algorithm`, its sim on `body` under `sim`.
+fn setup_on<'a, const N: usize>(
+    model: &'a Model<N>,
     config: &'a Config,
-    arm: ArmGeometry,
+    body: Body,
     sim: &SimConfig,
     algorithm: Algorithm,
-) -> Rehearsal<'a> {
+) -> Rehearsal<'a, N> {
     let configured = LearnerConfig {
         algorithm,
         ..config.learner
@@ -41,14 +59,14 @@ fn setup_on<'a>(
         model.learner.clone(),
         model.kinematics.clone(),
         configured,
-        softarm_kinematics::pcc::Arm::of_geometry(&config.paper_arm().unwrap()),
+        pcc::Arm::of_config(&config.arm).unwrap(),
     )
     .unwrap();
-    Rehearsal::new(model, config, Learner::new(online, config), arm, sim).unwrap()
+    Rehearsal::new(model, config, Learner::new(online, config), body, sim).unwrap()
 }
 
 /// The mean error of each of `executions` executions of `set`.
-fn means(rehearsal: &mut Rehearsal, set: &str, executions: u32) -> Vec<f64> {
+fn means<const N: usize>(rehearsal: &mut Rehearsal<N>, set: &str, executions: u32) -> Vec<f64> {
     let set = WaypointFile::parse(set).unwrap();
     let stats = rehearsal.rehearse(&set, executions).unwrap();
     assert_eq!(stats.len(), executions as usize);
@@ -56,7 +74,7 @@ fn means(rehearsal: &mut Rehearsal, set: &str, executions: u32) -> Vec<f64> {
 }
 
 /// The demo set's mean error per execution, `executions` executions on `scenario`'s arm.
-fn run(model: &Model, scenario: &str, algorithm: Algorithm, executions: u32) -> Vec<f64> {
+fn run(model: &Model<N>, scenario: &str, algorithm: Algorithm, executions: u32) -> Vec<f64> {
     let config = Config::default_sim(".".into());
     means(
         &mut setup(model, &config, scenario, algorithm),
@@ -65,7 +83,7 @@ fn run(model: &Model, scenario: &str, algorithm: Algorithm, executions: u32) -> 
     )
 }
 
-fn quick() -> Model {
+fn quick() -> Model<N> {
     let dir = std::env::temp_dir().join(format!(
         "softarm-rehearsal-{}-{:?}",
         std::process::id(),
@@ -120,21 +138,16 @@ fn gauss_newton_adapts_to_a_changed_arm_where_the_paper_does_not() {
 fn what_the_demo_set_taught_carries_over_to_a_second_set() {
     let model = quick();
     let config = Config::default_sim(".".into());
-    let (tool, sim) = Scenario::resolve("tool-change")
-        .unwrap()
-        .apply(&config.paper_arm().unwrap(), &config.sim)
-        .unwrap();
+    let tool = on_arm(&config.arm, &config.sim, "tool-change");
     for plant in ["nominal", "not-pcc"] {
-        let (arm, sim) = Scenario::resolve(plant)
-            .unwrap()
-            .apply(&tool, &sim)
-            .unwrap();
-        let mut adapted = setup_on(&model, &config, arm, &sim, Algorithm::GaussNewton);
+        let on = on_arm(&tool.arm, &tool.sim, plant);
+        let (sim, arm) = (&on.sim, || body(&on));
+        let mut adapted = setup_on(&model, &config, arm(), sim, Algorithm::GaussNewton);
         let demo = means(&mut adapted, DEMO, 8);
         let adapted_lag = &adapted.lag().clone();
         let adapted = means(&mut adapted, SECOND, 1)[0];
         let mut fresh =
-            setup_on(&model, &config, arm, &sim, Algorithm::GaussNewton).with_lag(adapted_lag);
+            setup_on(&model, &config, arm(), sim, Algorithm::GaussNewton).with_lag(adapted_lag);
         let second = WaypointFile::parse(SECOND).unwrap();
         let first = fresh.rehearse(&second, 1).unwrap()[0];
         // The fresh learner corrects the rest of its first execution by what its first point
@@ -162,10 +175,10 @@ fn what_the_demo_set_taught_carries_over_to_a_second_set() {
 #[test]
 fn the_sim_steps_at_its_own_rate_on_the_newest_setpoint() {
     let sim = SimConfig::default();
-    let mut driver = SimDriver::new(ArmGeometry::default(), &sim).unwrap();
+    let mut driver = SimDriver::<N>::new(arm(&ArmConfig::default()), &sim).unwrap();
     let period = driver.period_ns;
     assert_eq!(period, 5_000_000, "sim.rate_hz 200 Hz");
-    let steps = |d: &SimDriver| (d.arm.plant().time() / d.arm.dt()).round() as u64;
+    let steps = |d: &SimDriver<N>| (d.arm.plant().time() / d.arm.dt()).round() as u64;
     assert_eq!(steps(&driver), 1);
     driver.run_until(period - 1, |_, _| ());
     assert_eq!(steps(&driver), 1);
@@ -176,7 +189,7 @@ fn the_sim_steps_at_its_own_rate_on_the_newest_setpoint() {
         "a sample published at a tick's instant is read by it"
     );
     let before = driver.newest;
-    driver.setpoint = Some([1.0; ACTUATORS]);
+    driver.setpoint = Some([1.0; N]);
     driver.run_until(period + 1, |_, _| ());
     assert_eq!(driver.newest, before, "nothing new between deadlines");
     driver.run_until(3 * period, |_, _| ());
@@ -191,7 +204,8 @@ fn the_sim_steps_at_its_own_rate_on_the_newest_setpoint() {
 /// passed, as hal-drivers/sim does under load.
 #[test]
 fn a_stalled_sim_steps_by_all_the_time_it_slept() {
-    let mut driver = SimDriver::new(ArmGeometry::default(), &SimConfig::default()).unwrap();
+    let mut driver =
+        SimDriver::<N>::new(arm(&ArmConfig::default()), &SimConfig::default()).unwrap();
     let period = driver.period_ns;
     driver.stalls = Some(StallClock::new(Stalls {
         of: Stalled::Sim,
@@ -262,29 +276,36 @@ fn moved(set: &str, d: [f64; 3]) -> WaypointFile {
 fn a_running_learner_keeps_up_with_an_arm_that_changes_and_is_never_worse_than_a_fresh_one() {
     let model = quick();
     let config = Config::default_sim(".".into());
-    let nominal = config.paper_arm().unwrap();
-    let mut longer = nominal;
-    longer.tool_m += 0.025;
-    longer.actuator_offset_m[2] = 0.003;
-    let mut turned = nominal;
-    turned.module_rotation_deg[0] += 7.0;
-    turned.actuator_radius_m = 0.027;
-    let mut shorter = nominal;
-    shorter.actuator_offset_m = [-0.002; ACTUATORS];
-    shorter.tool_m -= 0.01;
+    // The default [arm] (the paper's) as the shorthand writes it, and changed.
+    let nominal = config.arm.shorthand().unwrap();
+    let longer = ArmConfig {
+        tool_m: Some(0.055),
+        actuator_offset_m: Some(vec![0.0, 0.0, 0.003, 0.0, 0.0, 0.0]),
+        ..nominal.clone()
+    };
+    let turned = ArmConfig {
+        module_rotation_deg: Some([7.0, 60.0]),
+        actuator_radius_m: Some(0.027),
+        ..nominal.clone()
+    };
+    let shorter = ArmConfig {
+        actuator_offset_m: Some(vec![-0.002; N]),
+        tool_m: Some(0.02),
+        ..nominal.clone()
+    };
     let demo = WaypointFile::parse(DEMO).unwrap();
     let second = WaypointFile::parse(SECOND).unwrap();
     let near = moved(DEMO, [0.008, 0.006, -0.004]);
     let phases = [
-        ("nominal", nominal, &demo),
-        ("longer", longer, &demo),
-        ("turned", turned, &second),
-        ("nominal again", nominal, &demo),
-        ("shorter", shorter, &near),
+        ("nominal", &nominal, &demo),
+        ("longer", &longer, &demo),
+        ("turned", &turned, &second),
+        ("nominal again", &nominal, &demo),
+        ("shorter", &shorter, &near),
     ];
     let mut running = setup(&model, &config, "nominal", Algorithm::GaussNewton);
-    for (name, arm, set) in phases {
-        running.change_arm(arm).unwrap();
+    for (name, changed, set) in phases {
+        running.change_arm(arm(changed)).unwrap();
         // Beside the same controller: the lag it had measured when the set started.
         let lag = running.lag().clone();
         let ours: Vec<f64> = running
@@ -294,7 +315,7 @@ fn a_running_learner_keeps_up_with_an_arm_that_changes_and_is_never_worse_than_a
             .map(|s| s.mean_m)
             .collect();
         let mut fresh = setup(&model, &config, "nominal", Algorithm::GaussNewton).with_lag(&lag);
-        fresh.change_arm(arm).unwrap();
+        fresh.change_arm(arm(changed)).unwrap();
         let fresh: Vec<f64> = fresh
             .rehearse(set, 6)
             .unwrap()
@@ -335,13 +356,14 @@ fn a_restarted_learner_keeps_what_it_knew_of_the_arm() {
     use softarm_model::bundle::{read_checkpoint, write_checkpoint};
     let model = quick();
     let config = Config::default_sim(".".into());
-    let nominal = config.paper_arm().unwrap();
-    let mut longer = nominal;
-    longer.tool_m += 0.025;
+    let longer = ArmConfig {
+        tool_m: Some(0.055),
+        ..config.arm.clone()
+    };
     let demo = WaypointFile::parse(DEMO).unwrap();
     let mut rehearsal = setup(&model, &config, "nominal", Algorithm::GaussNewton);
     rehearsal.rehearse(&demo, 3).unwrap();
-    rehearsal.change_arm(longer).unwrap();
+    rehearsal.change_arm(arm(&longer)).unwrap();
     let adapting = rehearsal.rehearse(&demo, 4).unwrap();
     assert!(adapting[3].mean_m <= 0.002, "{:?}", adapting);
 
@@ -361,7 +383,7 @@ fn a_restarted_learner_keeps_what_it_knew_of_the_arm() {
         back.state,
         model.kinematics.clone(),
         config.learner,
-        softarm_kinematics::pcc::Arm::of_geometry(&config.paper_arm().unwrap()),
+        pcc::Arm::of_config(&config.arm).unwrap(),
     )
     .unwrap();
     restarted.restore_arm(&back.arm);
@@ -380,7 +402,7 @@ fn a_restarted_learner_keeps_what_it_knew_of_the_arm() {
     );
     // Back to nominal: seen through the restored footprint, so the next set starts as a fresh
     // learner would.
-    rehearsal.change_arm(nominal).unwrap();
+    rehearsal.change_arm(arm(&config.arm)).unwrap();
     let mut fresh =
         setup(&model, &config, "nominal", Algorithm::GaussNewton).with_lag(rehearsal.lag());
     let back_home = means(&mut rehearsal, DEMO, 1)[0];
@@ -449,11 +471,8 @@ fn every_set_of_a_soak_of_changing_arms_ends_within_2_5_mm() {
         }
         if t_s >= 120.0 * (scenario + 1) as f64 {
             let name = rotation[scenario % rotation.len()];
-            let (arm, _) = Scenario::resolve(name)
-                .unwrap()
-                .apply(&config.paper_arm().unwrap(), &config.sim)
-                .unwrap();
-            rehearsal.change_arm(arm).unwrap();
+            let on = on_arm(&config.arm, &config.sim, name);
+            rehearsal.change_arm(arm(&on.arm)).unwrap();
             scenario += 1;
         }
         let (set, executions) = softarm_rig::soak::sets::nth(
@@ -516,16 +535,15 @@ fn the_nominal_arm_settles_within_1_3_mm() {
 /// actuation in [0, 1] (five levels each), each grid point then refined by coordinate
 /// descent. Not the learner's own machinery: a brute force that knows the sim's arm.
 fn nearest_reach(target: &Position) -> f64 {
-    use softarm_kinematics::forward::ForwardModel;
-    let arm = softarm_kinematics::pcc::Arm::of_geometry(&ArmGeometry::default());
-    let off = |a: &[f64; ACTUATORS]| {
-        let p = arm.position(a);
+    let arm = pcc::Arm::of_config(&ArmConfig::default()).unwrap();
+    let off = |a: &[f64; N]| {
+        let p = ForwardModel::<N>::position(&arm, a);
         (0..3)
             .map(|d| (p[d] - target[d]).powi(2))
             .sum::<f64>()
             .sqrt()
     };
-    let mut starts: Vec<[f64; ACTUATORS]> = (0..5usize.pow(ACTUATORS as u32))
+    let mut starts: Vec<[f64; N]> = (0..5usize.pow(N as u32))
         .map(|k| std::array::from_fn(|i| (k / 5usize.pow(i as u32) % 5) as f64 / 4.0))
         .collect();
     starts.sort_by(|a, b| off(a).total_cmp(&off(b)));
@@ -534,7 +552,7 @@ fn nearest_reach(target: &Position) -> f64 {
         let mut h = 0.1;
         while h > 1e-5 {
             let mut moved = false;
-            for i in 0..ACTUATORS {
+            for i in 0..N {
                 for s in [h, -h] {
                     let mut b = a;
                     b[i] = (b[i] + s).clamp(0.0, 1.0);
@@ -558,9 +576,8 @@ fn nearest_reach(target: &Position) -> f64 {
 /// (Gauss-Newton clipped to the actuators' range stopped 14 mm further off there, held or not).
 #[test]
 fn a_target_beyond_reach_settles_at_the_nearest_place_and_spares_the_rest() {
-    use softarm_kinematics::forward::ForwardModel;
-    let arm = softarm_kinematics::pcc::Arm::of_geometry(&ArmGeometry::default());
-    let tip = arm.position(&[1.0; ACTUATORS]);
+    let arm = pcc::Arm::of_config(&ArmConfig::default()).unwrap();
+    let tip = ForwardModel::<N>::position(&arm, &[1.0; N]);
     let below = [tip[0], tip[1], tip[2] - 0.03];
     assert!((0.029..0.031).contains(&nearest_reach(&below)));
     let model = quick();
@@ -570,7 +587,7 @@ fn a_target_beyond_reach_settles_at_the_nearest_place_and_spares_the_rest() {
 }
 
 /// The demo set with its second point at `target`, beyond reach, beside the demo set.
-fn settles_at_the_nearest_place(model: &Model, target: Position) {
+fn settles_at_the_nearest_place(model: &Model<N>, target: Position) {
     let config = Config::default_sim(".".into());
     let mut beyond = WaypointFile::parse(DEMO).unwrap();
     beyond.point[1].position_m = target;

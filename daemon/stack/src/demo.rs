@@ -123,7 +123,7 @@ pub fn run(args: &Args, stop: &AtomicBool) -> anyhow::Result<()> {
     // On physics softarm did not write, the arm goes where its physics takes it, not where
     // PCC says: the derived set is taken from the model trained on it, after training.
     let on_the_model = args.set.is_none() && config.sim.mujoco.is_some();
-    if args.set.is_none() && config.paper_arm().is_err() && !on_the_model {
+    if args.set.is_none() && config.arm.shorthand().is_none() && !on_the_model {
         say_points(args, config, &file);
     }
 
@@ -370,7 +370,8 @@ pub fn demo_set(config: &Config) -> anyhow::Result<WaypointFile> {
         .map_err(anyhow::Error::msg)
         .context("the demo way-points")?;
     let layout = config.layout();
-    if config.paper_arm().is_ok() {
+    // The shipped points are the paper's, on its kind of arm.
+    if config.arm.shorthand().is_some() {
         return Ok(shipped);
     }
     let classes = softarm_method::skill::classes(&config.demonstrations, &layout);

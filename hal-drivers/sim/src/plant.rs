@@ -403,13 +403,13 @@ mod tests {
     const N: usize = 6;
 
     /// The default `[arm]` (the paper's arm).
-    fn paper_arm() -> pcc::Arm {
+    fn default_arm() -> pcc::Arm {
         pcc::Arm::of_config(&ArmConfig::default()).unwrap()
     }
 
     /// A plant of the default `[arm]` at rest at `initial`.
-    fn paper_plant(realism: Realism, initial: [f64; N]) -> Result<Plant, String> {
-        Plant::of_body(Body::Any(paper_arm()), realism, &initial)
+    fn default_plant(realism: Realism, initial: [f64; N]) -> Result<Plant, String> {
+        Plant::of_body(Body::Any(default_arm()), realism, &initial)
     }
 
     fn position(arm: &pcc::Arm, a: &[f64; N]) -> [f64; 3] {
@@ -418,7 +418,7 @@ mod tests {
 
     #[test]
     fn a_command_that_is_not_a_number_holds_the_actuator() {
-        let mut p = paper_plant(Realism::default(), [0.5; N]).unwrap();
+        let mut p = default_plant(Realism::default(), [0.5; N]).unwrap();
         for _ in 0..50 {
             p.step(&[0.6; N], 0.005);
         }
@@ -439,8 +439,8 @@ mod tests {
 
     #[test]
     fn with_every_effect_off_it_is_the_kinematic_model() {
-        let arm = paper_arm();
-        let mut plant = paper_plant(Realism::ideal(), [0.5; 6]).unwrap();
+        let arm = default_arm();
+        let mut plant = default_plant(Realism::ideal(), [0.5; 6]).unwrap();
         for k in 0..200 {
             let c: [f64; 6] = std::array::from_fn(|i| {
                 (0.5 + 0.4 * ((k + 7 * i) as f64 * 0.1).sin()).clamp(0.0, 1.0)
@@ -458,7 +458,7 @@ mod tests {
             rate_limit_per_s: 1.0,
             ..Realism::ideal()
         };
-        let mut plant = paper_plant(realism, [0.0; 6]).unwrap();
+        let mut plant = default_plant(realism, [0.0; 6]).unwrap();
         let m = plant.step(&[1.0; 6], 0.01);
         assert!(
             (m.actuation[0] - 0.01).abs() < 1e-12,
@@ -487,8 +487,8 @@ mod tests {
             },
         ] {
             let start = [0.2; N];
-            let mut short = paper_plant(realism, start).unwrap();
-            let mut long = paper_plant(realism, start).unwrap();
+            let mut short = default_plant(realism, start).unwrap();
+            let mut long = default_plant(realism, start).unwrap();
             let mut m = short.step(&[0.8; N], 0.005);
             for _ in 1..5 {
                 m = short.step(&[0.8; N], 0.005);
@@ -509,7 +509,7 @@ mod tests {
             backlash: 0.1,
             ..Realism::ideal()
         };
-        let mut plant = paper_plant(realism, [0.5; 6]).unwrap();
+        let mut plant = default_plant(realism, [0.5; 6]).unwrap();
         assert!((plant.step(&[0.7; 6], 0.01).actuation[0] - 0.65).abs() < 1e-12);
         // Reversing by less than the band moves nothing.
         assert!((plant.step(&[0.62; 6], 0.01).actuation[0] - 0.65).abs() < 1e-12);
@@ -523,7 +523,7 @@ mod tests {
             ..Realism::ideal()
         };
         let run = |seed| {
-            let mut p = paper_plant(Realism { seed, ..realism }, [0.5; 6]).unwrap();
+            let mut p = default_plant(Realism { seed, ..realism }, [0.5; 6]).unwrap();
             (0..2000)
                 .map(|_| p.step(&[0.5; 6], 0.002).position[0])
                 .collect::<Vec<_>>()
@@ -543,7 +543,7 @@ mod tests {
             actuation_noise_correlation_s: 0.1,
             ..Realism::ideal()
         };
-        let mut plant = paper_plant(realism, [0.5; 6]).unwrap();
+        let mut plant = default_plant(realism, [0.5; 6]).unwrap();
         // 1000 s at the sim's 200 Hz: 10 000 correlation times.
         let d: Vec<[f64; 6]> = (0..200_000)
             .map(|_| plant.step(&[0.5; 6], 0.005).actuation_of().map(|a| a - 0.5))
@@ -564,7 +564,7 @@ mod tests {
                 actuation_noise_correlation_s: tau,
                 ..realism
             };
-            let mut p = paper_plant(r, [0.5; 6]).unwrap();
+            let mut p = default_plant(r, [0.5; 6]).unwrap();
             let xs: Vec<[f64; 3]> = (0..2000)
                 .map(|_| p.step(&[0.5; 6], 0.005).position)
                 .collect();
@@ -584,7 +584,7 @@ mod tests {
     #[test]
     fn a_scenario_changes_the_arm_at_the_plants_time() {
         use softarm_sections::changes::{Drift, Rates};
-        let arm = paper_arm();
+        let arm = default_arm();
         let drift = Drift {
             creep_mm_per_min: Rates::new(&[0.0, 6.0, 0.0, 0.0, 0.0, 0.0]).unwrap(),
             ..Drift::default()
@@ -619,25 +619,29 @@ mod tests {
         // Creep at 6 mm/min: 0.1 mm a second, on the step's arm.
         let mut crept = [0.0; 6];
         crept[1] = 1.005e-4;
-        let want = pcc::Arm::of_config(&longer)
-            .unwrap()
-            .changed(0.0, 0.0, &crept, &[0.0; MAX_MODULES]);
+        let want =
+            pcc::Arm::of_config(&longer)
+                .unwrap()
+                .changed(0.0, 0.0, &crept, &[0.0; MAX_MODULES]);
         let a = [0.3, 0.6, 0.5, 0.4, 0.5, 0.6];
         let (got, want) = (position(plant.arm(), &a), position(&want, &a));
-        assert!((0..3).all(|d| (got[d] - want[d]).abs() < 1e-9), "{got:?} {want:?}");
+        assert!(
+            (0..3).all(|d| (got[d] - want[d]).abs() < 1e-9),
+            "{got:?} {want:?}"
+        );
         assert_ne!(position(&arm, &a), got);
     }
 
     #[test]
     fn a_curvature_taper_moves_the_tip_and_none_is_pcc() {
-        let arm = paper_arm();
+        let arm = default_arm();
         let a = [0.2, 0.8, 0.5, 0.9, 0.1, 0.4];
         let tapered = |c| {
             let r = Realism {
                 curvature_taper: c,
                 ..Realism::ideal()
             };
-            paper_plant(r, a).unwrap().step(&a, 0.005).position
+            default_plant(r, a).unwrap().step(&a, 0.005).position
         };
         assert_eq!(tapered(0.0), position(&arm, &a));
         let moved = (0..3)
@@ -677,7 +681,7 @@ mod tests {
         assert!(distance(&before, &after) > 0.001, "{before:?} {after:?}");
         let e = Body::stepped(start, &[(2.0, crept), (1.0, start)]).unwrap_err();
         assert!(e.starts_with("step[1].at_s"), "{e}");
-        let six = paper_arm();
+        let six = default_arm();
         let e = Body::stepped(start, &[(2.0, six)]).unwrap_err();
         assert!(e.starts_with("step[0]: an arm of 6 actuators"), "{e}");
     }
@@ -737,7 +741,7 @@ mod tests {
             drift_period_s: 10.0,
             ..Realism::ideal()
         };
-        let mut plant = paper_plant(realism, [0.5; 6]).unwrap();
+        let mut plant = default_plant(realism, [0.5; 6]).unwrap();
         let first = plant.step(&[0.5; 6], 0.002).position;
         let mut later = first;
         for _ in 0..1250 {
@@ -751,7 +755,7 @@ mod tests {
         assert!(moved > 5e-3 && moved < 0.05, "{moved}");
         assert!(
             Plant::of_body(
-                Body::Any(paper_arm()),
+                Body::Any(default_arm()),
                 Realism {
                     drift_period_s: 0.0,
                     ..realism
@@ -767,7 +771,7 @@ mod tests {
         let check = |r: Realism, want: &str| {
             let e = r.validate().unwrap_err();
             assert!(e.starts_with(want), "{e} (wanted {want:?})");
-            let e = paper_plant(r, [0.5; 6]).err().unwrap();
+            let e = default_plant(r, [0.5; 6]).err().unwrap();
             assert!(e.starts_with(want), "{e}");
         };
         let ideal = Realism::ideal();
@@ -813,7 +817,7 @@ mod tests {
             },
             "sim.realism.curvature_taper: must be in [0, 1]",
         );
-        let e = paper_plant(ideal, [0.5, 0.5, f64::NAN, 0.5, 0.5, 0.5]);
+        let e = default_plant(ideal, [0.5, 0.5, f64::NAN, 0.5, 0.5, 0.5]);
         assert!(
             e.err()
                 .unwrap()
