@@ -289,6 +289,28 @@ mod tests {
         assert_eq!(ArmConfig::default().layout().unwrap(), paper);
     }
 
+    /// The paper's arm written by its modules is the shorthand's arm; any other arm has no
+    /// shorthand.
+    #[test]
+    fn the_shorthand_writes_the_papers_kind_of_arm_alone() {
+        let modules = |text: &str| ArmConfig {
+            modules: Some(toml::from_str::<Description>(text).unwrap().modules),
+            ..ArmConfig::default()
+        };
+        let paper = modules(include_str!("../../../../ipc/arm/testdata/paper.toml"));
+        let shorthand = paper.shorthand().unwrap();
+        assert_eq!(shorthand, ArmConfig::default().shorthand().unwrap());
+        assert_eq!(shorthand.layout(), paper.layout());
+        assert_eq!(shorthand.shorthand().unwrap(), shorthand);
+        let tdcr = modules(include_str!("../../../../ipc/arm/testdata/tdcr.toml"));
+        assert_eq!(tdcr.shorthand(), None);
+        // Two modules of three tendons at other angles: not the paper's kind.
+        let mut turned = paper.clone();
+        let tendons = turned.modules.as_mut().unwrap()[1].tendons.as_mut().unwrap();
+        tendons.angles_deg = Some(vec![0.0, 90.0, 240.0]);
+        assert_eq!(turned.shorthand(), None);
+    }
+
     #[test]
     fn bad_shorthand_names_the_key() {
         let arm = ArmConfig {
