@@ -22,8 +22,8 @@ pub const MAX_TIME_S: f64 = 1e6;
 #[serde(deny_unknown_fields, default)]
 pub struct Drift {
     /// How fast each actuator lengthens (mm per minute; negative: shortens), from time 0, added
-    /// to the arm's `actuator_offset_m`: one per actuator of the arm, or none. The sum stops at ±0.05 m ([`MAX_OFFSET_M`](crate::arm::MAX_OFFSET_M))
-    /// (100 minutes at 0.5 mm/min): the arm stays valid however long the sim runs.
+    /// to the arm's `actuator_offset_m`: one per actuator of the arm, or none. The creep stops
+    /// at ±0.05 m (100 minutes at 0.5 mm/min): the arm stays valid however long the sim runs.
     #[schemars(with = "Vec<f64>")]
     pub creep_mm_per_min: Rates,
     /// Amplitude of the actuator radius's cycle (m): r(t) = r + A sin(2π t / P) for every
