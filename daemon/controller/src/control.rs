@@ -509,7 +509,9 @@ mod tests {
     use super::*;
     use crate::execution::tests::ready_set;
     use softarm_config::Config;
-    use softarm_ipc::ACTUATORS;
+
+    /// The default `[arm]`'s actuators.
+    const N: usize = 6;
 
     /// What the tick sent, as a rehearsal or the outbox would take it.
     #[derive(Default)]
@@ -519,7 +521,7 @@ mod tests {
         retired: usize,
     }
 
-    impl Outputs<ACTUATORS> for Sent {
+    impl Outputs<N> for Sent {
         fn setpoint(&mut self, s: Setpoint) {
             self.setpoints.push(s);
         }
@@ -527,7 +529,7 @@ mod tests {
         fn stats(&mut self, _: ExecutionStats) {
             self.stats += 1;
         }
-        fn retire(&mut self, _: Retired<ACTUATORS>) {
+        fn retire(&mut self, _: Retired<N>) {
             self.retired += 1;
         }
     }
@@ -536,15 +538,15 @@ mod tests {
 
     /// A tick `PERIOD_NS` after the last, the drivers' data stamped now if `fresh`.
     fn tick(
-        c: &mut Control<ACTUATORS>,
-        latest: &mut Latest<ACTUATORS>,
+        c: &mut Control<N>,
+        latest: &mut Latest<N>,
         now: &mut u64,
         fresh: bool,
         out: &mut Sent,
     ) {
         *now += PERIOD_NS;
         if fresh {
-            latest.take_motors(*now, [0.5; ACTUATORS]);
+            latest.take_motors(*now, [0.5; N]);
             latest.take_tracker(*now, [0.0, 0.0, -0.3]);
         }
         let d = c.tick(*now, 0, latest, None, out);

@@ -96,23 +96,25 @@ fn sample_at<const N: usize>(seq: &[[f64; N]], k: usize, ticks_per_sample: usize
 #[cfg(test)]
 mod tests {
     use super::*;
-    use softarm_ipc::ACTUATORS;
+
+    /// The default `[arm]`'s actuators.
+    const N: usize = 6;
 
     #[test]
     fn demonstrations_interpolate_between_samples() {
-        let seq = vec![[0.0; ACTUATORS], [1.0; ACTUATORS]];
-        assert_eq!(sample_at(&seq, 0, 4), [0.0; ACTUATORS]);
-        assert_eq!(sample_at(&seq, 2, 4), [0.5; ACTUATORS]);
-        assert_eq!(sample_at(&seq, 4, 4), [1.0; ACTUATORS]);
-        assert_eq!(sample_at(&seq, 9, 4), [1.0; ACTUATORS]);
+        let seq = vec![[0.0; N], [1.0; N]];
+        assert_eq!(sample_at(&seq, 0, 4), [0.0; N]);
+        assert_eq!(sample_at(&seq, 2, 4), [0.5; N]);
+        assert_eq!(sample_at(&seq, 4, 4), [1.0; N]);
+        assert_eq!(sample_at(&seq, 9, 4), [1.0; N]);
     }
 
     #[test]
     fn each_demonstration_rests_then_plays_tagged() {
         let sequences = DemoSequences {
             sequences: vec![
-                (3, vec![[0.0; ACTUATORS], [1.0; ACTUATORS]]),
-                (5, vec![[0.5; ACTUATORS], [0.25; ACTUATORS]]),
+                (3, vec![[0.0; N], [1.0; N]]),
+                (5, vec![[0.5; N], [0.25; N]]),
             ],
             ticks_per_sample: 2,
         };

@@ -415,7 +415,9 @@ pub(crate) mod tests {
     use super::*;
     use nalgebra::DMatrix;
     use softarm_config::activation::ActivationConfig;
-    use softarm_ipc::ACTUATORS;
+
+    /// The default `[arm]`'s actuators.
+    const N: usize = 6;
     use softarm_method::blend::{Planner, Replanner, Timeline};
     use softarm_method::promp::{Basis, Demonstration, Primitive, TrainConfig};
 
@@ -426,12 +428,7 @@ pub(crate) mod tests {
 
     /// One tick played at `clock` (in periods), the tracker at `REACHED` with a sample at the
     /// tick's time, the actuators' lag asking for no lead.
-    fn play(
-        x: &mut Execution<ACTUATORS>,
-        track: &mut Track,
-        clock: u64,
-        skipped: u64,
-    ) -> ExecutionTick<ACTUATORS> {
+    fn play(x: &mut Execution<N>, track: &mut Track, clock: u64, skipped: u64) -> ExecutionTick<N> {
         let now = clock * PERIOD;
         track.push(now, REACHED);
         let t = x.step(track, REST, 0, now, skipped);
@@ -443,7 +440,7 @@ pub(crate) mod tests {
         let demos: Vec<Demonstration> = (0..8)
             .map(|i| {
                 let times: Vec<f64> = (0..50).map(|s| 4.0 * s as f64 / 49.0).collect();
-                let values = DMatrix::from_fn(50, ACTUATORS, |r, d| {
+                let values = DMatrix::from_fn(50, N, |r, d| {
                     offset + 0.1 * (times[r] + 0.3 * d as f64 + 0.05 * i as f64).sin()
                 });
                 Demonstration::new(times, values)
@@ -458,8 +455,8 @@ pub(crate) mod tests {
     }
 
     /// A 4 s plan at 50 Hz through two way-points (at 1 s and 3 s).
-    pub(crate) fn planner() -> Planner<ACTUATORS> {
-        Planner::<ACTUATORS>::new(
+    pub(crate) fn planner() -> Planner<N> {
+        Planner::<N>::new(
             vec![primitive(0.4), primitive(0.6)],
             &[1.0, 3.0],
             &[0, 1],
@@ -471,11 +468,11 @@ pub(crate) mod tests {
     }
 
     /// [`planner`]'s set, executed twice.
-    pub(crate) fn ready_set() -> Box<ReadySet<ACTUATORS>> {
+    pub(crate) fn ready_set() -> Box<ReadySet<N>> {
         ready_set_and_replanner().0
     }
 
-    fn ready_set_and_replanner() -> (Box<ReadySet<ACTUATORS>>, Replanner<ACTUATORS>) {
+    fn ready_set_and_replanner() -> (Box<ReadySet<N>>, Replanner<N>) {
         let planner = planner();
         let mut points = [ConditioningPoint::default(); MAX_WAYPOINTS];
         let positions = [[0.1, 0.0, -0.3], [0.0, 0.2, -0.3]];
@@ -485,7 +482,7 @@ pub(crate) mod tests {
                 tick,
             };
         }
-        let (blend, replanner) = planner.start(&[[0.5; ACTUATORS]; 2]).unwrap();
+        let (blend, replanner) = planner.start(&[[0.5; N]; 2]).unwrap();
         let set = Box::new(ReadySet {
             set_id: 7,
             executions: 2,
@@ -505,7 +502,7 @@ pub(crate) mod tests {
         let mut x = Execution::new(set, REST, 0);
         let (mut track, mut clock) = (Track::default(), 0);
         let mut samples = Vec::new();
-        let mut step = |x: &mut Execution<ACTUATORS>| {
+        let mut step = |x: &mut Execution<N>| {
             clock += 1;
             let t = play(x, &mut track, clock, 0);
             samples.extend(t.point.map(|s| (s.execution, s.point, s.conditioned[0])));
@@ -519,7 +516,7 @@ pub(crate) mod tests {
         // It was corrected within the execution, and its target is beyond reach, which the
         // stats say of point 1.
         let within = ConditionedOn {
-            actuation: [0.6; ACTUATORS],
+            actuation: [0.6; N],
             execution: 1,
             within: true,
             beyond_reach: true,
@@ -532,11 +529,11 @@ pub(crate) mod tests {
 
         // Execution 2: group 0's estimate comes in the rest, in time; group 1's once group 1
         // is active (tick 100 of 200, between the points), so point 1 runs on execution 1's.
-        replanner.recondition(0, &[0.4; ACTUATORS], 2).unwrap();
+        replanner.recondition(0, &[0.4; N], 2).unwrap();
         for _ in 0..REST + 100 {
             assert!(step(&mut x).is_none());
         }
-        replanner.recondition(1, &[0.7; ACTUATORS], 2).unwrap();
+        replanner.recondition(1, &[0.7; N], 2).unwrap();
         let second = (0..1000).find_map(|_| step(&mut x)).unwrap();
         assert_eq!((second.execution, second.reconditions), (2, 1));
         // Point 1 ran on execution 1's estimate: corrected within that execution, not this;
@@ -675,12 +672,12 @@ pub(crate) mod tests {
     }
 
     fn x_step(
-        x: &mut Execution<ACTUATORS>,
+        x: &mut Execution<N>,
         track: &mut Track,
         clock: u64,
         rest: i64,
         lead: i64,
-    ) -> ExecutionTick<ACTUATORS> {
+    ) -> ExecutionTick<N> {
         let now = clock * PERIOD;
         track.push(now, REACHED);
         let t = x.step(track, rest, lead, now, 0);

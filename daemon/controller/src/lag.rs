@@ -11,11 +11,11 @@
 //!
 //! The estimate: per actuator, between two measured samples, the shortfall
 //! e = setpoint − measured at their midpoint against the measured velocity ṁ there,
-//! e ≈ c + τ ṁ (c: any steady offset, a sagged motor); τ by least squares over all six, the
-//! sums forgotten with a time constant of [`MEMORY_S`] so a changing arm is followed. A
-//! first-order lag T gives exactly e = T ṁ, in a slew's start and end too, so the slew of a
-//! set's first rest already tells it; a dead time d gives about d on smooth paths. Fixed size:
-//! the tick allocates nothing.
+//! e ≈ c + τ ṁ (c: any steady offset, a sagged motor); τ by least squares over all the
+//! actuators, the sums forgotten with a time constant of [`MEMORY_S`] so a changing arm is
+//! followed. A first-order lag T gives exactly e = T ṁ, in a slew's start and end too, so the
+//! slew of a set's first rest already tells it; a dead time d gives about d on smooth paths.
+//! Fixed size: the tick allocates nothing.
 
 /// Published setpoints kept: 256 ticks (0.5 s at 500 Hz), more than the lag and the measured
 /// samples' age at any supported rate.
@@ -187,7 +187,9 @@ impl<const N: usize> ActuatorLag<N> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use softarm_ipc::{ACTUATORS, Actuation};
+
+    /// The default `[arm]`'s actuators.
+    const N: usize = 6;
 
     const RATE_HZ: f64 = 500.0;
     const PERIOD: u64 = 2_000_000;
@@ -215,14 +217,14 @@ mod tests {
     /// Setpoints at 500 Hz along `path` for `seconds` from `lag`'s newest, the actuators
     /// following as `how` (from on the path), sampled every 5 ms, into `lag`.
     fn measure_into(
-        lag: &mut ActuatorLag<ACTUATORS>,
-        path: impl Fn(f64) -> Actuation,
+        lag: &mut ActuatorLag<N>,
+        path: impl Fn(f64) -> [f64; N],
         how: Actuators,
         seconds: f64,
     ) {
         let start = lag.newest().map_or(0, |(t, _)| t + PERIOD);
         let mut actuators = path(start as f64 * 1e-9);
-        let mut history: Vec<(u64, Actuation)> = Vec::new();
+        let mut history: Vec<(u64, [f64; N])> = Vec::new();
         let mut measured = None;
         for k in 0..(seconds * 1e9) as u64 / PERIOD {
             let now = start + k * PERIOD;
@@ -241,7 +243,7 @@ mod tests {
                     .find(|(s, _)| *s + how.dead_ns <= t)
                     .map_or(path(start as f64 * 1e-9), |(_, a)| *a);
                 let dt = PERIOD as f64 * 1e-10;
-                for i in 0..ACTUATORS {
+                for i in 0..N {
                     actuators[i] += (driving[i] - actuators[i]) * dt / how.lag_s;
                 }
             }
@@ -250,23 +252,23 @@ mod tests {
     }
 
     fn measure(
-        path: impl Fn(f64) -> Actuation,
+        path: impl Fn(f64) -> [f64; N],
         how: Actuators,
         seconds: f64,
         max_lead_s: f64,
-    ) -> ActuatorLag<ACTUATORS> {
+    ) -> ActuatorLag<N> {
         let mut lag = ActuatorLag::new(RATE_HZ, max_lead_s);
         measure_into(&mut lag, path, how, seconds);
         lag
     }
 
-    fn swinging(t: f64) -> Actuation {
+    fn swinging(t: f64) -> [f64; N] {
         std::array::from_fn(|i| 0.5 + 0.3 * (1.3 * t + i as f64).sin())
     }
 
     /// A set's first rest: three actuators slewed by 0.05 at the limiter's 1.5 per s, then
     /// held.
-    fn slew(t: f64) -> Actuation {
+    fn slew(t: f64) -> [f64; N] {
         let x = 0.5 + (1.5 * t).min(0.05);
         [x, x, x, 0.5, 0.5, 0.5]
     }
@@ -301,7 +303,7 @@ mod tests {
 
     #[test]
     fn the_lead_is_capped_and_none_until_the_arm_has_moved() {
-        let still = measure(|_| [0.5; ACTUATORS], SIM, 10.0, 0.1);
+        let still = measure(|_| [0.5; N], SIM, 10.0, 0.1);
         assert_eq!((still.lag_s(), still.lead_ns()), (None, 0));
         let slow = Actuators { lag_s: 0.3, ..SIM };
         assert_eq!(
@@ -339,35 +341,27 @@ mod tests {
     #[test]
     fn setpoints_between_ticks_are_interpolated_and_old_samples_not_taken_twice() {
         let mut lag = ActuatorLag::new(RATE_HZ, 0.1);
-        lag.published(0, &[0.0; ACTUATORS], None);
-        lag.published(PERIOD, &[1.0; ACTUATORS], None);
-        assert_eq!(lag.setpoint_at(PERIOD / 4), Some([0.25; ACTUATORS]));
-        assert_eq!(lag.setpoint_at(5 * PERIOD), Some([1.0; ACTUATORS]));
-        assert_eq!(lag.followed(PERIOD, 1), Some([0.0; ACTUATORS]));
-        assert_eq!(lag.followed(PERIOD, 0), Some([1.0; ACTUATORS]));
+        lag.published(0, &[0.0; N], None);
+        lag.published(PERIOD, &[1.0; N], None);
+        assert_eq!(lag.setpoint_at(PERIOD / 4), Some([0.25; N]));
+        assert_eq!(lag.setpoint_at(5 * PERIOD), Some([1.0; N]));
+        assert_eq!(lag.followed(PERIOD, 1), Some([0.0; N]));
+        assert_eq!(lag.followed(PERIOD, 0), Some([1.0; N]));
         assert_eq!(lag.followed(PERIOD, 2), None, "before the oldest kept");
         // A tick at the same time again is not kept.
-        lag.published(PERIOD, &[9.0; ACTUATORS], None);
-        assert_eq!(lag.setpoint_at(PERIOD), Some([1.0; ACTUATORS]));
+        lag.published(PERIOD, &[9.0; N], None);
+        assert_eq!(lag.setpoint_at(PERIOD), Some([1.0; N]));
         // The same measured sample read on many ticks counts once; a first sample only starts
         // a pair.
-        lag.published(
-            2 * PERIOD,
-            &[1.0; ACTUATORS],
-            Some((PERIOD, &[0.1; ACTUATORS])),
-        );
+        lag.published(2 * PERIOD, &[1.0; N], Some((PERIOD, &[0.1; N])));
         assert_eq!(lag.weight, 0.0);
         for k in 3..20 {
-            lag.published(
-                k * PERIOD,
-                &[1.0; ACTUATORS],
-                Some((3 * PERIOD, &[0.2; ACTUATORS])),
-            );
+            lag.published(k * PERIOD, &[1.0; N], Some((3 * PERIOD, &[0.2; N])));
         }
         assert_eq!(lag.weight, 1.0);
         // After a gap the driver was away for, a sample starts a pair again.
         let late = 3 * PERIOD + MAX_GAP_NS + 1;
-        lag.published(late, &[1.0; ACTUATORS], Some((late, &[0.3; ACTUATORS])));
+        lag.published(late, &[1.0; N], Some((late, &[0.3; N])));
         assert_eq!(lag.weight, 1.0);
     }
 }

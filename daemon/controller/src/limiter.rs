@@ -55,26 +55,22 @@ impl<const N: usize> Limiter<N> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use softarm_ipc::ACTUATORS;
+
+    /// The default `[arm]`'s actuators.
+    const N: usize = 6;
 
     #[test]
     fn the_limiter_clamps_and_slews() {
-        let mut l = Limiter::new(
-            [0.1; ACTUATORS],
-            [0.9; ACTUATORS],
-            1.0,
-            100.0,
-            [0.5; ACTUATORS],
-        );
-        let out = l.apply(&[1.0; ACTUATORS]);
+        let mut l = Limiter::new([0.1; N], [0.9; N], 1.0, 100.0, [0.5; N]);
+        let out = l.apply(&[1.0; N]);
         assert!((out[0] - 0.51).abs() < 1e-12);
         for _ in 0..100 {
-            l.apply(&[1.0; ACTUATORS]);
+            l.apply(&[1.0; N]);
         }
-        assert_eq!(l.last(), [0.9; ACTUATORS]);
-        let held = l.apply(&[f64::NAN; ACTUATORS]);
-        assert_eq!(held, [0.9; ACTUATORS]);
-        l.reset([0.0; ACTUATORS]);
-        assert_eq!(l.last(), [0.1; ACTUATORS]);
+        assert_eq!(l.last(), [0.9; N]);
+        let held = l.apply(&[f64::NAN; N]);
+        assert_eq!(held, [0.9; N]);
+        l.reset([0.0; N]);
+        assert_eq!(l.last(), [0.1; N]);
     }
 }

@@ -448,12 +448,14 @@ fn estimate_deadline(now: Instant, timeout_s: f64) -> Option<Instant> {
 mod tests {
     use super::*;
     use crate::execution::tests::planner;
-    use softarm_ipc::ACTUATORS;
+
+    /// The default `[arm]`'s actuators.
+    const N: usize = 6;
 
     /// An estimate of `a` for every actuator, for execution 2.
-    fn on(a: f64) -> ConditionedOn<ACTUATORS> {
+    fn on(a: f64) -> ConditionedOn<N> {
         ConditionedOn {
-            actuation: [a; ACTUATORS],
+            actuation: [a; N],
             execution: 2,
             ..ConditionedOn::NONE
         }
@@ -461,8 +463,8 @@ mod tests {
 
     #[test]
     fn a_queued_set_leaves_the_running_set_its_replanner() {
-        let (mut running, r) = planner().start(&[[0.5; ACTUATORS]; 2]).unwrap();
-        let (mut queued, q) = planner().start(&[[0.5; ACTUATORS]; 2]).unwrap();
+        let (mut running, r) = planner().start(&[[0.5; N]; 2]).unwrap();
+        let (mut queued, q) = planner().start(&[[0.5; N]; 2]).unwrap();
         let mut handed = Replanners::default();
         handed.add(1, r);
         handed.add(2, q);

@@ -554,7 +554,9 @@ fn observe_and_estimate<const N: usize>(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use softarm_ipc::{ACTUATORS, Actuation};
+
+    /// The default `[arm]`'s actuators.
+    const N: usize = 6;
 
     fn sample() -> ConditioningSample {
         ConditioningSample {
@@ -564,16 +566,16 @@ mod tests {
             next_point: 0,
             execution: 1,
             next_execution: 2,
-            actuation: [0.5; ACTUATORS].into(),
-            measured: [f64::NAN; ACTUATORS].into(),
-            conditioned: [0.5; ACTUATORS].into(),
+            actuation: [0.5; N].into(),
+            measured: [f64::NAN; N].into(),
+            conditioned: [0.5; N].into(),
             ..Default::default()
         }
     }
 
     #[test]
     fn malformed_samples_are_refused_with_a_reason() {
-        assert_eq!(check::<ACTUATORS>(&sample()), Ok(()));
+        assert_eq!(check::<N>(&sample()), Ok(()));
         let bad = [
             ConditioningSample {
                 points: 0,
@@ -627,17 +629,17 @@ mod tests {
         ];
         // Not known (all NaN) is fine.
         assert_eq!(
-            check::<ACTUATORS>(&ConditioningSample {
+            check::<N>(&ConditioningSample {
                 conditioned: [f64::NAN; 6].into(),
                 ..sample()
             }),
             Ok(())
         );
         for s in bad {
-            assert!(check::<ACTUATORS>(&s).is_err(), "{s:?}");
+            assert!(check::<N>(&s).is_err(), "{s:?}");
         }
         // The field is named.
-        let why = |s| check::<ACTUATORS>(&s).unwrap_err();
+        let why = |s| check::<N>(&s).unwrap_err();
         assert!(
             why(ConditioningSample {
                 point: 7,
@@ -749,27 +751,24 @@ mod tests {
         //! answers is a finite actuation in [0, 1].
         use super::*;
         use proptest::prelude::*;
-        use softarm_config::arm::ArmGeometry;
+        use softarm_config::arm::ArmConfig;
         use softarm_config::kinematics::PolynomialConfig;
         use softarm_config::learner::LearnerConfig;
         use softarm_kinematics::forward::ForwardModel;
+        use softarm_kinematics::pcc;
         use softarm_kinematics::poly::Polynomial;
         use softarm_learning::cacla::CaclaMtl;
 
-        pub(super) fn learner() -> OnlineLearner<ACTUATORS> {
-            let arm = ArmGeometry::default();
-            let a: Vec<Actuation> = (0..400)
+        pub(super) fn learner() -> OnlineLearner<N> {
+            let arm = pcc::Arm::of_config(&ArmConfig::default()).unwrap();
+            let a: Vec<[f64; N]> = (0..400)
                 .map(|i| {
                     std::array::from_fn(|j| 0.2 + 0.6 * (((i * 7 + j * 13) % 37) as f64 / 36.0))
                 })
                 .collect();
             let p: Vec<_> = a.iter().map(|a| arm.position(a)).collect();
             let poly = Polynomial::fit(&a, &p, &PolynomialConfig::default()).unwrap();
-            OnlineLearner::new(
-                CaclaMtl::new(LearnerConfig::default()).unwrap(),
-                poly,
-                softarm_kinematics::pcc::Arm::of_geometry(&arm),
-            )
+            OnlineLearner::new(CaclaMtl::new(LearnerConfig::default()).unwrap(), poly, arm)
         }
 
         fn value() -> impl Strategy<Value = f64> {
@@ -833,7 +832,7 @@ mod tests {
             ) {
                 let mut l = learner();
                 for s in samples {
-                    if check::<ACTUATORS>(&s).is_err() {
+                    if check::<N>(&s).is_err() {
                         continue;
                     }
                     if l.points() != s.points as usize {

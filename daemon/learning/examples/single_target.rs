@@ -1,4 +1,5 @@
-//! Diagnostic: CACLA-MTL on one target against the PCC model; prints the moving error.
+//! Diagnostic: CACLA-MTL on one target against the default `[arm]`'s PCC model; prints the
+//! moving error.
 //!
 //! `LEARNER="alpha_actor = 0.3; sigma_max = 0.02" cargo run --release -p softarm-learning \
 //!  --example single_target` overrides `[learner]` keys (`;` separates them).
@@ -6,10 +7,14 @@
 use std::process::ExitCode;
 
 use softarm_kinematics::forward::ForwardModel;
+use softarm_kinematics::pcc;
 use softarm_learning::cacla::CaclaMtl;
-use softarm_sections::arm::ArmGeometry;
+use softarm_sections::arm::ArmConfig;
 use softarm_sections::learner::LearnerConfig;
 use softarm_space::distance;
+
+/// The default `[arm]`'s actuators.
+const N: usize = 6;
 
 fn main() -> ExitCode {
     let overrides = std::env::var("LEARNER")
@@ -22,14 +27,14 @@ fn main() -> ExitCode {
             return ExitCode::from(2);
         }
     };
-    let mut l = match CaclaMtl::new(config) {
+    let mut l = match CaclaMtl::<N>::new(config) {
         Ok(l) => l,
         Err(e) => {
             eprintln!("LEARNER: {e}");
             return ExitCode::from(2);
         }
     };
-    let arm = ArmGeometry::default();
+    let arm = pcc::Arm::of_config(&ArmConfig::default()).expect("the default [arm]");
     let target = arm.position(&[0.3, 0.6, 0.7, 0.55, 0.4, 0.5]);
     let (mut sum, mut improved, mut n) = (0.0, 0, 0);
     let mut memory = None;

@@ -6,7 +6,7 @@
 
 use softarm_kinematics::forward::ForwardModel;
 use softarm_sections::learner::GaussNewtonConfig;
-use softarm_space::{ACTUATORS, Position, distance};
+use softarm_space::{Position, distance};
 
 /// Targets closer than this are the same point of the corrections (m).
 const SAME_TARGET_M: f64 = 1e-3;
@@ -27,7 +27,7 @@ const SAME_TARGET_M: f64 = 1e-3;
 /// residual, made it worse (5.7 mm; a best try's actuation moves freely along the null space of
 /// the arm's Jacobian, which carried to another target moves the tip).
 #[derive(Debug, Clone, Default)]
-pub struct Corrections<const N: usize = ACTUATORS> {
+pub struct Corrections<const N: usize> {
     /// At most `transfer_points`, one per target, oldest first.
     points: Vec<Corrected<N>>,
 }
@@ -97,7 +97,7 @@ impl<const N: usize> Corrections<N> {
 
 /// One visited target's correction.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Corrected<const N: usize = ACTUATORS> {
+pub struct Corrected<const N: usize> {
     pub target: Position,
     /// The estimate the target's next visit would have had (the step from its best or last
     /// try; the best try's until that step is known): a set that comes back to this very
@@ -107,7 +107,7 @@ pub struct Corrected<const N: usize = ACTUATORS> {
 
 /// Samples kept of the arm (one per neighbourhood of the actuation space).
 pub const FOOTPRINT_SAMPLES: usize = 256;
-/// Two actuations closer than this (normalised, Euclidean over the six) are one neighbourhood,
+/// Two actuations closer than this (normalised, Euclidean over the `N`) are one neighbourhood,
 /// where the arm is where it was within about a millimetre (twice the actuation noise; the
 /// trained model's slope is not used to carry a sample further: off the demonstrations it is
 /// wrong by more than the changes to be seen).
@@ -225,7 +225,7 @@ const FOOTPRINT_AGE_NS: u64 = 600_000_000_000;
 /// calibration, which wants the arm where it goes, and never judged by: how far it lags
 /// depends on the way it came.
 #[derive(Debug, Clone, Default)]
-pub struct Footprint<const N: usize = ACTUATORS> {
+pub struct Footprint<const N: usize> {
     /// At most [`FOOTPRINT_SAMPLES`], the oldest first.
     samples: Vec<Sample<N>>,
     /// The last [`RECENT`] (stamp, actuation), for the actuators' speed.
@@ -255,7 +255,7 @@ pub struct Footprint<const N: usize = ACTUATORS> {
 /// The arm's position at one neighbourhood of the actuation space: the average of the samples
 /// taken there, as of the newest.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Sample<const N: usize = ACTUATORS> {
+pub struct Sample<const N: usize> {
     pub stamp_ns: u64,
     pub actuation: [f64; N],
     pub position: Position,
@@ -738,18 +738,18 @@ pub(crate) fn actuation_distance<const N: usize>(a: &[f64; N], b: &[f64; N]) -> 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use softarm_sections::arm::ArmGeometry;
-    use softarm_space::Actuation;
+    use crate::default_arm::{N, arm, longer_tool};
+    use softarm_kinematics::pcc;
 
     const MS: u64 = 1_000_000;
 
     /// One sample through `f`, checked by the nominal arm's slope at a 4 mm threshold.
-    fn check(f: &mut Footprint, stamp_ns: u64, a: &Actuation, p: &Position) -> Seen {
-        f.observe(&ArmGeometry::default(), 0.004, stamp_ns, a, p)
+    fn check(f: &mut Footprint<N>, stamp_ns: u64, a: &[f64; N], p: &Position) -> Seen {
+        f.observe(&arm(), 0.004, stamp_ns, a, p)
     }
 
     /// `arm` held at `a` for `ms`, sampled every 5 ms from `t0`; what the footprint said last.
-    fn hold(f: &mut Footprint, arm: &ArmGeometry, a: &Actuation, t0: u64, ms: u64) -> Vec<Seen> {
+    fn hold(f: &mut Footprint<N>, arm: &pcc::Arm, a: &[f64; N], t0: u64, ms: u64) -> Vec<Seen> {
         (0..ms / 5)
             .map(|k| check(f, t0 + k * 5 * MS, a, &arm.position(a)))
             .collect()
@@ -761,19 +761,18 @@ mod tests {
     /// long enough to be seen to settle at once: before that no check concludes.)
     #[test]
     fn an_arm_back_a_little_off_where_it_stood_is_checked_by_the_arms_slope() {
-        let model = ArmGeometry::default();
+        let model = arm();
         let a = [0.4, 0.6, 0.5, 0.55, 0.45, 0.5];
-        let off: Actuation = std::array::from_fn(|i| a[i] + [0.004, -0.004][i % 2]);
-        let mut longer = model;
-        longer.tool_m += 0.02;
-        let mut f = Footprint::default();
+        let off: [f64; N] = std::array::from_fn(|i| a[i] + [0.004, -0.004][i % 2]);
+        let longer = longer_tool(0.02);
+        let mut f = Footprint::<N>::default();
         hold(&mut f, &model, &a, 0, 400);
         let seen = hold(&mut f, &longer, &off, 460 * MS, 200);
         assert!(
             seen.iter().any(|s| matches!(s, Seen::Changed(_))),
             "{seen:?}"
         );
-        let mut same = Footprint::default();
+        let mut same = Footprint::<N>::default();
         hold(&mut same, &model, &a, 0, 400);
         let seen = hold(&mut same, &model, &off, 460 * MS, 400);
         assert!(seen.contains(&Seen::Same), "{seen:?}");
@@ -787,8 +786,8 @@ mod tests {
 
     #[test]
     fn a_disagreement_left_alone_is_forgotten_and_the_arm_still_checked() {
-        let model = ArmGeometry::default();
-        let mut f = Footprint::default();
+        let model = arm();
+        let mut f = Footprint::<N>::default();
         let a = [0.4, 0.6, 0.5, 0.55, 0.45, 0.5];
         hold(&mut f, &model, &a, 0, 200);
         // One sample 10 mm off where the arm stood (a bump), and the arm goes elsewhere.
@@ -801,8 +800,7 @@ mod tests {
         let b = [0.6, 0.4, 0.5, 0.45, 0.55, 0.5];
         hold(&mut f, &model, &b, 3_000 * MS, 3_000);
         // Where it went is known, so a change there is seen.
-        let mut longer = model;
-        longer.tool_m += 0.02;
+        let longer = longer_tool(0.02);
         let seen = hold(&mut f, &longer, &b, 6_000 * MS, 200);
         assert!(
             seen.iter().any(|s| matches!(s, Seen::Changed(_))),
@@ -812,8 +810,8 @@ mod tests {
 
     #[test]
     fn a_changed_arm_is_seen_where_it_stood_still_and_the_same_arm_never() {
-        let model = ArmGeometry::default();
-        let mut f = Footprint::default();
+        let model = arm();
+        let mut f = Footprint::<N>::default();
         let a = [0.4, 0.6, 0.5, 0.55, 0.45, 0.5];
         assert_eq!(f.judged_after_s(), None);
         let seen = hold(&mut f, &model, &a, 0, 400);
@@ -822,17 +820,14 @@ mod tests {
         // It follows its actuators: judged as soon as they stand still.
         assert_eq!(f.judged_after_s(), Some(0.0));
         // Nearby, still the same arm.
-        let b: Actuation = std::array::from_fn(|i| a[i] + 0.001);
+        let b: [f64; N] = std::array::from_fn(|i| a[i] + 0.001);
         let seen = hold(&mut f, &model, &b, 500 * MS, 200);
         assert!(
             seen.iter().all(|s| matches!(s, Seen::Same | Seen::Nothing)),
             "{seen:?}"
         );
         // A tool 20 mm longer, at the same actuation: seen within a few samples.
-        let tool = ArmGeometry {
-            tool_m: model.tool_m + 0.02,
-            ..model
-        };
+        let tool = longer_tool(0.02);
         let seen = hold(&mut f, &tool, &a, 800 * MS, 200);
         let changed = seen
             .iter()
@@ -849,18 +844,15 @@ mod tests {
 
     #[test]
     fn a_moving_arm_is_not_checked() {
-        let model = ArmGeometry::default();
-        let tool = ArmGeometry {
-            tool_m: model.tool_m + 0.02,
-            ..model
-        };
-        let mut f = Footprint::default();
-        let a = [0.5; ACTUATORS];
+        let model = arm();
+        let tool = longer_tool(0.02);
+        let mut f = Footprint::<N>::default();
+        let a = [0.5; N];
         hold(&mut f, &model, &a, 0, 200);
         // Sweeping through the same actuations at 0.5 per s on the other arm: never judged.
         for k in 0..200u64 {
             let x = 0.45 + (k % 40) as f64 * 0.0025;
-            let b = [x; ACTUATORS];
+            let b = [x; N];
             let seen = check(&mut f, (300 + 5 * k) * MS, &b, &tool.position(&b));
             assert_eq!(seen, Seen::Nothing);
         }
@@ -868,16 +860,13 @@ mod tests {
 
     #[test]
     fn an_arm_changed_right_after_it_slowed_to_a_stop_is_seen() {
-        let model = ArmGeometry::default();
-        let tool = ArmGeometry {
-            tool_m: model.tool_m + 0.02,
-            ..model
-        };
-        let mut f = Footprint::default();
+        let model = arm();
+        let tool = longer_tool(0.02);
+        let mut f = Footprint::<N>::default();
         // Slowing into [0.5; 6] at 0.2 per s (Euclidean), never still on the old arm.
-        let end = [0.5; ACTUATORS];
+        let end = [0.5; N];
         for k in 0..60u64 {
-            let back = (60 - k) as f64 * 0.001 / (ACTUATORS as f64).sqrt();
+            let back = (60 - k) as f64 * 0.001 / (N as f64).sqrt();
             let a = end.map(|v| v - back);
             let seen = check(&mut f, k * 5 * MS, &a, &model.position(&a));
             assert_eq!(seen, Seen::Nothing);
@@ -892,16 +881,13 @@ mod tests {
 
     #[test]
     fn an_arm_changed_while_its_driver_was_away_is_seen_where_it_came_back() {
-        let model = ArmGeometry::default();
-        let tool = ArmGeometry {
-            tool_m: model.tool_m + 0.02,
-            ..model
-        };
-        let mut f = Footprint::default();
+        let model = arm();
+        let tool = longer_tool(0.02);
+        let mut f = Footprint::<N>::default();
         // Moving fast into [0.5; 6] (2 per s): nothing kept on the old arm.
-        let end = [0.5; ACTUATORS];
+        let end = [0.5; N];
         for k in 0..20u64 {
-            let back = (20 - k) as f64 * 0.01 / (ACTUATORS as f64).sqrt();
+            let back = (20 - k) as f64 * 0.01 / (N as f64).sqrt();
             let a = end.map(|v| v - back);
             check(&mut f, k * 5 * MS, &a, &model.position(&a));
         }
@@ -924,7 +910,7 @@ mod tests {
         };
         let at = |x: f64, v: f64| Corrected {
             target: [x, 0.0, -0.5],
-            estimate: [0.5 + v; ACTUATORS],
+            estimate: [0.5 + v; N],
         };
         let mut k = Corrections::default();
         assert!(k.is_empty());
@@ -934,7 +920,7 @@ mod tests {
         k.set(&c, at(0.2, 0.4));
         // At capacity the oldest goes: the one set second (the first was renewed).
         assert_eq!(k.points(), [at(0.0, 0.3), at(0.2, 0.4)]);
-        assert_eq!(k.visited(&[0.0, 0.0, -0.5005]), Some([0.8; ACTUATORS]));
+        assert_eq!(k.visited(&[0.0, 0.0, -0.5005]), Some([0.8; N]));
         assert_eq!(k.visited(&[0.1, 0.0, -0.5]), None);
         let back = Corrections::from_points(&c, k.points());
         assert_eq!(back.points(), k.points());
@@ -944,30 +930,31 @@ mod tests {
 #[cfg(test)]
 mod turned {
     use super::*;
+    use crate::default_arm::{N, arm, longer_tool};
     use rand::rngs::StdRng;
     use rand::{RngExt, SeedableRng};
-    use softarm_sections::arm::ArmGeometry;
-    use softarm_space::Actuation;
+    use softarm_kinematics::pcc;
+    use softarm_sections::arm::ArmConfig;
 
     const MS: u64 = 1_000_000;
 
-    /// The paper's arm sampled through `executions` of five postures and a rest, each
+    /// The default `[arm]` sampled through `executions` of five postures and a rest, each
     /// execution's postures a little off the last's (a learner's steps), moving between them
     /// at 0.3 per s and holding 150 ms, with actuation and tracker noise, into `f` checked by
     /// `configured`'s slope; from `t` (ns), returned at the end. Changes seen, and the
     /// furthest off any check found the arm (m).
     fn visit(
-        f: &mut Footprint,
-        configured: &ArmGeometry,
-        real: &ArmGeometry,
+        f: &mut Footprint<N>,
+        configured: &pcc::Arm,
+        real: &pcc::Arm,
         executions: usize,
         t: &mut u64,
     ) -> (usize, f64) {
         let mut rng = StdRng::seed_from_u64(3);
-        let postures: Vec<Actuation> = (0..5)
+        let postures: Vec<[f64; N]> = (0..5)
             .map(|_| std::array::from_fn(|_| rng.random_range(0.35..0.65)))
             .collect();
-        let rest = [0.5; ACTUATORS];
+        let rest = [0.5; N];
         let (mut changed, mut worst) = (0, 0.0f64);
         let mut at = rest;
         for e in 0..executions {
@@ -985,7 +972,7 @@ mod turned {
                 for k in 1..=steps + 30 {
                     let s = (k as f64 / steps as f64).min(1.0);
                     at = std::array::from_fn(|i| from[i] + s * (target[i] - from[i]));
-                    let a: Actuation =
+                    let a: [f64; N] =
                         std::array::from_fn(|i| at[i] + rng.random_range(-0.001..0.001));
                     let mut p = real.position(&a);
                     for v in &mut p {
@@ -1012,20 +999,21 @@ mod turned {
     /// and a tool 20 mm longer is still seen where the arm stood.
     #[test]
     fn an_arm_configured_with_its_tendons_turned_reads_as_the_same_arm() {
-        let real = ArmGeometry::default();
+        let real = arm();
         for turn in [60.0, 120.0, 180.0] {
-            let mut configured = real;
-            configured.module_rotation_deg = [turn, 60.0 + turn];
-            let mut f = Footprint::default();
+            let configured = crate::default_arm::of(&ArmConfig {
+                module_rotation_deg: Some([turn, 60.0 + turn]),
+                ..Default::default()
+            });
+            let mut f = Footprint::<N>::default();
             let mut t = 0;
             let (changed, worst) = visit(&mut f, &configured, &real, 20, &mut t);
             assert_eq!(changed, 0, "turned {turn}°: off by up to {worst} m");
             let doubt = f.slope_doubt(&configured, 0.004);
             assert!(doubt > SLOPE_DOUBT, "turned {turn}°: {doubt}");
             // Held at the rest posture as before, with a longer tool: seen.
-            let mut longer = real;
-            longer.tool_m += 0.02;
-            let rest = [0.5; ACTUATORS];
+            let longer = longer_tool(0.02);
+            let rest = [0.5; N];
             let seen: Vec<Seen> = (0..60)
                 .map(|k| {
                     let at = t + (300 + 5 * k) * MS;
@@ -1038,7 +1026,7 @@ mod turned {
             );
         }
         // The arm as configured: its slope is not doubted beyond the floor.
-        let mut f = Footprint::default();
+        let mut f = Footprint::<N>::default();
         let (changed, _) = visit(&mut f, &real, &real, 20, &mut 0);
         assert_eq!(changed, 0);
         assert_eq!(f.slope_doubt(&real, 0.004), SLOPE_DOUBT);
@@ -1048,8 +1036,8 @@ mod turned {
     /// kept: where a settled arm would be, the check would find it off.
     #[test]
     fn a_tip_still_swinging_is_not_compared_as_still() {
-        let real = ArmGeometry::default();
-        let mut f = Footprint::default();
+        let real = arm();
+        let mut f = Footprint::<N>::default();
         let a = [0.4, 0.6, 0.5, 0.55, 0.45, 0.5];
         let at = real.position(&a);
         for k in 0..40u64 {
@@ -1060,10 +1048,10 @@ mod turned {
         }
         // Away and back at 1 per s, the tip following, and at `a` the tip swings on ±8 mm at
         // 2 Hz, decaying, the actuators still: never judged while it is far off.
-        let b: Actuation = std::array::from_fn(|i| a[i] + 0.04);
+        let b: [f64; N] = std::array::from_fn(|i| a[i] + 0.04);
         let mut t = 200 * MS;
         for k in (0..=20).chain((0..=20).rev()) {
-            let x: Actuation = std::array::from_fn(|i| a[i] + k as f64 / 20.0 * (b[i] - a[i]));
+            let x: [f64; N] = std::array::from_fn(|i| a[i] + k as f64 / 20.0 * (b[i] - a[i]));
             t += 5 * MS;
             f.observe(&real, 0.004, t, &x, &real.position(&x));
         }
@@ -1084,10 +1072,10 @@ mod turned {
 #[cfg(test)]
 mod settling {
     use super::*;
+    use crate::default_arm::{N, arm, longer_tool};
     use rand::rngs::StdRng;
     use rand::{RngExt, SeedableRng};
-    use softarm_sections::arm::ArmGeometry;
-    use softarm_space::Actuation;
+    use softarm_kinematics::pcc;
 
     const MS: u64 = 1_000_000;
 
@@ -1097,19 +1085,19 @@ mod settling {
     /// Changes seen, and the furthest any sample kept as settled lies from where the settled
     /// arm would be at its actuation (m).
     fn lagging(
-        f: &mut Footprint,
-        arm: &ArmGeometry,
+        f: &mut Footprint<N>,
+        arm: &pcc::Arm,
         tau_s: f64,
         hold_ms: u64,
         t: &mut u64,
     ) -> (usize, f64) {
         let mut rng = StdRng::seed_from_u64(5);
-        let rest = [0.5; ACTUATORS];
+        let rest = [0.5; N];
         let mut at = rest;
         let mut lagged = rest;
         let mut changed = 0;
         for _ in 0..12 {
-            let mut targets: Vec<Actuation> = (0..5)
+            let mut targets: Vec<[f64; N]> = (0..5)
                 .map(|_| std::array::from_fn(|_| rng.random_range(0.35..0.65)))
                 .collect();
             targets.push(rest);
@@ -1149,8 +1137,8 @@ mod settling {
     /// a calibrated arm fitted to lagging samples, 50 mm of tool where there is none).
     #[test]
     fn an_arm_that_creeps_after_its_actuators_stop_is_judged_only_once_settled() {
-        let arm = ArmGeometry::default();
-        let mut f = Footprint::default();
+        let arm = arm();
+        let mut f = Footprint::<N>::default();
         let mut t = 0;
         let (changed, worst) = lagging(&mut f, &arm, 0.3, 2_500, &mut t);
         assert_eq!(changed, 0);
@@ -1162,9 +1150,8 @@ mod settling {
             "a sample kept {worst} m from the settled arm"
         );
         // Held, with a tool 20 mm longer: seen once settled.
-        let mut longer = arm;
-        longer.tool_m += 0.02;
-        let rest = [0.5; ACTUATORS];
+        let longer = longer_tool(0.02);
+        let rest = [0.5; N];
         let seen: Vec<Seen> = (1..=600)
             .map(|k| f.observe(&arm, 0.004, t + 5 * k * MS, &rest, &longer.position(&rest)))
             .collect();
@@ -1177,8 +1164,8 @@ mod settling {
     /// Holds shorter than the arm takes to settle: nothing to judge it by, never a change.
     #[test]
     fn an_arm_never_given_time_to_settle_is_never_a_change() {
-        let arm = ArmGeometry::default();
-        let mut f = Footprint::default();
+        let arm = arm();
+        let mut f = Footprint::<N>::default();
         let (changed, worst) = lagging(&mut f, &arm, 0.3, 400, &mut 0);
         assert_eq!(changed, 0);
         assert!(

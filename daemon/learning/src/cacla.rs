@@ -13,7 +13,7 @@ use rand_distr::{Distribution, StandardNormal};
 use softarm_kinematics::forward::ForwardModel;
 use softarm_kinematics::rbf::{Features, Lattice, LinearRbf, RbfError};
 use softarm_sections::learner::{LearnerConfig, PretrainConfig};
-use softarm_space::{ACTUATORS, Position, distance};
+use softarm_space::{Position, distance};
 
 /// Alg. 1's memory of one conditioning point: k_n, and the state and error of its last visit,
 /// which the next visit's δ needs. Held by whoever visits the points, not by [`CaclaMtl`] (which
@@ -44,7 +44,7 @@ pub struct Visit {
 /// Everything that makes a learner what it is (of an arm of `N` actuators): what a bundle or a
 /// checkpoint saves, restored exactly.
 #[derive(Debug, Clone, PartialEq)]
-pub struct LearnerState<const N: usize = ACTUATORS> {
+pub struct LearnerState<const N: usize> {
     pub config: LearnerConfig,
     pub actor: Vec<(u64, [f64; N])>,
     pub critic: Vec<(u64, [f64; 1])>,
@@ -83,7 +83,7 @@ impl Critic {
 
 /// The actor Ac(p_desired) → `N` actuations: linear in normalised RBF features on a sparse 3-D
 /// lattice over p_desired.
-pub struct Actor<const N: usize = ACTUATORS> {
+pub struct Actor<const N: usize> {
     weights: LinearRbf<N>,
     features: Features,
 }
@@ -135,7 +135,7 @@ pub fn lattices(config: &LearnerConfig) -> Result<(Lattice, Lattice), RbfError> 
 
 /// CACLA-MTL: one actor and one critic shared by every conditioning point. Each point's own
 /// memory ([`PointMemory`]) is passed in by the caller.
-pub struct CaclaMtl<const N: usize = ACTUATORS> {
+pub struct CaclaMtl<const N: usize> {
     config: LearnerConfig,
     actor: Actor<N>,
     critic: Critic,
@@ -395,7 +395,7 @@ pub fn evaluate<const N: usize>(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use softarm_sections::arm::ArmGeometry;
+    use crate::default_arm::{N, arm};
 
     /// The config's checks (`LearnerConfig::validate`, which cannot build a lattice) accept
     /// only what [`Lattice::new`] accepts: a valid config always makes its lattices, with the
@@ -412,14 +412,14 @@ mod tests {
             c.validate().unwrap();
             let (actor, critic) = lattices(&c).unwrap();
             assert_eq!((actor.dim(), critic.dim()), (3, 6));
-            assert!(LinearRbf::<ACTUATORS>::min_capacity(&actor) <= c.actor_max_centres);
+            assert!(LinearRbf::<N>::min_capacity(&actor) <= c.actor_max_centres);
             assert!(LinearRbf::<1>::min_capacity(&critic) <= c.critic_max_centres);
         }
     }
 
     #[test]
     fn sigma_shrinks_with_the_error() {
-        let l = CaclaMtl::<6>::new(LearnerConfig::default()).unwrap();
+        let l = CaclaMtl::<N>::new(LearnerConfig::default()).unwrap();
         assert!((l.sigma(0.03) - 0.015).abs() < 1e-12);
         assert!(l.sigma(0.0) < 0.002, "{}", l.sigma(0.0));
         assert!(l.sigma(0.2) > 0.0299);
@@ -427,7 +427,7 @@ mod tests {
 
     #[test]
     fn first_visit_has_no_td_update_and_targets_reset_memory() {
-        let mut l = CaclaMtl::<6>::new(LearnerConfig::default()).unwrap();
+        let mut l = CaclaMtl::<N>::new(LearnerConfig::default()).unwrap();
         let target = [0.1, 0.0, -0.45];
         let mut memory = None;
         let a = l.act(memory.as_ref(), &target, true);
@@ -448,8 +448,8 @@ mod tests {
 
     /// A learner whose critic is not zero around two points with different histories, and
     /// the two points' memories.
-    fn trained_critic() -> (CaclaMtl, [Position; 2], [Option<PointMemory>; 2]) {
-        let mut l = CaclaMtl::<6>::new(LearnerConfig::default()).unwrap();
+    fn trained_critic() -> (CaclaMtl<N>, [Position; 2], [Option<PointMemory>; 2]) {
+        let mut l = CaclaMtl::<N>::new(LearnerConfig::default()).unwrap();
         let targets = [[0.1, 0.0, -0.45], [0.02, 0.08, -0.48]];
         let mut memory = [None; 2];
         let a = [0.5; 6];
@@ -508,8 +508,8 @@ mod tests {
 
     #[test]
     fn state_round_trips_exactly() {
-        let arm = ArmGeometry::default();
-        let mut l = CaclaMtl::<6>::new(LearnerConfig::default()).unwrap();
+        let arm = arm();
+        let mut l = CaclaMtl::<N>::new(LearnerConfig::default()).unwrap();
         let pool = [[0.1, 0.05, -0.45], [-0.05, 0.1, -0.47]];
         let cfg = PretrainConfig {
             max_epochs: 5,
@@ -518,7 +518,7 @@ mod tests {
         pretrain(&mut l, &arm, &pool, &cfg, |_| true);
         l.observe(&mut None, &pool[0], &[0.4; 6], &[0.1, 0.0, -0.5]);
         let state = l.state();
-        let mut r = CaclaMtl::<6>::restore(&state).unwrap();
+        let mut r = CaclaMtl::<N>::restore(&state).unwrap();
         assert_eq!(r.state(), state);
         for p in &pool {
             assert_eq!(r.actor(p), l.actor(p));
@@ -527,7 +527,7 @@ mod tests {
         let mut bad = state.clone();
         bad.actor[0].1[2] = f64::NAN;
         assert!(
-            CaclaMtl::<6>::restore(&bad)
+            CaclaMtl::<N>::restore(&bad)
                 .err()
                 .unwrap()
                 .contains("actor")
@@ -541,7 +541,7 @@ mod tests {
             ..Default::default()
         };
         assert!(
-            CaclaMtl::<6>::new(c)
+            CaclaMtl::<N>::new(c)
                 .err()
                 .unwrap()
                 .contains("learner.gamma")

@@ -17,7 +17,7 @@ use nalgebra::{DMatrix, DVector, Matrix3, SMatrix, SVector, Vector3};
 
 use softarm_kinematics::forward::{ForwardModel, Jacobian};
 use softarm_kinematics::pcc;
-use softarm_space::{ACTUATORS, MAX_ACTUATORS, Position};
+use softarm_space::{MAX_ACTUATORS, Position};
 
 /// Most modules a calibrated arm has.
 const MAX_MODULES: usize = 8;
@@ -26,9 +26,6 @@ const MAX_MODULES: usize = 8;
 /// actuator's length offset (m), each module's bend per length difference (a fraction: what
 /// its actuators' radius sets), each module's rotation (degrees), the connector's length (m).
 pub const MAX_PARAMETERS: usize = 3 + MAX_ACTUATORS + 2 * MAX_MODULES + 1;
-
-/// Parameters of the paper's arm (six actuators, two modules): 14.
-pub const PARAMETERS: usize = 3 + ACTUATORS + 2 + 2 + 1;
 
 /// How far each kind of parameter plausibly is from the configured arm: the prior's standard
 /// deviation (same units as the parameter). A tool swapped or bent by centimetres, tendons
@@ -124,10 +121,9 @@ impl Slots {
     }
 }
 
-/// The configured arm with fitted parameters, for an arm of `N` actuators (the paper's six
-/// unless said).
+/// The configured arm with fitted parameters, for an arm of `N` actuators.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct CalibratedArm<const N: usize = ACTUATORS> {
+pub struct CalibratedArm<const N: usize> {
     configured: pcc::Arm,
     /// Departures from the configured arm, in the order of [`MAX_PARAMETERS`]'s doc; as many
     /// as the arm has ([`CalibratedArm::parameters`]), the rest 0.
@@ -599,19 +595,18 @@ fn sensitivity(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::default_arm::{N, arm};
     use rand::rngs::StdRng;
     use rand::{RngExt, SeedableRng};
-    use softarm_sections::arm::ArmGeometry;
-    use softarm_space::Actuation;
 
-    fn actuations(n: usize, seed: u64) -> Vec<Actuation> {
+    fn actuations(n: usize, seed: u64) -> Vec<[f64; N]> {
         let mut rng = StdRng::seed_from_u64(seed);
         (0..n)
             .map(|_| std::array::from_fn(|_| rng.random_range(0.3..0.7)))
             .collect()
     }
 
-    fn miss(model: &impl ForwardModel, real: &ArmGeometry, a: &[Actuation]) -> f64 {
+    fn miss(model: &impl ForwardModel<N>, real: &pcc::Arm, a: &[[f64; N]]) -> f64 {
         a.iter()
             .map(|a| dist2(&model.position(a), &real.position(a)).sqrt())
             .fold(0.0, f64::max)
@@ -619,15 +614,13 @@ mod tests {
 
     #[test]
     fn a_calibrated_arm_finds_a_longer_tool_and_crept_tendons() {
-        let configured = ArmGeometry::default();
-        let mut real = configured;
-        real.tool_m += 0.02;
-        real.actuator_offset_m = [0.0, 0.003, 0.0, 0.0, 0.0, 0.004];
-        let samples: Vec<(Actuation, Position)> = actuations(40, 1)
+        let configured = arm();
+        let real = configured.changed(0.02, 0.0, &[0.0, 0.003, 0.0, 0.0, 0.0, 0.004], &[0.0; 2]);
+        let samples: Vec<([f64; N], Position)> = actuations(40, 1)
             .into_iter()
             .map(|a| (a, real.position(&a)))
             .collect();
-        let fitted = CalibratedArm::fit(pcc::Arm::of_geometry(&configured), &samples);
+        let fitted = CalibratedArm::fit(configured, &samples);
         let elsewhere = actuations(50, 2);
         assert!(miss(&configured, &real, &elsewhere) > 0.015);
         let m = miss(&fitted, &real, &elsewhere);
@@ -635,18 +628,18 @@ mod tests {
         assert!(fitted.rms_m < 0.0005, "{fitted:?}");
         // What it needs at a target is what the real arm needs.
         let target = real.position(&[0.4, 0.6, 0.5, 0.55, 0.45, 0.5]);
-        let a = CalibratedArm::invert(&fitted, &target, &[0.5; ACTUATORS]);
+        let a = CalibratedArm::invert(&fitted, &target, &[0.5; N]);
         assert!(dist2(&real.position(&a), &target).sqrt() < 0.0005);
     }
 
     #[test]
     fn without_samples_the_calibrated_arm_is_the_configured_one() {
-        let configured = ArmGeometry::default();
-        let arm = pcc::Arm::of_geometry(&configured);
-        let fitted = CalibratedArm::<6>::fit(arm, &[]);
-        assert_eq!(fitted.parameters(), PARAMETERS);
+        let configured = arm();
+        let fitted = CalibratedArm::<N>::fit(configured, &[]);
+        // 3 + N + 2 × modules + 1: the default [arm]'s 14.
+        assert_eq!(fitted.parameters(), 3 + N + 2 * 2 + 1);
         assert_eq!(fitted.theta, [0.0; MAX_PARAMETERS]);
-        assert_eq!(fitted, CalibratedArm::configured(arm));
+        assert_eq!(fitted, CalibratedArm::configured(configured));
         let a = [0.4, 0.6, 0.5, 0.55, 0.45, 0.5];
         assert_eq!(fitted.position(&a), configured.position(&a));
     }
@@ -701,12 +694,12 @@ mod tests {
 #[cfg(test)]
 mod turned {
     use super::*;
+    use crate::default_arm::{N, arm};
     use rand::rngs::StdRng;
     use rand::{RngExt, SeedableRng};
-    use softarm_sections::arm::ArmGeometry;
-    use softarm_space::Actuation;
+    use softarm_sections::arm::ArmConfig;
 
-    fn draw(n: usize, rng: &mut StdRng) -> Vec<Actuation> {
+    fn draw(n: usize, rng: &mut StdRng) -> Vec<[f64; N]> {
         (0..n)
             .map(|_| std::array::from_fn(|_| rng.random_range(0.35..0.65)))
             .collect()
@@ -717,17 +710,20 @@ mod turned {
     /// (bend −2), a 17 mm tool and a −15 mm connector; turned 120°: a module turned 600°).
     #[test]
     fn a_calibrated_arm_of_an_arm_configured_turned_finds_the_turn_and_nothing_else() {
-        let real = ArmGeometry::default();
+        let real = arm();
         let mut rng = StdRng::seed_from_u64(5);
-        let samples: Vec<(Actuation, Position)> = draw(60, &mut rng)
+        let samples: Vec<([f64; N], Position)> = draw(60, &mut rng)
             .into_iter()
             .map(|a| (a, real.position(&a)))
             .collect();
         let elsewhere = draw(50, &mut rng);
         for turn in [60.0, 120.0, 180.0] {
-            let mut configured = real;
-            configured.module_rotation_deg = [turn, 60.0 + turn];
-            let fitted = CalibratedArm::<6>::fit(pcc::Arm::of_geometry(&configured), &samples);
+            let configured = pcc::Arm::of_config(&ArmConfig {
+                module_rotation_deg: Some([turn, 60.0 + turn]),
+                ..Default::default()
+            })
+            .unwrap();
+            let fitted = CalibratedArm::<N>::fit(configured, &samples);
             let theta = fitted.theta;
             for (m, r) in fitted.rotations_deg().iter().enumerate() {
                 let off = (r + turn).rem_euclid(360.0);
@@ -759,18 +755,17 @@ mod turned {
         let text = include_str!("../../../config/arms/tdcr.toml");
         let layout = softarm_arm::Layout::new(&toml::from_str(text).unwrap()).unwrap();
         let tdcr = pcc::Arm::new(&layout, &[]);
-        let real = ArmGeometry::default();
-        let configured = pcc::Arm::of_geometry(&real);
+        let configured = arm();
         let mut rng = StdRng::seed_from_u64(6);
-        // The paper's six actuations drive the TDCR's nine tendons (three of them slack).
-        let samples: Vec<(Actuation, Position)> = draw(80, &mut rng)
+        // The default [arm]'s six actuations drive the TDCR's nine tendons (three of them slack).
+        let samples: Vec<([f64; N], Position)> = draw(80, &mut rng)
             .into_iter()
             .map(|a| {
                 let nine: [f64; 9] = std::array::from_fn(|i| a.get(i).copied().unwrap_or(0.5));
                 (a, tdcr.position(&nine))
             })
             .collect();
-        let fitted = CalibratedArm::<6>::fit(configured, &samples);
+        let fitted = CalibratedArm::<N>::fit(configured, &samples);
         let slots = Slots::of(&configured);
         for k in (0..slots.count()).filter(|k| !slots.is_rotation(*k)) {
             assert!(

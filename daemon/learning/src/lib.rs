@@ -21,3 +21,28 @@ pub mod cacla;
 pub mod calibration;
 pub mod online;
 pub mod within;
+
+/// The arm the tests run on: the default `[arm]` (the paper's two modules of three tendons).
+#[cfg(test)]
+pub(crate) mod default_arm {
+    use softarm_kinematics::pcc;
+    use softarm_sections::arm::ArmConfig;
+
+    /// The default `[arm]`'s actuators.
+    pub(crate) const N: usize = 6;
+
+    /// The default `[arm]`'s PCC kinematics.
+    pub(crate) fn arm() -> pcc::Arm {
+        of(&ArmConfig::default())
+    }
+
+    /// The PCC kinematics of `[arm]` as `config` says (the default's shorthand keys changed).
+    pub(crate) fn of(config: &ArmConfig) -> pcc::Arm {
+        pcc::Arm::of_config(config).unwrap()
+    }
+
+    /// The default `[arm]` with a tool `tool_m` longer.
+    pub(crate) fn longer_tool(tool_m: f64) -> pcc::Arm {
+        arm().changed(tool_m, 0.0, &[0.0; N], &[0.0; 2])
+    }
+}

@@ -7,7 +7,7 @@
 //!   the errors of a changed arm are systematic and repeat every execution, so the next action
 //!   of a point is a damped Gauss-Newton step from its best executed action,
 //!   a = a_base + J⁺ (p_d − p_reached), with J the Jacobian<N> of the configured arm's kinematics
-//!   (`[arm]`, [`ArmGeometry`]), Broyden-updated per point from what each step did on the real
+//!   (`[arm]`, [`pcc::Arm`]), Broyden-updated per point from what each step did on the real
 //!   arm, inside a per-point trust region that shrinks when a step makes things worse.
 //!
 //! What one set taught carries over to the next: a target never visited starts at the inverse
@@ -30,7 +30,7 @@ use softarm_kinematics::forward::{ForwardModel, Jacobian};
 use softarm_kinematics::pcc;
 use softarm_kinematics::poly::Polynomial;
 use softarm_sections::learner::{Algorithm, GaussNewtonConfig};
-use softarm_space::{ACTUATORS, MAX_WAYPOINTS, Position, distance};
+use softarm_space::{MAX_WAYPOINTS, Position, distance};
 
 /// A visit or estimate that does not fit the running set.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -239,10 +239,10 @@ const DRIFT: f64 = 0.1;
 
 /// Δa = g J⁺ e + (I − J⁺J) d with J⁺ = Jᵀ(JJᵀ + μ²I)⁻¹, shortened to at most `radius`. The
 /// first term moves the end effector by g e; the second moves the actuation by `d` inside the
-/// null space of J, where the end effector does not move. Six actuations for three
-/// coordinates leave three directions free, and steps that wander along them leave the
-/// demonstrated region, where the trained model is not right any more: `d` points back to an
-/// anchor there.
+/// null space of J, where the end effector does not move. `N` actuations for three
+/// coordinates leave N − 3 directions free (three of the default `[arm]`'s six), and steps
+/// that wander along them leave the demonstrated region, where the trained model is not right
+/// any more: `d` points back to an anchor there.
 ///
 /// From `base`, inside the actuators' range [0, 1]: an actuator at a limit that the step would
 /// push past it is left out and the step solved again with the others, so that the end
@@ -350,7 +350,7 @@ fn error_vector(target: &Position, p: &Position) -> Vector3<f64> {
 }
 
 /// CACLA-MTL at the conditioning points of the running set, with the chosen algorithm.
-pub struct OnlineLearner<const N: usize = ACTUATORS> {
+pub struct OnlineLearner<const N: usize> {
     cacla: CaclaMtl<N>,
     /// The trained model's forward kinematics: what the first estimates are refined against.
     kinematics: Polynomial<N>,
@@ -380,7 +380,7 @@ const CALIBRATION_SAMPLES: usize = 10;
 /// What the online learner knows of the arm beyond its trained model; kept in the learner's
 /// checkpoint so that a restarted learner knows the arm it left.
 #[derive(Debug, Clone, Default, PartialEq)]
-pub struct ArmState<const N: usize = ACTUATORS> {
+pub struct ArmState<const N: usize> {
     /// [`Corrections::points`].
     pub corrections: Vec<Corrected<N>>,
     /// [`Footprint::samples`].
@@ -1200,23 +1200,23 @@ impl<const N: usize> OnlineLearner<N> {
 mod tests {
     use super::*;
     use crate::arm::actuation_distance;
+    use crate::default_arm::{N, arm, longer_tool, of};
     use rand::rngs::StdRng;
     use rand::{RngExt, SeedableRng};
-    use softarm_sections::arm::ArmGeometry;
+    use softarm_sections::arm::ArmConfig;
     use softarm_sections::kinematics::PolynomialConfig;
     use softarm_sections::learner::LearnerConfig;
-    use softarm_space::Actuation;
 
     /// A polynomial of the nominal arm and an actor that imitated it.
-    fn learner(algorithm: Algorithm) -> OnlineLearner {
-        configured_as(algorithm, &ArmGeometry::default())
+    fn learner(algorithm: Algorithm) -> OnlineLearner<N> {
+        configured_as(algorithm, &arm())
     }
 
     /// [`learner`], its configured arm `configured`.
-    fn configured_as(algorithm: Algorithm, configured: &ArmGeometry) -> OnlineLearner {
-        let arm = ArmGeometry::default();
+    fn configured_as(algorithm: Algorithm, configured: &pcc::Arm) -> OnlineLearner<N> {
+        let arm = arm();
         let mut rng = StdRng::seed_from_u64(3);
-        let a: Vec<Actuation> = (0..1500)
+        let a: Vec<[f64; N]> = (0..1500)
             .map(|_| std::array::from_fn(|_| rng.random_range(0.2..0.8)))
             .collect();
         let p: Vec<Position> = a.iter().map(|a| arm.position(a)).collect();
@@ -1227,15 +1227,11 @@ mod tests {
         };
         let mut cacla = CaclaMtl::new(config).unwrap();
         cacla.imitate(&p, &a, 3);
-        OnlineLearner::new(
-            cacla,
-            poly,
-            softarm_kinematics::pcc::Arm::of_geometry(configured),
-        )
+        OnlineLearner::new(cacla, poly, *configured)
     }
 
     fn targets() -> Vec<Position> {
-        let arm = ArmGeometry::default();
+        let arm = arm();
         [
             [0.3, 0.6, 0.7, 0.5, 0.4, 0.5],
             [0.6, 0.4, 0.5, 0.6, 0.5, 0.3],
@@ -1248,7 +1244,7 @@ mod tests {
 
     /// Mean error per execution of `executions` quasi-static executions on `arm`, the arm held
     /// still for 100 ms at each point, as the footprint sees it.
-    fn run(l: &mut OnlineLearner, arm: &ArmGeometry, executions: usize) -> Vec<f64> {
+    fn run(l: &mut OnlineLearner<N>, arm: &pcc::Arm, executions: usize) -> Vec<f64> {
         let t = targets();
         let mut a = l.start_set(&t).unwrap();
         let mut means = Vec::new();
@@ -1275,7 +1271,7 @@ mod tests {
     #[test]
     fn first_estimates_are_refined_against_the_model() {
         let mut l = learner(Algorithm::GaussNewton);
-        let arm = ArmGeometry::default();
+        let arm = arm();
         let t = targets();
         let first = l.start_set(&t).unwrap();
         for (a, t) in first.iter().zip(&t) {
@@ -1288,10 +1284,10 @@ mod tests {
 
     #[test]
     fn directed_corrections_adapt_to_a_longer_tool_where_the_paper_does_not() {
-        let tool = ArmGeometry {
-            tool_m: 0.05,
+        let tool = of(&ArmConfig {
+            tool_m: Some(0.05),
             ..Default::default()
-        };
+        });
         let ours = run(&mut learner(Algorithm::GaussNewton), &tool, 6);
         let paper = run(&mut learner(Algorithm::Paper), &tool, 6);
         assert!(ours[0] > 0.01, "the longer tool is felt: {ours:?}");
@@ -1456,12 +1452,12 @@ mod tests {
 
     #[test]
     fn what_a_set_taught_carries_over_to_points_never_visited() {
-        let tool = ArmGeometry {
-            tool_m: 0.05,
+        let tool = of(&ArmConfig {
+            tool_m: Some(0.05),
             ..Default::default()
-        };
+        });
         // Between two of the visited points.
-        let other: Position = ArmGeometry::default().position(&[0.45, 0.5, 0.6, 0.55, 0.45, 0.4]);
+        let other: Position = arm().position(&[0.45, 0.5, 0.6, 0.55, 0.45, 0.4]);
         let mut fresh = learner(Algorithm::GaussNewton);
         let before = fresh.start_set(&[other]).unwrap()[0];
         let mut l = learner(Algorithm::GaussNewton);
@@ -1530,15 +1526,15 @@ mod tests {
 
     #[test]
     fn a_step_goes_around_an_actuator_at_its_limit() {
-        let arm = ArmGeometry::default();
+        let arm = arm();
         let c = GaussNewtonConfig::default();
         let base = [0.0, 0.5, 0.45, 0.5, 0.55, 0.5];
         let j = arm.jacobian(&base);
         // An error that actuator 0 alone would mend by going below 0.
         let e = j.column(0) * -0.03;
-        let step = gauss_newton_step(&j, &e, &[0.0; ACTUATORS], 1.0, &c, 1.0, &base);
+        let step = gauss_newton_step(&j, &e, &[0.0; N], 1.0, &c, 1.0, &base);
         let taken = minus(&plus(&base, &step), &base);
-        let moved = j * SVector::<f64, ACTUATORS>::from_column_slice(&taken);
+        let moved = j * SVector::<f64, N>::from_column_slice(&taken);
         assert_eq!(taken[0], 0.0);
         assert!(
             (moved - e).norm() < 0.1 * e.norm(),
@@ -1548,7 +1544,7 @@ mod tests {
 
     #[test]
     fn a_jacobian_never_shrinks_below_its_floor() {
-        let j = ArmGeometry::default().jacobian(&[0.5; 6]);
+        let j = arm().jacobian(&[0.5; N]);
         let sv = j.singular_values();
         // Already above: untouched.
         assert_eq!(with_singular_values_at_least(&j, 0.5 * sv.min()), j);
@@ -1601,7 +1597,7 @@ mod tests {
         use rand_distr::{Distribution, Normal};
 
         fn five_targets() -> Vec<Position> {
-            let arm = ArmGeometry::default();
+            let arm = arm();
             [
                 [0.3, 0.6, 0.7, 0.5, 0.4, 0.5],
                 [0.6, 0.4, 0.5, 0.6, 0.5, 0.3],
@@ -1671,10 +1667,7 @@ mod tests {
 
         #[test]
         fn a_longer_tool_seen_at_the_first_point_corrects_the_rest_of_the_execution() {
-            let longer = ArmGeometry {
-                tool_m: ArmGeometry::default().tool_m + 0.02,
-                ..Default::default()
-            };
+            let longer = longer_tool(0.02);
             let t = five_targets();
             let runs = run(&mut learner(Algorithm::GaussNewton), &longer, &t, 3, 0.0);
             let first = &runs[0];
@@ -1699,10 +1692,7 @@ mod tests {
         /// point is corrected within the execution, and each says why.
         #[test]
         fn a_calibrated_arm_that_does_not_fit_shares_nothing() {
-            let longer = ArmGeometry {
-                tool_m: ArmGeometry::default().tool_m + 0.02,
-                ..Default::default()
-            };
+            let longer = longer_tool(0.02);
             let t = five_targets();
             let mut l = learner(Algorithm::GaussNewton);
             let mut a = l.start_set(&t).unwrap();
@@ -1747,17 +1737,13 @@ mod tests {
         /// first that sees it are corrected within the execution, back near their steady error.
         #[test]
         fn a_tendon_step_seen_at_one_point_is_made_up_for_at_the_rest() {
-            let crept = ArmGeometry {
-                actuator_offset_m: [0.0, 0.0005, 0.0, 0.0, 0.0, 0.0],
+            let crept = of(&ArmConfig {
+                actuator_offset_m: Some(vec![0.0, 0.0005, 0.0, 0.0, 0.0, 0.0]),
                 ..Default::default()
-            };
+            });
             let t = five_targets();
             let arm = |e: usize| {
-                if e <= 6 {
-                    ArmGeometry::default()
-                } else {
-                    crept
-                }
+                if e <= 6 { arm() } else { crept }
             };
             let runs = run_on(&mut learner(Algorithm::GaussNewton), arm, &t, 7, 0.0002);
             let steady = mean(&runs[5]);
@@ -1781,7 +1767,7 @@ mod tests {
             let mut t = five_targets();
             t[1][2] -= 0.15;
             let mut l = learner(Algorithm::GaussNewton);
-            let runs = run(&mut l, &ArmGeometry::default(), &t, 1, 0.0);
+            let runs = run(&mut l, &arm(), &t, 1, 0.0);
             assert!(l.reach(1).beyond() && (0..5).all(|n| n == 1 || !l.reach(n).beyond()));
             assert!(runs[0][1].0 > 0.05, "{runs:?}");
             assert!(runs[0].iter().all(|(_, c)| !c), "{runs:?}");
@@ -1819,13 +1805,13 @@ mod tests {
             let mut t = five_targets();
             t[1][2] -= 0.15;
             let mut l = learner(Algorithm::GaussNewton);
-            let runs = run(&mut l, &ArmGeometry::default(), &t, 8, 0.0003);
+            let runs = run(&mut l, &arm(), &t, 8, 0.0003);
             let Reach::Held { error_m } = l.reach(1) else {
                 panic!("{:?}: {runs:?}", l.reach(1));
             };
             // Visited again at what it is held at: held there still.
             let held = l.estimate(1, &t[1], true).unwrap();
-            let reached = ArmGeometry::default().position(&held);
+            let reached = arm().position(&held);
             l.observe(1, &t[1], &held, Some(&held), &reached).unwrap();
             assert!(matches!(l.reach(1), Reach::Held { .. }));
             assert_eq!(l.estimate(1, &t[1], true).unwrap(), held);
@@ -1839,14 +1825,14 @@ mod tests {
         /// show, held, and shares nothing from then on.
         #[test]
         fn a_target_only_the_tries_show_beyond_reach_is_held() {
-            let arm = ArmGeometry::default();
+            let arm = arm();
             let tip = arm.position(&[1.0; 6]);
             let mut t = five_targets();
             t[1] = [tip[0], tip[1], tip[2] + 0.002];
-            let shorter = ArmGeometry {
-                actuator_offset_m: [-0.01; 6],
+            let shorter = of(&ArmConfig {
+                actuator_offset_m: Some(vec![-0.01; N]),
                 ..Default::default()
-            };
+            });
             let mut l = learner(Algorithm::GaussNewton);
             let runs = run(&mut l, &shorter, &t, 8, 0.0003);
             assert!(runs[0][1].0 > 0.01, "{runs:?}");
@@ -1862,21 +1848,17 @@ mod tests {
         /// trained model's estimate, not held at the wrong arm's nearest place.
         #[test]
         fn a_target_the_demonstrations_reach_is_within_reach_whatever_the_calibrated_arm_says() {
-            let nominal = ArmGeometry::default();
-            let shorter = ArmGeometry {
-                connector_m: nominal.connector_m + 0.25,
-                ..nominal
-            };
+            let shorter = arm().changed(0.0, 0.25, &[0.0; N], &[0.0; 2]);
             let t = five_targets();
             let mut l = configured_as(Algorithm::GaussNewton, &shorter);
-            let pcc = softarm_kinematics::pcc::Arm::of_geometry(&shorter);
+            let pcc = shorter;
             let nearest = nearest_place(&pcc, &t[1], &[0.5; 6]);
             assert!(distance(&pcc.position(&nearest), &t[1]) > 0.01);
             let first = l.start_set(&t).unwrap();
             let model = l.refine(&t[1]);
             assert_eq!(l.reach(1), Reach::Reachable);
             assert_eq!(first[1], model);
-            let runs = run(&mut l, &ArmGeometry::default(), &t, 4, 0.0003);
+            let runs = run(&mut l, &arm(), &t, 4, 0.0003);
             assert!(runs[3][1].0 < 0.002, "{runs:?}");
             assert_eq!(l.reach(1), Reach::Reachable, "{runs:?}");
         }
@@ -1888,9 +1870,9 @@ mod tests {
         fn a_calibrated_arm_shown_right_is_overruled_only_later() {
             let t = five_targets();
             let mut l = learner(Algorithm::GaussNewton);
-            run(&mut l, &ArmGeometry::default(), &t, 3, 0.0003);
+            run(&mut l, &arm(), &t, 3, 0.0003);
             // The point 10 mm off at its last and best try, two steps in a row shortened.
-            let off = |l: &mut OnlineLearner, by: f64| {
+            let off = |l: &mut OnlineLearner<N>, by: f64| {
                 let p = &mut l.set[1];
                 let mut now = p.last.unwrap();
                 now.reached[2] = t[1][2] + by;
@@ -1920,7 +1902,7 @@ mod tests {
         fn a_best_is_tried_again_before_steps_worse_than_it_replace_it() {
             let t = five_targets();
             let mut l = learner(Algorithm::GaussNewton);
-            run(&mut l, &ArmGeometry::default(), &t, 3, 0.0003);
+            run(&mut l, &arm(), &t, 3, 0.0003);
             let off = |by: f64| {
                 let mut p = t[1];
                 p[2] += by;
@@ -1956,7 +1938,7 @@ mod tests {
 
         #[test]
         fn where_the_arm_has_not_changed_nothing_is_added() {
-            let nominal = ArmGeometry::default();
+            let nominal = arm();
             let t = five_targets();
             let runs = run(
                 &mut learner(Algorithm::GaussNewton),

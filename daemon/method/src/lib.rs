@@ -23,4 +23,4 @@ pub mod skill;
 
 /// The spaces, named once beneath the method and the contract (crate `softarm-space`).
 pub use softarm_space as space;
-pub use space::{ACTUATORS, Actuation, MAX_WAYPOINTS, Position, Workspace, distance};
+pub use space::{MAX_WAYPOINTS, Position, Workspace, distance};

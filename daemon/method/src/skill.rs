@@ -169,7 +169,7 @@ pub fn demo_points<const N: usize>(
 
 /// One recorded demonstration: what was commanded and where the end effector went.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Recording<const N: usize = { crate::space::ACTUATORS }> {
+pub struct Recording<const N: usize> {
     pub class: usize,
     pub times: Vec<f64>,
     pub actuation: Vec<[f64; N]>,
@@ -250,15 +250,25 @@ pub fn forward_data<const N: usize>(recordings: &[Recording<N>]) -> (Vec<[f64; N
 #[cfg(test)]
 mod tests {
     use super::*;
-    use softarm_sections::arm::ArmGeometry;
+    use softarm_kinematics::pcc;
+    use softarm_sections::arm::ArmConfig;
+
+    /// The default `[arm]`'s actuators.
+    const N: usize = 6;
+
+    /// The default `[arm]`.
+    fn default_arm() -> ArmConfig {
+        ArmConfig::default()
+    }
 
     #[test]
     fn recipe_makes_seeded_demos_around_the_class_extremes() {
         let recipe = DemoRecipe::default();
-        recipe.validate(&ArmGeometry::default().layout()).unwrap();
-        let classes = classes(&recipe, &ArmGeometry::default().layout());
+        let layout = default_arm().layout().unwrap();
+        recipe.validate(&layout).unwrap();
+        let classes = classes(&recipe, &layout);
         assert_eq!(classes, DemoRecipe::paper_classes());
-        let a = sequences::<6>(&recipe, &classes, 7);
+        let a = sequences::<N>(&recipe, &classes, 7);
         assert_eq!(a, sequences(&recipe, &classes, 7));
         assert_ne!(a, sequences(&recipe, &classes, 8));
         assert_eq!(a.len(), 60);
@@ -275,15 +285,16 @@ mod tests {
 
     #[test]
     fn trains_a_primitive_pair_per_class() {
-        let arm = ArmGeometry::default();
+        let arm = pcc::Arm::of_config(&default_arm()).unwrap();
         let classes = DemoRecipe::paper_classes();
-        let recs = demonstrations(&arm, &DemoRecipe::default(), &classes, 1);
+        let recs = demonstrations::<N>(&arm, &DemoRecipe::default(), &classes, 1);
         let (act, task) = train_primitives(&recs, 15).unwrap();
         assert_eq!((act.len(), task.len()), (3, 3));
         assert_eq!((act[0].dofs(), task[0].dofs()), (6, 3));
         // The task-space mean at the end of class 0 is where its nominal end actuation goes.
         let end = task[0].marginal(1.0).mean;
-        let nominal = arm.position(&std::array::from_fn(|d| classes[0].end[d]));
+        let nominal =
+            ForwardModel::<N>::position(&arm, &std::array::from_fn(|d| classes[0].end[d]));
         let err = (0..3)
             .map(|d| (end[d] - nominal[d]).powi(2))
             .sum::<f64>()
@@ -293,7 +304,8 @@ mod tests {
             spread: 0.9,
             ..Default::default()
         };
-        assert!(bad.validate(&arm.layout()).unwrap_err().contains("spread"));
+        let layout = default_arm().layout().unwrap();
+        assert!(bad.validate(&layout).unwrap_err().contains("spread"));
     }
 
     fn shipped(name: &str) -> Layout {

@@ -12,7 +12,7 @@ use softarm_test_alloc::{self as alloc, Counting};
 #[global_allocator]
 static GLOBAL: Counting = Counting;
 
-/// The paper's six actuators, a three-segment TDCR's nine, the most an arm may have.
+/// The default `[arm]`'s six actuators, a three-segment TDCR's nine, the most an arm may have.
 #[test]
 fn ticks_allocate_and_free_nothing() {
     ticks_allocate_and_free_nothing_at::<6>();

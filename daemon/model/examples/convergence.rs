@@ -1,7 +1,8 @@
-//! The paper's simulation pipeline, measured: III-B demonstrations from the PCC model, the RBF
-//! forward model fitted on them, CACLA-MTL warm-started by imitation and pre-trained against
-//! the forward model (the steps of `softarm_model::pipeline`, as `softarm train` runs them),
-//! then evaluated against the PCC model on 200 held-out targets without exploration.
+//! The paper's simulation pipeline, measured on the default `[arm]` (the paper's arm): III-B
+//! demonstrations from its PCC model, the RBF forward model fitted on them, CACLA-MTL
+//! warm-started by imitation and pre-trained against the forward model (the steps of
+//! `softarm_model::pipeline`, as `softarm train` runs them), then evaluated against the PCC
+//! model on 200 held-out targets without exploration.
 //!
 //! `cargo run --release -p softarm-model --example convergence [-- SECONDS [SEED]]`
 
@@ -12,16 +13,20 @@ use hdrhistogram::Histogram;
 use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
 use softarm_kinematics::forward::ForwardModel;
+use softarm_kinematics::pcc;
 use softarm_learning::cacla::evaluate;
 use softarm_method::space::distance;
 use softarm_model::pipeline::{
     IMITATION_PASSES, Training, TrainingData, forward_model, imitation, learner,
 };
-use softarm_sections::arm::ArmGeometry;
+use softarm_sections::arm::ArmConfig;
 use softarm_sections::demonstrations::DemoRecipe;
 use softarm_sections::forward_model::NetworkConfig;
 use softarm_sections::learner::LearnerConfig;
 use softarm_sections::learner::PretrainConfig;
+
+/// The default `[arm]`'s actuators.
+const N: usize = 6;
 
 /// Values on a 3-significant-digit histogram.
 fn histogram(values: impl IntoIterator<Item = u64>) -> Histogram<u64> {
@@ -58,12 +63,13 @@ fn main() -> anyhow::Result<()> {
         Some(s) => s.parse().context("SEED must be a whole number >= 0")?,
         None => 1,
     };
-    let arm = ArmGeometry::default();
+    let config = ArmConfig::default();
+    let arm = pcc::Arm::of_config(&config).map_err(anyhow::Error::msg)?;
     let recipe = DemoRecipe::default();
 
-    let data = TrainingData::from_plant(&arm, &recipe, seed)?;
+    let data = TrainingData::<N>::from_plant(&config, &recipe, seed)?;
     let (acts, positions) = (&data.actuations, &data.positions);
-    let held_out = TrainingData::from_plant(&arm, &recipe, seed.wrapping_add(1000))?;
+    let held_out = TrainingData::<N>::from_plant(&config, &recipe, seed.wrapping_add(1000))?;
 
     let t = Instant::now();
     let (net, fifth, _) = forward_model(acts, positions, &data.demo, &NetworkConfig::default())?;

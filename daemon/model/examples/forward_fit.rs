@@ -1,21 +1,30 @@
 //! The forward models' fit, measured: the RBF network and the polynomial on the III-B
-//! demonstrations from the PCC model, their error on the training samples and on whole
-//! demonstrations held out of the fit (every 5th), over the RBF network's settings.
+//! demonstrations from the default `[arm]`'s PCC model, their error on the training samples
+//! and on whole demonstrations held out of the fit (every 5th), over the RBF network's
+//! settings.
 //!
 //! `cargo run --release -p softarm-model --example forward_fit [-- SEED]`
 
 use softarm_kinematics::forward::ForwardModel;
 use softarm_kinematics::poly::Polynomial;
 use softarm_kinematics::rbf::RbfNetwork;
-use softarm_method::space::{Actuation, Position, distance};
+use softarm_method::space::{Position, distance};
 use softarm_model::pipeline::{TrainingData, forward_model};
-use softarm_sections::arm::ArmGeometry;
+use softarm_sections::arm::ArmConfig;
 use softarm_sections::demonstrations::DemoRecipe;
 use softarm_sections::forward_model::NetworkConfig;
 use softarm_sections::kinematics::PolynomialConfig;
 
+/// The default `[arm]`'s actuators.
+const N: usize = 6;
+
 /// Mean and max error (mm) of `model` on the samples `pick` keeps.
-fn errors(model: &dyn ForwardModel, a: &[Actuation], p: &[Position], pick: &[usize]) -> (f64, f64) {
+fn errors(
+    model: &dyn ForwardModel<N>,
+    a: &[[f64; N]],
+    p: &[Position],
+    pick: &[usize],
+) -> (f64, f64) {
     let e: Vec<f64> = pick
         .iter()
         .map(|&i| distance(&model.position(&a[i]), &p[i]) * 1e3)
@@ -28,11 +37,11 @@ fn errors(model: &dyn ForwardModel, a: &[Actuation], p: &[Position], pick: &[usi
 
 fn main() -> anyhow::Result<()> {
     let seed = std::env::args().nth(1).map_or(Ok(1), |s| s.parse())?;
-    let data = TrainingData::from_plant(&ArmGeometry::default(), &DemoRecipe::default(), seed)?;
+    let data = TrainingData::<N>::from_plant(&ArmConfig::default(), &DemoRecipe::default(), seed)?;
     let (a, p, demo) = (&data.actuations, &data.positions, &data.demo);
     let held: Vec<usize> = (0..a.len()).filter(|&i| demo[i] % 5 == 0).collect();
     let kept: Vec<usize> = (0..a.len()).filter(|&i| demo[i] % 5 != 0).collect();
-    let (fa, fp): (Vec<Actuation>, Vec<Position>) = kept.iter().map(|&i| (a[i], p[i])).unzip();
+    let (fa, fp): (Vec<[f64; N]>, Vec<Position>) = kept.iter().map(|&i| (a[i], p[i])).unzip();
     println!(
         "{} samples, {} demonstrations; {} held out",
         a.len(),

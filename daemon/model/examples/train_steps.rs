@@ -6,7 +6,8 @@
 //! memory after it, and the models' errors on held-out demonstrations.
 //!
 //! `cargo run --release -p softarm-model --example train_steps [-- ARM [SEED]]`, ARM `paper`
-//! (the default) or an `[arm]` file such as `daemon/model/examples/sixteen-tendons.toml`.
+//! (the default `[arm]`; the default) or an `[arm]` file such as
+//! `daemon/model/examples/sixteen-tendons.toml`.
 
 use std::time::Instant;
 
@@ -15,7 +16,7 @@ use softarm_kinematics::pcc::Arm;
 use softarm_model::pipeline::{
     IMITATION_PASSES, TrainingData, forward_model, imitation, kinematics, primitives,
 };
-use softarm_sections::arm::ArmGeometry;
+use softarm_sections::arm::ArmConfig;
 use softarm_sections::demonstrations::DemoRecipe;
 use softarm_sections::forward_model::NetworkConfig;
 use softarm_sections::kinematics::PolynomialConfig;
@@ -84,7 +85,7 @@ fn main() -> anyhow::Result<()> {
     let arm = args.next().unwrap_or_else(|| "paper".into());
     let seed = args.next().map_or(Ok(1), |s| s.parse())?;
     let layout = if arm == "paper" {
-        ArmGeometry::default().layout()
+        ArmConfig::default().layout().map_err(anyhow::Error::msg)?
     } else {
         Layout::new(&toml::from_str(&std::fs::read_to_string(&arm)?)?)
             .map_err(anyhow::Error::msg)?

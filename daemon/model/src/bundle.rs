@@ -23,7 +23,7 @@ use softarm_learning::cacla::LearnerState;
 use softarm_learning::online::ArmState;
 use softarm_method::promp::{Basis, Primitive};
 use softarm_method::space::ACTUATORS;
-use softarm_sections::arm::ArmGeometry;
+use softarm_sections::arm::ArmConfig;
 use softarm_sections::learner::LearnerConfig;
 
 /// 2: the polynomial kinematics (`kinematics.weights`) joined the model.
@@ -290,8 +290,10 @@ pub fn read<M: for<'de> Deserialize<'de>>(
 }
 
 /// Everything training produces: the primitives, the forward model and the pre-trained learner.
-/// For an arm of `N` actuators (the paper's six unless said): its actuation primitives have `N`
-/// degrees of freedom, its models `N` inputs, its actor `N` outputs.
+/// For an arm of `N` actuators: its actuation primitives have `N` degrees of freedom, its models
+/// `N` inputs, its actor `N` outputs. (`N` defaults to six, and [`Model::read`] reads six, only
+/// for the rehearsal and the root package's tests `adaptation` and `train_kill`, which name no
+/// `N` yet.)
 #[derive(Debug, Clone)]
 pub struct Model<const N: usize = ACTUATORS> {
     pub actuation: Vec<Primitive>,
@@ -422,11 +424,11 @@ impl<const N: usize> Model<N> {
         Ok(write(dir, "model", &meta, &t)?.fnv64)
     }
 
-    /// Reads the bundle in `dir` ([`Model::read`]) for the arm `arm`
+    /// Reads the bundle in `dir` ([`Model::read_of`]) for the arm `arm`
     /// (`softarm_arm::Layout::identity`): a bundle made for another arm is refused, naming
     /// both.
     /// Before the tensors: a bundle of another arm has other shapes, which are not what is
-    /// wrong with it. For an arm of `N` actuators ([`Model::read_for`]: the paper's six).
+    /// wrong with it. For an arm of `N` actuators.
     pub fn read_for_arm(dir: &Path, arm: &str) -> Result<Self, BundleError> {
         Self::read_checked(dir, Some(arm))
     }
@@ -439,10 +441,7 @@ impl<const N: usize> Model<N> {
 
     fn read_checked(dir: &Path, want_arm: Option<&str>) -> Result<Self, BundleError> {
         let (meta, t, reference): (ModelMeta, _, _) = read(dir, "model", "model bundle")?;
-        let made_for = meta
-            .arm
-            .clone()
-            .unwrap_or_else(|| ArmGeometry::default().layout().identity());
+        let made_for = meta.arm.clone().unwrap_or_else(default_arm);
         if let Some(want) = want_arm
             && made_for != want
         {
@@ -510,15 +509,18 @@ impl<const N: usize> Model<N> {
 }
 
 impl Model {
-    /// [`Model::read_for_arm`] of the paper's six actuators.
-    pub fn read_for(dir: &Path, arm: &str) -> Result<Self, BundleError> {
-        Self::read_for_arm(dir, arm)
-    }
-
-    /// [`Model::read_of`] the paper's six actuators.
+    /// [`Model::read_of`] six actuators: for the rehearsal and the root package's tests,
+    /// which name no `N` yet.
     pub fn read(dir: &Path) -> Result<Self, BundleError> {
         Self::read_of(dir)
     }
+}
+
+/// The identity of the default `[arm]` (the paper's arm), which every bundle written before
+/// bundles named their arm was made for.
+fn default_arm() -> String {
+    let layout = ArmConfig::default().layout();
+    layout.expect("the default [arm] is valid").identity()
 }
 
 /// Watches a bundle folder for a new or changed bundle (after `softarm train`), looking at most
@@ -598,7 +600,7 @@ pub fn write_checkpoint<const N: usize>(
 
 /// A learner checkpoint as read back.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Checkpoint<const N: usize = ACTUATORS> {
+pub struct Checkpoint<const N: usize> {
     pub state: LearnerState<N>,
     /// What the learner knew of the arm (empty from checkpoints written before it was kept).
     pub arm: ArmState<N>,
@@ -606,8 +608,8 @@ pub struct Checkpoint<const N: usize = ACTUATORS> {
     pub model: String,
 }
 
-/// Reads a learner checkpoint of the paper's six actuators.
-pub fn read_checkpoint(dir: &Path) -> Result<Checkpoint, BundleError> {
+/// [`read_checkpoint_of`] six actuators: for the rehearsal's tests, which name no `N` yet.
+pub fn read_checkpoint(dir: &Path) -> Result<Checkpoint<ACTUATORS>, BundleError> {
     read_checkpoint_of(dir)
 }
 
@@ -720,13 +722,22 @@ mod tests {
     use super::*;
     use crate::pipeline::{Training, from_plant};
     use softarm_learning::cacla::CaclaMtl;
-    use softarm_sections::arm::ArmGeometry;
+    use softarm_sections::arm::ArmConfig;
     use softarm_sections::demonstrations::DemoRecipe;
     use softarm_sections::forward_model::NetworkConfig;
     use softarm_sections::learner::PretrainConfig;
 
-    /// A small model from the pipeline, with one remembered point so the memory round-trips too.
-    fn model() -> Model {
+    /// The default `[arm]`'s actuators.
+    const N: usize = 6;
+
+    /// The default `[arm]`'s identity.
+    fn paper() -> String {
+        ArmConfig::default().layout().unwrap().identity()
+    }
+
+    /// A small model of the default `[arm]` from the pipeline, with one remembered point so
+    /// the memory round-trips too.
+    fn model() -> Model<N> {
         let recipe = DemoRecipe {
             demos_per_class: 4,
             ..Default::default()
@@ -746,7 +757,7 @@ mod tests {
             imitation_passes: 0,
         };
         let (mut m, _) =
-            from_plant(&ArmGeometry::default(), &recipe, 3, &training, |_| true).unwrap();
+            from_plant(&ArmConfig::default(), &recipe, 3, &training, |_| true).unwrap();
         let mut l = CaclaMtl::restore(&m.learner).unwrap();
         l.observe(
             &mut None,
@@ -755,7 +766,7 @@ mod tests {
             &[0.11, 0.0, -0.46],
         );
         m.learner = l.state();
-        m.arm = ArmGeometry::default().layout().identity();
+        m.arm = paper();
         m
     }
 
@@ -773,10 +784,12 @@ mod tests {
         let mut m = model();
         let dir = tmp("arm");
         m.write(&dir).unwrap();
-        let paper = ArmGeometry::default().layout().identity();
-        assert_eq!(Model::read_for(&dir, &paper).unwrap().arm, paper);
+        let paper = paper();
+        assert_eq!(Model::<N>::read_for_arm(&dir, &paper).unwrap().arm, paper);
         let nine = "9 actuators (a1 .. a9) in 3 modules, layout 0";
-        let e = Model::read_for(&dir, nine).unwrap_err().to_string();
+        let e = Model::<N>::read_for_arm(&dir, nine)
+            .unwrap_err()
+            .to_string();
         assert!(
             e.contains("made for another arm") && e.contains(&paper) && e.contains(nine),
             "{e}"
@@ -790,7 +803,7 @@ mod tests {
             .unwrap()
             .to_string();
         fs::write(&meta, text.replace(&format!("{line}\n"), "")).unwrap();
-        assert_eq!(Model::read_for(&dir, &paper).unwrap().arm, paper);
+        assert_eq!(Model::<N>::read_for_arm(&dir, &paper).unwrap().arm, paper);
         m.arm.clear();
         let e = m.write(&tmp("noarm")).unwrap_err().to_string();
         assert!(e.contains("names no arm"), "{e}");
@@ -802,7 +815,7 @@ mod tests {
         let m = model();
         let dir = tmp("roundtrip");
         let id = m.write(&dir).unwrap();
-        let back = Model::read(&dir).unwrap();
+        let back = Model::<N>::read_of(&dir).unwrap();
         assert_eq!(back.id, id);
         assert_eq!(back.actuation, m.actuation);
         assert_eq!(back.task, m.task);
@@ -846,7 +859,7 @@ mod tests {
             ],
         };
         write_checkpoint(&dir, &m.learner, &arm, &id).unwrap();
-        let back = read_checkpoint(&dir).unwrap();
+        let back = read_checkpoint_of::<N>(&dir).unwrap();
         assert_eq!(
             (back.state, back.arm, back.model),
             (m.learner.clone(), arm.clone(), id.clone())
@@ -910,14 +923,14 @@ mod tests {
         let good = fs::read(&tensors).unwrap();
 
         fs::write(&tensors, &good[..good.len() / 2]).unwrap();
-        let e = Model::read(&dir).unwrap_err().to_string();
+        let e = Model::<N>::read_of(&dir).unwrap_err().to_string();
         assert!(e.contains("truncated"), "{e}");
 
         let mut flipped = good.clone();
         let i = flipped.len() - 9;
         flipped[i] ^= 0x40;
         fs::write(&tensors, &flipped).unwrap();
-        let e = Model::read(&dir).unwrap_err().to_string();
+        let e = Model::<N>::read_of(&dir).unwrap_err().to_string();
         assert!(e.contains("corrupt"), "{e}");
 
         fs::write(&tensors, &good).unwrap();
@@ -928,11 +941,11 @@ mod tests {
             text.replace("basis_functions = 8", "basis_functions = 9"),
         )
         .unwrap();
-        let e = Model::read(&dir).unwrap_err().to_string();
+        let e = Model::<N>::read_of(&dir).unwrap_err().to_string();
         assert!(e.contains("shape"), "{e}");
         fs::write(&meta, text.replace("format = 2", "format = 7")).unwrap();
         assert!(
-            Model::read(&dir)
+            Model::<N>::read_of(&dir)
                 .unwrap_err()
                 .to_string()
                 .contains("format 7")
@@ -945,7 +958,7 @@ mod tests {
             .collect::<Vec<_>>()
             .join("\n");
         fs::write(&meta, old).unwrap();
-        let e = Model::read(&dir).unwrap_err().to_string();
+        let e = Model::<N>::read_of(&dir).unwrap_err().to_string();
         assert!(
             e.contains("format 1") && e.contains("reads format 2"),
             "{e}"
@@ -956,17 +969,17 @@ mod tests {
             text.replace("kinematics_degree = 4", "kinematics_degree = 3"),
         )
         .unwrap();
-        let e = Model::read(&dir).unwrap_err().to_string();
+        let e = Model::<N>::read_of(&dir).unwrap_err().to_string();
         assert!(e.contains("kinematics.weights"), "{e}");
         fs::write(&meta, text.replace("[learner]", "surprise = 1\n[learner]")).unwrap();
         assert!(
-            Model::read(&dir)
+            Model::<N>::read_of(&dir)
                 .unwrap_err()
                 .to_string()
                 .contains("surprise")
         );
         fs::write(&meta, &text).unwrap();
-        assert!(Model::read(&dir).is_ok());
+        assert!(Model::<N>::read_of(&dir).is_ok());
 
         // Another bundle's tensor file under this bundle's name: whole and well formed, but
         // not the tensors this metadata describes.
@@ -977,17 +990,19 @@ mod tests {
         let r2 = other.write(&dir2).unwrap();
         assert_ne!(r, r2);
         fs::copy(dir2.join(format!("model-{r2}.safetensors")), &tensors).unwrap();
-        let e = Model::read(&dir).unwrap_err().to_string();
+        let e = Model::<N>::read_of(&dir).unwrap_err().to_string();
         assert!(e.contains("corrupt") || e.contains("size"), "{e}");
         // A model bundle where a learner checkpoint is expected: refused, the file named.
         fs::write(&tensors, &good).unwrap();
         fs::copy(&meta, dir2.join("learner.toml")).unwrap();
         fs::copy(&tensors, dir2.join(format!("model-{r}.safetensors"))).unwrap();
-        let e = read_checkpoint(&dir2).unwrap_err().to_string();
+        let e = read_checkpoint_of::<N>(&dir2).unwrap_err().to_string();
         assert!(e.contains("learner.toml is not a valid bundle"), "{e}");
         fs::remove_dir_all(&dir2).unwrap();
 
-        let e = Model::read(&dir.join("nowhere")).unwrap_err().to_string();
+        let e = Model::<N>::read_of(&dir.join("nowhere"))
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("softarm train"), "{e}");
         fs::remove_dir_all(&dir).unwrap();
     }

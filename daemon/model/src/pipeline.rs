@@ -13,14 +13,15 @@
 use softarm_arm::Layout;
 use softarm_kinematics::forward::ForwardModel;
 use softarm_kinematics::linalg::{BLOCK_ROWS, Normal};
+use softarm_kinematics::pcc;
 use softarm_kinematics::poly::{Polynomial, terms};
 use softarm_kinematics::rbf::{RbfError, RbfNetwork};
 use softarm_learning::cacla::{self, CaclaMtl, PretrainReport};
 use softarm_method::activation::MAX_PRIMITIVES;
 use softarm_method::promp::{Primitive, PrimitiveError};
 use softarm_method::skill::{self, Recording};
-use softarm_method::space::{ACTUATORS, Position, distance};
-use softarm_sections::arm::ArmGeometry;
+use softarm_method::space::{Position, distance};
+use softarm_sections::arm::ArmConfig;
 use softarm_sections::demonstrations::DemoRecipe;
 use softarm_sections::forward_model::NetworkConfig;
 use softarm_sections::kinematics::PolynomialConfig;
@@ -85,6 +86,8 @@ pub enum PipelineError {
     MissingClass { class: usize, classes: usize },
     #[error("the demonstration recipe: {0}")]
     Recipe(String),
+    #[error("the arm: {0}")]
+    Arm(String),
     #[error("training the primitives: {0}")]
     Primitives(PrimitiveError),
     #[error("D_fwd has {actuations} actuations but {positions} positions")]
@@ -120,7 +123,7 @@ pub struct Training {
 
 /// What the pipeline learns from.
 #[derive(Debug, Clone, PartialEq)]
-pub struct TrainingData<const N: usize = ACTUATORS> {
+pub struct TrainingData<const N: usize> {
     /// The demonstrations the ProMPs learn from (commanded actuation, end-effector position).
     pub recordings: Vec<Recording<N>>,
     /// Their nominal duration (s): the bundle's `demo_duration_s`.
@@ -133,19 +136,25 @@ pub struct TrainingData<const N: usize = ACTUATORS> {
     pub demo: Vec<usize>,
 }
 
-impl TrainingData {
-    /// The recipe's demonstrations played through `plant` (the paper's arm's kinematic model),
-    /// D_fwd all of their samples.
+impl<const N: usize> TrainingData<N> {
+    /// The recipe's demonstrations on the arm `arm` describes (of `N` actuators) played
+    /// through its PCC kinematics ([`pcc::Arm::of_config`]), D_fwd all of their samples.
     pub fn from_plant(
-        plant: &ArmGeometry,
+        arm: &ArmConfig,
         recipe: &DemoRecipe,
         seed: u64,
     ) -> Result<Self, PipelineError> {
-        TrainingData::of_arm(&plant.layout(), plant, recipe, seed)
+        let layout = arm.layout().map_err(PipelineError::Arm)?;
+        let actuators = layout.actuators().len();
+        if actuators != N {
+            return Err(PipelineError::Arm(format!(
+                "{actuators} actuators, where {N} were asked for"
+            )));
+        }
+        let plant = pcc::Arm::of_config(arm).map_err(PipelineError::Arm)?;
+        Self::of_arm(&layout, &plant, recipe, seed)
     }
-}
 
-impl<const N: usize> TrainingData<N> {
     /// The recipe's demonstrations on the arm of `layout` played through `plant` (its
     /// kinematic model), D_fwd all of their samples.
     pub fn of_arm(
@@ -697,17 +706,17 @@ pub fn train_showing<const N: usize>(
     ))
 }
 
-/// The simulated path: the recipe's demonstrations straight from `plant` (the kinematic model),
-/// then [`train`].
-pub fn from_plant(
-    plant: &ArmGeometry,
+/// The simulated path: the recipe's demonstrations straight from the PCC kinematics of the arm
+/// `arm` describes (of `N` actuators: [`TrainingData::from_plant`]), then [`train`].
+pub fn from_plant<const N: usize>(
+    arm: &ArmConfig,
     recipe: &DemoRecipe,
     seed: u64,
     training: &Training,
     keep_going: impl FnMut(&PretrainReport) -> bool,
-) -> Result<(Model, TrainReport), PipelineError> {
+) -> Result<(Model<N>, TrainReport), PipelineError> {
     train(
-        &TrainingData::from_plant(plant, recipe, seed)?,
+        &TrainingData::from_plant(arm, recipe, seed)?,
         training,
         keep_going,
     )
@@ -717,7 +726,14 @@ pub fn from_plant(
 mod tests {
     use super::*;
     use softarm_learning::cacla::evaluate;
-    use softarm_sections::arm::ArmGeometry;
+
+    /// The default `[arm]`'s actuators.
+    const N: usize = 6;
+
+    /// The default `[arm]`.
+    fn paper() -> ArmConfig {
+        ArmConfig::default()
+    }
 
     fn quick() -> Training {
         Training {
@@ -749,8 +765,8 @@ mod tests {
 
     #[test]
     fn a_quick_model_from_the_plant_is_whole_and_the_same_for_the_same_inputs() {
-        let arm = ArmGeometry::default();
-        let (m, r) = from_plant(&arm, &recipe(), 3, &quick(), |_| true).unwrap();
+        let arm = paper();
+        let (m, r) = from_plant::<N>(&arm, &recipe(), 3, &quick(), |_| true).unwrap();
         assert_eq!((m.actuation.len(), m.task.len()), (3, 3));
         assert_eq!((m.actuation[0].dofs(), m.task[0].dofs()), (6, 3));
         assert_eq!(m.actuation[0].basis().len(), 8);
@@ -782,20 +798,19 @@ mod tests {
             r.forward_error
         );
         // Nothing but the inputs decides the model.
-        let (again, _) = from_plant(&arm, &recipe(), 3, &quick(), |_| true).unwrap();
+        let (again, _) = from_plant::<N>(&arm, &recipe(), 3, &quick(), |_| true).unwrap();
         assert_eq!(again.actuation, m.actuation);
         assert_eq!(again.task, m.task);
         assert_eq!(again.forward, m.forward);
         assert_eq!(again.kinematics, m.kinematics);
         assert_eq!(again.learner, m.learner);
-        let (other, _) = from_plant(&arm, &recipe(), 4, &quick(), |_| true).unwrap();
+        let (other, _) = from_plant::<N>(&arm, &recipe(), 4, &quick(), |_| true).unwrap();
         assert_ne!(other.forward, m.forward);
     }
 
     #[test]
     fn the_forward_model_is_refitted_on_every_sample_after_the_held_out_check() {
-        let arm = ArmGeometry::default();
-        let data = TrainingData::from_plant(&arm, &recipe(), 5).unwrap();
+        let data = TrainingData::<N>::from_plant(&paper(), &recipe(), 5).unwrap();
         let config = quick().forward;
         let (net, held, width_factor) =
             forward_model(&data.actuations, &data.positions, &data.demo, &config).unwrap();
@@ -824,8 +839,7 @@ mod tests {
 
     #[test]
     fn the_width_is_chosen_without_the_demonstrations_its_error_is_reported_on() {
-        let arm = ArmGeometry::default();
-        let data = TrainingData::from_plant(&arm, &recipe(), 5).unwrap();
+        let data = TrainingData::<N>::from_plant(&paper(), &recipe(), 5).unwrap();
         let config = quick().forward;
         let width = |positions: &[Position], config: &NetworkConfig| {
             forward_model(&data.actuations, positions, &data.demo, config)
@@ -853,13 +867,13 @@ mod tests {
 
     /// Noisy samples of a linear map, ten demonstrations of 60: a polynomial of degree 4 (210
     /// terms) fits the noise of the few it is fitted to.
-    fn linear_and_noisy() -> (Vec<[f64; 6]>, Vec<Position>, Vec<usize>) {
+    fn linear_and_noisy() -> (Vec<[f64; N]>, Vec<Position>, Vec<usize>) {
         use rand::{RngExt, SeedableRng};
         let mut rng = rand::rngs::StdRng::seed_from_u64(11);
         let (mut a, mut p, mut demo) = (Vec::new(), Vec::new(), Vec::new());
         for d in 0..10 {
             for _ in 0..60 {
-                let x: [f64; 6] = std::array::from_fn(|_| rng.random_range(0.2..0.8));
+                let x: [f64; N] = std::array::from_fn(|_| rng.random_range(0.2..0.8));
                 let noise = |rng: &mut rand::rngs::StdRng| rng.random_range(-0.005..0.005);
                 a.push(x);
                 p.push([
@@ -914,7 +928,7 @@ mod tests {
         // Too few demonstrations to judge (only the held-out one and the one after): the
         // configured degree.
         let two: Vec<usize> = (0..a.len()).filter(|i| demo[*i] < 2).collect();
-        let pick = |v: &[[f64; 6]]| two.iter().map(|i| v[*i]).collect::<Vec<_>>();
+        let pick = |v: &[[f64; N]]| two.iter().map(|i| v[*i]).collect::<Vec<_>>();
         let pick_p = |v: &[Position]| two.iter().map(|i| v[*i]).collect::<Vec<_>>();
         let d2: Vec<usize> = two.iter().map(|i| demo[*i]).collect();
         let lower = PolynomialConfig {
@@ -927,8 +941,8 @@ mod tests {
 
     #[test]
     fn pretraining_lowers_the_error_of_imitation_alone() {
-        let arm = ArmGeometry::default();
-        let data = TrainingData::from_plant(&arm, &recipe(), 7).unwrap();
+        let arm = pcc::Arm::of_config(&paper()).unwrap();
+        let data = TrainingData::<N>::from_plant(&paper(), &recipe(), 7).unwrap();
         let (net, _, _) = forward_model(
             &data.actuations,
             &data.positions,
@@ -973,9 +987,8 @@ mod tests {
 
     #[test]
     fn keep_going_stops_pre_training() {
-        let arm = ArmGeometry::default();
         let mut asked = 0;
-        let (_, r) = from_plant(&arm, &recipe(), 3, &quick(), |p| {
+        let (_, r) = from_plant::<N>(&paper(), &recipe(), 3, &quick(), |p| {
             asked += 1;
             p.epochs < 3
         })
@@ -986,11 +999,11 @@ mod tests {
 
     #[test]
     fn bad_input_is_an_error_not_a_panic() {
-        let arm = ArmGeometry::default();
-        let data = TrainingData::from_plant(&arm, &recipe(), 1).unwrap();
+        let arm = paper();
+        let data = TrainingData::<N>::from_plant(&arm, &recipe(), 1).unwrap();
         let t = quick();
         assert_eq!(
-            primitives::<6>(&[], 8).unwrap_err(),
+            primitives::<N>(&[], 8).unwrap_err(),
             PipelineError::NoRecordings
         );
 
@@ -1006,7 +1019,7 @@ mod tests {
                 .contains("201 times, 201 actuations and 200 positions")
         );
 
-        let gap: Vec<Recording> = data
+        let gap: Vec<Recording<N>> = data
             .recordings
             .iter()
             .filter(|r| r.class != 1)
@@ -1045,7 +1058,7 @@ mod tests {
             }
         );
         assert_eq!(
-            forward_model::<6>(&[], &[], &[], &t.forward).unwrap_err(),
+            forward_model::<N>(&[], &[], &[], &t.forward).unwrap_err(),
             PipelineError::NoSamples
         );
         // Only demonstration 0, which is held out: nothing to fit without it.
@@ -1075,7 +1088,7 @@ mod tests {
         let mut mismatched = data.clone();
         mismatched.positions.pop();
         assert!(train(&mismatched, &t, |_| true).is_err());
-        let e = from_plant(
+        let e = from_plant::<N>(
             &arm,
             &DemoRecipe {
                 demos_per_class: 0,
@@ -1115,8 +1128,10 @@ mod tests {
         m.write(&dir).unwrap();
         let back = Model::<9>::read_for_arm(&dir, &layout.identity()).unwrap();
         assert_eq!(back.learner, m.learner);
-        let paper = ArmGeometry::default().layout().identity();
-        let e = Model::read_for(&dir, &paper).unwrap_err().to_string();
+        let paper = paper().layout().unwrap().identity();
+        let e = Model::<N>::read_for_arm(&dir, &paper)
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("9 actuators (a1 .. a9) in 3 modules"), "{e}");
         std::fs::remove_dir_all(&dir).unwrap();
     }

@@ -9,6 +9,9 @@ use proptest::prelude::*;
 use softarm_model::bundle::Model;
 use softarm_test_support::quick_model;
 
+/// The actuators of the default `[arm]`, which [`quick_model`] is made for.
+const N: usize = 6;
+
 /// `n` cases, or `PROPTEST_CASES` when set (longer runs by hand).
 fn cases(n: u32) -> ProptestConfig {
     let n = std::env::var("PROPTEST_CASES")
@@ -81,7 +84,7 @@ proptest! {
             }
             std::fs::write(dir.join(name), &data).unwrap();
         }
-        let read = Model::read(&dir);
+        let read = Model::<N>::read_of(&dir);
         let _ = std::fs::remove_dir_all(&dir);
         if changed {
             // A change in the TOML's comments or whitespace could be harmless; one in the

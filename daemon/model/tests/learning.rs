@@ -4,13 +4,17 @@
 //! result is the same on every machine; small enough for a debug build. Full figures:
 //! `cargo run --release -p softarm-model --example convergence`.
 
+use softarm_kinematics::pcc;
 use softarm_learning::cacla::{evaluate, pretrain};
 use softarm_model::pipeline::{TrainingData, forward_model, imitation};
-use softarm_sections::arm::ArmGeometry;
+use softarm_sections::arm::ArmConfig;
 use softarm_sections::demonstrations::DemoRecipe;
 use softarm_sections::forward_model::NetworkConfig;
 use softarm_sections::learner::LearnerConfig;
 use softarm_sections::learner::PretrainConfig;
+
+/// The default `[arm]`'s actuators.
+const N: usize = 6;
 
 fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
@@ -23,9 +27,10 @@ fn mean(v: &[f64]) -> f64 {
 
 #[test]
 fn pretraining_on_the_forward_model_reaches_held_out_targets_on_the_plant() {
-    let arm = ArmGeometry::default();
+    let config = ArmConfig::default();
+    let arm = pcc::Arm::of_config(&config).unwrap();
     let recipe = DemoRecipe::default();
-    let data = TrainingData::from_plant(&arm, &recipe, 1).unwrap();
+    let data = TrainingData::<N>::from_plant(&config, &recipe, 1).unwrap();
     let (acts, positions) = (&data.actuations, &data.positions);
     let (net, fit, _) = forward_model(
         acts,
@@ -40,7 +45,7 @@ fn pretraining_on_the_forward_model_reaches_held_out_targets_on_the_plant() {
     assert!(fit.mean_m < 0.002, "forward model held-out error {fit:?}");
     // Held-out targets: every 97th sample of demonstrations made with another seed, kept where
     // they lie inside the demonstrated subspace (within 10 mm of a training sample).
-    let held_out = TrainingData::from_plant(&arm, &recipe, 99)
+    let held_out = TrainingData::<N>::from_plant(&config, &recipe, 99)
         .unwrap()
         .positions;
     let targets: Vec<[f64; 3]> = held_out

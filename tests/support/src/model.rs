@@ -1,7 +1,7 @@
 //! A model bundle made in seconds, for the tests, the rehearsal and its examples: the product
 //! trains its models through the stack (`softarm train`) or `softarm demo`.
 
-use softarm_config::arm::ArmGeometry;
+use softarm_config::arm::ArmConfig;
 use softarm_config::demonstrations::DemoRecipe;
 use softarm_config::forward_model::NetworkConfig;
 use softarm_config::learner::{LearnerConfig, PretrainConfig};
@@ -25,17 +25,21 @@ pub fn quick_training() -> Training {
     }
 }
 
-/// Writes a model bundle made in about two seconds into `dir` (demonstrations straight from the
-/// kinematic model, as many per class as `softarm train` makes, seed 5, [`quick_training`]); its
-/// id. Fewer demonstrations (it had six per class) give primitives so narrow that conditioning
-/// them far from their mean, as a changed arm needs, asks for paths the slew limit cannot
-/// follow, which no trained model does.
+/// Writes a model bundle of the default `[arm]` made in about two seconds into `dir`
+/// (demonstrations straight from its PCC kinematics, as many per class as `softarm train`
+/// makes, seed 5, [`quick_training`]); its id. Fewer demonstrations (it had six per class)
+/// give primitives so narrow that conditioning them far from their mean, as a changed arm
+/// needs, asks for paths the slew limit cannot follow, which no trained model does.
 pub fn quick_model(dir: &std::path::Path) -> String {
-    let arm = ArmGeometry::default();
-    let (mut model, _) = from_plant(&arm, &DemoRecipe::default(), 5, &quick_training(), |_| true)
-        .expect("the quick model trains");
-    model.arm = arm.layout().identity();
-    model.write(dir).expect("the quick model is written")
+    let arm = ArmConfig::default();
+    let layout = arm.layout().expect("the default [arm]");
+    softarm_ipc::with_actuators!(layout.actuators().len(), N => {
+        let (mut model, _) =
+            from_plant::<N>(&arm, &DemoRecipe::default(), 5, &quick_training(), |_| true)
+                .expect("the quick model trains");
+        model.arm = layout.identity();
+        model.write(dir).expect("the quick model is written")
+    }, n => unreachable!("{n} actuators"))
 }
 
 /// [`quick_model`] for the arm `config` describes, its demonstrations those the arm's recipe
@@ -55,13 +59,16 @@ pub fn quick_model_of(dir: &std::path::Path, config: &softarm_config::Config) ->
 
 #[cfg(test)]
 mod tests {
+    /// The default `[arm]`'s actuators.
+    const N: usize = 6;
+
     #[test]
     fn the_quick_model_is_written_and_reads_back() {
         let dir =
             std::env::temp_dir().join(format!("softarm-support-quick-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         let id = super::quick_model(&dir);
-        let m = softarm_model::bundle::Model::read(&dir).unwrap();
+        let m = softarm_model::bundle::Model::<N>::read_of(&dir).unwrap();
         assert_eq!(m.id, id);
         assert_eq!((m.actuation.len(), m.task.len()), (3, 3));
         assert_eq!(m.forward.centres(), 80);

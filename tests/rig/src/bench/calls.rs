@@ -8,13 +8,14 @@ use std::time::Instant;
 use nalgebra::DMatrix;
 use serde_json::{Map, Value};
 use softarm_config::activation::ActivationConfig;
-use softarm_config::arm::ArmGeometry;
+use softarm_config::arm::ArmConfig;
 use softarm_config::demonstrations::DemoRecipe;
 use softarm_config::forward_model::NetworkConfig;
 use softarm_config::kinematics::PolynomialConfig;
 use softarm_config::learner::LearnerConfig;
 use softarm_config::learner::PretrainConfig;
 use softarm_kinematics::forward::ForwardModel;
+use softarm_kinematics::pcc;
 use softarm_kinematics::poly::Polynomial;
 use softarm_kinematics::rbf::RbfNetwork;
 use softarm_method::blend::{Planner, Timeline};
@@ -22,6 +23,9 @@ use softarm_method::promp::{Basis, Demonstration, Primitive, TrainConfig};
 use softarm_model::pipeline::{self, Training, TrainingData};
 
 use super::{Out, Stats, header, histogram, record, row};
+
+/// The default `[arm]`'s actuators: the arm the calls are timed on.
+const N: usize = 6;
 
 /// Times each call; the `calls` object of the JSON output.
 pub(super) fn run(
@@ -37,8 +41,9 @@ pub(super) fn run(
         results: Map::new(),
         sink: 0.0,
     };
-    let arm = ArmGeometry::default();
-    let demos = TrainingData::from_plant(&arm, &DemoRecipe::default(), 1)?;
+    let config = ArmConfig::default();
+    let arm = pcc::Arm::of_config(&config).map_err(anyhow::Error::msg)?;
+    let demos = TrainingData::<N>::from_plant(&config, &DemoRecipe::default(), 1)?;
     t.blend(&demos, ticks, reconditions)?;
     t.blend_wider::<9>(&demos, ticks, reconditions)?;
     t.blend_wider::<16>(&demos, ticks, reconditions)?;
@@ -76,22 +81,23 @@ impl Timed<'_> {
     /// The Eq. 11 tick, and re-conditioning one group then ticking where it is needed.
     fn blend(
         &mut self,
-        demos: &TrainingData,
+        demos: &TrainingData<N>,
         ticks: usize,
         reconditions: usize,
     ) -> anyhow::Result<()> {
         let (actuation, _task) = pipeline::primitives(&demos.recordings, 15)?;
-        self.out.text(&header(
-            "Single calls (N=5 conditioning points, M=3 primitives, D=6, K=15, 10 s at 500 Hz)",
-        ));
-        self.time_blend::<6>(actuation, ticks, reconditions, "")
+        self.out.text(&header(&format!(
+            "Single calls (N=5 conditioning points, M=3 primitives, D={N}, K=15, 10 s at 500 Hz)"
+        )));
+        self.time_blend::<N>(actuation, ticks, reconditions, "")
     }
 
-    /// [`Timed::blend`] on an arm of `A` actuators: primitives of the paper's demonstrations
-    /// widened to `A` (actuator d follows a mix of two of the six), their timing the point.
+    /// [`Timed::blend`] on an arm of `A` actuators: primitives of the default `[arm]`'s
+    /// demonstrations widened to `A` (actuator d follows a mix of two of its `N`), their timing
+    /// the point.
     fn blend_wider<const A: usize>(
         &mut self,
-        demos: &TrainingData,
+        demos: &TrainingData<N>,
         ticks: usize,
         reconditions: usize,
     ) -> anyhow::Result<()> {
@@ -111,7 +117,7 @@ impl Timed<'_> {
                     .map(|r| {
                         let wide = DMatrix::from_fn(r.times.len(), A, |i, d| {
                             let a = &r.actuation[i];
-                            0.5 * (a[d % 6] + a[(5 * d + 1) % 6])
+                            0.5 * (a[d % N] + a[(5 * d + 1) % N])
                         });
                         Demonstration::new(r.times.clone(), wide)
                     })
@@ -173,8 +179,8 @@ impl Timed<'_> {
     /// kinematic model.
     fn cacla_update(
         &mut self,
-        arm: &ArmGeometry,
-        demos: &TrainingData,
+        arm: &pcc::Arm,
+        demos: &TrainingData<N>,
         updates: usize,
     ) -> anyhow::Result<()> {
         let warm = Training {
@@ -216,15 +222,15 @@ impl Timed<'_> {
     /// demonstrations, evaluated at the demonstrated actuations in turn.
     fn forward_models(
         &mut self,
-        arm: &ArmGeometry,
-        demos: &TrainingData,
+        arm: &pcc::Arm,
+        demos: &TrainingData<N>,
         evaluations: usize,
     ) -> anyhow::Result<()> {
         let (inputs, positions) = (&demos.actuations, &demos.positions);
         let net = RbfNetwork::fit(inputs, positions, &NetworkConfig::default())?;
         let poly = Polynomial::fit(inputs, positions, &PolynomialConfig::default())
             .map_err(anyhow::Error::msg)?;
-        let models: [(&str, String, &dyn ForwardModel); 3] = [
+        let models: [(&str, String, &dyn ForwardModel<N>); 3] = [
             (
                 "pcc_forward",
                 "PCC kinematics of the sim, one call".into(),
