@@ -421,40 +421,31 @@ pub fn init_logging(default: &str) {
         .try_init();
 }
 
-/// `softarm sim [--scenario NAME|FILE]`: the simulated arm, the config's or, for the paper's
-/// arm, a scenario's; a MuJoCo model of it with `[sim.mujoco]`.
+/// `softarm sim [--scenario NAME|FILE]`: the simulated arm, the config's or a scenario's; a
+/// MuJoCo model of it with `[sim.mujoco]`.
 fn sim(c: &Config, scenario: Option<&str>) -> anyhow::Result<()> {
     let scenario = scenario.map(Scenario::resolve).transpose()?;
     if let Some(s) = &scenario {
         tracing::info!(scenario = %s.name, "the sim runs another arm: {}", s.describe());
     }
-    let paper = c.paper_arm().ok().filter(|_| c.sim.mujoco.is_none());
-    let Some(configured) = paper else {
-        let on = match &scenario {
-            Some(s) => s.apply_to(&c.arm, &c.sim)?,
-            None => OnArm {
-                arm: c.arm.clone(),
-                sim: c.sim.clone(),
-                steps: Vec::new(),
-            },
-        };
-        let body = Body::of_arm(&on.arm, &on.steps).map_err(anyhow::Error::msg)?;
-        let physics = physics(c, &on)?;
-        return softarm_sim::run(
-            &on.sim,
-            body,
-            physics,
-            c.bus()?,
-            &c.estop_latch(),
-            &*stop_flag()?,
-        );
+    let on = match &scenario {
+        Some(s) => s.apply_to(&c.arm, &c.sim)?,
+        None => OnArm {
+            arm: c.arm.clone(),
+            sim: c.sim.clone(),
+            steps: Vec::new(),
+        },
     };
-    let (arm, sim) = match &scenario {
-        Some(s) => s.apply(&configured, &c.sim)?,
-        None => (configured, c.sim.clone()),
-    };
-    let body = Body::Paper(arm);
-    softarm_sim::run(&sim, body, None, c.bus()?, &c.estop_latch(), &*stop_flag()?)
+    let body = Body::of_arm(&on.arm, &on.steps).map_err(anyhow::Error::msg)?;
+    let physics = physics(c, &on)?;
+    softarm_sim::run(
+        &on.sim,
+        body,
+        physics,
+        c.bus()?,
+        &c.estop_latch(),
+        &*stop_flag()?,
+    )
 }
 
 /// The MuJoCo model `[sim.mujoco]` describes for the sim's arm, if it describes one.

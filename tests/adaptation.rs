@@ -245,7 +245,7 @@ fn a_running_stack_keeps_up_with_an_arm_that_changes() {
     let mut sim = Some(sim_as(&s, None, "nominal"));
     s.up();
     let config = Config::load(&s.config).unwrap();
-    let model = Model::read(&config.model_dir()).unwrap();
+    let model = Model::<6>::read(&config.model_dir()).unwrap();
     // Three executions to learn, and room for late estimates: each puts "from the third" off
     // by one, and two in four executions (seen on a busy machine) left nothing to judge.
     let phases = [

@@ -71,7 +71,7 @@ fn tensors_files(dir: &Path) -> Vec<String> {
 /// Which training made the bundle, checked whole: the quick model (`None`) or a train of this
 /// test (`Some(id)`); a panic for anything else, e.g. one training's metadata over another's
 /// tensors.
-fn made_by(m: &Model, quick: &Model, seed: u64, when: &str) -> Option<String> {
+fn made_by(m: &Model<6>, quick: &Model<6>, seed: u64, when: &str) -> Option<String> {
     let centres = m.forward.centres();
     if m.id == quick.id {
         assert_eq!(
@@ -177,7 +177,7 @@ fn train_killed_anywhere_leaves_a_whole_bundle_old_or_new() {
     });
     let model = s.dir.join("model");
     s.up();
-    let quick = Model::read(&model).unwrap();
+    let quick = Model::<6>::read(&model).unwrap();
 
     // Kills at seeded moments (over the ~6 s a train takes), and at each step of the write, in
     // a seeded order; a complete train somewhere among them, and one at the end.
@@ -206,7 +206,7 @@ fn train_killed_anywhere_leaves_a_whole_bundle_old_or_new() {
         let train_seed = 100 + round as u64 + 10 * retries;
         let (finished, left) = train(&s, train_seed, how, &model);
         let when = format!("round {round}, {how:?}");
-        let m = Model::read(&model)
+        let m = Model::<6>::read(&model)
             .unwrap_or_else(|e| panic!("seed {seed}, {when}: the folder does not read: {e}"));
         let now = made_by(&m, &quick, seed, &when);
         eprintln!(
@@ -280,7 +280,7 @@ fn train_asked_to_stop_ends_writing_nothing() {
     let mut s = TestStack::new(BIN, "train-stop", true);
     let model = s.dir.join("model");
     s.up();
-    let quick = Model::read(&model).unwrap();
+    let quick = Model::<6>::read(&model).unwrap();
     let log_path = s.dir.join("train-stop.log");
     let mut child = Guard::spawn(
         s.command()
@@ -314,6 +314,6 @@ fn train_asked_to_stop_ends_writing_nothing() {
         log.contains("stopped during the demonstrations; nothing was written"),
         "{log}"
     );
-    assert_eq!(Model::read(&model).unwrap().id, quick.id);
+    assert_eq!(Model::<6>::read(&model).unwrap().id, quick.id);
     assert!(temporaries(&model).is_empty(), "{:?}", names(&model));
 }

@@ -657,7 +657,7 @@ mod tests {
         // Combined: each step on the arm before it, the drifts on top.
         let combined = sim_of("combined");
         let at = |t: f64| {
-            let step = combined.steps.iter().filter(|(at_s, _)| *at_s <= t).last();
+            let step = combined.steps.iter().rfind(|(at_s, _)| *at_s <= t);
             step.map_or(&combined.arm, |(_, arm)| arm)
         };
         let state = |t| (at(t).tool_m, at(t).module_rotation_deg.unwrap()[0]);

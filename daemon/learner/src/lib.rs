@@ -28,9 +28,7 @@ use softarm_kinematics::pcc;
 use softarm_kinematics::poly::Polynomial;
 use softarm_learning::cacla::{CaclaMtl, LearnerState};
 use softarm_learning::online::{ArmState, OnlineLearner};
-use softarm_model::bundle::{
-    BundleError, BundleWatch, Model, read_checkpoint_of, write_checkpoint,
-};
+use softarm_model::bundle::{BundleError, BundleWatch, Model, read_checkpoint, write_checkpoint};
 use softarm_runtime::now_ns;
 
 struct Loaded<const N: usize> {
@@ -57,7 +55,7 @@ pub fn online_learner<const N: usize>(
 fn load<const N: usize>(config: &Config, configured: pcc::Arm) -> Result<Loaded<N>, BundleError> {
     let model_dir = config.model_dir();
     let model = Model::<N>::read_for_arm(&model_dir, &config.arm_identity())?;
-    let (state, arm) = match read_checkpoint_of::<N>(&config.state_dir()) {
+    let (state, arm) = match read_checkpoint::<N>(&config.state_dir()) {
         Ok(c) if c.model == model.id => {
             tracing::info!(
                 dir = %config.state_dir().display(),

@@ -22,7 +22,6 @@ use softarm_learning::arm::{Corrected, Sample};
 use softarm_learning::cacla::LearnerState;
 use softarm_learning::online::ArmState;
 use softarm_method::promp::{Basis, Primitive};
-use softarm_method::space::ACTUATORS;
 use softarm_sections::arm::ArmConfig;
 use softarm_sections::learner::LearnerConfig;
 
@@ -295,7 +294,7 @@ pub fn read<M: for<'de> Deserialize<'de>>(
 /// for the rehearsal and the root package's tests `adaptation` and `train_kill`, which name no
 /// `N` yet.)
 #[derive(Debug, Clone)]
-pub struct Model<const N: usize = ACTUATORS> {
+pub struct Model<const N: usize> {
     pub actuation: Vec<Primitive>,
     pub task: Vec<Primitive>,
     pub forward: RbfNetwork<N>,
@@ -424,7 +423,7 @@ impl<const N: usize> Model<N> {
         Ok(write(dir, "model", &meta, &t)?.fnv64)
     }
 
-    /// Reads the bundle in `dir` ([`Model::read_of`]) for the arm `arm`
+    /// Reads the bundle in `dir` ([`Model::read`]) for the arm `arm`
     /// (`softarm_arm::Layout::identity`): a bundle made for another arm is refused, naming
     /// both.
     /// Before the tensors: a bundle of another arm has other shapes, which are not what is
@@ -435,7 +434,7 @@ impl<const N: usize> Model<N> {
 
     /// Reads and checks the bundle of an arm of `N` actuators in `dir`; nothing is
     /// half-loaded.
-    pub fn read_of(dir: &Path) -> Result<Self, BundleError> {
+    pub fn read(dir: &Path) -> Result<Self, BundleError> {
         Self::read_checked(dir, None)
     }
 
@@ -505,14 +504,6 @@ impl<const N: usize> Model<N> {
             })
         };
         build().map_err(invalid)
-    }
-}
-
-impl Model {
-    /// [`Model::read_of`] six actuators: for the rehearsal and the root package's tests,
-    /// which name no `N` yet.
-    pub fn read(dir: &Path) -> Result<Self, BundleError> {
-        Self::read_of(dir)
     }
 }
 
@@ -608,13 +599,8 @@ pub struct Checkpoint<const N: usize> {
     pub model: String,
 }
 
-/// [`read_checkpoint_of`] six actuators: for the rehearsal's tests, which name no `N` yet.
-pub fn read_checkpoint(dir: &Path) -> Result<Checkpoint<ACTUATORS>, BundleError> {
-    read_checkpoint_of(dir)
-}
-
 /// Reads a learner checkpoint of an arm of `N` actuators.
-pub fn read_checkpoint_of<const N: usize>(dir: &Path) -> Result<Checkpoint<N>, BundleError> {
+pub fn read_checkpoint<const N: usize>(dir: &Path) -> Result<Checkpoint<N>, BundleError> {
     let (meta, t, _): (CheckpointMeta, _, _) = read(dir, "learner", "learner checkpoint")?;
     let invalid = |why: String| BundleError::Invalid {
         path: dir.join("learner.toml"),
@@ -815,7 +801,7 @@ mod tests {
         let m = model();
         let dir = tmp("roundtrip");
         let id = m.write(&dir).unwrap();
-        let back = Model::<N>::read_of(&dir).unwrap();
+        let back = Model::<N>::read(&dir).unwrap();
         assert_eq!(back.id, id);
         assert_eq!(back.actuation, m.actuation);
         assert_eq!(back.task, m.task);
@@ -859,7 +845,7 @@ mod tests {
             ],
         };
         write_checkpoint(&dir, &m.learner, &arm, &id).unwrap();
-        let back = read_checkpoint_of::<N>(&dir).unwrap();
+        let back = read_checkpoint::<N>(&dir).unwrap();
         assert_eq!(
             (back.state, back.arm, back.model),
             (m.learner.clone(), arm.clone(), id.clone())
@@ -923,14 +909,14 @@ mod tests {
         let good = fs::read(&tensors).unwrap();
 
         fs::write(&tensors, &good[..good.len() / 2]).unwrap();
-        let e = Model::<N>::read_of(&dir).unwrap_err().to_string();
+        let e = Model::<N>::read(&dir).unwrap_err().to_string();
         assert!(e.contains("truncated"), "{e}");
 
         let mut flipped = good.clone();
         let i = flipped.len() - 9;
         flipped[i] ^= 0x40;
         fs::write(&tensors, &flipped).unwrap();
-        let e = Model::<N>::read_of(&dir).unwrap_err().to_string();
+        let e = Model::<N>::read(&dir).unwrap_err().to_string();
         assert!(e.contains("corrupt"), "{e}");
 
         fs::write(&tensors, &good).unwrap();
@@ -941,11 +927,11 @@ mod tests {
             text.replace("basis_functions = 8", "basis_functions = 9"),
         )
         .unwrap();
-        let e = Model::<N>::read_of(&dir).unwrap_err().to_string();
+        let e = Model::<N>::read(&dir).unwrap_err().to_string();
         assert!(e.contains("shape"), "{e}");
         fs::write(&meta, text.replace("format = 2", "format = 7")).unwrap();
         assert!(
-            Model::<N>::read_of(&dir)
+            Model::<N>::read(&dir)
                 .unwrap_err()
                 .to_string()
                 .contains("format 7")
@@ -958,7 +944,7 @@ mod tests {
             .collect::<Vec<_>>()
             .join("\n");
         fs::write(&meta, old).unwrap();
-        let e = Model::<N>::read_of(&dir).unwrap_err().to_string();
+        let e = Model::<N>::read(&dir).unwrap_err().to_string();
         assert!(
             e.contains("format 1") && e.contains("reads format 2"),
             "{e}"
@@ -969,17 +955,17 @@ mod tests {
             text.replace("kinematics_degree = 4", "kinematics_degree = 3"),
         )
         .unwrap();
-        let e = Model::<N>::read_of(&dir).unwrap_err().to_string();
+        let e = Model::<N>::read(&dir).unwrap_err().to_string();
         assert!(e.contains("kinematics.weights"), "{e}");
         fs::write(&meta, text.replace("[learner]", "surprise = 1\n[learner]")).unwrap();
         assert!(
-            Model::<N>::read_of(&dir)
+            Model::<N>::read(&dir)
                 .unwrap_err()
                 .to_string()
                 .contains("surprise")
         );
         fs::write(&meta, &text).unwrap();
-        assert!(Model::<N>::read_of(&dir).is_ok());
+        assert!(Model::<N>::read(&dir).is_ok());
 
         // Another bundle's tensor file under this bundle's name: whole and well formed, but
         // not the tensors this metadata describes.
@@ -990,17 +976,17 @@ mod tests {
         let r2 = other.write(&dir2).unwrap();
         assert_ne!(r, r2);
         fs::copy(dir2.join(format!("model-{r2}.safetensors")), &tensors).unwrap();
-        let e = Model::<N>::read_of(&dir).unwrap_err().to_string();
+        let e = Model::<N>::read(&dir).unwrap_err().to_string();
         assert!(e.contains("corrupt") || e.contains("size"), "{e}");
         // A model bundle where a learner checkpoint is expected: refused, the file named.
         fs::write(&tensors, &good).unwrap();
         fs::copy(&meta, dir2.join("learner.toml")).unwrap();
         fs::copy(&tensors, dir2.join(format!("model-{r}.safetensors"))).unwrap();
-        let e = read_checkpoint_of::<N>(&dir2).unwrap_err().to_string();
+        let e = read_checkpoint::<N>(&dir2).unwrap_err().to_string();
         assert!(e.contains("learner.toml is not a valid bundle"), "{e}");
         fs::remove_dir_all(&dir2).unwrap();
 
-        let e = Model::<N>::read_of(&dir.join("nowhere"))
+        let e = Model::<N>::read(&dir.join("nowhere"))
             .unwrap_err()
             .to_string();
         assert!(e.contains("softarm train"), "{e}");

@@ -84,7 +84,7 @@ proptest! {
             }
             std::fs::write(dir.join(name), &data).unwrap();
         }
-        let read = Model::<N>::read_of(&dir);
+        let read = Model::<N>::read(&dir);
         let _ = std::fs::remove_dir_all(&dir);
         if changed {
             // A change in the TOML's comments or whitespace could be harmless; one in the

@@ -10,6 +10,7 @@ use anyhow::Context;
 use rand::rngs::StdRng;
 use rand::{RngExt, SeedableRng};
 use softarm_config::Config;
+use softarm_config::arm::ArmConfig;
 use softarm_config::scenario::Scenario;
 use softarm_config::waypoints::WaypointFile;
 use softarm_learner::{Learner, online_learner};
@@ -53,6 +54,11 @@ fn reachable(arm: &softarm_kinematics::pcc::Arm, target: &[f64; 3], rng: &mut St
     best
 }
 
+/// The sim's arm `arm`, nothing changing it.
+fn body(arm: &ArmConfig) -> anyhow::Result<Body> {
+    Body::of_arm(arm, &[]).map_err(anyhow::Error::msg)
+}
+
 fn main() -> anyhow::Result<()> {
     let dir = std::env::args().nth(1).context("MODEL_DIR")?;
     let minutes: f64 = std::env::args()
@@ -72,17 +78,18 @@ fn main() -> anyhow::Result<()> {
     }
     let demo = WaypointFile::load(std::path::Path::new("config/waypoints/demo.toml"))
         .map_err(anyhow::Error::msg)?;
+    let kinematics =
+        softarm_kinematics::pcc::Arm::of_config(&config.arm).map_err(anyhow::Error::msg)?;
     let online = || {
         online_learner(
             model.learner.clone(),
             model.kinematics.clone(),
             config.learner,
-            softarm_kinematics::pcc::Arm::of_config(&config.arm)?,
+            kinematics,
         )
         .map_err(anyhow::Error::msg)
     };
     let learner = Learner::new(online()?, &config);
-    let body = |arm| Body::of_arm(arm, &[]).map_err(anyhow::Error::msg);
     let mut r = Rehearsal::new(&model, &config, learner, body(&config.arm)?, &config.sim)?;
     let mut arm = config.arm.clone();
     let mut rng = StdRng::seed_from_u64(seed);

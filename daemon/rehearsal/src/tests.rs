@@ -630,3 +630,41 @@ fn settles_at_the_nearest_place(model: &Model<N>, target: Position) {
         );
     }
 }
+
+/// The rehearsal on another arm than the paper's, through the same tick and plant: the
+/// nine-tendon TDCR standing, its own quick model, the points `softarm demo` derives for it, and
+/// a 20 mm longer tool than the model knows: felt at the first execution, caught by the fifth.
+#[test]
+fn any_arm_is_rehearsed_and_a_longer_tool_is_caught() {
+    const TDCR: usize = 9;
+    let name = "tdcr";
+    let arm = softarm_config::arms::resolve(name).unwrap();
+    let text = softarm_config::arms::with_arm(softarm_config::DEFAULT, &arm, name).unwrap();
+    let config = Config::parse(&text, name, ".".into()).unwrap();
+    let dir = std::env::temp_dir().join(format!("softarm-rehearsal-tdcr-{}", std::process::id()));
+    softarm_test_support::quick_model_of(&dir, &config);
+    let model = Model::<TDCR>::read(&dir).unwrap();
+    let _ = std::fs::remove_dir_all(&dir);
+    let classes = softarm_method::skill::classes(&config.demonstrations, &config.layout());
+    let kinematics = pcc::Arm::of_config(&config.arm).unwrap();
+    let points = softarm_method::skill::demo_points::<TDCR>(&classes, &kinematics);
+    let mut set = WaypointFile::parse(DEMO).unwrap();
+    for (p, at) in set.point.iter_mut().zip(points) {
+        p.position_m = at;
+    }
+    let mut r = setup(&model, &config, "tool-change", Algorithm::GaussNewton);
+    let ours: Vec<f64> = (r.rehearse(&set, 8).unwrap().iter())
+        .map(|s| s.mean_m)
+        .collect();
+    eprintln!("the TDCR, tool-change: {:?} mm", mm(&ours));
+    assert!(
+        ours[0] > 0.008,
+        "the longer tool is felt: {:?} mm",
+        mm(&ours)
+    );
+    assert!(
+        ours[4..].iter().all(|e| *e <= 0.003),
+        "from execution 5 on {:?} mm",
+        mm(&ours)
+    );
+}

@@ -354,7 +354,7 @@ fn demo_set_on(config: &Config, dir: &Path) -> anyhow::Result<WaypointFile> {
     let classes = softarm_method::skill::classes(&config.demonstrations, &layout);
     let points = softarm_ipc::with_actuators!(layout.actuators().len(),
         N => {
-            let model = softarm_model::bundle::Model::<N>::read_of(dir)
+            let model = softarm_model::bundle::Model::<N>::read(dir)
                 .with_context(|| format!("the trained model in {}", dir.display()))?;
             softarm_method::skill::demo_points::<N>(&classes, &model.forward)
         },

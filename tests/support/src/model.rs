@@ -68,7 +68,7 @@ mod tests {
             std::env::temp_dir().join(format!("softarm-support-quick-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         let id = super::quick_model(&dir);
-        let m = softarm_model::bundle::Model::<N>::read_of(&dir).unwrap();
+        let m = softarm_model::bundle::Model::<N>::read(&dir).unwrap();
         assert_eq!(m.id, id);
         assert_eq!((m.actuation.len(), m.task.len()), (3, 3));
         assert_eq!(m.forward.centres(), 80);

@@ -306,7 +306,10 @@ mod tests {
         assert_eq!(tdcr.shorthand(), None);
         // Two modules of three tendons at other angles: not the paper's kind.
         let mut turned = paper.clone();
-        let tendons = turned.modules.as_mut().unwrap()[1].tendons.as_mut().unwrap();
+        let tendons = turned.modules.as_mut().unwrap()[1]
+            .tendons
+            .as_mut()
+            .unwrap();
         tendons.angles_deg = Some(vec![0.0, 90.0, 240.0]);
         assert_eq!(turned.shorthand(), None);
     }

@@ -31,7 +31,7 @@ use softarm_clients::{stats, status, submit};
 use softarm_config::scenario::Scenario;
 use softarm_config::waypoints::WaypointFile;
 use softarm_ipc::{ControllerStatus, Node, Sub, TrackerSample};
-use softarm_model::bundle::{Model, read_checkpoint_of};
+use softarm_model::bundle::{Model, read_checkpoint};
 use softarm_runtime::now_ns;
 use softarm_watch::{Limits, Watch};
 
@@ -246,7 +246,7 @@ fn sandbox_for(args: &Args) -> anyhow::Result<Sandbox> {
 fn lattices(config: &softarm_config::Config, model_dir: &std::path::Path) -> (usize, usize) {
     let n = config.layout().actuators().len();
     softarm_ipc::with_actuators!(n,
-        N => Model::<N>::read_of(model_dir)
+        N => Model::<N>::read(model_dir)
             .map(|m| (m.learner.actor.len(), m.learner.critic.len()))
             .unwrap_or_default(),
         _n => (0, 0))
@@ -697,7 +697,7 @@ impl<'a> Soak<'a> {
         let n = self.sandbox.config.layout().actuators().len();
         let state_dir = self.sandbox.config.state_dir();
         report.lattice_end = softarm_ipc::with_actuators!(n,
-            N => read_checkpoint_of::<N>(&state_dir)
+            N => read_checkpoint::<N>(&state_dir)
                 .map(|c| (c.state.actor.len(), c.state.critic.len()))
                 .ok(),
             _n => None)
