@@ -821,7 +821,7 @@ mod tests {
     fn a_motor_per_actuator_of_any_tendon_arm() {
         let tdcr = layout(concat!(
             env!("CARGO_MANIFEST_DIR"),
-            "/../../ipc/arm/testdata/tdcr.toml"
+            "/../../contract/arm/testdata/tdcr.toml"
         ));
         let nine = TendonConfig {
             ids: (11..20).collect(),
@@ -856,7 +856,7 @@ mod tests {
         assert_eq!(key, "tendon.direction");
         let hybrid = layout(concat!(
             env!("CARGO_MANIFEST_DIR"),
-            "/../../ipc/arm/testdata/hybrid.toml"
+            "/../../contract/arm/testdata/hybrid.toml"
         ));
         let (key, message) = nine
             .validate(&hybrid, &[0.0; 9], &[1.0; 9], 500.0)
@@ -872,7 +872,7 @@ mod tests {
     fn motors_on_more_than_one_bus() {
         let tdcr = layout(concat!(
             env!("CARGO_MANIFEST_DIR"),
-            "/../../ipc/arm/testdata/tdcr.toml"
+            "/../../contract/arm/testdata/tdcr.toml"
         ));
         let two = TendonConfig {
             ids: vec![1, 2, 3, 4, 5, 6, 1, 2, 3],

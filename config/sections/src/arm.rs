@@ -342,7 +342,7 @@ mod tests {
     /// The geometry's layout is the paper's arm as its description says it.
     #[test]
     fn the_geometry_is_the_papers_layout() {
-        let text = include_str!("../../../../ipc/arm/testdata/paper.toml");
+        let text = include_str!("../../../contract/arm/testdata/paper.toml");
         let paper = Layout::new(&toml::from_str(text).unwrap()).unwrap();
         assert_eq!(ArmGeometry::default().layout(), paper);
     }

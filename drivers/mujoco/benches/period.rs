@@ -39,7 +39,7 @@ fn plants() -> Vec<(String, ArmConfig, MujocoConfig, &'static Path)> {
         ("paper (6)", "config/arms/paper.toml"),
         ("tdcr (9)", "config/arms/tdcr.toml"),
         ("hybrid (8)", "config/arms/hybrid.toml"),
-        ("sixteen (16)", "daemon/model/examples/sixteen-tendons.toml"),
+        ("sixteen (16)", "models/model/examples/sixteen-tendons.toml"),
     ] {
         all.push((
             format!("generated {name}"),

@@ -675,7 +675,7 @@ mod tests {
     /// order or of another count are refused naming the step.
     #[test]
     fn a_stepped_arm_becomes_each_step_at_its_time() {
-        let text = include_str!("../../../ipc/arm/testdata/tdcr.toml");
+        let text = include_str!("../../../contract/arm/testdata/tdcr.toml");
         let layout = Layout::new(&toml::from_str(text).unwrap()).unwrap();
         let start = pcc::Arm::new(&layout, &[]);
         let mut longer = [0.0; 9];
@@ -711,7 +711,7 @@ mod tests {
     #[test]
     fn any_arm_creeps_and_cycles_as_its_drift_says() {
         use softarm_sections::changes::Rates;
-        let text = include_str!("../../../ipc/arm/testdata/tdcr.toml");
+        let text = include_str!("../../../contract/arm/testdata/tdcr.toml");
         let layout = Layout::new(&toml::from_str(text).unwrap()).unwrap();
         let arm = pcc::Arm::new(&layout, &[]);
         let mut rates = [0.0; 9];

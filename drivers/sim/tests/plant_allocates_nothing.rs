@@ -65,7 +65,7 @@ fn a_plant_step_on_a_changing_arm_allocates_nothing() {
 fn a_plant_step_on_any_arm_allocates_nothing() {
     use softarm_sections::sim::Realism;
     use softarm_sim::plant::{Body, Plant};
-    let text = include_str!("../../../ipc/arm/testdata/tdcr.toml");
+    let text = include_str!("../../../contract/arm/testdata/tdcr.toml");
     let layout = softarm_arm::Layout::new(&toml::from_str(text).unwrap()).unwrap();
     let realism = Realism {
         curvature_taper: 0.3,

@@ -249,9 +249,9 @@ mod tests {
         Layout::new(&toml::from_str::<Description>(text).unwrap()).unwrap()
     }
 
-    const PAPER: &str = include_str!("../../../ipc/arm/testdata/paper.toml");
-    const TDCR: &str = include_str!("../../../ipc/arm/testdata/tdcr.toml");
-    const HYBRID: &str = include_str!("../../../ipc/arm/testdata/hybrid.toml");
+    const PAPER: &str = include_str!("../../../contract/arm/testdata/paper.toml");
+    const TDCR: &str = include_str!("../../../contract/arm/testdata/tdcr.toml");
+    const HYBRID: &str = include_str!("../../../contract/arm/testdata/hybrid.toml");
 
     fn random_arcs(rng: &mut StdRng, routes: &Routes) -> [Arc; MAX_MODULES] {
         std::array::from_fn(|m| Arc {

@@ -523,7 +523,7 @@ mod tests {
             close(*lines[3].last().unwrap(), geometry.position(&a), 1e-12);
         }
         let tdcr: softarm_arm::Description =
-            toml::from_str(include_str!("../../../ipc/arm/testdata/tdcr.toml")).unwrap();
+            toml::from_str(include_str!("../../../contract/arm/testdata/tdcr.toml")).unwrap();
         let tdcr = Arm::new(&Layout::new(&tdcr).unwrap(), &[]);
         let a = [0.3, 0.6, 0.5, 0.5, 0.2, 0.7, 0.4, 0.5, 0.6];
         let lines = tdcr.backbone(&a, 8).unwrap();

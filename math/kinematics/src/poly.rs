@@ -271,7 +271,7 @@ mod tests {
     /// On any arm: the nine-tendon TDCR's kinematics.
     #[test]
     fn fits_a_nine_tendon_arm() {
-        let text = include_str!("../../../ipc/arm/testdata/tdcr.toml");
+        let text = include_str!("../../../contract/arm/testdata/tdcr.toml");
         let layout = softarm_arm::Layout::new(&toml::from_str(text).unwrap()).unwrap();
         let arm = crate::pcc::Arm::new(&layout, &[]);
         let mut rng = StdRng::seed_from_u64(9);

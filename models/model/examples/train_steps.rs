@@ -6,7 +6,7 @@
 //! memory after it, and the models' errors on held-out demonstrations.
 //!
 //! `cargo run --release -p softarm-model --example train_steps [-- ARM [SEED]]`, ARM `paper`
-//! (the default) or an `[arm]` file such as `daemon/model/examples/sixteen-tendons.toml`.
+//! (the default) or an `[arm]` file such as `models/model/examples/sixteen-tendons.toml`.
 
 use std::time::Instant;
 

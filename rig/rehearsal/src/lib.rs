@@ -64,7 +64,7 @@ pub enum Stalled {
     /// then the tick plays with the periods it missed as `skipped`, as the stack's does.
     Controller,
     /// The sim driver: no sample is published meanwhile, then it steps its plant by all the
-    /// time that passed on the newest setpoint, as hal-drivers/sim does.
+    /// time that passed on the newest setpoint, as drivers/sim does.
     Sim,
     /// The learner: what it answers meanwhile reaches the controller when the stall ends,
     /// which may be after the point it is for has started.
@@ -445,7 +445,7 @@ impl<'a> Rehearsal<'a> {
             self.plan.take(),
             &mut out,
         );
-        // The sim follows a fresh setpoint, not a stopped controller's (hal-drivers/driver).
+        // The sim follows a fresh setpoint, not a stopped controller's (drivers/driver).
         if let Some(s) = out.setpoint
             && s.state != ControllerState::Stopped as u32
         {

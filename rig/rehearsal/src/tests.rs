@@ -188,7 +188,7 @@ fn the_sim_steps_at_its_own_rate_on_the_newest_setpoint() {
 }
 
 /// A stalled sim publishes nothing meanwhile, then steps its plant by all the time that
-/// passed, as hal-drivers/sim does under load.
+/// passed, as drivers/sim does under load.
 #[test]
 fn a_stalled_sim_steps_by_all_the_time_it_slept() {
     let mut driver = SimDriver::new(ArmGeometry::default(), &SimConfig::default()).unwrap();
