@@ -92,7 +92,7 @@ fn a_one_point_set_improves_across_executions() {
 
 /// Issue 48: a way-point beyond the arm's reach, in the running stack. The demo set with its
 /// second point 80 mm below where it was, which the sim's arm comes within 21.8 mm of (a brute
-/// force over the sim's own arm, `daemon/rehearsal/src/tests.rs::nearest_reach`): the learner
+/// force over the sim's own arm, `rig/rehearsal/src/tests.rs::nearest_reach`): the learner
 /// brings it there and holds it, `stats` says it of that point in every execution, and the
 /// other points are not thrown by what it misses by.
 #[test]

@@ -181,15 +181,15 @@ fn every_item_path_and_link_the_docs_name_exists() {
 
 #[test]
 fn a_renamed_item_fails_the_check() {
-    assert_eq!(check_span("ipc/space/src/lib.rs::distance"), None);
+    assert_eq!(check_span("contract/space/src/lib.rs::distance"), None);
     assert_eq!(
-        check_span("daemon/controller/src/tick.rs::Tick::tick"),
+        check_span("processes/controller/src/tick.rs::Tick::tick"),
         None
     );
-    assert!(check_span("ipc/space/src/lib.rs::distanse").is_some());
+    assert!(check_span("contract/space/src/lib.rs::distanse").is_some());
     assert!(check_span("space.rs::distance").is_some());
-    assert!(check_span("daemon/model/tests/nowhere.rs").is_some());
-    assert_eq!(check_span("daemon/config/tests/fuzz.rs"), None);
+    assert!(check_span("models/model/tests/nowhere.rs").is_some());
+    assert_eq!(check_span("config/config/tests/fuzz.rs"), None);
     assert_eq!(check_span("/etc/softarm/softarm.toml"), None);
 }
 

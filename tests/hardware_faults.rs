@@ -10,7 +10,7 @@
 //!
 //! The tracker gone leaves the controller with stale tracker data, the tendon driver gone with
 //! stale motor state; the controller holds on either after `controller.tracker_timeout_ms`
-//! (`daemon/controller/src/tick.rs`, `Tick::health`), so the config's limits apply to both.
+//! (`processes/controller/src/tick.rs`, `Tick::health`), so the config's limits apply to both.
 //! A failure names the seed; SOFTARM_FAULT_SEED=N reruns that sequence.
 //!
 //! Also `softarm-rig soak` on this code path: its own kills, its report read back.

@@ -352,6 +352,259 @@ fn each_crate_links_only_what_its_layer_allows() {
     }
 }
 
+/// The workspace's top folders, bottom to top, each with the folders beneath it whose crates its
+/// crates may link (besides their own folder's). Crate `softarm-NAME` lives in `LAYER/NAME/`
+/// (ARCHITECTURE §1 says what each holds). The drivers link no model, and no client or process
+/// links a driver: they meet through services alone.
+const LAYERS: [(&str, &[&str]); 10] = [
+    ("contract", &[]),
+    ("config", &["contract"]),
+    ("math", &["contract", "config"]),
+    ("models", &["contract", "config", "math"]),
+    ("drivers", &["contract", "config", "math"]),
+    ("clients", &["contract", "config", "math", "models"]),
+    (
+        "processes",
+        &["contract", "config", "math", "models", "clients"],
+    ),
+    ("systemd", &["contract", "config"]),
+    (
+        "rig",
+        &[
+            "contract",
+            "config",
+            "math",
+            "models",
+            "drivers",
+            "clients",
+            "processes",
+        ],
+    ),
+    (
+        "tests",
+        &[
+            "contract",
+            "config",
+            "math",
+            "models",
+            "drivers",
+            "clients",
+            "processes",
+            "rig",
+        ],
+    ),
+];
+
+/// The packages whose folder is a top folder of their own: the root package (the repository's
+/// root, its code in `src/`) and systemd (`softarm install`, beside the units it installs).
+const OWN_FOLDER: [(&str, &str); 2] = [("softarm", "./"), ("softarm-systemd", "systemd/")];
+
+/// Package name -> its folder from the repository's root as the crate table writes it:
+/// `LAYER/NAME/`, `./` for the root package.
+fn folders() -> BTreeMap<String, String> {
+    let packages = packages();
+    let manifest_dir = |p: &Value| {
+        std::path::PathBuf::from(p["manifest_path"].as_str().unwrap())
+            .parent()
+            .unwrap()
+            .to_path_buf()
+    };
+    let root = manifest_dir(
+        packages
+            .iter()
+            .find(|p| p["name"] == "softarm")
+            .expect("the root package"),
+    );
+    packages
+        .iter()
+        .map(|p| {
+            let dir = manifest_dir(p);
+            let dir = dir.strip_prefix(&root).unwrap().to_str().unwrap();
+            let folder = if dir.is_empty() {
+                "./".to_string()
+            } else {
+                format!("{dir}/")
+            };
+            (p["name"].as_str().unwrap().to_string(), folder)
+        })
+        .collect()
+}
+
+/// A folder names a layer, so that the folders alone draw the layering: crate `softarm-NAME`
+/// lives in `LAYER/NAME/` (LAYER one of [`LAYERS`]' folders; `softarm-test-NAME` in
+/// `tests/NAME/`), none inside another's folder, and it links only crates of its own folder and
+/// of the folders beneath it.
+#[test]
+fn each_crate_lives_in_its_layers_folder() {
+    let folders = folders();
+    let layers: Vec<&str> = LAYERS.iter().map(|(l, _)| *l).collect();
+    let mut wrong = Vec::new();
+    for (name, folder) in &folders {
+        let short = name.strip_prefix("softarm-").unwrap_or(name);
+        let placed = match OWN_FOLDER.iter().find(|(n, _)| n == name) {
+            Some((_, own)) => folder == own,
+            // The end-to-end tests' own crates are `softarm-test-NAME`, in `tests/NAME/`.
+            None => layers.iter().any(|l| {
+                let short = if *l == "tests" {
+                    short.strip_prefix("test-")
+                } else {
+                    Some(short)
+                };
+                short.is_some_and(|s| *folder == format!("{l}/{s}/"))
+            }),
+        };
+        if !placed {
+            wrong.push(format!(
+                "{name} is in {folder}: a crate softarm-NAME lives in LAYER/NAME/, LAYER the folder \
+                 of its layer, one of {} (bottom to top; ARCHITECTURE §1 says what each holds); \
+                 the end-to-end tests' softarm-test-NAME in tests/NAME/",
+                layers.join("/, ") + "/"
+            ));
+        }
+        for (other, inner) in &folders {
+            if other != name && folder != "./" && inner.starts_with(folder.as_str()) {
+                wrong.push(format!(
+                    "{other} is in {inner}, inside {name}'s folder: crates do not nest"
+                ));
+            }
+        }
+    }
+    let layer = |name: &str| folders[name].split('/').next().unwrap().to_string();
+    for (name, deps) in graph() {
+        let Some((mine, beneath)) = LAYERS.iter().find(|(l, _)| *l == layer(&name)) else {
+            continue; // the root package: it links what its commands need
+        };
+        for d in deps.iter().filter(|d| folders.contains_key(*d)) {
+            let theirs = layer(d);
+            if theirs != *mine && !beneath.contains(&theirs.as_str()) {
+                wrong.push(format!(
+                    "{name} ({mine}/) links {d} ({theirs}/): a crate of {mine}/ links only crates \
+                     of {mine}/ and of {}",
+                    if beneath.is_empty() {
+                        "nothing beneath it".to_string()
+                    } else {
+                        beneath.join("/, ") + "/"
+                    }
+                ));
+            }
+        }
+    }
+    assert!(wrong.is_empty(), "{}", wrong.join("\n"));
+}
+
+/// A cell of "links (ours, directly)": the names of `a, b, c`, none for `nothing`, sorted.
+fn link_names(cell: &str) -> Vec<String> {
+    let mut names: Vec<String> = if cell.trim() == "nothing" {
+        Vec::new()
+    } else {
+        cell.split(',').map(|n| n.trim().to_string()).collect()
+    };
+    names.sort();
+    names
+}
+
+/// ARCHITECTURE §1's crate table says what the manifests say: a row per package; its folder;
+/// its links: its direct normal (not dev, not build) dependencies on the workspace's crates,
+/// named without `softarm-` (`nothing` for none), and after them, for each feature that enables
+/// some of its optional ones, `; with `FEATURE` (a note): a, b`.
+#[test]
+fn the_crate_table_says_what_the_manifests_do() {
+    let doc = concat!(env!("CARGO_MANIFEST_DIR"), "/docs/ARCHITECTURE.md");
+    let text = std::fs::read_to_string(doc).unwrap();
+    let header = "| crate | folder | what it does | links (ours, directly) |";
+    let mut rows: BTreeMap<String, (String, String)> = BTreeMap::new();
+    let mut wrong = Vec::new();
+    let lines = text
+        .lines()
+        .skip_while(|l| *l != header)
+        .skip(2)
+        .take_while(|l| l.starts_with("| `"));
+    for line in lines {
+        let cells: Vec<&str> = line.split('|').map(str::trim).collect();
+        let (name, folder, links) = (cells[1], cells[2], cells[cells.len() - 2]);
+        let name = name.trim_matches('`').to_string();
+        let row = (folder.trim_matches('`').to_string(), links.to_string());
+        if rows.insert(name.clone(), row).is_some() {
+            wrong.push(format!("{name} has two rows"));
+        }
+    }
+    assert!(
+        rows.len() > 10,
+        "no crate table in {doc} (its header: {header})"
+    );
+    let folders = folders();
+    let short = |n: &str| n.strip_prefix("softarm-").unwrap_or(n).to_string();
+    for p in packages() {
+        let name = p["name"].as_str().unwrap();
+        let Some((folder, links)) = rows.remove(name) else {
+            wrong.push(format!("{name} has no row"));
+            continue;
+        };
+        if folder != folders[name] {
+            wrong.push(format!(
+                "{name}: the table says its folder is {folder}, it is {}",
+                folders[name]
+            ));
+        }
+        let ours: Vec<&Value> = p["dependencies"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|d| d["kind"].is_null() && folders.contains_key(d["name"].as_str().unwrap()))
+            .collect();
+        let mut always: Vec<String> = ours
+            .iter()
+            .filter(|d| d["optional"] != true)
+            .map(|d| short(d["name"].as_str().unwrap()))
+            .collect();
+        always.sort();
+        let mut by_feature = BTreeMap::new();
+        for (feature, enables) in p["features"].as_object().unwrap() {
+            let mut deps: Vec<String> = ours
+                .iter()
+                .filter(|d| d["optional"] == true)
+                .map(|d| d["name"].as_str().unwrap())
+                .filter(|d| {
+                    enables
+                        .as_array()
+                        .unwrap()
+                        .contains(&format!("dep:{d}").into())
+                })
+                .map(short)
+                .collect();
+            deps.sort();
+            if !deps.is_empty() {
+                by_feature.insert(feature.clone(), deps);
+            }
+        }
+        let mut parts = links.split("; with `");
+        let said = link_names(parts.next().unwrap());
+        let said_by_feature: BTreeMap<String, Vec<String>> = parts
+            .map(|part| {
+                let (feature, rest) = part.split_once('`').unwrap_or((part, ""));
+                let list = rest.split_once(": ").map_or("", |(_, l)| l);
+                (feature.to_string(), link_names(list))
+            })
+            .collect();
+        if said != always || said_by_feature != by_feature {
+            wrong.push(format!(
+                "{name}: the table says it links {said:?}, with features {said_by_feature:?}; \
+                 its manifest {always:?}, with features {by_feature:?}"
+            ));
+        }
+    }
+    for name in rows.keys() {
+        wrong.push(format!(
+            "{name} has a row, and the workspace no such package"
+        ));
+    }
+    assert!(
+        wrong.is_empty(),
+        "{doc}, §1's crate table:\n{}",
+        wrong.join("\n")
+    );
+}
+
 /// The root package's dependencies on the test kit's commands (`softarm-rig emulate`, `soak`,
 /// `bench`) are optional and enabled by its `rig` feature alone, which the `softarm-rig`
 /// binary requires: `--no-default-features` builds the product without them.

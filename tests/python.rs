@@ -277,7 +277,7 @@ fn rust_layouts() -> Vec<Layout> {
 /// Every `#[type_name("...")]` in `softarm-ipc`'s sources: a payload added there and not here
 /// (or in Python) is noticed.
 fn declared_type_names() -> Vec<String> {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("ipc/src");
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("contract/ipc/src");
     let mut names = Vec::new();
     for e in std::fs::read_dir(&dir).unwrap().flatten() {
         let text = std::fs::read_to_string(e.path()).unwrap_or_default();

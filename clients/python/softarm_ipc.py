@@ -1,4 +1,4 @@
-"""Python mirrors of softarm's iceoryx2 contract (``ipc/src/lib.rs``, crate ``softarm-ipc``).
+"""Python mirrors of softarm's iceoryx2 contract (``contract/ipc/src/lib.rs``, crate ``softarm-ipc``).
 
 Every payload a softarm process publishes is a ``#[repr(C)]`` Rust struct with a
 ``#[type_name("softarm::...")]`` attribute. iceoryx2 connects two ports only when the payload's
@@ -42,7 +42,7 @@ try:  # The mirrors are usable (and their layout checkable) without iceoryx2.
 except ImportError:  # pragma: no cover - depends on the machine
     iox2 = None
 
-# --- constants (ipc/src/lib.rs, daemon/method/src/space.rs) -------------------------------------
+# --- constants (contract/ipc/src/lib.rs, contract/space/src/lib.rs) --------------------------------
 
 MAX_ACTUATORS = 16
 """Most actuators an arm may have: the capacity of an ``Actuators``."""
@@ -442,7 +442,7 @@ PAYLOADS: list[Type[_Payload]] = [
     ControllerStatus,
     EstopState,
 ]
-"""Every mirror, in the order of ``ipc/src/lib.rs``."""
+"""Every mirror, in the order of ``contract/ipc/src/lib.rs``."""
 
 # --- services -----------------------------------------------------------------------------------
 

@@ -3,7 +3,7 @@
 //!
 //! A channel's topic is the service's name (`setpoint`, `tracker`, ...); its messages are JSON
 //! (`message_encoding = "json"`), one object per sample with the payload's field names
-//! (`ipc/src/lib.rs`), NaN as `null`; its schema is a JSON Schema (`encoding = "jsonschema"`)
+//! (`contract/ipc/src/lib.rs`), NaN as `null`; its schema is a JSON Schema (`encoding = "jsonschema"`)
 //! named after the payload's iceoryx2 type name (`softarm::Setpoint`, ...), made from the
 //! payload's type (its default value), so it is known before the first sample.
 //!
@@ -129,7 +129,7 @@ fn schema<T: Serialize + Default + ZeroCopySend>(topic: &str) -> (&'static str, 
     let mut s = json!({
         "$schema": "https://json-schema.org/draft/2020-12/schema",
         "title": name,
-        "description": format!("softarm service `{topic}`: {name} (ipc/src/lib.rs)"),
+        "description": format!("softarm service `{topic}`: {name} (contract/ipc/src/lib.rs)"),
     });
     let mut shape = schema_of(&serde_json::to_value(T::default()).expect("a payload is JSON"));
     if let Some((_, field)) = per_point(topic) {

@@ -4,7 +4,7 @@ prints its tensors' names, shapes and dtypes.
 
     python3 read_bundle.py FOLDER [--json] [--no-verify]
 
-A bundle (``daemon/model/src/bundle.rs``) is ``<stem>.toml`` (metadata) plus the tensors file it
+A bundle (``models/model/src/bundle.rs``) is ``<stem>.toml`` (metadata) plus the tensors file it
 names, ``<stem>-<fnv64>.safetensors``; the TOML's ``[tensors]`` section gives the file, its size
 and its FNV-1a 64 hash, which this script checks (``--no-verify`` skips the hash). Stems:
 ``model`` (``model.toml``, ``kind = "softarm-model"``, written by ``softarm train``; the config's

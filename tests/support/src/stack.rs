@@ -1,5 +1,5 @@
 //! The end-to-end harness: a stack of real `softarm` processes in a folder and an iceoryx2
-//! namespace of its own (the product's sandbox, `daemon/stack/src/sandbox.rs::Sandbox`, as
+//! namespace of its own (the product's sandbox, `processes/stack/src/sandbox.rs::Sandbox`, as
 //! `softarm demo` has), so tests run in parallel without crosstalk. The binary's path comes from
 //! the caller: `env!("CARGO_BIN_EXE_softarm")` (and `softarm-rig`'s, for `emulate`) exists only
 //! in the root package's tests.
