@@ -17,7 +17,8 @@ use softarm_config::scenario::{OnArm, Scenario};
 use softarm_config::{Config, ConfigError};
 use softarm_record::{plot, record};
 use softarm_runtime::stop_flag;
-use softarm_sim::plant::Body;
+use softarm_sim::command::plant_refused;
+use softarm_sim::plant::Physics;
 use softarm_stack::demo;
 use softarm_stack::supervisor as up;
 use softarm_systemd as install;
@@ -313,45 +314,10 @@ pub fn init_logging(default: &str) {
         .try_init();
 }
 
-/// `softarm sim [--scenario NAME|FILE]`: the simulated arm, the config's or, for the paper's
-/// arm, a scenario's; a MuJoCo model of it with `[sim.mujoco]`.
-fn sim(c: &Config, scenario: Option<&str>) -> anyhow::Result<()> {
-    let scenario = scenario.map(Scenario::resolve).transpose()?;
-    if let Some(s) = &scenario {
-        tracing::info!(scenario = %s.name, "the sim runs another arm: {}", s.describe());
-    }
-    let paper = c.paper_arm().ok().filter(|_| c.sim.mujoco.is_none());
-    let Some(configured) = paper else {
-        let on = match &scenario {
-            Some(s) => s.apply_to(&c.arm, &c.sim)?,
-            None => OnArm {
-                arm: c.arm.clone(),
-                sim: c.sim.clone(),
-                steps: Vec::new(),
-            },
-        };
-        let body = Body::of_arm(&on.arm, &on.steps).map_err(anyhow::Error::msg)?;
-        let physics = physics(c, &on)?;
-        return softarm_sim::run(
-            &on.sim,
-            body,
-            physics,
-            c.bus()?,
-            &c.estop_latch(),
-            &*stop_flag()?,
-        );
-    };
-    let (arm, sim) = match &scenario {
-        Some(s) => s.apply(&configured, &c.sim)?,
-        None => (configured, c.sim.clone()),
-    };
-    let body = Body::Paper(arm);
-    softarm_sim::run(&sim, body, None, c.bus()?, &c.estop_latch(), &*stop_flag()?)
-}
-
-/// The MuJoCo model `[sim.mujoco]` describes for the sim's arm, if it describes one.
+/// The MuJoCo model `[sim.mujoco]` describes for the sim's arm, if it describes one: MuJoCo
+/// is the binary's, behind its `mujoco` feature (`softarm_sim::command::PhysicsOf`).
 #[cfg(feature = "mujoco")]
-fn physics(c: &Config, on: &OnArm) -> anyhow::Result<Option<Box<dyn softarm_sim::plant::Physics>>> {
+fn physics(c: &Config, on: &OnArm) -> anyhow::Result<Option<Box<dyn Physics>>> {
     let Some(mujoco) = &on.sim.mujoco else {
         return Ok(None);
     };
@@ -361,20 +327,8 @@ fn physics(c: &Config, on: &OnArm) -> anyhow::Result<Option<Box<dyn softarm_sim:
     Ok(Some(Box::new(arm)))
 }
 
-/// A plant that cannot run the arm, refused as a config is.
-fn plant_refused(message: String) -> ConfigError {
-    ConfigError {
-        origin: "the sim's plant".into(),
-        line: None,
-        message,
-    }
-}
-
 #[cfg(not(feature = "mujoco"))]
-fn physics(
-    _c: &Config,
-    on: &OnArm,
-) -> anyhow::Result<Option<Box<dyn softarm_sim::plant::Physics>>> {
+fn physics(_c: &Config, on: &OnArm) -> anyhow::Result<Option<Box<dyn Physics>>> {
     match on.sim.mujoco {
         None => Ok(None),
         Some(_) => Err(plant_refused(
@@ -428,7 +382,7 @@ pub fn run(command: Command) -> anyhow::Result<ExitCode> {
         Command::Sim { stack, scenario } => {
             let c = stack.loader().load()?;
             keep_pace(&c);
-            sim(&c, scenario.as_deref())?
+            softarm_sim::command::run(&c, scenario.as_deref(), &physics)?
         }
         Command::Tendon(stack) => {
             let c = stack.loader().load_with("tendon", |c| c.tendon.is_some())?;
@@ -662,9 +616,7 @@ pub fn quiet(command: &Command) -> bool {
 
 /// The plant `softarm-rig emulate` couples its emulated devices through: the config's MuJoCo
 /// model with `[sim.mujoco]`, else none (the emulators' own kinematics).
-pub fn emulated_physics(
-    c: &Config,
-) -> anyhow::Result<Option<Box<dyn softarm_sim::plant::Physics>>> {
+pub fn emulated_physics(c: &Config) -> anyhow::Result<Option<Box<dyn Physics>>> {
     let on = OnArm {
         arm: c.arm.clone(),
         sim: c.sim.clone(),
