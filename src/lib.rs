@@ -13,9 +13,9 @@ use softarm_channels::scene;
 use softarm_clients::{estop, stats, status, submit};
 use softarm_config::files::FileKind;
 use softarm_config::load::Loader;
-use softarm_config::scenario::{OnArm, Scenario};
+use softarm_config::scenario::OnArm;
 use softarm_config::{Config, ConfigError};
-use softarm_record::{plot, record};
+use softarm_record::{plot, poses, record};
 use softarm_runtime::stop_flag;
 use softarm_sim::command::plant_refused;
 use softarm_sim::plant::Physics;
@@ -231,25 +231,6 @@ impl RecordingArgs {
         let loader = stack.loader();
         loader.with_arm(loader.load()?, self.arm.as_deref())
     }
-
-    /// The recording at `path` of `arm`: softarm's own (`.mcap`), else a CSV through
-    /// `--columns`.
-    fn read(
-        &self,
-        path: &Path,
-        arm: &softarm_arm::Layout,
-    ) -> anyhow::Result<softarm_identify::recording::Recording> {
-        if path.extension().is_some_and(|e| e == "mcap") {
-            return softarm_record::poses::read(path, arm);
-        }
-        let columns = self.columns.as_deref().with_context(|| {
-            format!(
-                "{}: a CSV recording needs its column map: --columns FILE",
-                path.display()
-            )
-        })?;
-        Ok(softarm_identify::run::read_recording(path, columns, arm)?)
-    }
 }
 
 #[derive(Subcommand)]
@@ -358,20 +339,7 @@ pub fn run(command: Command) -> anyhow::Result<ExitCode> {
         Command::Up { stack, scenario } => {
             let loader = stack.loader();
             let config = loader.load()?;
-            if let Some(s) = &scenario {
-                // Refused here, before anything starts, rather than by a restarting sim.
-                Scenario::resolve(s)?.check_on(&config)?;
-            }
-            up::run(
-                loader.args(),
-                &config.robot.drivers,
-                up::Extras {
-                    view: config.view.enabled,
-                    ros2: config.ros2.enabled,
-                },
-                scenario.as_deref(),
-                &*stop_flag()?,
-            )?
+            up::run_config(loader.args(), &config, scenario.as_deref(), &*stop_flag()?)?
         }
         Command::Controller(stack) => {
             let c = stack.loader().load()?;
@@ -405,7 +373,7 @@ pub fn run(command: Command) -> anyhow::Result<ExitCode> {
         } => {
             let config = recording.config(&stack)?;
             let out = output.unwrap_or_else(|| config.model_dir());
-            let rows = recording.read(&from, &config.layout())?;
+            let rows = poses::read_any(&from, recording.columns.as_deref(), &config.layout())?;
             let trained = train::recording::train_from(&config, rows, &out)
                 .with_context(|| format!("train --from {}", from.display()))?;
             println!("{}", trained.summary());
@@ -421,13 +389,9 @@ pub fn run(command: Command) -> anyhow::Result<ExitCode> {
                 },
         } => {
             let config = columns.config(&stack)?;
-            let model = match model {
-                Some(dir) if dir.is_dir() => dir.join(softarm_identify::run::MODEL_FILE),
-                Some(file) => file,
-                None => config.model_dir().join(softarm_identify::run::MODEL_FILE),
-            };
+            let model = softarm_identify::run::model_file(model, &config.model_dir());
             let arm = config.layout();
-            let rows = columns.read(&recording, &arm)?;
+            let rows = poses::read_any(&recording, columns.columns.as_deref(), &arm)?;
             let check = train::recording::check(&arm, &rows, &model)?;
             if json {
                 println!("{}", check.json());
@@ -518,10 +482,7 @@ pub fn run(command: Command) -> anyhow::Result<ExitCode> {
             ..
         } => {
             let config = stack.loader().load()?;
-            let json =
-                serde_json::to_string_pretty(&softarm_view::layout::for_arm(&config.layout()))?;
-            softarm_runtime::file::write_atomic(&file, format!("{json}\n").as_bytes(), None)
-                .with_context(|| format!("writing the layout to {}", file.display()))?;
+            softarm_view::write_layout(&file, &config.layout())?;
             println!(
                 "{}: the Foxglove layout for {}",
                 file.display(),
