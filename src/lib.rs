@@ -12,13 +12,13 @@ use clap::{Parser, Subcommand};
 use softarm_channels::scene;
 use softarm_clients::{estop, stats, status, submit};
 use softarm_config::files::FileKind;
-use softarm_config::scenario::{OnArm, Scenario};
+use softarm_config::load::Loader;
+use softarm_config::scenario::OnArm;
 use softarm_config::{Config, ConfigError};
-use softarm_ipc::Namespace;
-use softarm_record::{plot, record};
-use softarm_runtime::identity::StackUser;
+use softarm_record::{plot, poses, record};
 use softarm_runtime::stop_flag;
-use softarm_sim::plant::Body;
+use softarm_sim::command::plant_refused;
+use softarm_sim::plant::Physics;
 use softarm_stack::demo;
 use softarm_stack::supervisor as up;
 use softarm_systemd as install;
@@ -46,100 +46,12 @@ pub struct Stack {
 }
 
 impl Stack {
-    /// The config file this command uses; `None`: the embedded one.
-    fn path(&self) -> Option<PathBuf> {
-        softarm_config::locate(
-            self.config.as_deref(),
-            std::env::var_os(softarm_config::CONFIG_ENV),
-            Path::new(softarm_config::INSTALLED),
-        )
-    }
-
-    /// The config, and this process made the stack's user when the config names one (root and
-    /// its operators become it; anyone else is refused): so it joins the stack's services as
-    /// the stack itself, before it opens any.
-    fn load(&self) -> anyhow::Result<Config> {
-        Ok(self.load_reading(|| ())?.0)
-    }
-
-    /// The config as read, without joining the stack: for what only looks at it.
-    fn read(&self) -> anyhow::Result<Config> {
-        let mut c = match &self.path() {
-            Some(p) => {
-                if let Some(refused) = softarm_runtime::identity::config_unreadable(p) {
-                    return Err(refused.into());
-                }
-                Config::load(p)?
-            }
-            None => {
-                let mut c = Config::default_sim(PathBuf::from("."));
-                // The latch is never relative to wherever the command happens to run.
-                c.state.dir = softarm_config::user_state_dir();
-                c
-            }
-        };
-        if let Some(ns) = &self.namespace {
-            Namespace::new(ns).context("--namespace")?;
-            c.robot.namespace = Some(ns.clone());
+    /// How this command finds, reads and joins its config: `softarm-config`'s loader.
+    fn loader(&self) -> Loader {
+        Loader {
+            config: self.config.clone(),
+            namespace: self.namespace.clone(),
         }
-        Ok(c)
-    }
-
-    /// [`Stack::load`], running `as_caller` with the rights of the person who ran the command,
-    /// before this process becomes the stack's user: for the files they name.
-    fn load_reading<R>(&self, as_caller: impl FnOnce() -> R) -> anyhow::Result<(Config, R)> {
-        let path = self.path();
-        let c = self.read()?;
-        let (Some(user), Some(group)) = (&c.host.user, &c.host.group) else {
-            return Ok((c, as_caller()));
-        };
-        let r = softarm_runtime::identity::join_with(
-            &StackUser {
-                user: user.clone(),
-                group: group.clone(),
-                gate: c.host.gate.clone(),
-                config: path.map_or("the embedded config".into(), |p| p.display().to_string()),
-            },
-            as_caller,
-        )?;
-        Ok((c, r))
-    }
-
-    /// [`Stack::load`] for a process that needs config section `[section]`: without it the
-    /// config is refused (exit 78, not restarted).
-    fn load_with(&self, section: &str, has: impl Fn(&Config) -> bool) -> anyhow::Result<Config> {
-        let c = self.load()?;
-        if has(&c) {
-            return Ok(c);
-        }
-        Err(ConfigError {
-            origin: self
-                .config
-                .as_ref()
-                .map_or("the embedded config".into(), |p| p.display().to_string()),
-            line: None,
-            message: format!(
-                "no [{section}] section: the {section} driver needs one (config/hardware.toml \
-                 has an example)"
-            ),
-        }
-        .into())
-    }
-
-    fn namespace(&self) -> anyhow::Result<Namespace> {
-        Ok(self.load()?.bus()?)
-    }
-
-    /// The arguments that start a child on the same stack.
-    fn args(&self) -> Vec<String> {
-        let mut v = Vec::new();
-        if let Some(c) = self.path() {
-            v.extend(["--config".into(), c.display().to_string()]);
-        }
-        if let Some(n) = &self.namespace {
-            v.extend(["--namespace".into(), n.clone()]);
-        }
-        v
     }
 }
 
@@ -300,26 +212,6 @@ pub enum Command {
     Uninstall(install::UninstallArgs),
 }
 
-/// `loaded` with `arm`'s arm in it (a shipped arm's name or an arm file), and the boxes its
-/// reach bounds; as loaded without one.
-fn with_arm(loaded: Config, arm: Option<&str>, stack: &Stack) -> anyhow::Result<Config> {
-    let Some(arm) = arm else {
-        return Ok(loaded);
-    };
-    let (text, origin) = match stack.path() {
-        Some(p) => (std::fs::read_to_string(&p)?, p.display().to_string()),
-        None => (
-            softarm_config::DEFAULT.to_string(),
-            "embedded default config".into(),
-        ),
-    };
-    let text = softarm_config::arms::with_arm(&text, &softarm_config::arms::resolve(arm)?, arm)?;
-    let mut c = Config::parse(&text, &origin, loaded.base_dir.clone())?;
-    c.state.dir = loaded.state.dir;
-    c.robot.namespace = loaded.robot.namespace;
-    Ok(c)
-}
-
 /// A recording's column map, and the arm it is of.
 #[derive(clap::Args, Clone)]
 pub struct RecordingArgs {
@@ -336,26 +228,8 @@ pub struct RecordingArgs {
 impl RecordingArgs {
     /// The config with `--arm`'s arm in it (and the boxes its reach bounds), else as loaded.
     fn config(&self, stack: &Stack) -> anyhow::Result<Config> {
-        with_arm(stack.load()?, self.arm.as_deref(), stack)
-    }
-
-    /// The recording at `path` of `arm`: softarm's own (`.mcap`), else a CSV through
-    /// `--columns`.
-    fn read(
-        &self,
-        path: &Path,
-        arm: &softarm_arm::Layout,
-    ) -> anyhow::Result<softarm_identify::recording::Recording> {
-        if path.extension().is_some_and(|e| e == "mcap") {
-            return softarm_record::poses::read(path, arm);
-        }
-        let columns = self.columns.as_deref().with_context(|| {
-            format!(
-                "{}: a CSV recording needs its column map: --columns FILE",
-                path.display()
-            )
-        })?;
-        Ok(softarm_identify::run::read_recording(path, columns, arm)?)
+        let loader = stack.loader();
+        loader.with_arm(loader.load()?, self.arm.as_deref())
     }
 }
 
@@ -421,36 +295,10 @@ pub fn init_logging(default: &str) {
         .try_init();
 }
 
-/// `softarm sim [--scenario NAME|FILE]`: the simulated arm, the config's or a scenario's; a
-/// MuJoCo model of it with `[sim.mujoco]`.
-fn sim(c: &Config, scenario: Option<&str>) -> anyhow::Result<()> {
-    let scenario = scenario.map(Scenario::resolve).transpose()?;
-    if let Some(s) = &scenario {
-        tracing::info!(scenario = %s.name, "the sim runs another arm: {}", s.describe());
-    }
-    let on = match &scenario {
-        Some(s) => s.apply_to(&c.arm, &c.sim)?,
-        None => OnArm {
-            arm: c.arm.clone(),
-            sim: c.sim.clone(),
-            steps: Vec::new(),
-        },
-    };
-    let body = Body::of_arm(&on.arm, &on.steps).map_err(anyhow::Error::msg)?;
-    let physics = physics(c, &on)?;
-    softarm_sim::run(
-        &on.sim,
-        body,
-        physics,
-        c.bus()?,
-        &c.estop_latch(),
-        &*stop_flag()?,
-    )
-}
-
-/// The MuJoCo model `[sim.mujoco]` describes for the sim's arm, if it describes one.
+/// The MuJoCo model `[sim.mujoco]` describes for the sim's arm, if it describes one: MuJoCo
+/// is the binary's, behind its `mujoco` feature (`softarm_sim::command::PhysicsOf`).
 #[cfg(feature = "mujoco")]
-fn physics(c: &Config, on: &OnArm) -> anyhow::Result<Option<Box<dyn softarm_sim::plant::Physics>>> {
+fn physics(c: &Config, on: &OnArm) -> anyhow::Result<Option<Box<dyn Physics>>> {
     let Some(mujoco) = &on.sim.mujoco else {
         return Ok(None);
     };
@@ -460,20 +308,8 @@ fn physics(c: &Config, on: &OnArm) -> anyhow::Result<Option<Box<dyn softarm_sim:
     Ok(Some(Box::new(arm)))
 }
 
-/// A plant that cannot run the arm, refused as a config is.
-fn plant_refused(message: String) -> ConfigError {
-    ConfigError {
-        origin: "the sim's plant".into(),
-        line: None,
-        message,
-    }
-}
-
 #[cfg(not(feature = "mujoco"))]
-fn physics(
-    _c: &Config,
-    on: &OnArm,
-) -> anyhow::Result<Option<Box<dyn softarm_sim::plant::Physics>>> {
+fn physics(_c: &Config, on: &OnArm) -> anyhow::Result<Option<Box<dyn Physics>>> {
     match on.sim.mujoco {
         None => Ok(None),
         Some(_) => Err(plant_refused(
@@ -501,40 +337,30 @@ pub fn run(command: Command) -> anyhow::Result<ExitCode> {
     match command {
         Command::Demo(args) => demo::run(&args, &*stop_flag()?)?,
         Command::Up { stack, scenario } => {
-            let config = stack.load()?;
-            if let Some(s) = &scenario {
-                // Refused here, before anything starts, rather than by a restarting sim.
-                Scenario::resolve(s)?.check_on(&config)?;
-            }
-            up::run(
-                stack.args(),
-                &config.robot.drivers,
-                up::Extras {
-                    view: config.view.enabled,
-                    ros2: config.ros2.enabled,
-                },
-                scenario.as_deref(),
-                &*stop_flag()?,
-            )?
+            let loader = stack.loader();
+            let config = loader.load()?;
+            up::run_config(loader.args(), &config, scenario.as_deref(), &*stop_flag()?)?
         }
         Command::Controller(stack) => {
-            let c = stack.load()?;
+            let c = stack.loader().load()?;
             keep_pace(&c);
             softarm_controller::run(&c, &*stop_flag()?)?
         }
-        Command::Learner(stack) => softarm_learner::run(&stack.load()?, &*stop_flag()?)?,
+        Command::Learner(stack) => softarm_learner::run(&stack.loader().load()?, &*stop_flag()?)?,
         Command::Sim { stack, scenario } => {
-            let c = stack.load()?;
+            let c = stack.loader().load()?;
             keep_pace(&c);
-            sim(&c, scenario.as_deref())?
+            softarm_sim::command::run(&c, scenario.as_deref(), &physics)?
         }
         Command::Tendon(stack) => {
-            let c = stack.load_with("tendon", |c| c.tendon.is_some())?;
+            let c = stack.loader().load_with("tendon", |c| c.tendon.is_some())?;
             keep_pace(&c);
             softarm_tendon::run(&c, c.bus()?, &*stop_flag()?)?
         }
         Command::Tracker(stack) => {
-            let c = stack.load_with("tracker", |c| c.tracker.is_some())?;
+            let c = stack
+                .loader()
+                .load_with("tracker", |c| c.tracker.is_some())?;
             keep_pace(&c);
             softarm_tracker::run(&c, c.bus()?, &*stop_flag()?)?
         }
@@ -547,7 +373,7 @@ pub fn run(command: Command) -> anyhow::Result<ExitCode> {
         } => {
             let config = recording.config(&stack)?;
             let out = output.unwrap_or_else(|| config.model_dir());
-            let rows = recording.read(&from, &config.layout())?;
+            let rows = poses::read_any(&from, recording.columns.as_deref(), &config.layout())?;
             let trained = train::recording::train_from(&config, rows, &out)
                 .with_context(|| format!("train --from {}", from.display()))?;
             println!("{}", trained.summary());
@@ -563,13 +389,9 @@ pub fn run(command: Command) -> anyhow::Result<ExitCode> {
                 },
         } => {
             let config = columns.config(&stack)?;
-            let model = match model {
-                Some(dir) if dir.is_dir() => dir.join(softarm_identify::run::MODEL_FILE),
-                Some(file) => file,
-                None => config.model_dir().join(softarm_identify::run::MODEL_FILE),
-            };
+            let model = softarm_identify::run::model_file(model, &config.model_dir());
             let arm = config.layout();
-            let rows = columns.read(&recording, &arm)?;
+            let rows = poses::read_any(&recording, columns.columns.as_deref(), &arm)?;
             let check = train::recording::check(&arm, &rows, &model)?;
             if json {
                 println!("{}", check.json());
@@ -578,9 +400,10 @@ pub fn run(command: Command) -> anyhow::Result<ExitCode> {
             }
         }
         Command::Train { stack, seed, .. } => {
-            let config = stack.load()?;
+            let loader = stack.loader();
+            let config = loader.load()?;
             let out = softarm_identify::run::Output::log();
-            let r = train::train(&config, &stack.namespace()?, seed, out, &*stop_flag()?)?;
+            let r = train::train(&config, &loader.namespace()?, seed, out, &*stop_flag()?)?;
             println!(
                 "trained model {} in {}: {}",
                 r.model_id,
@@ -595,7 +418,9 @@ pub fn run(command: Command) -> anyhow::Result<ExitCode> {
             stack,
         } => {
             // The file is read as whoever submits it: an operator's own set is theirs to read.
-            let (config, text) = stack.load_reading(|| std::fs::read_to_string(&waypoints))?;
+            let (config, text) = stack
+                .loader()
+                .load_reading(|| std::fs::read_to_string(&waypoints))?;
             let code = submit::run(&config, &waypoints, text, executions, wait)?;
             return Ok(ExitCode::from(code));
         }
@@ -603,9 +428,9 @@ pub fn run(command: Command) -> anyhow::Result<ExitCode> {
             follow,
             json,
             stack,
-        } => stats::show(&stack.namespace()?, follow, json)?,
+        } => stats::show(&stack.loader().namespace()?, follow, json)?,
         Command::Status { json, stack } => {
-            let r = status::status(&stack.namespace()?, Duration::from_secs(1))?;
+            let r = status::status(&stack.loader().namespace()?, Duration::from_secs(1))?;
             if json {
                 println!("{}", status::json(&r));
             } else {
@@ -626,7 +451,7 @@ pub fn run(command: Command) -> anyhow::Result<ExitCode> {
                 .ok()
                 .filter(|t| *t <= Duration::from_secs(600))
                 .context("--timeout: give 0 to 600 seconds")?;
-            if !estop::run(&stack.load()?, reset, timeout)? {
+            if !estop::run(&stack.loader().load()?, reset, timeout)? {
                 // Latched, but no process took it: as `status` says of a stack not running.
                 return Ok(ExitCode::from(status::NOT_RUNNING));
             }
@@ -646,7 +471,7 @@ pub fn run(command: Command) -> anyhow::Result<ExitCode> {
             duration,
             stack,
         } => {
-            let config = stack.load()?;
+            let config = stack.loader().load()?;
             let settings = scene::Settings::of(&config);
             let namespace = config.bus()?;
             record::run(&namespace, &settings, &output, duration, &*stop_flag()?)?
@@ -656,11 +481,8 @@ pub fn run(command: Command) -> anyhow::Result<ExitCode> {
             stack,
             ..
         } => {
-            let config = stack.load()?;
-            let json =
-                serde_json::to_string_pretty(&softarm_view::layout::for_arm(&config.layout()))?;
-            softarm_runtime::file::write_atomic(&file, format!("{json}\n").as_bytes(), None)
-                .with_context(|| format!("writing the layout to {}", file.display()))?;
+            let config = stack.loader().load()?;
+            softarm_view::write_layout(&file, &config.layout())?;
             println!(
                 "{}: the Foxglove layout for {}",
                 file.display(),
@@ -671,8 +493,8 @@ pub fn run(command: Command) -> anyhow::Result<ExitCode> {
             listen,
             layout: None,
             stack,
-        } => softarm_view::run(&stack.load()?, listen.as_deref(), &*stop_flag()?)?,
-        Command::Ros2 { stack } => softarm_ros2::run(&stack.load()?, &*stop_flag()?)?,
+        } => softarm_view::run(&stack.loader().load()?, listen.as_deref(), &*stop_flag()?)?,
+        Command::Ros2 { stack } => softarm_ros2::run(&stack.loader().load()?, &*stop_flag()?)?,
         Command::Replay { recording, json } => record::replay_command(&recording, json)?,
         Command::Plot { recording, output } => plot::run(&recording, &output)?,
         Command::Install(args) => install::install(&args)?,
@@ -703,7 +525,10 @@ fn check_file(
     // (which an outsider to an installed stack may not read: not asked for one).
     let config = match kind {
         FileKind::Config => Config::default_sim(PathBuf::from(".")),
-        _ => with_arm(stack.read()?, arm, stack)?,
+        _ => {
+            let loader = stack.loader();
+            loader.with_arm(loader.read()?, arm)?
+        }
     };
     let found = match kind {
         FileKind::ColumnMap => {
@@ -752,9 +577,7 @@ pub fn quiet(command: &Command) -> bool {
 
 /// The plant `softarm-rig emulate` couples its emulated devices through: the config's MuJoCo
 /// model with `[sim.mujoco]`, else none (the emulators' own kinematics).
-pub fn emulated_physics(
-    c: &Config,
-) -> anyhow::Result<Option<Box<dyn softarm_sim::plant::Physics>>> {
+pub fn emulated_physics(c: &Config) -> anyhow::Result<Option<Box<dyn Physics>>> {
     let on = OnArm {
         arm: c.arm.clone(),
         sim: c.sim.clone(),

@@ -29,6 +29,22 @@ fn numbers(v: &Value) -> Option<Vec<f64>> {
     v.as_array()?.iter().map(Value::as_f64).collect()
 }
 
+/// The recording at `path` of `arm`, as `softarm train --from` and `softarm model check` take
+/// it: softarm's own (`.mcap`, [`read`]), else a CSV through the column map at `columns`
+/// (`--columns`).
+pub fn read_any(path: &Path, columns: Option<&Path>, arm: &Layout) -> Result<Recording> {
+    if path.extension().is_some_and(|e| e == "mcap") {
+        return read(path, arm);
+    }
+    let columns = columns.with_context(|| {
+        format!(
+            "{}: a CSV recording needs its column map: --columns FILE",
+            path.display()
+        )
+    })?;
+    Ok(softarm_identify::run::read_recording(path, columns, arm)?)
+}
+
 /// Reads `path` (an MCAP recording of a stack) for `arm`.
 pub fn read(path: &Path, arm: &Layout) -> Result<Recording> {
     let n = arm.actuators().len();

@@ -3,8 +3,8 @@
 
 use std::path::Path;
 
-use crate::ConfigError;
 use crate::arm::ArmConfig;
+use crate::{Config, ConfigError};
 
 /// The shipped arms by name, each an `[arm]` section's text.
 pub const SHIPPED: [(&str, &str); 3] = [
@@ -112,6 +112,21 @@ pub fn with_arm(config: &str, arm: &str, origin: &str) -> Result<String, ConfigE
     Ok(doc.to_string())
 }
 
+/// `loaded` (the config read from `path`, `None`: the embedded one) with `arm`'s arm in it (a
+/// shipped arm's name or an arm file) and the boxes its reach bounds, as [`with_arm`] puts it;
+/// the config's text read again and parsed, its state folder and namespace kept as loaded.
+pub fn into_config(loaded: Config, arm: &str, path: Option<&Path>) -> anyhow::Result<Config> {
+    let (text, origin) = match path {
+        Some(p) => (std::fs::read_to_string(p)?, p.display().to_string()),
+        None => (crate::DEFAULT.to_string(), "embedded default config".into()),
+    };
+    let text = with_arm(&text, &resolve(arm)?, arm)?;
+    let mut c = Config::parse(&text, &origin, loaded.base_dir.clone())?;
+    c.state.dir = loaded.state.dir;
+    c.robot.namespace = loaded.robot.namespace;
+    Ok(c)
+}
+
 /// The half-width (m) of the cube around the mount that holds everything `arm` can reach: its
 /// reach ([`softarm_arm::Layout::reach_m`]), rounded up to the millimetre.
 pub fn reach_box(arm: &softarm_arm::Layout) -> f64 {
@@ -121,7 +136,6 @@ pub fn reach_box(arm: &softarm_arm::Layout) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::Config;
 
     /// Each shipped arm in the embedded config: valid, its counts and kinds as it says, and
     /// only the paper's written by the shorthand keys.

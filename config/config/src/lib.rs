@@ -6,6 +6,7 @@
 //!   frame.
 //! - [`waypoints`]: way-point files and the checks a set must pass.
 //! - [`scenario`]: scenario files, the sim's arm when it is not the one the model knows.
+//! - [`load`]: the config a command finds (`--config`, `--namespace`) and joining its stack.
 //! - The sections the math reads, plain data with their validation, from `softarm-sections`
 //!   (re-exported here): [`arm`], [`sim`], [`changes`], [`learner`], [`forward_model`],
 //!   [`kinematics`], [`activation`], [`demonstrations`].
@@ -37,6 +38,7 @@ pub mod arms;
 pub mod files;
 pub mod hardware;
 pub mod host;
+pub mod load;
 pub mod plant;
 pub mod reference;
 pub mod ros2;

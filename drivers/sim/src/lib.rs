@@ -7,6 +7,7 @@
 //!   changes are plain data in `softarm-sections`). Pure math; here, with the process that
 //!   runs it, so that neither the method nor the config links a simulator. The rehearsal steps
 //!   the same plant ([`SimArm`]).
+//! - [`command`] — `softarm sim`: the arm the config and a scenario give the process.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 
@@ -21,6 +22,7 @@ use softarm_runtime::{EstopLatch, now_ns};
 
 use softarm_sections::sim::SimConfig;
 
+pub mod command;
 pub mod plant;
 
 use crate::plant::{Body, Measurement, Physics, Plant};

@@ -31,6 +31,16 @@ pub enum Error {
 pub const MODEL_FILE: &str = "identified.toml";
 pub const TWIN_FILE: &str = "twin-arm.toml";
 
+/// The model `softarm model check --model` names: the file, or the folder `train --from` wrote
+/// it in; without one, the one in `model_dir` (the config's model folder).
+pub fn model_file(given: Option<PathBuf>, model_dir: &Path) -> PathBuf {
+    match given {
+        Some(dir) if dir.is_dir() => dir.join(MODEL_FILE),
+        Some(file) => file,
+        None => model_dir.join(MODEL_FILE),
+    }
+}
+
 /// Rows a fit needs at least, per parameter: each row gives three numbers.
 const ROWS_PER_PARAMETER: usize = 2;
 
@@ -419,6 +429,16 @@ pub fn read_recording(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_model_is_the_file_named_or_the_one_in_its_folder() {
+        let dir = std::env::temp_dir();
+        let models = Path::new("/models");
+        assert_eq!(model_file(Some(dir.clone()), models), dir.join(MODEL_FILE));
+        let file = PathBuf::from("/somewhere/mine.toml");
+        assert_eq!(model_file(Some(file.clone()), models), file);
+        assert_eq!(model_file(None, models), models.join(MODEL_FILE));
+    }
 
     /// Off a terminal a bar is lines: named, at the start, at each tenth of the way (never
     /// going back, a new length taken as it comes) and at the end.

@@ -275,6 +275,26 @@ pub struct Extras {
     pub ros2: bool,
 }
 
+/// `softarm up [--scenario NAME|FILE]` on `config`: [`run`] with the drivers and the extras it
+/// configures, `common` the arguments that start each child on the same stack. A scenario is
+/// checked on the config's arm first: refused here, before anything starts, rather than by a
+/// restarting sim.
+pub fn run_config(
+    common: Vec<String>,
+    config: &softarm_config::Config,
+    scenario: Option<&str>,
+    stop: &AtomicBool,
+) -> anyhow::Result<()> {
+    if let Some(s) = scenario {
+        softarm_config::scenario::Scenario::resolve(s)?.check_on(config)?;
+    }
+    let extras = Extras {
+        view: config.view.enabled,
+        ros2: config.ros2.enabled,
+    };
+    run(common, &config.robot.drivers, extras, scenario, stop)
+}
+
 /// Runs controller, learner, the configured drivers and the `extras` (the live view, the ROS 2
 /// bridge) until SIGINT or SIGTERM; a scenario goes to the sim only.
 pub fn run(

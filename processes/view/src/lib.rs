@@ -48,6 +48,14 @@ use softarm_ipc::{Namespace, Node};
 
 use crate::door::Door;
 
+/// `softarm view --layout FILE`: the Foxglove layout for `arm` ([`layout::for_arm`]) written
+/// to `file`, whole or not at all.
+pub fn write_layout(file: &std::path::Path, arm: &softarm_arm::Layout) -> anyhow::Result<()> {
+    let json = serde_json::to_string_pretty(&layout::for_arm(arm))?;
+    softarm_runtime::file::write_atomic(file, format!("{json}\n").as_bytes(), None)
+        .with_context(|| format!("writing the layout to {}", file.display()))
+}
+
 /// Runs the view of `config`'s stack until `stop` is set, listening on `listen` (a command
 /// line's `--listen`) or the config's `view.listen`.
 pub fn run(config: &Config, listen: Option<&str>, stop: &AtomicBool) -> anyhow::Result<()> {
