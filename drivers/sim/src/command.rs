@@ -96,10 +96,7 @@ mod tests {
         let Body::Any(arm) = as_configured.body else {
             panic!("the configured arm has no steps")
         };
-        assert_eq!(
-            Some(&arm),
-            Body::of_arm(&c.arm, &[]).ok().as_ref().map(Body::start)
-        );
+        assert_eq!(&arm, Body::of_arm(&c.arm, &[]).unwrap().start());
         let swapped = Configured::of(&c, Some("tool-swap"), &none).unwrap();
         assert!(matches!(swapped.body, Body::Stepped { .. }));
         assert_eq!(swapped.body.start(), &arm);

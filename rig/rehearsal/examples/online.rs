@@ -34,9 +34,7 @@ fn env(k: &str) -> String {
 fn config() -> anyhow::Result<Config> {
     let mut config = Config::default_sim(".".into());
     if !env("ARM").is_empty() {
-        let arm = softarm_config::arms::resolve(&env("ARM"))?;
-        let text = softarm_config::arms::with_arm(softarm_config::DEFAULT, &arm, &env("ARM"))?;
-        config = Config::parse(&text, "ARM", ".".into())?;
+        config = softarm_config::arms::into_config(config, &env("ARM"), None)?;
     }
     if !env("SEED").is_empty() {
         let seed: u64 = env("SEED").parse().context("SEED must be a whole number")?;

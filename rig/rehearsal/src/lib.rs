@@ -134,8 +134,7 @@ impl<const N: usize> SimDriver<N> {
                 body.start().actuators()
             );
         }
-        let start = sim.initial_actuation.values(N);
-        let mut arm = SimArm::of_body(body, sim, &start)?;
+        let mut arm = SimArm::of_body(body, sim, &sim.initial_actuation.fixed::<N>())?;
         let newest = arm.step(None, false, 1);
         let period_ns = (arm.dt() * NS_PER_S).round() as u64;
         Ok(Self {

@@ -637,10 +637,8 @@ fn settles_at_the_nearest_place(model: &Model<N>, target: Position) {
 #[test]
 fn any_arm_is_rehearsed_and_a_longer_tool_is_caught() {
     const TDCR: usize = 9;
-    let name = "tdcr";
-    let arm = softarm_config::arms::resolve(name).unwrap();
-    let text = softarm_config::arms::with_arm(softarm_config::DEFAULT, &arm, name).unwrap();
-    let config = Config::parse(&text, name, ".".into()).unwrap();
+    let default = Config::default_sim(".".into());
+    let config = softarm_config::arms::into_config(default, "tdcr", None).unwrap();
     let dir = std::env::temp_dir().join(format!("softarm-rehearsal-tdcr-{}", std::process::id()));
     softarm_test_support::quick_model_of(&dir, &config);
     let model = Model::<TDCR>::read(&dir).unwrap();
