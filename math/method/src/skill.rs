@@ -145,12 +145,29 @@ pub fn demo_points<const N: usize>(
     classes: &[ClassExtremes],
     arm: &impl ForwardModel<N>,
 ) -> Vec<Position> {
-    let along = |c: &ClassExtremes, f: f64| -> Position {
+    demo_points_along(classes.len(), |class, f| {
+        let c = &classes[class];
         arm.position(&std::array::from_fn(|d| {
             c.start[d] + f * (c.end[d] - c.start[d])
         }))
-    };
-    let travel = |c: &ClassExtremes| -> f64 {
+    })
+}
+
+/// [`demo_points`] where the arm went in training: each class's path is the mean of its
+/// task-space primitive `task[class]` (where the tracker saw the end effector over the class's
+/// demonstrations, phase for phase), not a model's prediction, which on an arm the model fits
+/// less well can put a point where the arm never goes.
+pub fn demo_points_seen(task: &[Primitive]) -> Vec<Position> {
+    demo_points_along(task.len(), |class, f| {
+        let mean = task[class].marginal(f).mean;
+        [mean[0], mean[1], mean[2]]
+    })
+}
+
+/// The points of [`DEMO_PHASES`] on `classes` paths, `along(class, phase)` being where a class's
+/// path is at a phase in [0, 1].
+fn demo_points_along(classes: usize, along: impl Fn(usize, f64) -> Position) -> Vec<Position> {
+    let travel = |c: usize| -> f64 {
         (1..=20)
             .map(|i| {
                 let (a, b) = (along(c, (i - 1) as f64 / 20.0), along(c, i as f64 / 20.0));
@@ -158,12 +175,12 @@ pub fn demo_points<const N: usize>(
             })
             .sum()
     };
-    let mut order: Vec<(usize, f64)> = classes.iter().map(travel).enumerate().collect();
+    let mut order: Vec<(usize, f64)> = (0..classes).map(travel).enumerate().collect();
     order.sort_by(|x, y| y.1.total_cmp(&x.1));
     let pick = [order[0].0, order[order.len().min(2) - 1].0];
     DEMO_PHASES
         .iter()
-        .map(|&(k, f)| along(&classes[pick[k]], f))
+        .map(|&(k, f)| along(pick[k], f))
         .collect()
 }
 
@@ -352,5 +369,40 @@ mod tests {
         assert_eq!(c.len(), 4);
         assert_eq!((c[0].start[3], c[0].end[3]), (0.5, 0.5));
         assert_ne!(c[0].start[0], c[0].end[0]);
+    }
+
+    /// On an arm that is not where its drawing has it (here its first module's tendons turned
+    /// 120°), the demo's points through the drawing's kinematics lie where the arm never went;
+    /// on the task-space primitives they lie on its demonstrations.
+    #[test]
+    fn the_demo_points_seen_lie_where_the_arm_went() {
+        let text = include_str!("../../../config/arms/tdcr.toml");
+        let drawn = shipped("tdcr");
+        let turned = text.replacen(
+            "backbone_m = 0.06\ntendons",
+            "backbone_m = 0.06\nrotation_deg = 120\ntendons",
+            1,
+        );
+        assert_ne!(turned, text);
+        let turned = Layout::new(&toml::from_str(&turned).unwrap()).unwrap();
+        let classes = classes(&DemoRecipe::default(), &drawn);
+        let arm = pcc::Arm::new(&turned, &[]);
+        let recs = demonstrations::<9>(&arm, &DemoRecipe::default(), &classes, 3);
+        let (_, task) = train_primitives(&recs, 15).unwrap();
+        let went: Vec<Position> = recs.iter().flat_map(|r| r.position.clone()).collect();
+        let nearest = |p: &Position| {
+            went.iter()
+                .map(|q| crate::space::distance(p, q))
+                .fold(f64::INFINITY, f64::min)
+        };
+        let seen: Vec<f64> = demo_points_seen(&task).iter().map(nearest).collect();
+        assert_eq!(seen.len(), 5);
+        assert!(seen.iter().all(|d| *d < 0.003), "{seen:?}");
+        let drawn_arm = pcc::Arm::new(&drawn, &[]);
+        let through: Vec<f64> = demo_points::<9>(&classes, &drawn_arm)
+            .iter()
+            .map(nearest)
+            .collect();
+        assert!(through.iter().any(|d| *d > 0.02), "{through:?}");
     }
 }

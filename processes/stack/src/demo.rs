@@ -345,18 +345,18 @@ fn say_points(args: &Args, config: &Config, file: &WaypointFile) {
     );
 }
 
-/// The demo's five points ([`softarm_method::skill::demo_points`]) where the arm went in
-/// training: through the forward model trained in `dir` on its demonstrations, not the
-/// configured arm's kinematics. What a MuJoCo plant runs: there, PCC put three of five points
-/// 26 to 46 mm from every pose the arm took.
+/// The demo's five points where the arm went in training
+/// ([`softarm_method::skill::demo_points_seen`]): on the task-space primitives trained in `dir`
+/// from what the tracker measured over the demonstrations, not through a model. What a MuJoCo
+/// plant runs: there, PCC put three of five points 26 to 46 mm from every pose the arm took,
+/// and the forward model put one at the edge of reach where the arm stayed 6 mm short.
 fn demo_set_on(config: &Config, dir: &Path) -> anyhow::Result<WaypointFile> {
     let layout = config.layout();
-    let classes = softarm_method::skill::classes(&config.demonstrations, &layout);
     let points = softarm_ipc::with_actuators!(layout.actuators().len(),
         N => {
             let model = softarm_model::bundle::Model::<N>::read(dir)
                 .with_context(|| format!("the trained model in {}", dir.display()))?;
-            softarm_method::skill::demo_points::<N>(&classes, &model.forward)
+            softarm_method::skill::demo_points_seen(&model.task)
         },
         n => bail!("an arm of {n} actuators"));
     Ok(set_of(points))
