@@ -349,7 +349,8 @@ fn say_points(args: &Args, config: &Config, file: &WaypointFile) {
 /// ([`softarm_method::skill::demo_points_seen`]): on the task-space primitives trained in `dir`
 /// from what the tracker measured over the demonstrations, not through a model. What a MuJoCo
 /// plant runs: there, PCC put three of five points 26 to 46 mm from every pose the arm took,
-/// and the forward model put one at the edge of reach where the arm stayed 6 mm short.
+/// and the forward model put one at the whole arm's length from the base, which the arm came
+/// within 8 to 10 mm of and no closer.
 fn demo_set_on(config: &Config, dir: &Path) -> anyhow::Result<WaypointFile> {
     let layout = config.layout();
     let points = softarm_ipc::with_actuators!(layout.actuators().len(),
